@@ -1,0 +1,66 @@
+"""One exception hierarchy for the whole toolkit.
+
+Every error a user can cause is a :class:`GnssCityGMLError`. Its message says *what* went
+wrong, *where* (file, line, column, feature id) and *how to fix it*, so that the command line
+can print it as one line (``error: <what> (<where>): <how to fix>``) without a traceback.
+"""
+
+from __future__ import annotations
+
+__all__ = [
+    "GnssCityGMLError",
+    "InputError",
+    "MissingColumnError",
+    "ModelError",
+]
+
+
+class GnssCityGMLError(Exception):
+    """Base class of every error the toolkit raises on purpose.
+
+    Parameters
+    ----------
+    what
+        What went wrong, in one short clause.
+    where
+        Where it went wrong: a file, line, column or feature id (optional).
+    fix
+        How the user can fix it (optional).
+    """
+
+    exit_code = 2
+
+    def __init__(self, what: str, *, where: str | None = None, fix: str | None = None):
+        self.what = what
+        self.where = where
+        self.fix = fix
+        super().__init__(self.one_line())
+
+    def one_line(self) -> str:
+        """The message as the CLI prints it: ``what (where): fix``."""
+        text = self.what
+        if self.where:
+            text += f" ({self.where})"
+        if self.fix:
+            text += f": {self.fix}"
+        return text
+
+
+class InputError(GnssCityGMLError):
+    """The user's data or arguments are not usable as given."""
+
+
+class MissingColumnError(InputError):
+    """A table lacks columns a stage needs."""
+
+    def __init__(self, missing: list[str], *, where: str, have: list[str] | None = None):
+        names = ", ".join(repr(m) for m in missing)
+        fix = "add the column(s)"
+        if have is not None:
+            fix += " (the table has: " + ", ".join(map(str, have)) + ")"
+        super().__init__(f"missing column(s) {names}", where=where, fix=fix)
+        self.missing = missing
+
+
+class ModelError(GnssCityGMLError):
+    """A model was asked for something it cannot do (e.g. an unknown method)."""

@@ -1,0 +1,83 @@
+"""The C/N0 signal classifier: Pr(open | C/N0) as a 4PL in C/N0.
+
+A signal is *open* when its line of sight to the satellite is clear (LOS, or multipath with a LOS
+component) and *closed* otherwise (blocked, NLOS). A blocked signal (no signal received, C/N0
+NaN) is always closed. The classifier belongs to one dataset (one device): its parameters are
+device and place specific, which is why 4PL-B re-learns them from the map.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from .fourpl import fit_4pl, logistic4
+
+__all__ = ["SignalClassifier"]
+
+#: C/N0 values are pooled to this resolution (dB-Hz) when the classifier is fitted: receivers
+#: report C/N0 to 0.1 dB-Hz at best, and pooling makes the fit cost independent of the
+#: number of signals.
+CN0_RESOLUTION = 0.1
+
+
+@dataclass(frozen=True)
+class SignalClassifier:
+    """A 4PL in C/N0 (dB-Hz). The defaults are the paper's initial classifier with c = 30.
+
+    Examples
+    --------
+    >>> clf = SignalClassifier(c=30.0)
+    >>> clf.label(np.array([25.0, 35.0, np.nan])).tolist()
+    [False, True, False]
+    """
+
+    a: float = 0.9
+    b: float = 0.2
+    c: float = 30.0
+    d: float = 0.1
+
+    @classmethod
+    def initial(cls, threshold: float) -> SignalClassifier:
+        """The paper's initial classifier: a = 0.9, b = 0.2, d = 0.1, c = ``threshold``."""
+        return cls(c=float(threshold))
+
+    @property
+    def threshold(self) -> float:
+        """The C/N0 at which Pr(open) = 0.5 (NaN when the curve never reaches 0.5)."""
+        if not self.d < 0.5 < self.a:
+            return float("nan")
+        return self.c - np.log((self.a - 0.5) / (0.5 - self.d)) / self.b
+
+    def prob(self, cn0) -> np.ndarray:
+        """Pr(open) of each signal; 0 for blocked signals (NaN C/N0)."""
+        cn0 = np.asarray(cn0, dtype=float)
+        p = logistic4(cn0, self.a, self.b, self.c, self.d)
+        return np.where(np.isnan(cn0), 0.0, p)
+
+    def label(self, cn0) -> np.ndarray:
+        """The most likely class of each signal: True (open) where Pr(open) > 0.5."""
+        return self.prob(cn0) > 0.5
+
+    def refit(self, cn0, labels) -> SignalClassifier:
+        """The maximum-likelihood classifier for received signals labelled by the map.
+
+        Blocked signals carry no C/N0 and stay closed whatever the classifier, so they are left
+        out. When the received signals hold only one class, the data cannot place a threshold
+        and the current classifier is kept.
+        """
+        cn0 = np.asarray(cn0, dtype=float)
+        labels = np.asarray(labels, dtype=bool)
+        received = ~np.isnan(cn0)
+        values, y = cn0[received], labels[received]
+        if values.size == 0 or y.all() or not y.any():
+            return self
+        key = np.round(values / CN0_RESOLUTION).astype(np.int64)
+        uniq, inverse = np.unique(key, return_inverse=True)
+        n = np.bincount(inverse).astype(float)
+        k = np.bincount(inverse, weights=y.astype(float))
+        fit = fit_4pl(uniq * CN0_RESOLUTION, k / n, n, init=[[self.a, self.b, self.c, self.d]])
+        if not np.isfinite(fit.c[0]):
+            return self
+        return replace(self, a=float(fit.a[0]), b=float(fit.b[0]), c=float(fit.c[0]), d=float(fit.d[0]))

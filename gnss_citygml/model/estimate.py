@@ -1,0 +1,188 @@
+"""``estimate_heights``: the intersections table in, the heights table out, by any method."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import numpy as np
+import pandas as pd
+
+from ..errors import InputError, MissingColumnError, ModelError
+from .baselines import bayes_heights, hinge_heights
+from .fourplb import WEIGHTINGS, fourplb
+
+__all__ = ["METHODS", "HEIGHTS_COLUMNS", "estimate_heights"]
+
+#: The estimators, by the names the paper uses.
+METHODS = ("4PL-B", "4PL", "hinge", "bayes")
+
+#: Columns of the heights table, in order (see DESIGN.md; ``status`` says why a building did
+#: not converge, or ``ok``).
+HEIGHTS_COLUMNS = [
+    "id", "height", "height_lower", "height_upper", "a", "b", "c", "d",
+    "n_signals", "iterations", "converged", "method", "status",
+]
+
+_REQUIRED = ["building", "height", "cn0"]
+_FOURPL_OPTIONS = {"weighting", "max_iter", "label_tol", "min_signals", "min_separation"}
+_BASELINE_OPTIONS = {"min_signals"}
+
+
+def estimate_heights(
+    intersections,
+    *,
+    method: str = "4PL-B",
+    init_threshold: float = 30.0,
+    **options,
+) -> pd.DataFrame:
+    """Estimate every building's height from the signals that cross its footprint.
+
+    Parameters
+    ----------
+    intersections
+        The intersections table (DataFrame or mapping of equal-length columns) with at least
+        ``building`` (id), ``height`` (ODN height of the ray where it enters the footprint, m)
+        and ``cn0`` (dB-Hz, NaN = blocked); optionally ``signal`` (rows with the same value are
+        one signal crossing several buildings), ``receiver``, ``distance`` and ``order``.
+    method
+        ``4PL-B`` (default), ``4PL`` (no bootstrapping), ``hinge`` (Weissman) or ``bayes``
+        (Irish et al.).
+    init_threshold
+        C/N0 (dB-Hz) where the initial signal classifier gives Pr(open) = 0.5.
+    **options
+        For 4PL-B and 4PL: ``weighting`` (``height`` default, ``balanced`` or ``none``),
+        ``max_iter`` (10), ``label_tol`` (0.01), ``min_signals`` (10), ``min_separation`` (0.1).
+        For hinge and bayes: ``min_signals``.
+
+    Returns
+    -------
+    pandas.DataFrame
+        The heights table, one row per building in order of first appearance: ``id``,
+        ``height`` (c + 1.5/b for the 4PL methods), ``height_lower`` (c), ``height_upper``
+        (c + 3/b), ``a``, ``b``, ``c``, ``d``, ``n_signals``, ``iterations``, ``converged``,
+        ``method`` and ``status``. A building whose estimate is not to be trusted has
+        ``converged = False``, empty heights and the reason in ``status``. For 4PL-B,
+        ``attrs["signal_classifier"]`` holds the final C/N0 classifier.
+
+    Raises
+    ------
+    InputError
+        Missing columns, columns of different lengths, non-numeric or NaN heights.
+    ModelError
+        An unknown method or option.
+    """
+    if method not in METHODS:
+        raise ModelError(f"unknown method {method!r}", fix="use one of " + ", ".join(METHODS))
+    allowed = _FOURPL_OPTIONS if method in ("4PL-B", "4PL") else _BASELINE_OPTIONS
+    unknown = sorted(set(options) - allowed)
+    if unknown:
+        raise ModelError(
+            f"unknown option(s) {', '.join(unknown)} for method {method}",
+            fix="use " + ", ".join(sorted(allowed)),
+        )
+    if options.get("weighting", "height") not in WEIGHTINGS:
+        raise ModelError(
+            f"unknown weighting {options['weighting']!r}", fix="use one of " + ", ".join(WEIGHTINGS)
+        )
+    if not np.isfinite(init_threshold):
+        raise ModelError("init_threshold must be a finite C/N0 in dB-Hz", fix="e.g. 30")
+    table = _as_table(intersections)
+    ids, codes, height, cn0, signal = _columns(table)
+    n = len(ids)
+
+    if method in ("4PL-B", "4PL"):
+        fits, classifier = fourplb(
+            codes, height, cn0, n, init_threshold=init_threshold, signal=signal,
+            bootstrap=method == "4PL-B", **options,
+        )
+        out = pd.DataFrame({
+            "id": ids, "height": fits.height, "height_lower": fits.height_lower,
+            "height_upper": fits.height_upper, "a": fits.a, "b": fits.b, "c": fits.c, "d": fits.d,
+            "n_signals": fits.n_signals, "iterations": fits.iterations,
+            "converged": fits.converged, "method": method, "status": fits.status,
+        })
+        out.attrs["signal_classifier"] = {
+            "a": classifier.a, "b": classifier.b, "c": classifier.c, "d": classifier.d
+        }
+        return out
+
+    func = hinge_heights if method == "hinge" else bayes_heights
+    h = func(codes, height, cn0, n, init_threshold=init_threshold)
+    n_signals = np.bincount(codes, minlength=n)
+    min_signals = options.get("min_signals", 10)
+    ok = n_signals >= min_signals
+    nan = np.full(n, np.nan)
+    return pd.DataFrame({
+        "id": ids, "height": np.where(ok, h, np.nan), "height_lower": nan,
+        "height_upper": nan, "a": nan, "b": nan, "c": nan, "d": nan,
+        "n_signals": n_signals, "iterations": np.where(ok, 1, 0), "converged": ok,
+        "method": method,
+        "status": np.where(ok, "ok", f"fewer than {min_signals} signals").astype(object),
+    })
+
+
+def _as_table(intersections) -> pd.DataFrame:
+    if isinstance(intersections, pd.DataFrame):
+        table = intersections
+    elif isinstance(intersections, Mapping):
+        lengths = {k: len(np.atleast_1d(v)) for k, v in intersections.items()}
+        if len(set(lengths.values())) > 1:
+            detail = ", ".join(f"{k}={v}" for k, v in lengths.items())
+            raise InputError(
+                "intersection columns have different lengths",
+                where=detail, fix="give every column one value per row",
+            )
+        table = pd.DataFrame({k: np.atleast_1d(v) for k, v in intersections.items()})
+    else:
+        raise InputError(
+            f"intersections must be a DataFrame or a mapping of columns, not "
+            f"{type(intersections).__name__}",
+            fix="pass the intersections table as a pandas DataFrame",
+        )
+    missing = [c for c in _REQUIRED if c not in table.columns]
+    if missing:
+        raise MissingColumnError(missing, where="intersections table", have=list(table.columns))
+    return table
+
+
+def _columns(table: pd.DataFrame):
+    codes, ids = pd.factorize(table["building"], sort=False)
+    if (codes < 0).any():
+        raise InputError(
+            "intersections have an empty building id",
+            where=f"rows {_rows(codes < 0)}", fix="give every row the id of its building",
+        )
+    height = _numeric(table, "height")
+    bad = ~np.isfinite(height)
+    if bad.any():
+        raise InputError(
+            "intersection heights must be finite numbers",
+            where=f"column 'height', rows {_rows(bad)}",
+            fix="drop those rows or recompute their ray intersections",
+        )
+    cn0 = _numeric(table, "cn0")
+    if np.isinf(cn0).any():
+        raise InputError("C/N0 is infinite", where=f"column 'cn0', rows {_rows(np.isinf(cn0))}",
+                         fix="use NaN (empty) for blocked signals")
+    signal = None
+    if "signal" in table.columns:
+        signal = pd.factorize(table["signal"])[0]
+    return np.asarray(ids, dtype=object), codes.astype(np.intp), height, cn0, signal
+
+
+def _numeric(table, column) -> np.ndarray:
+    values = pd.to_numeric(table[column], errors="coerce").to_numpy(dtype=float)
+    raw = table[column]
+    garbage = np.isnan(values) & raw.notna().to_numpy()
+    if garbage.any():
+        raise InputError(
+            f"column {column!r} holds values that are not numbers",
+            where=f"rows {_rows(garbage)}", fix="give numbers in metres / dB-Hz",
+        )
+    return values
+
+
+def _rows(mask, limit: int = 5) -> str:
+    idx = np.flatnonzero(mask)
+    shown = ", ".join(str(i) for i in idx[:limit])
+    return shown + (f" and {idx.size - limit} more" if idx.size > limit else "")

@@ -1,0 +1,341 @@
+"""The four-parameter logistic (4PL) curve, its Bernoulli likelihood and a batched MLE fit.
+
+The 4PL is ``Pr(x) = d + (a - d) / (1 + exp(-b (x - c)))`` with ``0 <= d < a <= 1`` and
+``b > 0``: ``a`` and ``d`` are the upper and lower asymptotes, ``c`` the inflection point and
+``b`` the slope there. 4PL-B uses it twice: as the map classifier of one building (``x`` is the
+intersection height) and as the signal classifier of one device (``x`` is C/N0).
+
+:func:`fit_4pl` fits many independent curves at once (one per *group*, e.g. one per building)
+with a damped Fisher-scoring (Levenberg-Marquardt) iteration whose per-group sums are
+``numpy.bincount`` calls, so a city of buildings costs a few passes over the signals instead of
+one optimiser call per building. The constraints are built into the parametrisation
+
+``a = sigmoid(alpha)``, ``d = a * sigmoid(delta)``, ``b = exp(beta)``,
+
+and the unconstrained parameters are kept in a box so that separable data (``b -> inf``,
+``a -> 1``, ``d -> 0``) and one-class data end on a finite boundary instead of diverging.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.special import expit
+
+__all__ = ["B_BOUNDS", "FourPLFit", "fit_4pl", "log_likelihood", "logistic4"]
+
+#: Default bounds of the slope b (1/unit of x): the upper bound is where separable data stop
+#: (a transition 3/b = 3 cm wide for heights in metres), the lower where a curve is flat.
+B_BOUNDS = (1e-3, 1e2)
+#: Box for the logits of ``a`` and ``d / a``: a in [1.2e-4, 0.99988].
+_LOGIT_BOUND = 9.0
+#: Probabilities are clipped to this distance from 0 and 1 inside logarithms.
+_EPS = 1e-12
+
+
+def logistic4(x, a, b, c, d):
+    """The 4PL curve ``d + (a - d) / (1 + exp(-b (x - c)))``.
+
+    Examples
+    --------
+    >>> float(logistic4(30.0, 0.9, 0.2, 30.0, 0.1))
+    0.5
+    """
+    return d + (a - d) * expit(b * (np.asarray(x, dtype=float) - c))
+
+
+def log_likelihood(params, x, y, weights=None):
+    """Bernoulli log-likelihood of labels ``y`` (0/1 or fractions) under a 4PL and its gradient.
+
+    Parameters
+    ----------
+    params
+        ``(a, b, c, d)``.
+    x, y
+        Independent variable and labels (a fraction ``k/n`` with weight ``n`` stands for ``n``
+        labels of which ``k`` are 1).
+    weights
+        Sample weights (default 1).
+
+    Returns
+    -------
+    (float, numpy.ndarray)
+        The log-likelihood and its gradient with respect to ``(a, b, c, d)``.
+    """
+    a, b, c, d = (float(v) for v in params)
+    x = np.asarray(x, dtype=float)
+    y = np.asarray(y, dtype=float)
+    w = np.ones_like(x) if weights is None else np.asarray(weights, dtype=float)
+    s = expit(b * (x - c))
+    p = np.clip(d + (a - d) * s, _EPS, 1 - _EPS)
+    ll = float(np.sum(w * (y * np.log(p) + (1 - y) * np.log1p(-p))))
+    r = w * (y - p) / (p * (1 - p))
+    ds = s * (1 - s)
+    grad = np.array(
+        [
+            np.sum(r * s),
+            np.sum(r * (a - d) * ds * (x - c)),
+            np.sum(r * -(a - d) * ds * b),
+            np.sum(r * (1 - s)),
+        ]
+    )
+    return ll, grad
+
+
+@dataclass(frozen=True)
+class FourPLFit:
+    """Result of :func:`fit_4pl`: one entry per group (arrays of length ``n_groups``)."""
+
+    a: np.ndarray
+    b: np.ndarray
+    c: np.ndarray
+    d: np.ndarray
+    loglik: np.ndarray
+    converged: np.ndarray
+    n_iter: np.ndarray
+    #: True where ``b`` ended on its upper bound (the data are separable at the fitted c).
+    separable: np.ndarray
+
+    @property
+    def params(self) -> np.ndarray:
+        """The parameters as an ``(n_groups, 4)`` array of ``(a, b, c, d)``."""
+        return np.column_stack([self.a, self.b, self.c, self.d])
+
+
+def fit_4pl(
+    x,
+    y,
+    weights=None,
+    groups=None,
+    n_groups: int | None = None,
+    *,
+    init=None,
+    b_bounds: tuple[float, float] = B_BOUNDS,
+    max_iter: int = 200,
+    tol: float = 1e-9,
+) -> FourPLFit:
+    """Maximum-likelihood 4PL fit, independently for every group.
+
+    Parameters
+    ----------
+    x, y
+        Independent variable and labels in [0, 1] (1 = "open").
+    weights
+        Non-negative sample weights (default 1).
+    groups
+        Integer group of each sample in ``[0, n_groups)`` (default: one group).
+    n_groups
+        Number of groups (default ``groups.max() + 1``).
+    init
+        Optional ``(n_groups, 4)`` starting values ``(a, b, c, d)``, e.g. the previous fit in an
+        iteration. Otherwise each group starts from its best single-threshold split.
+    b_bounds
+        Bounds of the slope ``b`` in units of 1/x (default :data:`B_BOUNDS`).
+    max_iter, tol
+        Iteration cap and relative log-likelihood tolerance.
+
+    Returns
+    -------
+    FourPLFit
+        Parameters, log-likelihood and convergence flags per group. A group without samples
+        gets NaN parameters and ``converged = False``.
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(0)
+    >>> x = rng.uniform(0, 40, 4000)
+    >>> y = rng.random(4000) < logistic4(x, 0.9, 0.5, 20.0, 0.1)
+    >>> fit = fit_4pl(x, y)
+    >>> bool(abs(fit.c[0] - 20.0) < 1.0)
+    True
+    """
+    x = np.asarray(x, dtype=float)
+    y = np.asarray(y, dtype=float)
+    w = np.ones_like(x) if weights is None else np.asarray(weights, dtype=float)
+    g = np.zeros(x.shape, dtype=np.intp) if groups is None else np.asarray(groups, dtype=np.intp)
+    if n_groups is None:
+        n_groups = int(g.max()) + 1 if g.size else 1
+    counts = np.bincount(g, weights=(w > 0).astype(float), minlength=n_groups)
+    lo, hi = _group_range(x, g, n_groups)
+    span = np.maximum(hi - lo, 1e-6)
+
+    theta0 = _initial_theta(x, y, w, g, n_groups, lo, hi) if init is None else _to_theta(init)
+    box_lo = np.column_stack([np.full(n_groups, -_LOGIT_BOUND), np.full(n_groups, np.log(b_bounds[0])),
+                              lo - span, np.full(n_groups, -_LOGIT_BOUND)])
+    box_hi = np.column_stack([np.full(n_groups, _LOGIT_BOUND), np.full(n_groups, np.log(b_bounds[1])),
+                              hi + span, np.full(n_groups, _LOGIT_BOUND)])
+    theta = np.clip(np.nan_to_num(theta0), box_lo, box_hi)
+
+    active = counts > 0
+    ll, grad, fisher = _evaluate(theta, x, y, w, g, n_groups, active)
+    lam = np.full(n_groups, 1e-3)
+    converged = np.zeros(n_groups, dtype=bool)
+    n_iter = np.zeros(n_groups, dtype=int)
+    for _ in range(max_iter):
+        if not active.any():
+            break
+        idx = np.flatnonzero(active)
+        n_iter[idx] += 1
+        # Parameters on a bound whose gradient pushes outwards stay there (projected Newton).
+        frozen = ((theta[idx] <= box_lo[idx] + 1e-12) & (grad[idx] < 0)) | (
+            (theta[idx] >= box_hi[idx] - 1e-12) & (grad[idx] > 0)
+        )
+        step = _damped_step(grad[idx], fisher[idx], lam[idx], frozen)
+        trial = theta.copy()
+        trial[idx] = np.clip(theta[idx] + step, box_lo[idx], box_hi[idx])
+        t_ll, t_grad, t_fisher = _evaluate(trial, x, y, w, g, n_groups, active)
+        gain = t_ll[idx] - ll[idx]
+        accept = gain >= -1e-12 * (1.0 + np.abs(ll[idx]))
+        acc = idx[accept]
+        moved = np.max(np.abs(trial[idx] - theta[idx]), axis=1)
+        theta[acc], ll[acc], grad[acc], fisher[acc] = trial[acc], t_ll[acc], t_grad[acc], t_fisher[acc]
+        lam[acc] = np.maximum(lam[acc] / 4.0, 1e-9)
+        lam[idx[~accept]] *= 8.0
+        small = np.abs(gain) <= tol * (1.0 + np.abs(ll[idx]))
+        done = (accept & (small | (moved < 1e-10))) | (lam[idx] > 1e12)
+        converged[idx[done]] = True
+        active[idx[done]] = False
+
+    a, b, c, d = _from_theta(theta).T
+    empty = counts == 0
+    for v in (a, b, c, d, ll):
+        v[empty] = np.nan
+    separable = ~empty & (theta[:, 1] >= box_hi[:, 1] - 1e-9)
+    return FourPLFit(a, b, c, d, ll, converged & ~empty, n_iter, separable)
+
+
+def _group_range(x, g, n_groups):
+    lo = np.full(n_groups, np.inf)
+    hi = np.full(n_groups, -np.inf)
+    np.minimum.at(lo, g, x)
+    np.maximum.at(hi, g, x)
+    lo[~np.isfinite(lo)] = 0.0
+    hi[~np.isfinite(hi)] = 0.0
+    return lo, hi
+
+
+def _initial_theta(x, y, w, g, n_groups, lo, hi):
+    """Start each group at its best increasing step: the split of the sorted samples whose
+    two-level Bernoulli likelihood (open fraction ``d`` below, ``a > d`` above) is highest,
+    i.e. the 4PL maximum-likelihood fit in the limit b -> inf."""
+    theta = np.zeros((n_groups, 4))
+    if x.size == 0:
+        return theta
+    order = np.lexsort((x, g))
+    xs, ys, ws, gs = x[order], y[order], w[order], g[order]
+    starts = np.searchsorted(gs, np.arange(n_groups))
+    ends = np.searchsorted(gs, np.arange(n_groups), side="right")
+    ones = _within_cumsum(ws * ys, starts, gs)  # weighted open labels at or below each sample
+    mass = _within_cumsum(ws, starts, gs)
+    tot_ones, tot_mass = _group_total(ws * ys, starts, ends), _group_total(ws, starts, ends)
+    p_below = ones / np.maximum(mass, 1e-300)
+    up_mass = tot_mass[gs] - mass
+    p_above = (tot_ones[gs] - ones) / np.maximum(up_mass, 1e-300)
+    score = mass * _neg_entropy(p_below) + up_mass * _neg_entropy(p_above)
+    last = np.r_[gs[1:] != gs[:-1], True]  # no split above the highest sample of a group
+    score[(p_above <= p_below) | last] = -np.inf
+    best = np.full(n_groups, -np.inf)
+    np.maximum.at(best, gs, score)
+    idx = np.arange(xs.size)
+    pick = np.full(n_groups, -1)
+    np.maximum.at(pick, gs[score == best[gs]], idx[score == best[gs]])
+    has = (pick >= 0) & np.isfinite(best)
+    mid = np.where(has, 0.5 * (xs[np.maximum(pick, 0)] + xs[np.minimum(pick + 1, xs.size - 1)]),
+                   0.5 * (lo + hi))
+    d0 = np.where(has, p_below[np.maximum(pick, 0)], 0.1)
+    a0 = np.where(has, p_above[np.maximum(pick, 0)], 0.9)
+    a0 = np.clip(a0, 0.05, 0.99)
+    d0 = np.clip(d0, 0.01, a0 - 0.02)
+    b0 = 8.0 / np.maximum(hi - lo, 1e-3)
+    return _to_theta(np.column_stack([a0, b0, mid, d0]))
+
+
+def _within_cumsum(values, starts, gs):
+    total = np.cumsum(values)
+    return total - np.concatenate([[0.0], total])[starts][gs]
+
+
+def _group_total(values, starts, ends):
+    padded = np.concatenate([[0.0], np.cumsum(values)])
+    return padded[ends] - padded[starts]
+
+
+def _neg_entropy(p):
+    q = np.clip(p, 1e-300, 1.0)
+    r = np.clip(1.0 - p, 1e-300, 1.0)
+    return p * np.log(q) + (1.0 - p) * np.log(r)
+
+
+def _to_theta(params):
+    params = np.asarray(params, dtype=float)
+    a = np.clip(params[:, 0], 1e-6, 1 - 1e-6)
+    d = np.clip(params[:, 3], 1e-9, None)
+    ratio = np.clip(d / a, 1e-6, 1 - 1e-6)
+    return np.column_stack(
+        [np.log(a / (1 - a)), np.log(np.maximum(params[:, 1], 1e-300)), params[:, 2],
+         np.log(ratio / (1 - ratio))]
+    )
+
+
+def _from_theta(theta):
+    a = expit(theta[:, 0])
+    return np.column_stack([a, np.exp(theta[:, 1]), theta[:, 2], a * expit(theta[:, 3])])
+
+
+_PAIRS = [(i, j) for i in range(4) for j in range(i, 4)]
+
+
+def _evaluate(theta, x, y, w, g, n_groups, active):
+    """Log-likelihood, gradient and Fisher information (in theta) of the active groups."""
+    ll = np.zeros(n_groups)
+    grad = np.zeros((n_groups, 4))
+    fisher = np.zeros((n_groups, 4, 4))
+    if n_groups == 1:
+        if not active[0]:
+            return ll, grad, fisher
+        alpha, beta, c, delta = theta[0]
+    else:
+        sel = active[g]
+        if not sel.all():
+            x, y, w, g = x[sel], y[sel], w[sel], g[sel]
+        alpha, beta, c, delta = (np.take(theta[:, k], g) for k in range(4))
+    if x.size == 0:
+        return ll, grad, fisher
+    a, r = expit(alpha), expit(delta)
+    d = a * r
+    b = np.exp(beta)
+    s = expit(b * (x - c))
+    p = np.clip(d + (a - d) * s, _EPS, 1 - _EPS)
+    q = 1 - p
+    terms = w * (y * np.log(p) + (1 - y) * np.log(q))
+    ds = (a - d) * s * (1 - s)
+    jac = np.stack(
+        np.broadcast_arrays(
+            a * (1 - a) * (s + (1 - s) * r), ds * b * (x - c), -ds * b, (1 - s) * a * r * (1 - r)
+        )
+    )
+    info = w / (p * q)
+    resid = info * (y - p)
+    if n_groups == 1:
+        ll[0] = terms.sum()
+        grad[0] = jac @ resid
+        fisher[0] = (jac * info) @ jac.T
+        return ll, grad, fisher
+    ll = np.bincount(g, terms, minlength=n_groups)
+    for k in range(4):
+        grad[:, k] = np.bincount(g, resid * jac[k], minlength=n_groups)
+    for i, j in _PAIRS:
+        fisher[:, i, j] = fisher[:, j, i] = np.bincount(g, info * jac[i] * jac[j], minlength=n_groups)
+    return ll, grad, fisher
+
+
+def _damped_step(grad, fisher, lam, frozen):
+    """Levenberg-Marquardt step; frozen parameters are decoupled and do not move."""
+    free = (~frozen).astype(float)
+    grad = grad * free
+    fisher = fisher * free[:, :, None] * free[:, None, :]
+    diag = np.einsum("kii->ki", fisher)
+    damp = fisher + (lam[:, None] * np.maximum(diag, 1e-12) + frozen)[:, :, None] * np.eye(4)
+    damp += 1e-12 * np.eye(4)
+    return np.linalg.solve(damp, grad[:, :, None])[:, :, 0] * free

@@ -1,0 +1,193 @@
+"""Simulated scenes: buildings with true 2.5D roofs, and where the receivers stand or walk.
+
+A building is a footprint made of *parts*, each a polygon with a flat top (ODN, m). Flat roofs
+are one part, multi-part buildings several, and a pitched roof is a stack of thin strips
+stepping up to the ridge. A rising ray entering a flat-topped part below its top is blocked,
+which makes the true visibility test exact for these roofs. The *true height* of a building is
+its representative LOD1 height, the middle of its main roof's height range, as in the paper
+(eaves to ridge for a pitched roof).
+
+The presets mirror the paper's sites: ``ucl`` (a tall complex building seen from an open
+square), ``goodchild`` (a 16 m block in a narrow pedestrian canyon), ``hermitage`` (a 10 m
+pitched terrace seen from across the street) and ``city`` (dozens of buildings, walking
+receivers). Positions are local grid metres around a London origin.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import shapely
+from shapely.geometry import Polygon, box
+
+__all__ = ["PRESETS", "Building", "Scene", "Session", "make_scene"]
+
+
+@dataclass(frozen=True)
+class Building:
+    """A footprint of flat-topped parts with its true representative height (ODN, m)."""
+
+    id: str
+    parts: tuple[tuple[Polygon, float], ...]
+    ground: float
+    true_height: float
+
+    @property
+    def footprint(self):
+        return shapely.union_all([p for p, _ in self.parts]).normalize()
+
+
+@dataclass(frozen=True)
+class Session:
+    """A recording: a receiver standing at ``path[0]`` or walking along ``path``."""
+
+    receiver: str
+    start: float  # s after the scene epoch
+    duration: float  # s
+    path: tuple[tuple[float, float], ...]
+    walking: bool = False
+
+
+@dataclass(frozen=True)
+class Scene:
+    """Buildings, recording sessions and the site's constants."""
+
+    name: str
+    lat: float
+    lon: float
+    ground: float
+    buildings: tuple[Building, ...]
+    sessions: tuple[Session, ...]
+    #: Elevation mask (deg) of the site's data processing; the paper's 10 deg or 0 deg.
+    min_elevation: float = 10.0
+    max_elevation: float = 85.0
+    #: Buildings whose heights the site is judged on (all when empty).
+    targets: tuple[str, ...] = field(default_factory=tuple)
+
+
+def flat(id_, polygon, ground, rel):
+    return Building(id_, ((polygon, ground + rel),), ground, ground + rel)
+
+
+def pitched(id_, x0, y0, x1, y1, ground, eave, ridge, strips=8):
+    """A pitched roof with its ridge along the longer side of the rectangle."""
+    along_x = (x1 - x0) >= (y1 - y0)
+    lo, hi = (y0, y1) if along_x else (x0, x1)
+    edges = np.linspace(lo, hi, strips + 1)
+    parts = []
+    for a, b in zip(edges[:-1], edges[1:], strict=True):
+        mid = 0.5 * (a + b)
+        rise = 1.0 - abs(2.0 * (mid - lo) / (hi - lo) - 1.0)  # 0 at the eaves, 1 at the ridge
+        top = ground + eave + (ridge - eave) * rise
+        poly = box(x0, a, x1, b) if along_x else box(a, y0, b, y1)
+        parts.append((poly, top))
+    return Building(id_, tuple(parts), ground, ground + 0.5 * (eave + ridge))
+
+
+def multipart(id_, parts_rel, ground, truth_rel):
+    parts = tuple((poly, ground + rel) for poly, rel in parts_rel)
+    return Building(id_, parts, ground, ground + truth_rel)
+
+
+def _static(rng, receiver, start, xy, duration=1800.0):
+    return Session(receiver, start, duration, (tuple(map(float, xy)),))
+
+
+def _ucl(rng):
+    g = 26.0
+    main = multipart(
+        "ucl_main",
+        [
+            (box(-40, 40, 0, 70), 18.5),  # main range, west half
+            (box(0, 40, 40, 70), 21.5),  # main range, east half
+            (box(-8, 32, 8, 40), 32.0),  # portico and dome
+            (box(-40, 0, -28, 40), 19.0),  # west wing
+            (box(28, 0, 40, 40), 19.0),  # east wing
+        ],
+        g,
+        20.0,
+    )
+    neighbours = (
+        flat("gower_east", box(75, -10, 95, 70), g, 15.0),
+        flat("south_range", box(-45, -60, 45, -45), g, 12.0),
+    )
+    sessions = tuple(
+        _static(rng, f"ucl_{k}", start, (rng.uniform(-18, 18), rng.uniform(8, 28)))
+        for k, start in enumerate([0.0, 3 * 3600.0 + 1234.0])
+    )
+    return Scene("ucl", 51.5246, -0.1340, g, (main, *neighbours), sessions, 10.0, 85.0,
+                 ("ucl_main",))
+
+
+def _goodchild(rng):
+    g = 31.0
+    block = flat("goodchild_block", box(0, 0, 40, 15), g, 16.0)
+    opposite = flat("opposite_block", box(-5, 22, 45, 37), g, 15.0)
+    ends = (flat("west_block", box(-30, -5, -8, 20), g, 14.0),
+            flat("east_block", box(48, -5, 70, 20), g, 14.0))
+    sessions = tuple(
+        _static(rng, f"goodchild_{k}", 2400.0 * k + 777.0 * (k % 2),
+                (rng.uniform(4, 36), 18.5 + rng.uniform(-1.0, 1.0)), duration=1350.0)
+        for k in range(6)
+    )
+    return Scene("goodchild", 51.5660, -0.0946, g, (block, opposite, *ends), sessions, 10.0, 85.0,
+                 ("goodchild_block",))
+
+
+def _hermitage(rng):
+    g = 24.0
+    terrace = pitched("hermitage_terrace", 0, 0, 60, 9, g, 9.0, 11.0)
+    across = pitched("across_terrace", -10, 26, 70, 35, g, 8.5, 11.0)
+    behind = pitched("behind_terrace", -10, -40, 70, -31, g, 8.5, 11.0)
+    sessions = tuple(
+        _static(rng, f"hermitage_{k}", 2900.0 * k + 400.0,
+                (rng.uniform(8, 52), 22.5 + rng.uniform(-1.0, 1.0)), duration=1670.0)
+        for k in range(5)
+    )
+    return Scene("hermitage", 51.5770, -0.0900, g, (terrace, across, behind), sessions, 0.0, 85.0,
+                 ("hermitage_terrace",))
+
+
+def _city(rng):
+    g = 20.0
+    buildings = []
+    pitch = 60.0  # block spacing; streets are 60 - block size wide
+    for i in range(6):
+        for j in range(5):
+            x0, y0 = i * pitch, j * pitch
+            w, d = rng.uniform(28, 42), rng.uniform(28, 42)
+            kind = rng.choice(["flat", "flat", "pitched", "multi"])
+            rel = float(rng.uniform(8.0, 45.0))
+            bid = f"city_{i}_{j}"
+            if kind == "flat":
+                buildings.append(flat(bid, box(x0, y0, x0 + w, y0 + d), g, rel))
+            elif kind == "pitched":
+                rel = min(rel, 16.0)
+                buildings.append(pitched(bid, x0, y0, x0 + w, y0 + d, g, rel - 1.5, rel + 1.5))
+            else:
+                tower = float(rng.uniform(0.2, 0.35))
+                buildings.append(multipart(bid, [
+                    (box(x0, y0, x0 + w, y0 + d * (1 - tower)), rel),
+                    (box(x0, y0 + d * (1 - tower), x0 + w * 0.4, y0 + d), rel + rng.uniform(4, 10)),
+                    (box(x0 + w * 0.4, y0 + d * (1 - tower), x0 + w, y0 + d), rel),
+                ], g, rel))
+    sessions = []
+    for k in range(8):
+        if k % 2 == 0:  # walk west-east along a street between block rows
+            y = int(rng.integers(0, 5)) * pitch + 51.0  # mid-street: blocks end by 42 m
+            path = ((-10.0, y), (5 * pitch + 40.0, y))
+        else:  # walk south-north along a street between block columns
+            x = int(rng.integers(0, 6)) * pitch + 51.0
+            path = ((x, -10.0), (x, 4 * pitch + 40.0))
+        sessions.append(Session(f"walker_{k}", 1500.0 * k, 300.0, path, walking=True))
+    return Scene("city", 51.5200, -0.1000, g, tuple(buildings), tuple(sessions), 10.0, 85.0, ())
+
+
+#: Scene factories by preset name; each takes a numpy Generator.
+PRESETS = {"ucl": _ucl, "goodchild": _goodchild, "hermitage": _hermitage, "city": _city}
+
+
+def make_scene(preset: str, rng: np.random.Generator) -> Scene:
+    """The scene of a preset, with receiver placements drawn from ``rng``."""
+    return PRESETS[preset](rng)

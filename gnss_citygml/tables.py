@@ -1,0 +1,72 @@
+"""Reading and writing the toolkit's tables (CSV or Parquet).
+
+Outputs are written to a temporary file in the target folder and renamed into place only when
+complete, so a failed run never leaves a half-written file behind."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import tempfile
+from pathlib import Path
+
+import pandas as pd
+
+from .errors import InputError
+
+__all__ = ["atomic_path", "read_table", "write_table"]
+
+
+@contextlib.contextmanager
+def atomic_path(path, *, overwrite: bool = True):
+    """Yield a temporary path beside ``path``; rename it to ``path`` if the block succeeds."""
+    path = Path(path)
+    if path.exists() and not overwrite:
+        raise InputError("output exists", where=str(path), fix="choose another name or --overwrite")
+    folder = path.parent if str(path.parent) else Path(".")
+    if not folder.is_dir():
+        raise InputError("output folder does not exist", where=str(folder), fix="create it first")
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=folder)
+    except OSError as exc:
+        raise InputError("cannot write to the output folder", where=str(folder),
+                         fix=f"check its permissions ({exc.strerror})") from None
+    os.close(fd)
+    try:
+        yield Path(tmp)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+
+
+def read_table(path) -> pd.DataFrame:
+    """Read a CSV or Parquet table, with a one-line error for a missing or unreadable file."""
+    path = Path(path)
+    suffix = _suffix(path)
+    if not path.is_file():
+        raise InputError("file not found", where=str(path), fix="check the path")
+    try:
+        return pd.read_csv(path) if suffix == ".csv" else pd.read_parquet(path)
+    except (ValueError, OSError, pd.errors.ParserError) as exc:
+        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise InputError(f"cannot read the table: {first}", where=str(path),
+                         fix="give a well-formed CSV (with a header row) or Parquet file") from None
+
+
+def _suffix(path: Path) -> str:
+    suffix = path.suffix.lower()
+    if suffix not in (".csv", ".parquet"):
+        raise InputError(f"unknown table format {suffix or '(none)'!r}", where=str(path),
+                         fix="name the file .csv or .parquet")
+    return suffix
+
+
+def write_table(table: pd.DataFrame, path, *, overwrite: bool = True) -> None:
+    """Write a table as CSV or Parquet (by the file's suffix), atomically."""
+    suffix = _suffix(Path(path))
+    with atomic_path(path, overwrite=overwrite) as tmp:
+        if suffix == ".csv":
+            table.to_csv(tmp, index=False)
+        else:
+            table.to_parquet(tmp, index=False)

@@ -1,0 +1,105 @@
+import numpy as np
+import pandas as pd
+import pytest
+from conftest import synthetic_intersections
+
+from gnss_citygml import HEIGHTS_COLUMNS, InputError, MissingColumnError, ModelError, estimate_heights
+
+
+@pytest.mark.parametrize("method", ["4PL-B", "4PL", "hinge", "bayes"])
+def test_every_method_returns_the_heights_table(rng, method):
+    table = pd.concat([synthetic_intersections(rng, 45.0, building="a"),
+                       synthetic_intersections(rng, 30.0, building="b")])
+    out = estimate_heights(table, method=method)
+    assert list(out.columns) == HEIGHTS_COLUMNS
+    assert list(out["id"]) == ["a", "b"]
+    assert (out["method"] == method).all()
+    assert out["converged"].all()
+    np.testing.assert_allclose(out["height"], [45.0, 30.0], atol=3.0)
+
+
+@pytest.mark.parametrize("threshold", [20.0, 30.0, 40.0])
+def test_4plb_is_robust_to_the_initial_threshold(rng, threshold):
+    table = synthetic_intersections(rng, 45.0, n=6000)
+    out = estimate_heights(table, init_threshold=threshold)
+    row = out.iloc[0]
+    assert row["converged"], row["status"]
+    assert row["height_lower"] <= row["height"] <= row["height_upper"]
+    assert row["height"] == pytest.approx(45.0, abs=1.5)
+    assert 1 <= row["iterations"] <= 10
+    assert 20 < out.attrs["signal_classifier"]["c"] < 40
+
+
+def test_height_is_c_plus_1_5_over_b(rng):
+    row = estimate_heights(synthetic_intersections(rng)).iloc[0]
+    assert row["height"] == pytest.approx(row["c"] + 1.5 / row["b"])
+    assert row["height_lower"] == pytest.approx(row["c"])
+    assert row["height_upper"] == pytest.approx(row["c"] + 3.0 / row["b"])
+
+
+@pytest.mark.parametrize(
+    "case, reason",
+    [
+        ("all_open", "every signal is labelled open"),
+        ("all_closed", "no signal is labelled open"),
+        ("few", "fewer than 10 signals"),
+        ("blocked", "no signal is labelled open"),
+    ],
+)
+def test_degenerate_buildings_are_reported_not_guessed(rng, case, reason):
+    good = synthetic_intersections(rng, 45.0, building="good")
+    n = 5 if case == "few" else 200
+    h = rng.uniform(20, 60, n)
+    cn0 = {"all_open": np.full(n, 45.0), "all_closed": np.full(n, 15.0),
+           "few": np.full(n, 45.0), "blocked": np.full(n, np.nan)}[case]
+    bad = pd.DataFrame({"building": "bad", "height": h, "cn0": cn0})
+    for method in ("4PL-B", "4PL"):
+        out = estimate_heights(pd.concat([good, bad]), method=method).set_index("id")
+        assert out.loc["good", "converged"]
+        assert not out.loc["bad", "converged"]
+        assert np.isnan(out.loc["bad", "height"])
+        assert out.loc["bad", "status"] == reason
+
+
+def test_signal_ids_share_labels_across_buildings(rng):
+    a = synthetic_intersections(rng, 45.0, building="a")
+    a["signal"] = np.arange(len(a))
+    out = estimate_heights(a)
+    assert out["converged"].all()
+
+
+def test_mapping_input_and_mismatched_lengths():
+    with pytest.raises(InputError, match="different lengths"):
+        estimate_heights({"building": ["a", "a"], "height": [1.0], "cn0": [30.0, 31.0]})
+
+
+def test_missing_columns_are_named():
+    with pytest.raises(MissingColumnError, match="'cn0'"):
+        estimate_heights(pd.DataFrame({"building": ["a"], "height": [1.0]}))
+
+
+def test_nan_heights_are_refused_with_rows():
+    table = pd.DataFrame({"building": ["a"] * 3, "height": [1.0, np.nan, 2.0], "cn0": 30.0})
+    with pytest.raises(InputError, match="rows 1"):
+        estimate_heights(table)
+
+
+def test_non_numeric_values_are_refused():
+    table = pd.DataFrame({"building": ["a"] * 2, "height": [1.0, "high"], "cn0": 30.0})
+    with pytest.raises(InputError, match="not numbers"):
+        estimate_heights(table)
+
+
+def test_unknown_method_and_option():
+    table = pd.DataFrame({"building": ["a"], "height": [1.0], "cn0": [30.0]})
+    with pytest.raises(ModelError, match="unknown method"):
+        estimate_heights(table, method="lidar")
+    with pytest.raises(ModelError, match="unknown option"):
+        estimate_heights(table, method="hinge", weighting="none")
+    with pytest.raises(ModelError, match="unknown weighting"):
+        estimate_heights(table, weighting="magic")
+
+
+def test_error_messages_say_what_where_and_how():
+    err = MissingColumnError(["cn0"], where="intersections.csv", have=["building"])
+    assert str(err) == "missing column(s) 'cn0' (intersections.csv): add the column(s) (the table has: building)"

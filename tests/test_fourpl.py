@@ -1,0 +1,97 @@
+import numpy as np
+import pytest
+from conftest import draw_4pl
+
+from gnss_citygml.model.fourpl import fit_4pl, log_likelihood, logistic4
+
+
+def test_logistic4_shape():
+    x = np.array([-1e3, 30.0, 1e3])
+    p = logistic4(x, 0.9, 0.2, 30.0, 0.1)
+    np.testing.assert_allclose(p, [0.1, 0.5, 0.9])
+
+
+def test_gradient_matches_finite_differences(rng):
+    x, y = draw_4pl(rng, 500, 0.8, 0.4, 30.0, 0.2)
+    w = rng.uniform(0.5, 2.0, x.size)
+    params = np.array([0.7, 0.3, 28.0, 0.15])
+    _, grad = log_likelihood(params, x, y, w)
+    for k in range(4):
+        h = np.zeros(4)
+        h[k] = 1e-6
+        up, _ = log_likelihood(params + h, x, y, w)
+        down, _ = log_likelihood(params - h, x, y, w)
+        assert grad[k] == pytest.approx((up - down) / 2e-6, rel=1e-4, abs=1e-4)
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_recovers_known_parameters(seed):
+    rng = np.random.default_rng(seed)
+    a, b, c, d = rng.uniform(0.75, 0.95), rng.uniform(0.3, 1.5), rng.uniform(20, 40), rng.uniform(0.02, 0.25)
+    x, y = draw_4pl(rng, 20000, a, b, c, d)
+    fit = fit_4pl(x, y)
+    assert fit.converged[0]
+    assert fit.c[0] == pytest.approx(c, abs=0.6)
+    assert fit.a[0] == pytest.approx(a, abs=0.03)
+    assert fit.d[0] == pytest.approx(d, abs=0.03)
+    assert fit.b[0] == pytest.approx(b, rel=0.35)
+
+
+def test_fit_is_a_maximum(rng):
+    x, y = draw_4pl(rng, 3000, 0.85, 0.5, 33.0, 0.15)
+    fit = fit_4pl(x, y)
+    best, grad = log_likelihood(fit.params[0], x, y)
+    assert np.max(np.abs(grad)) < 0.05
+    for shift in ([0.01, 0, 0, 0], [0, 0.05, 0, 0], [0, 0, 0.3, 0], [0, 0, 0, 0.01]):
+        assert log_likelihood(fit.params[0] + np.array(shift), x, y)[0] <= best + 1e-6
+        assert log_likelihood(fit.params[0] - np.array(shift), x, y)[0] <= best + 1e-6
+
+
+def test_weights_equal_repeated_samples(rng):
+    x, y = draw_4pl(rng, 800, 0.85, 0.5, 33.0, 0.15)
+    reps = rng.integers(1, 4, x.size)
+    weighted = fit_4pl(x, y, reps)
+    repeated = fit_4pl(np.repeat(x, reps), np.repeat(y, reps))
+    np.testing.assert_allclose(weighted.params, repeated.params, rtol=1e-4, atol=1e-4)
+
+
+def test_groups_are_fitted_independently(rng):
+    xs, ys, gs = [], [], []
+    for k, c in enumerate([15.0, 30.0, 45.0]):
+        x, y = draw_4pl(rng, 5000, 0.9, 0.8, c, 0.1)
+        xs.append(x)
+        ys.append(y)
+        gs.append(np.full(x.size, k))
+    fit = fit_4pl(np.concatenate(xs), np.concatenate(ys), groups=np.concatenate(gs))
+    np.testing.assert_allclose(fit.c, [15.0, 30.0, 45.0], atol=0.8)
+    single = fit_4pl(xs[1], ys[1])
+    assert fit.c[1] == pytest.approx(single.c[0], abs=1e-3)
+
+
+def test_separable_data_end_on_the_boundary():
+    x = np.linspace(0.0, 10.0, 60)
+    fit = fit_4pl(x, x > 5.0)
+    assert fit.separable[0]
+    assert 4.8 < fit.c[0] < 5.2
+    assert fit.a[0] > 0.99 and fit.d[0] < 0.01
+    assert np.isfinite(fit.loglik[0])
+
+
+@pytest.mark.parametrize("labels", [np.ones(40), np.zeros(40)])
+def test_one_class_data_stay_finite(labels):
+    fit = fit_4pl(np.linspace(0.0, 40.0, 40), labels)
+    assert np.all(np.isfinite(fit.params))
+    assert 0 <= fit.d[0] < fit.a[0] <= 1
+
+
+def test_tiny_and_empty_groups():
+    fit = fit_4pl(np.array([1.0, 2.0, 3.0]), np.array([0, 1, 1]), groups=np.array([0, 0, 0]),
+                  n_groups=2)
+    assert np.all(np.isfinite(fit.params[0]))
+    assert np.all(np.isnan(fit.params[1])) and not fit.converged[1]
+
+
+def test_constraints_hold(rng):
+    x, y = draw_4pl(rng, 2000, 0.6, 2.0, 10.0, 0.5)
+    fit = fit_4pl(x, y)
+    assert 0 <= fit.d[0] < fit.a[0] <= 1 and fit.b[0] > 0

@@ -1,0 +1,69 @@
+import numpy as np
+import pytest
+import shapely
+
+from gnss_citygml.raycast import footprint_entries
+
+SQUARE = shapely.box(10, -5, 20, 5)
+HOLED = shapely.Polygon([(10, -10), (30, -10), (30, 10), (10, 10)],
+                        [[(15, -5), (25, -5), (25, 5), (15, 5)]])
+TWO_PARTS = shapely.MultiPolygon([shapely.box(10, -1, 11, 1), shapely.box(20, -1, 21, 1)])
+
+
+def test_head_on_entry():
+    ray, fp, dist, cos = footprint_entries([0.0], [0.0], [90.0], [SQUARE])
+    assert ray.tolist() == [0] and fp.tolist() == [0]
+    assert dist[0] == pytest.approx(10.0)
+    assert cos[0] == pytest.approx(1.0)
+
+
+def test_oblique_entry_distance_and_incidence():
+    # bearing 45 deg from (0, 0) enters the face x = 10 at (10, 10) of a tall box
+    box = shapely.box(10, -50, 20, 50)
+    _, _, dist, cos = footprint_entries([0.0], [0.0], [45.0], [box])
+    assert dist[0] == pytest.approx(10.0 * np.sqrt(2))
+    assert cos[0] == pytest.approx(np.cos(np.radians(45.0)))
+
+
+def test_rays_that_miss_or_fall_short():
+    ray, *_ = footprint_entries([0.0, 0.0], [0.0, 0.0], [270.0, 0.0], [SQUARE])
+    assert ray.size == 0
+    ray, *_ = footprint_entries([0.0], [0.0], [90.0], [SQUARE], max_range=5.0)
+    assert ray.size == 0
+
+
+def test_holes_and_origins_inside():
+    x = [0.0, 20.0, 20.0, 12.0]
+    ray, fp, dist, _ = footprint_entries(x, [0.0] * 4, [90.0, 90.0, 270.0, 90.0], [HOLED])
+    # from the west: the exterior at 10 m; from inside the hole: the hole's walls at 5 m;
+    # from inside the solid part: nothing (a receiver cannot stand in a building)
+    assert ray.tolist() == [0, 1, 2]
+    np.testing.assert_allclose(dist, [10.0, 5.0, 5.0])
+
+
+def test_multipolygon_is_one_footprint_entered_at_its_first_part():
+    ray, fp, dist, _ = footprint_entries([0.0, 15.0], [0.0, 0.0], [90.0, 90.0], [TWO_PARTS])
+    np.testing.assert_allclose(dist, [10.0, 5.0])
+
+
+def test_several_footprints_sorted_by_distance_along_each_ray():
+    far, near = shapely.box(50, -5, 60, 5), shapely.box(10, -5, 20, 5)
+    ray, fp, dist, _ = footprint_entries([0.0, 0.0], [0.0, 1.0], [90.0, 90.0], [far, near])
+    assert ray.tolist() == [0, 0, 1, 1]
+    assert fp.tolist() == [1, 0, 1, 0]
+    np.testing.assert_allclose(dist, [10, 50, 10, 50])
+
+
+def test_matches_shapely_intersection_on_random_rays():
+    rng = np.random.default_rng(1)
+    polys = [shapely.Polygon(shapely.affinity.rotate(shapely.box(0, 0, 12, 7), ang).exterior)
+             for ang in (0, 17, 33)]
+    polys = [shapely.affinity.translate(p, 30 * k, 10 * k) for k, p in enumerate(polys)]
+    x, y = rng.uniform(-40, 100, 300), rng.uniform(-40, 60, 300)
+    bearing = rng.uniform(0, 360, 300)
+    ray, fp, dist, _ = footprint_entries(x, y, bearing, polys, max_range=200)
+    for r, f, d in zip(ray, fp, dist):
+        end = (x[r] + 200 * np.sin(np.radians(bearing[r])), y[r] + 200 * np.cos(np.radians(bearing[r])))
+        line = shapely.LineString([(x[r], y[r]), end])
+        hit = shapely.intersection(line, polys[f])
+        assert shapely.Point(x[r], y[r]).distance(hit) == pytest.approx(d, abs=1e-6)

@@ -1,0 +1,99 @@
+import numpy as np
+import pandas as pd
+import pytest
+
+from gnss_citygml import InputError
+from gnss_citygml.simulate import PRESETS, simulate
+from gnss_citygml.simulate.constellations import satellite_ecef, sky
+from gnss_citygml.simulate.signals import SignalModel, diffraction_loss
+
+OBS_COLUMNS = {"time_utc", "receiver", "constellation", "svid", "azimuth", "elevation", "cn0",
+               "e", "n", "z"}
+INTER_COLUMNS = {"signal", "building", "height", "distance", "order", "cn0"}
+
+
+@pytest.fixture(scope="module")
+def sims():
+    return {(p, loc): simulate(p, locations=loc, seed=1, interval=15.0)
+            for p in PRESETS for loc in ("manual", "gnss")}
+
+
+def test_tables_follow_the_design(sims):
+    for sim in sims.values():
+        assert OBS_COLUMNS <= set(sim.observations.columns)
+        assert INTER_COLUMNS <= set(sim.intersections.columns)
+        assert isinstance(sim.observations["time_utc"].dtype, pd.DatetimeTZDtype)
+        assert set(sim.observations["constellation"]) == {"G", "R", "E", "C"}
+        assert sim.truth["target"].any()
+
+
+def test_intersection_heights_follow_the_rays(sims):
+    sim = sims[("ucl", "manual")]
+    o, i = sim.observations, sim.intersections
+    expected = o["z"].to_numpy()[i["signal"]] + i["distance"] * np.tan(
+        np.radians(o["elevation"].to_numpy()[i["signal"]]))
+    np.testing.assert_allclose(i["height"], expected)
+    assert (i.groupby("signal")["order"].min() == 0).all()
+
+
+def test_every_signal_is_within_the_mask(sims):
+    for (preset, _), sim in sims.items():
+        el = sim.observations["elevation"]
+        assert el.min() >= sim.scene.min_elevation and el.max() <= sim.scene.max_elevation
+
+
+def test_phone_sees_30_to_50_satellites():
+    _, _, xyz = satellite_ecef(np.arange(0.0, 86400.0, 900.0))
+    _, el = sky(51.52, -0.13, 70.0, xyz)
+    visible = (el > 0).sum(axis=1)
+    assert 30 <= visible.mean() <= 50
+
+
+def test_sites_differ_as_the_papers_do(sims):
+    def los(preset):
+        return sims[(preset, "manual")].observations["los"].mean()
+    assert los("goodchild") < 0.4  # a canyon: most signals blocked
+    assert los("ucl") > 0.5  # an open square
+
+
+def test_cn0_distributions_overlap_but_separate(sims):
+    o = pd.concat([s.observations for s in sims.values()])
+    los, nlos = o.loc[o["los"], "cn0"].dropna(), o.loc[~o["los"], "cn0"].dropna()
+    assert los.mean() - nlos.mean() > 8.0
+    assert (nlos > los.quantile(0.1)).mean() > 0.02  # some NLOS look like LOS
+    assert o["cn0"].min() >= SignalModel.tracking_threshold
+    assert o["cn0"].isna().any()  # blocked signals exist
+
+
+def test_diffraction_loss_is_itu_knife_edge():
+    assert diffraction_loss(0.0, 50.0) == pytest.approx(6.0, abs=0.1)  # grazing: 6 dB
+    assert diffraction_loss(-50.0, 50.0) == 0.0
+    assert diffraction_loss(2.0, 10.0) > diffraction_loss(0.5, 10.0) > 6.0
+
+
+def test_location_errors(sims):
+    def err(preset, loc):
+        o = sims[(preset, loc)].observations
+        return np.hypot(o["e"] - o["e_true"], o["n"] - o["n_true"])
+    for preset in PRESETS:
+        assert err(preset, "manual").median() < 2.5
+    assert err("goodchild", "gnss").median() > 3.0
+    canyon = sims[("goodchild", "gnss")].observations
+    across = np.abs(canyon["n"] - canyon["n_true"]).mean()  # the street runs east-west
+    along = np.abs(canyon["e"] - canyon["e_true"]).mean()
+    assert across > along
+
+
+def test_seeds_reproduce_and_differ():
+    a = simulate("hermitage", seed=5, interval=60.0)
+    b = simulate("hermitage", seed=5, interval=60.0)
+    c = simulate("hermitage", seed=6, interval=60.0)
+    pd.testing.assert_frame_equal(a.observations, b.observations)
+    assert not a.observations["cn0"].equals(c.observations["cn0"])
+
+
+def test_bad_arguments():
+    with pytest.raises(InputError, match="unknown simulator preset"):
+        simulate("paris")
+    with pytest.raises(InputError, match="unknown locations"):
+        simulate("ucl", locations="psychic")

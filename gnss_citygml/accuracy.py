@@ -22,9 +22,17 @@ __all__ = ["PAPER_THRESHOLDS", "markdown_table", "run_accuracy", "summarise"]
 PAPER_THRESHOLDS = tuple(float(t) for t in range(20, 41))
 
 
-def run_accuracy(presets, locations=("manual", "gnss"), methods=METHODS,
-                 thresholds=PAPER_THRESHOLDS, *, seed=0, interval=1.0, progress=None,
-                 **options) -> pd.DataFrame:
+def run_accuracy(
+    presets,
+    locations=("manual", "gnss"),
+    methods=METHODS,
+    thresholds=PAPER_THRESHOLDS,
+    *,
+    seed=0,
+    interval=1.0,
+    progress=None,
+    **options,
+) -> pd.DataFrame:
     """One row per (preset, locations, method, threshold, target building).
 
     ``options`` go to :func:`estimate_heights` for the 4PL methods (e.g. ``weighting``).
@@ -41,20 +49,31 @@ def run_accuracy(presets, locations=("manual", "gnss"), methods=METHODS,
                 opts = options if method in ("4PL-B", "4PL") else {}
                 for threshold in thresholds:
                     start = time.perf_counter()
-                    out = estimate_heights(sim.intersections, method=method,
-                                           init_threshold=threshold, **opts)
+                    out = estimate_heights(
+                        sim.intersections, method=method, init_threshold=threshold, **opts
+                    )
                     seconds = time.perf_counter() - start
                     out = out.set_index("id").reindex(targets)
                     for bid, r in out.iterrows():
-                        rows.append({
-                            "preset": preset, "locations": loc, "method": method,
-                            "threshold": threshold, "building": bid,
-                            "height": r["height"], "lower": r["height_lower"],
-                            "upper": r["height_upper"], "truth": truth.loc[bid, "height"],
-                            "converged": bool(r["converged"]) if pd.notna(r["converged"]) else False,
-                            "status": r["status"], "seconds": seconds,
-                            "n_rows": len(sim.intersections),
-                        })
+                        rows.append(
+                            {
+                                "preset": preset,
+                                "locations": loc,
+                                "method": method,
+                                "threshold": threshold,
+                                "building": bid,
+                                "height": r["height"],
+                                "lower": r["height_lower"],
+                                "upper": r["height_upper"],
+                                "truth": truth.loc[bid, "height"],
+                                "converged": bool(r["converged"])
+                                if pd.notna(r["converged"])
+                                else False,
+                                "status": r["status"],
+                                "seconds": seconds,
+                                "n_rows": len(sim.intersections),
+                            }
+                        )
                     if progress:
                         progress(f"{preset}/{loc}/{method}/{threshold:g}")
     result = pd.DataFrame(rows)
@@ -64,10 +83,12 @@ def run_accuracy(presets, locations=("manual", "gnss"), methods=METHODS,
 
 def summarise(results: pd.DataFrame) -> pd.DataFrame:
     """RMSE (m) over converged runs and the converged count, per preset, locations and method."""
+
     def agg(g):
         ok = g["converged"] & g["error"].notna()
         rmse = float(np.sqrt(np.mean(g.loc[ok, "error"] ** 2))) if ok.any() else float("nan")
         return pd.Series({"rmse": rmse, "converged": int(ok.sum()), "runs": len(g)})
+
     keys = ["locations", "method", "preset"]
     out = results.groupby(keys, sort=False)[["converged", "error"]].apply(agg).reset_index()
     return out.astype({"converged": int, "runs": int})
@@ -77,8 +98,10 @@ def markdown_table(summary: pd.DataFrame) -> str:
     """The paper's layout: one row per (locations, method), one column per preset,
     cells ``RMSE m (converged/runs)``."""
     presets = list(dict.fromkeys(summary["preset"]))
-    lines = ["| locations | method | " + " | ".join(presets) + " |",
-             "|---|---|" + "---|" * len(presets)]
+    lines = [
+        "| locations | method | " + " | ".join(presets) + " |",
+        "|---|---|" + "---|" * len(presets),
+    ]
     for (loc, method), g in summary.groupby(["locations", "method"], sort=False):
         cells = []
         for p in presets:

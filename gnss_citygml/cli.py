@@ -16,8 +16,13 @@ from . import __version__
 from .errors import GnssCityGMLError
 
 _QUIET = click.option("--quiet", "-q", is_flag=True, help="No progress output.")
-_THRESHOLD = click.option("--init-threshold", type=float, default=30.0, show_default=True,
-                          help="C/N0 (dB-Hz) where the initial signal classifier gives 50 %.")
+_THRESHOLD = click.option(
+    "--init-threshold",
+    type=float,
+    default=30.0,
+    show_default=True,
+    help="C/N0 (dB-Hz) where the initial signal classifier gives 50 %.",
+)
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
@@ -27,13 +32,26 @@ def cli():
 
 
 @cli.command()
-@click.option("--preset", "presets", multiple=True,
-              type=click.Choice(["ucl", "goodchild", "hermitage", "city"]),
-              help="Sites to run (default: all four).")
-@click.option("--thresholds", default="20,25,30,35,40", show_default=True,
-              help="Initial C/N0 thresholds, comma-separated (dB-Hz).")
-@click.option("--interval", type=float, default=5.0, show_default=True,
-              help="Seconds between simulated epochs (1 = the paper's 1 Hz).")
+@click.option(
+    "--preset",
+    "presets",
+    multiple=True,
+    type=click.Choice(["ucl", "goodchild", "hermitage", "city"]),
+    help="Sites to run (default: all four).",
+)
+@click.option(
+    "--thresholds",
+    default="20,25,30,35,40",
+    show_default=True,
+    help="Initial C/N0 thresholds, comma-separated (dB-Hz).",
+)
+@click.option(
+    "--interval",
+    type=float,
+    default=5.0,
+    show_default=True,
+    help="Seconds between simulated epochs (1 = the paper's 1 Hz).",
+)
 @click.option("--seed", type=int, default=0, show_default=True)
 @_QUIET
 def demo(presets, thresholds, interval, seed, quiet):
@@ -49,22 +67,39 @@ def demo(presets, thresholds, interval, seed, quiet):
     presets = presets or ("ucl", "goodchild", "hermitage", "city")
     n_runs = len(presets) * 2 * 4 * len(values)
     with _progress(n_runs, "fitting", quiet) as bar:
-        results = run_accuracy(presets, thresholds=values, seed=seed, interval=interval,
-                               progress=lambda _: bar.update(1))
+        results = run_accuracy(
+            presets,
+            thresholds=values,
+            seed=seed,
+            interval=interval,
+            progress=lambda _: bar.update(1),
+        )
     click.echo(markdown_table(summarise(results)))
 
 
 @cli.command()
 @click.argument("preset", type=click.Choice(["ucl", "goodchild", "hermitage", "city"]))
-@click.option("--output-dir", "-o", type=click.Path(file_okay=False, path_type=Path),
-              required=True, help="Folder for observations, intersections and truth tables.")
-@click.option("--locations", type=click.Choice(["manual", "gnss"]), default="manual",
-              show_default=True, help="Receiver positions: hand-surveyed or the phone's fixes.")
+@click.option(
+    "--output-dir",
+    "-o",
+    type=click.Path(file_okay=False, path_type=Path),
+    required=True,
+    help="Folder for observations, intersections and truth tables.",
+)
+@click.option(
+    "--locations",
+    type=click.Choice(["manual", "gnss"]),
+    default="manual",
+    show_default=True,
+    help="Receiver positions: hand-surveyed or the phone's fixes.",
+)
 @click.option("--seed", type=int, default=0, show_default=True)
-@click.option("--interval", type=float, default=1.0, show_default=True,
-              help="Seconds between epochs.")
-@click.option("--format", "fmt", type=click.Choice(["csv", "parquet"]), default="csv",
-              show_default=True)
+@click.option(
+    "--interval", type=float, default=1.0, show_default=True, help="Seconds between epochs."
+)
+@click.option(
+    "--format", "fmt", type=click.Choice(["csv", "parquet"]), default="csv", show_default=True
+)
 def simulate(preset, output_dir, locations, seed, interval, fmt):
     """Simulate a site and write its observations, intersections and true heights."""
     from .simulate import simulate as run
@@ -74,27 +109,43 @@ def simulate(preset, output_dir, locations, seed, interval, fmt):
     output_dir.mkdir(parents=True, exist_ok=True)
     for name in ("observations", "intersections", "truth"):
         write_table(getattr(sim, name), output_dir / f"{name}.{fmt}")
-    click.echo(f"{len(sim.observations)} signals, {len(sim.intersections)} intersections, "
-               f"{len(sim.truth)} buildings -> {output_dir}")
+    click.echo(
+        f"{len(sim.observations)} signals, {len(sim.intersections)} intersections, "
+        f"{len(sim.truth)} buildings -> {output_dir}"
+    )
 
 
 @cli.command()
 @click.argument("intersections", type=click.Path(path_type=Path))
-@click.option("--output", "-o", type=click.Path(dir_okay=False, path_type=Path), required=True,
-              help="Heights table (.csv or .parquet).")
-@click.option("--method", type=click.Choice(["4PL-B", "4PL", "hinge", "bayes"]),
-              default="4PL-B", show_default=True)
+@click.option(
+    "--output",
+    "-o",
+    type=click.Path(dir_okay=False, path_type=Path),
+    required=True,
+    help="Heights table (.csv or .parquet).",
+)
+@click.option(
+    "--method",
+    type=click.Choice(["4PL-B", "4PL", "hinge", "bayes"]),
+    default="4PL-B",
+    show_default=True,
+)
 @_THRESHOLD
-@click.option("--weighting", type=click.Choice(["height", "balanced", "none"]), default=None,
-              help="Reweighting of the 4PL height fit (4PL-B and 4PL; default: height).")
+@click.option(
+    "--weighting",
+    type=click.Choice(["height", "balanced", "none"]),
+    default=None,
+    help="Reweighting of the 4PL height fit (4PL-B and 4PL; default: height).",
+)
 def heights(intersections, output, method, init_threshold, weighting):
     """Estimate building heights from an intersections table (CSV or Parquet)."""
     from .model.estimate import estimate_heights
     from .tables import read_table, write_table
 
     options = {} if weighting is None else {"weighting": weighting}
-    out = estimate_heights(read_table(intersections), method=method,
-                           init_threshold=init_threshold, **options)
+    out = estimate_heights(
+        read_table(intersections), method=method, init_threshold=init_threshold, **options
+    )
     write_table(out, output)
     ok = int(out["converged"].sum())
     click.echo(f"{ok} of {len(out)} buildings converged -> {output}")
@@ -104,8 +155,9 @@ def _floats(text, option):
     try:
         return [float(v) for v in text.split(",") if v.strip()]
     except ValueError:
-        raise click.BadParameter(f"{text!r} is not a comma-separated list of numbers",
-                                 param_hint=option) from None
+        raise click.BadParameter(
+            f"{text!r} is not a comma-separated list of numbers", param_hint=option
+        ) from None
 
 
 def _progress(total, label, quiet):

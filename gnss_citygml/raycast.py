@@ -57,7 +57,10 @@ def footprint_entries(x, y, bearing, footprints, max_range: float = 500.0):
     if x.size == 0 or footprints.size == 0:
         return empty
     rays = shapely.linestrings(
-        np.stack([np.column_stack([x, y]), np.column_stack([x + dx * max_range, y + dy * max_range])], axis=1)
+        np.stack(
+            [np.column_stack([x, y]), np.column_stack([x + dx * max_range, y + dy * max_range])],
+            axis=1,
+        )
     )
     tree = shapely.STRtree(footprints)
     ray_idx, fp_idx = tree.query(rays, predicate="intersects")
@@ -81,8 +84,9 @@ def footprint_entries(x, y, bearing, footprints, max_range: float = 500.0):
         rep = np.repeat(pairs, counts)
         offs = np.arange(counts.sum()) - np.repeat(bounds[pairs] - bounds[lo], counts)
         e = edges[edge_start[fp_idx[rep]] + offs]
-        t, cos = _ray_segment_distance(x[ray_idx[rep]], y[ray_idx[rep]], dx[ray_idx[rep]],
-                                       dy[ray_idx[rep]], e)
+        t, cos = _ray_segment_distance(
+            x[ray_idx[rep]], y[ray_idx[rep]], dx[ray_idx[rep]], dy[ray_idx[rep]], e
+        )
         np.minimum.at(dist, rep, t)
         first = np.isfinite(t) & (t == dist[rep])
         cos_inc[rep[first]] = cos[first]

@@ -29,8 +29,11 @@ def atomic_path(path, *, overwrite: bool = True):
     try:
         fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=folder)
     except OSError as exc:
-        raise InputError("cannot write to the output folder", where=str(folder),
-                         fix=f"check its permissions ({exc.strerror})") from None
+        raise InputError(
+            "cannot write to the output folder",
+            where=str(folder),
+            fix=f"check its permissions ({exc.strerror})",
+        ) from None
     os.close(fd)
     try:
         yield Path(tmp)
@@ -50,15 +53,21 @@ def read_table(path) -> pd.DataFrame:
         return pd.read_csv(path) if suffix == ".csv" else pd.read_parquet(path)
     except (ValueError, OSError, pd.errors.ParserError) as exc:
         first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise InputError(f"cannot read the table: {first}", where=str(path),
-                         fix="give a well-formed CSV (with a header row) or Parquet file") from None
+        raise InputError(
+            f"cannot read the table: {first}",
+            where=str(path),
+            fix="give a well-formed CSV (with a header row) or Parquet file",
+        ) from None
 
 
 def _suffix(path: Path) -> str:
     suffix = path.suffix.lower()
     if suffix not in (".csv", ".parquet"):
-        raise InputError(f"unknown table format {suffix or '(none)'!r}", where=str(path),
-                         fix="name the file .csv or .parquet")
+        raise InputError(
+            f"unknown table format {suffix or '(none)'!r}",
+            where=str(path),
+            fix="name the file .csv or .parquet",
+        )
     return suffix
 
 

@@ -16,8 +16,8 @@ def test_hinge_separable_example_is_the_middle_of_the_gap():
 
 
 def test_hinge_hand_computed_with_misclassified_signals():
-    # open at 2 and 10, closed at 6 and 8: cost(H) at 6 = 4 + 2 = 6, at 8 = 6 + 0 = 6, at 2 = 4 + 6 = 10,
-    # at 10 = 8; flat minimum on [6, 8].
+    # open at 2 and 10, closed at 6 and 8: cost(6) = 4 + 2 = 6, cost(8) = 6 + 0 = 6,
+    # cost(2) = 0 + 4 + 6 = 10, cost(10) = 8: a flat minimum on [6, 8].
     h = np.array([2.0, 6.0, 8.0, 10.0])
     cn0 = np.array([40.0, 20.0, 20.0, 40.0])
     assert hinge_heights(np.zeros(4, int), h, cn0, 1)[0] == pytest.approx(7.0)

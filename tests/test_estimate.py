@@ -3,13 +3,23 @@ import pandas as pd
 import pytest
 from conftest import synthetic_intersections
 
-from gnss_citygml import HEIGHTS_COLUMNS, InputError, MissingColumnError, ModelError, estimate_heights
+from gnss_citygml import (
+    HEIGHTS_COLUMNS,
+    InputError,
+    MissingColumnError,
+    ModelError,
+    estimate_heights,
+)
 
 
 @pytest.mark.parametrize("method", ["4PL-B", "4PL", "hinge", "bayes"])
 def test_every_method_returns_the_heights_table(rng, method):
-    table = pd.concat([synthetic_intersections(rng, 45.0, building="a"),
-                       synthetic_intersections(rng, 30.0, building="b")])
+    table = pd.concat(
+        [
+            synthetic_intersections(rng, 45.0, building="a"),
+            synthetic_intersections(rng, 30.0, building="b"),
+        ]
+    )
     out = estimate_heights(table, method=method)
     assert list(out.columns) == HEIGHTS_COLUMNS
     assert list(out["id"]) == ["a", "b"]
@@ -50,8 +60,12 @@ def test_degenerate_buildings_are_reported_not_guessed(rng, case, reason):
     good = synthetic_intersections(rng, 45.0, building="good")
     n = 5 if case == "few" else 200
     h = rng.uniform(20, 60, n)
-    cn0 = {"all_open": np.full(n, 45.0), "all_closed": np.full(n, 15.0),
-           "few": np.full(n, 45.0), "blocked": np.full(n, np.nan)}[case]
+    cn0 = {
+        "all_open": np.full(n, 45.0),
+        "all_closed": np.full(n, 15.0),
+        "few": np.full(n, 45.0),
+        "blocked": np.full(n, np.nan),
+    }[case]
     bad = pd.DataFrame({"building": "bad", "height": h, "cn0": cn0})
     for method in ("4PL-B", "4PL"):
         out = estimate_heights(pd.concat([good, bad]), method=method).set_index("id")
@@ -102,4 +116,5 @@ def test_unknown_method_and_option():
 
 def test_error_messages_say_what_where_and_how():
     err = MissingColumnError(["cn0"], where="intersections.csv", have=["building"])
-    assert str(err) == "missing column(s) 'cn0' (intersections.csv): add the column(s) (the table has: building)"
+    expected = "missing column(s) 'cn0' (intersections.csv): add the column(s)"
+    assert str(err) == expected + " (the table has: building)"

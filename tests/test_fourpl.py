@@ -27,7 +27,12 @@ def test_gradient_matches_finite_differences(rng):
 @pytest.mark.parametrize("seed", range(12))
 def test_recovers_known_parameters(seed):
     rng = np.random.default_rng(seed)
-    a, b, c, d = rng.uniform(0.75, 0.95), rng.uniform(0.3, 1.5), rng.uniform(20, 40), rng.uniform(0.02, 0.25)
+    a, b, c, d = (
+        rng.uniform(0.75, 0.95),
+        rng.uniform(0.3, 1.5),
+        rng.uniform(20, 40),
+        rng.uniform(0.02, 0.25),
+    )
     x, y = draw_4pl(rng, 20000, a, b, c, d)
     fit = fit_4pl(x, y)
     assert fit.converged[0]
@@ -85,8 +90,9 @@ def test_one_class_data_stay_finite(labels):
 
 
 def test_tiny_and_empty_groups():
-    fit = fit_4pl(np.array([1.0, 2.0, 3.0]), np.array([0, 1, 1]), groups=np.array([0, 0, 0]),
-                  n_groups=2)
+    fit = fit_4pl(
+        np.array([1.0, 2.0, 3.0]), np.array([0, 1, 1]), groups=np.array([0, 0, 0]), n_groups=2
+    )
     assert np.all(np.isfinite(fit.params[0]))
     assert np.all(np.isnan(fit.params[1])) and not fit.converged[1]
 

@@ -5,8 +5,9 @@ import shapely
 from gnss_citygml.raycast import footprint_entries
 
 SQUARE = shapely.box(10, -5, 20, 5)
-HOLED = shapely.Polygon([(10, -10), (30, -10), (30, 10), (10, 10)],
-                        [[(15, -5), (25, -5), (25, 5), (15, 5)]])
+HOLED = shapely.Polygon(
+    [(10, -10), (30, -10), (30, 10), (10, 10)], [[(15, -5), (25, -5), (25, 5), (15, 5)]]
+)
 TWO_PARTS = shapely.MultiPolygon([shapely.box(10, -1, 11, 1), shapely.box(20, -1, 21, 1)])
 
 
@@ -56,14 +57,19 @@ def test_several_footprints_sorted_by_distance_along_each_ray():
 
 def test_matches_shapely_intersection_on_random_rays():
     rng = np.random.default_rng(1)
-    polys = [shapely.Polygon(shapely.affinity.rotate(shapely.box(0, 0, 12, 7), ang).exterior)
-             for ang in (0, 17, 33)]
+    polys = [
+        shapely.Polygon(shapely.affinity.rotate(shapely.box(0, 0, 12, 7), ang).exterior)
+        for ang in (0, 17, 33)
+    ]
     polys = [shapely.affinity.translate(p, 30 * k, 10 * k) for k, p in enumerate(polys)]
     x, y = rng.uniform(-40, 100, 300), rng.uniform(-40, 60, 300)
     bearing = rng.uniform(0, 360, 300)
     ray, fp, dist, _ = footprint_entries(x, y, bearing, polys, max_range=200)
-    for r, f, d in zip(ray, fp, dist):
-        end = (x[r] + 200 * np.sin(np.radians(bearing[r])), y[r] + 200 * np.cos(np.radians(bearing[r])))
+    for r, f, d in zip(ray, fp, dist, strict=False):
+        end = (
+            x[r] + 200 * np.sin(np.radians(bearing[r])),
+            y[r] + 200 * np.cos(np.radians(bearing[r])),
+        )
         line = shapely.LineString([(x[r], y[r]), end])
         hit = shapely.intersection(line, polys[f])
         assert shapely.Point(x[r], y[r]).distance(hit) == pytest.approx(d, abs=1e-6)

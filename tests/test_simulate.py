@@ -7,15 +7,28 @@ from gnss_citygml.simulate import PRESETS, simulate
 from gnss_citygml.simulate.constellations import satellite_ecef, sky
 from gnss_citygml.simulate.signals import SignalModel, diffraction_loss
 
-OBS_COLUMNS = {"time_utc", "receiver", "constellation", "svid", "azimuth", "elevation", "cn0",
-               "e", "n", "z"}
+OBS_COLUMNS = {
+    "time_utc",
+    "receiver",
+    "constellation",
+    "svid",
+    "azimuth",
+    "elevation",
+    "cn0",
+    "e",
+    "n",
+    "z",
+}
 INTER_COLUMNS = {"signal", "building", "height", "distance", "order", "cn0"}
 
 
 @pytest.fixture(scope="module")
 def sims():
-    return {(p, loc): simulate(p, locations=loc, seed=1, interval=15.0)
-            for p in PRESETS for loc in ("manual", "gnss")}
+    return {
+        (p, loc): simulate(p, locations=loc, seed=1, interval=15.0)
+        for p in PRESETS
+        for loc in ("manual", "gnss")
+    }
 
 
 def test_tables_follow_the_design(sims):
@@ -31,13 +44,14 @@ def test_intersection_heights_follow_the_rays(sims):
     sim = sims[("ucl", "manual")]
     o, i = sim.observations, sim.intersections
     expected = o["z"].to_numpy()[i["signal"]] + i["distance"] * np.tan(
-        np.radians(o["elevation"].to_numpy()[i["signal"]]))
+        np.radians(o["elevation"].to_numpy()[i["signal"]])
+    )
     np.testing.assert_allclose(i["height"], expected)
     assert (i.groupby("signal")["order"].min() == 0).all()
 
 
 def test_every_signal_is_within_the_mask(sims):
-    for (preset, _), sim in sims.items():
+    for (_preset, _), sim in sims.items():
         el = sim.observations["elevation"]
         assert el.min() >= sim.scene.min_elevation and el.max() <= sim.scene.max_elevation
 
@@ -52,6 +66,7 @@ def test_phone_sees_30_to_50_satellites():
 def test_sites_differ_as_the_papers_do(sims):
     def los(preset):
         return sims[(preset, "manual")].observations["los"].mean()
+
     assert los("goodchild") < 0.4  # a canyon: most signals blocked
     assert los("ucl") > 0.5  # an open square
 
@@ -75,6 +90,7 @@ def test_location_errors(sims):
     def err(preset, loc):
         o = sims[(preset, loc)].observations
         return np.hypot(o["e"] - o["e_true"], o["n"] - o["n_true"])
+
     for preset in PRESETS:
         assert err(preset, "manual").median() < 2.5
     assert err("goodchild", "gnss").median() > 3.0

@@ -80,4 +80,6 @@ class SignalClassifier:
         fit = fit_4pl(uniq * CN0_RESOLUTION, k / n, n, init=[[self.a, self.b, self.c, self.d]])
         if not np.isfinite(fit.c[0]):
             return self
-        return replace(self, a=float(fit.a[0]), b=float(fit.b[0]), c=float(fit.c[0]), d=float(fit.d[0]))
+        return replace(
+            self, a=float(fit.a[0]), b=float(fit.b[0]), c=float(fit.c[0]), d=float(fit.d[0])
+        )

@@ -19,8 +19,19 @@ METHODS = ("4PL-B", "4PL", "hinge", "bayes")
 #: Columns of the heights table, in order (see DESIGN.md; ``status`` says why a building did
 #: not converge, or ``ok``).
 HEIGHTS_COLUMNS = [
-    "id", "height", "height_lower", "height_upper", "a", "b", "c", "d",
-    "n_signals", "iterations", "converged", "method", "status",
+    "id",
+    "height",
+    "height_lower",
+    "height_upper",
+    "a",
+    "b",
+    "c",
+    "d",
+    "n_signals",
+    "iterations",
+    "converged",
+    "method",
+    "status",
 ]
 
 _REQUIRED = ["building", "height", "cn0"]
@@ -92,17 +103,37 @@ def estimate_heights(
 
     if method in ("4PL-B", "4PL"):
         fits, classifier = fourplb(
-            codes, height, cn0, n, init_threshold=init_threshold, signal=signal,
-            bootstrap=method == "4PL-B", **options,
+            codes,
+            height,
+            cn0,
+            n,
+            init_threshold=init_threshold,
+            signal=signal,
+            bootstrap=method == "4PL-B",
+            **options,
         )
-        out = pd.DataFrame({
-            "id": ids, "height": fits.height, "height_lower": fits.height_lower,
-            "height_upper": fits.height_upper, "a": fits.a, "b": fits.b, "c": fits.c, "d": fits.d,
-            "n_signals": fits.n_signals, "iterations": fits.iterations,
-            "converged": fits.converged, "method": method, "status": fits.status,
-        })
+        out = pd.DataFrame(
+            {
+                "id": ids,
+                "height": fits.height,
+                "height_lower": fits.height_lower,
+                "height_upper": fits.height_upper,
+                "a": fits.a,
+                "b": fits.b,
+                "c": fits.c,
+                "d": fits.d,
+                "n_signals": fits.n_signals,
+                "iterations": fits.iterations,
+                "converged": fits.converged,
+                "method": method,
+                "status": fits.status,
+            }
+        )
         out.attrs["signal_classifier"] = {
-            "a": classifier.a, "b": classifier.b, "c": classifier.c, "d": classifier.d
+            "a": classifier.a,
+            "b": classifier.b,
+            "c": classifier.c,
+            "d": classifier.d,
         }
         return out
 
@@ -112,13 +143,23 @@ def estimate_heights(
     min_signals = options.get("min_signals", 10)
     ok = n_signals >= min_signals
     nan = np.full(n, np.nan)
-    return pd.DataFrame({
-        "id": ids, "height": np.where(ok, h, np.nan), "height_lower": nan,
-        "height_upper": nan, "a": nan, "b": nan, "c": nan, "d": nan,
-        "n_signals": n_signals, "iterations": np.where(ok, 1, 0), "converged": ok,
-        "method": method,
-        "status": np.where(ok, "ok", f"fewer than {min_signals} signals").astype(object),
-    })
+    return pd.DataFrame(
+        {
+            "id": ids,
+            "height": np.where(ok, h, np.nan),
+            "height_lower": nan,
+            "height_upper": nan,
+            "a": nan,
+            "b": nan,
+            "c": nan,
+            "d": nan,
+            "n_signals": n_signals,
+            "iterations": np.where(ok, 1, 0),
+            "converged": ok,
+            "method": method,
+            "status": np.where(ok, "ok", f"fewer than {min_signals} signals").astype(object),
+        }
+    )
 
 
 def _as_table(intersections) -> pd.DataFrame:
@@ -130,7 +171,8 @@ def _as_table(intersections) -> pd.DataFrame:
             detail = ", ".join(f"{k}={v}" for k, v in lengths.items())
             raise InputError(
                 "intersection columns have different lengths",
-                where=detail, fix="give every column one value per row",
+                where=detail,
+                fix="give every column one value per row",
             )
         table = pd.DataFrame({k: np.atleast_1d(v) for k, v in intersections.items()})
     else:
@@ -150,7 +192,8 @@ def _columns(table: pd.DataFrame):
     if (codes < 0).any():
         raise InputError(
             "intersections have an empty building id",
-            where=f"rows {_rows(codes < 0)}", fix="give every row the id of its building",
+            where=f"rows {_rows(codes < 0)}",
+            fix="give every row the id of its building",
         )
     height = _numeric(table, "height")
     bad = ~np.isfinite(height)
@@ -162,8 +205,11 @@ def _columns(table: pd.DataFrame):
         )
     cn0 = _numeric(table, "cn0")
     if np.isinf(cn0).any():
-        raise InputError("C/N0 is infinite", where=f"column 'cn0', rows {_rows(np.isinf(cn0))}",
-                         fix="use NaN (empty) for blocked signals")
+        raise InputError(
+            "C/N0 is infinite",
+            where=f"column 'cn0', rows {_rows(np.isinf(cn0))}",
+            fix="use NaN (empty) for blocked signals",
+        )
     signal = None
     if "signal" in table.columns:
         signal = pd.factorize(table["signal"])[0]
@@ -177,7 +223,8 @@ def _numeric(table, column) -> np.ndarray:
     if garbage.any():
         raise InputError(
             f"column {column!r} holds values that are not numbers",
-            where=f"rows {_rows(garbage)}", fix="give numbers in metres / dB-Hz",
+            where=f"rows {_rows(garbage)}",
+            fix="give numbers in metres / dB-Hz",
         )
     return values
 

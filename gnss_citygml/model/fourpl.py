@@ -161,10 +161,22 @@ def fit_4pl(
     span = np.maximum(hi - lo, 1e-6)
 
     theta0 = _initial_theta(x, y, w, g, n_groups, lo, hi) if init is None else _to_theta(init)
-    box_lo = np.column_stack([np.full(n_groups, -_LOGIT_BOUND), np.full(n_groups, np.log(b_bounds[0])),
-                              lo - span, np.full(n_groups, -_LOGIT_BOUND)])
-    box_hi = np.column_stack([np.full(n_groups, _LOGIT_BOUND), np.full(n_groups, np.log(b_bounds[1])),
-                              hi + span, np.full(n_groups, _LOGIT_BOUND)])
+    box_lo = np.column_stack(
+        [
+            np.full(n_groups, -_LOGIT_BOUND),
+            np.full(n_groups, np.log(b_bounds[0])),
+            lo - span,
+            np.full(n_groups, -_LOGIT_BOUND),
+        ]
+    )
+    box_hi = np.column_stack(
+        [
+            np.full(n_groups, _LOGIT_BOUND),
+            np.full(n_groups, np.log(b_bounds[1])),
+            hi + span,
+            np.full(n_groups, _LOGIT_BOUND),
+        ]
+    )
     theta = np.clip(np.nan_to_num(theta0), box_lo, box_hi)
 
     active = counts > 0
@@ -189,7 +201,12 @@ def fit_4pl(
         accept = gain >= -1e-12 * (1.0 + np.abs(ll[idx]))
         acc = idx[accept]
         moved = np.max(np.abs(trial[idx] - theta[idx]), axis=1)
-        theta[acc], ll[acc], grad[acc], fisher[acc] = trial[acc], t_ll[acc], t_grad[acc], t_fisher[acc]
+        theta[acc], ll[acc], grad[acc], fisher[acc] = (
+            trial[acc],
+            t_ll[acc],
+            t_grad[acc],
+            t_fisher[acc],
+        )
         lam[acc] = np.maximum(lam[acc] / 4.0, 1e-9)
         lam[idx[~accept]] *= 8.0
         small = np.abs(gain) <= tol * (1.0 + np.abs(ll[idx]))
@@ -241,8 +258,11 @@ def _initial_theta(x, y, w, g, n_groups, lo, hi):
     pick = np.full(n_groups, -1)
     np.maximum.at(pick, gs[score == best[gs]], idx[score == best[gs]])
     has = (pick >= 0) & np.isfinite(best)
-    mid = np.where(has, 0.5 * (xs[np.maximum(pick, 0)] + xs[np.minimum(pick + 1, xs.size - 1)]),
-                   0.5 * (lo + hi))
+    mid = np.where(
+        has,
+        0.5 * (xs[np.maximum(pick, 0)] + xs[np.minimum(pick + 1, xs.size - 1)]),
+        0.5 * (lo + hi),
+    )
     d0 = np.where(has, p_below[np.maximum(pick, 0)], 0.1)
     a0 = np.where(has, p_above[np.maximum(pick, 0)], 0.9)
     a0 = np.clip(a0, 0.05, 0.99)
@@ -273,8 +293,12 @@ def _to_theta(params):
     d = np.clip(params[:, 3], 1e-9, None)
     ratio = np.clip(d / a, 1e-6, 1 - 1e-6)
     return np.column_stack(
-        [np.log(a / (1 - a)), np.log(np.maximum(params[:, 1], 1e-300)), params[:, 2],
-         np.log(ratio / (1 - ratio))]
+        [
+            np.log(a / (1 - a)),
+            np.log(np.maximum(params[:, 1], 1e-300)),
+            params[:, 2],
+            np.log(ratio / (1 - ratio)),
+        ]
     )
 
 
@@ -326,7 +350,9 @@ def _evaluate(theta, x, y, w, g, n_groups, active):
     for k in range(4):
         grad[:, k] = np.bincount(g, resid * jac[k], minlength=n_groups)
     for i, j in _PAIRS:
-        fisher[:, i, j] = fisher[:, j, i] = np.bincount(g, info * jac[i] * jac[j], minlength=n_groups)
+        fisher[:, i, j] = fisher[:, j, i] = np.bincount(
+            g, info * jac[i] * jac[j], minlength=n_groups
+        )
     return ll, grad, fisher
 
 

@@ -84,7 +84,9 @@ def height_weights(height, groups, n_groups, scheme, c=None):
         above = height > np.asarray(c)[groups]
         n_above = np.bincount(groups, weights=above.astype(float), minlength=n_groups)
         n_below = np.bincount(groups, minlength=n_groups) - n_above
-        raw = np.where(above, 1.0 / np.maximum(n_above, 1)[groups], 1.0 / np.maximum(n_below, 1)[groups])
+        raw = np.where(
+            above, 1.0 / np.maximum(n_above, 1)[groups], 1.0 / np.maximum(n_below, 1)[groups]
+        )
     else:
         raise ValueError(f"unknown weighting {scheme!r}; use one of {', '.join(WEIGHTINGS)}")
     total = np.bincount(groups, weights=raw, minlength=n_groups)
@@ -165,7 +167,9 @@ def fourplb(
             break
         new_map = h > fit.c[g]
         if prev_map is not None:
-            changed = np.bincount(g, weights=(new_map != prev_map).astype(float), minlength=n_groups)
+            changed = np.bincount(
+                g, weights=(new_map != prev_map).astype(float), minlength=n_groups
+            )
             change = changed / np.maximum(n_rows, 1)
         prev_map = new_map
         classifier = classifier.refit(*_classifier_data(s, new_map, sig))
@@ -175,8 +179,20 @@ def fourplb(
         if prev_map is not None and iterations > 1 and np.all(change[usable] < label_tol):
             break
 
-    result = _judge(fit, g, h, fit_labels, n_groups, n_rows, usable, change, iterations,
-                    label_tol if bootstrap else np.inf, min_separation, min_signals)
+    result = _judge(
+        fit,
+        g,
+        h,
+        fit_labels,
+        n_groups,
+        n_rows,
+        usable,
+        change,
+        iterations,
+        label_tol if bootstrap else np.inf,
+        min_separation,
+        min_signals,
+    )
     return result, classifier
 
 
@@ -192,8 +208,20 @@ def _classifier_data(cn0, open_map, sig):
     return cn0[first], closed == 0
 
 
-def _judge(fit, g, h, labels, n_groups, n_rows, usable, change, iterations, label_tol,
-           min_separation, min_signals):
+def _judge(
+    fit,
+    g,
+    h,
+    labels,
+    n_groups,
+    n_rows,
+    usable,
+    change,
+    iterations,
+    label_tol,
+    min_separation,
+    min_signals,
+):
     """Turn a fit into heights, with an explicit reason wherever it is not to be trusted."""
     a, b, c, d = (v.copy() for v in (fit.a, fit.b, fit.c, fit.d))
     lo = np.full(n_groups, np.inf)
@@ -217,7 +245,10 @@ def _judge(fit, g, h, labels, n_groups, n_rows, usable, change, iterations, labe
     converged = status == "ok"
     height = np.where(converged, c + 1.5 / b, np.nan)
     return BuildingFits(
-        a=a, b=b, c=c, d=d,
+        a=a,
+        b=b,
+        c=c,
+        d=d,
         n_signals=n_rows,
         iterations=np.where(usable, iterations, 0),
         converged=converged,

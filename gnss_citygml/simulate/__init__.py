@@ -51,8 +51,14 @@ class Simulation:
     truth: pd.DataFrame
 
 
-def simulate(preset: str, *, locations: str = "manual", seed: int = 0, interval: float = 1.0,
-             max_range: float = 500.0) -> Simulation:
+def simulate(
+    preset: str,
+    *,
+    locations: str = "manual",
+    seed: int = 0,
+    interval: float = 1.0,
+    max_range: float = 500.0,
+) -> Simulation:
     """Simulate a preset site.
 
     Parameters
@@ -84,9 +90,13 @@ def simulate(preset: str, *, locations: str = "manual", seed: int = 0, interval:
     ['goodchild_block']
     """
     if preset not in PRESETS:
-        raise InputError(f"unknown simulator preset {preset!r}", fix="use one of " + ", ".join(PRESETS))
+        raise InputError(
+            f"unknown simulator preset {preset!r}", fix="use one of " + ", ".join(PRESETS)
+        )
     if locations not in LOCATIONS:
-        raise InputError(f"unknown locations {locations!r}", fix="use one of " + ", ".join(LOCATIONS))
+        raise InputError(
+            f"unknown locations {locations!r}", fix="use one of " + ", ".join(LOCATIONS)
+        )
     rng = np.random.default_rng(seed)
     scene = make_scene(preset, rng)
     device = rng.normal(0.0, SignalModel.device_sd)
@@ -101,17 +111,28 @@ def simulate(preset: str, *, locations: str = "manual", seed: int = 0, interval:
     obs = pd.concat(frames, ignore_index=True)
     inter = _intersections(obs, scene, footprints, max_range)
     targets = set(scene.targets) or {b.id for b in scene.buildings}
-    truth = pd.DataFrame({
-        "id": [b.id for b in scene.buildings],
-        "height": [b.true_height for b in scene.buildings],
-        "ground": [b.ground for b in scene.buildings],
-        "target": [b.id in targets for b in scene.buildings],
-    })
+    truth = pd.DataFrame(
+        {
+            "id": [b.id for b in scene.buildings],
+            "height": [b.true_height for b in scene.buildings],
+            "ground": [b.ground for b in scene.buildings],
+            "target": [b.id in targets for b in scene.buildings],
+        }
+    )
     return Simulation(scene, obs, inter, truth)
 
 
-def _session(rng, scene: Scene, session: Session, device, part_polys, part_tops, footprints,
-             locations, interval):
+def _session(
+    rng,
+    scene: Scene,
+    session: Session,
+    device,
+    part_polys,
+    part_tops,
+    footprints,
+    locations,
+    interval,
+):
     t = session.start + np.arange(0.0, session.duration, interval)
     n_ep = t.size
     true_xy = _positions(session, t)
@@ -134,8 +155,12 @@ def _session(rng, scene: Scene, session: Session, device, part_polys, part_tops,
 
     # C/N0 of the direct (possibly diffracted) and reflected components.
     m = SignalModel
-    base = (m.zenith_cn0 - m.horizon_loss * (1.0 - np.sin(np.radians(s_el))) + device
-            + rng.normal(0.0, m.session_sd))
+    base = (
+        m.zenith_cn0
+        - m.horizon_loss * (1.0 - np.sin(np.radians(s_el)))
+        + device
+        + rng.normal(0.0, m.session_sd)
+    )
     direct = base - loss + rng.normal(0.0, m.fading_sd, ep.size)
     behind, _, _, _ = footprint_entries(xt, yt, (s_az + 180.0) % 360.0, footprints, max_range=60.0)
     facade = np.zeros(ep.size, dtype=bool)
@@ -158,26 +183,35 @@ def _session(rng, scene: Scene, session: Session, device, part_polys, part_tops,
     else:
         rec, nl, c = np.zeros(az.shape, bool), np.zeros(az.shape, bool), np.full(az.shape, np.nan)
         rec[ep, sat], nl[ep, sat], c[ep, sat] = received, nlos, cn0
-        de, dn = gnss_fix_errors(rng, np.where(visible, az, np.nan), np.where(visible, el, np.nan),
-                                 rec, nl, c, dt=interval)
+        de, dn = gnss_fix_errors(
+            rng,
+            np.where(visible, az, np.nan),
+            np.where(visible, el, np.nan),
+            rec,
+            nl,
+            c,
+            dt=interval,
+        )
         err = np.column_stack([de, dn])
     rep = true_xy + err
-    return pd.DataFrame({
-        "time_utc": EPOCH + pd.to_timedelta(t[ep], unit="s"),
-        "receiver": session.receiver,
-        "constellation": letters[sat],
-        "svid": svids[sat],
-        "azimuth": s_az,
-        "elevation": s_el,
-        "cn0": cn0,
-        "e": rep[ep, 0],
-        "n": rep[ep, 1],
-        "z": scene.ground + ASSUMED_ANTENNA,
-        "e_true": xt,
-        "n_true": yt,
-        "z_true": zt,
-        "los": ~blocked,
-    })
+    return pd.DataFrame(
+        {
+            "time_utc": EPOCH + pd.to_timedelta(t[ep], unit="s"),
+            "receiver": session.receiver,
+            "constellation": letters[sat],
+            "svid": svids[sat],
+            "azimuth": s_az,
+            "elevation": s_el,
+            "cn0": cn0,
+            "e": rep[ep, 0],
+            "n": rep[ep, 1],
+            "z": scene.ground + ASSUMED_ANTENNA,
+            "e_true": xt,
+            "n_true": yt,
+            "z_true": zt,
+            "los": ~blocked,
+        }
+    )
 
 
 def _positions(session: Session, t):
@@ -191,18 +225,21 @@ def _positions(session: Session, t):
 
 
 def _intersections(obs: pd.DataFrame, scene: Scene, footprints, max_range):
-    ray, b, dist, cos = footprint_entries(obs["e"].to_numpy(), obs["n"].to_numpy(),
-                                          obs["azimuth"].to_numpy(), footprints, max_range)
+    ray, b, dist, cos = footprint_entries(
+        obs["e"].to_numpy(), obs["n"].to_numpy(), obs["azimuth"].to_numpy(), footprints, max_range
+    )
     el = np.radians(obs["elevation"].to_numpy()[ray])
     first = np.r_[True, ray[1:] != ray[:-1]]
     start = np.maximum.accumulate(np.where(first, np.arange(ray.size), 0))
     ids = np.array([bd.id for bd in scene.buildings], dtype=object)
-    return pd.DataFrame({
-        "signal": ray,
-        "building": ids[b],
-        "height": obs["z"].to_numpy()[ray] + dist * np.tan(el),
-        "distance": dist,
-        "order": np.arange(ray.size) - start,
-        "cn0": obs["cn0"].to_numpy()[ray],
-        "receiver": obs["receiver"].to_numpy()[ray],
-    })
+    return pd.DataFrame(
+        {
+            "signal": ray,
+            "building": ids[b],
+            "height": obs["z"].to_numpy()[ray] + dist * np.tan(el),
+            "distance": dist,
+            "order": np.arange(ray.size) - start,
+            "cn0": obs["cn0"].to_numpy()[ray],
+            "receiver": obs["receiver"].to_numpy()[ray],
+        }
+    )

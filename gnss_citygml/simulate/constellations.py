@@ -85,10 +85,16 @@ def sky(lat, lon, height, sat_xyz):
     rz = (n * (1 - _WGS84_E2) + height) * np.sin(phi)
     d = sat_xyz - np.array([rx, ry, rz])
     east = -np.sin(lam) * d[..., 0] + np.cos(lam) * d[..., 1]
-    north = (-np.sin(phi) * np.cos(lam) * d[..., 0] - np.sin(phi) * np.sin(lam) * d[..., 1]
-             + np.cos(phi) * d[..., 2])
-    up = (np.cos(phi) * np.cos(lam) * d[..., 0] + np.cos(phi) * np.sin(lam) * d[..., 1]
-          + np.sin(phi) * d[..., 2])
+    north = (
+        -np.sin(phi) * np.cos(lam) * d[..., 0]
+        - np.sin(phi) * np.sin(lam) * d[..., 1]
+        + np.cos(phi) * d[..., 2]
+    )
+    up = (
+        np.cos(phi) * np.cos(lam) * d[..., 0]
+        + np.cos(phi) * np.sin(lam) * d[..., 1]
+        + np.sin(phi) * d[..., 2]
+    )
     az = np.degrees(np.arctan2(east, north)) % 360.0
     el = np.degrees(np.arctan2(up, np.hypot(east, north)))
     return az, el

@@ -116,23 +116,40 @@ def _ucl(rng):
         _static(rng, f"ucl_{k}", start, (rng.uniform(-18, 18), rng.uniform(8, 28)))
         for k, start in enumerate([0.0, 3 * 3600.0 + 1234.0])
     )
-    return Scene("ucl", 51.5246, -0.1340, g, (main, *neighbours), sessions, 10.0, 85.0,
-                 ("ucl_main",))
+    return Scene(
+        "ucl", 51.5246, -0.1340, g, (main, *neighbours), sessions, 10.0, 85.0, ("ucl_main",)
+    )
 
 
 def _goodchild(rng):
     g = 31.0
     block = flat("goodchild_block", box(0, 0, 40, 15), g, 16.0)
     opposite = flat("opposite_block", box(-5, 22, 45, 37), g, 15.0)
-    ends = (flat("west_block", box(-30, -5, -8, 20), g, 14.0),
-            flat("east_block", box(48, -5, 70, 20), g, 14.0))
+    ends = (
+        flat("west_block", box(-30, -5, -8, 20), g, 14.0),
+        flat("east_block", box(48, -5, 70, 20), g, 14.0),
+    )
     sessions = tuple(
-        _static(rng, f"goodchild_{k}", 2400.0 * k + 777.0 * (k % 2),
-                (rng.uniform(4, 36), 18.5 + rng.uniform(-1.0, 1.0)), duration=1350.0)
+        _static(
+            rng,
+            f"goodchild_{k}",
+            2400.0 * k + 777.0 * (k % 2),
+            (rng.uniform(4, 36), 18.5 + rng.uniform(-1.0, 1.0)),
+            duration=1350.0,
+        )
         for k in range(6)
     )
-    return Scene("goodchild", 51.5660, -0.0946, g, (block, opposite, *ends), sessions, 10.0, 85.0,
-                 ("goodchild_block",))
+    return Scene(
+        "goodchild",
+        51.5660,
+        -0.0946,
+        g,
+        (block, opposite, *ends),
+        sessions,
+        10.0,
+        85.0,
+        ("goodchild_block",),
+    )
 
 
 def _hermitage(rng):
@@ -141,12 +158,26 @@ def _hermitage(rng):
     across = pitched("across_terrace", -10, 26, 70, 35, g, 8.5, 11.0)
     behind = pitched("behind_terrace", -10, -40, 70, -31, g, 8.5, 11.0)
     sessions = tuple(
-        _static(rng, f"hermitage_{k}", 2900.0 * k + 400.0,
-                (rng.uniform(8, 52), 22.5 + rng.uniform(-1.0, 1.0)), duration=1670.0)
+        _static(
+            rng,
+            f"hermitage_{k}",
+            2900.0 * k + 400.0,
+            (rng.uniform(8, 52), 22.5 + rng.uniform(-1.0, 1.0)),
+            duration=1670.0,
+        )
         for k in range(5)
     )
-    return Scene("hermitage", 51.5770, -0.0900, g, (terrace, across, behind), sessions, 0.0, 85.0,
-                 ("hermitage_terrace",))
+    return Scene(
+        "hermitage",
+        51.5770,
+        -0.0900,
+        g,
+        (terrace, across, behind),
+        sessions,
+        0.0,
+        85.0,
+        ("hermitage_terrace",),
+    )
 
 
 def _city(rng):
@@ -167,11 +198,21 @@ def _city(rng):
                 buildings.append(pitched(bid, x0, y0, x0 + w, y0 + d, g, rel - 1.5, rel + 1.5))
             else:
                 tower = float(rng.uniform(0.2, 0.35))
-                buildings.append(multipart(bid, [
-                    (box(x0, y0, x0 + w, y0 + d * (1 - tower)), rel),
-                    (box(x0, y0 + d * (1 - tower), x0 + w * 0.4, y0 + d), rel + rng.uniform(4, 10)),
-                    (box(x0 + w * 0.4, y0 + d * (1 - tower), x0 + w, y0 + d), rel),
-                ], g, rel))
+                buildings.append(
+                    multipart(
+                        bid,
+                        [
+                            (box(x0, y0, x0 + w, y0 + d * (1 - tower)), rel),
+                            (
+                                box(x0, y0 + d * (1 - tower), x0 + w * 0.4, y0 + d),
+                                rel + rng.uniform(4, 10),
+                            ),
+                            (box(x0 + w * 0.4, y0 + d * (1 - tower), x0 + w, y0 + d), rel),
+                        ],
+                        g,
+                        rel,
+                    )
+                )
     sessions = []
     for k in range(8):
         if k % 2 == 0:  # walk west-east along a street between block rows

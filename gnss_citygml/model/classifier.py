@@ -64,8 +64,10 @@ class SignalClassifier:
         """The maximum-likelihood classifier for received signals labelled by the map.
 
         Blocked signals carry no C/N0 and stay closed whatever the classifier, so they are left
-        out. When the received signals hold only one class, the data cannot place a threshold
-        and the current classifier is kept.
+        out. The fit starts both from the current classifier and from the best single threshold
+        and keeps the likelier. When the labels cannot place a threshold (one class only, or a
+        best fit that never reaches Pr(open) = 0.5), the current classifier is kept: co-training
+        cannot continue from a classifier that gives every signal the same label.
         """
         cn0 = np.asarray(cn0, dtype=float)
         labels = np.asarray(labels, dtype=bool)
@@ -77,9 +79,10 @@ class SignalClassifier:
         uniq, inverse = np.unique(key, return_inverse=True)
         n = np.bincount(inverse).astype(float)
         k = np.bincount(inverse, weights=y.astype(float))
-        fit = fit_4pl(uniq * CN0_RESOLUTION, k / n, n, init=[[self.a, self.b, self.c, self.d]])
-        if not np.isfinite(fit.c[0]):
-            return self
-        return replace(
-            self, a=float(fit.a[0]), b=float(fit.b[0]), c=float(fit.c[0]), d=float(fit.d[0])
+        x, frac = uniq * CN0_RESOLUTION, k / n
+        fits = [fit_4pl(x, frac, n, init=[[self.a, self.b, self.c, self.d]]), fit_4pl(x, frac, n)]
+        best = max(fits, key=lambda f: f.loglik[0] if np.isfinite(f.loglik[0]) else -np.inf)
+        new = replace(
+            self, a=float(best.a[0]), b=float(best.b[0]), c=float(best.c[0]), d=float(best.d[0])
         )
+        return new if np.isfinite(new.threshold) else self

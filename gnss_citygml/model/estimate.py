@@ -35,7 +35,15 @@ HEIGHTS_COLUMNS = [
 ]
 
 _REQUIRED = ["building", "height", "cn0"]
-_FOURPL_OPTIONS = {"weighting", "max_iter", "label_tol", "min_signals", "min_separation"}
+_FOURPL_OPTIONS = {
+    "weighting",
+    "visibility",
+    "max_iter",
+    "label_tol",
+    "min_signals",
+    "min_separation",
+    "max_uncertainty",
+}
 _BASELINE_OPTIONS = {"min_signals"}
 
 
@@ -62,7 +70,10 @@ def estimate_heights(
         C/N0 (dB-Hz) where the initial signal classifier gives Pr(open) = 0.5.
     **options
         For 4PL-B and 4PL: ``weighting`` (``height`` default, ``balanced`` or ``none``),
-        ``max_iter`` (10), ``label_tol`` (0.01), ``min_signals`` (10), ``min_separation`` (0.1).
+        ``visibility`` (True: with ``signal`` and ``order``, a signal blocked by another
+        building at the current estimates is left out for this one), ``max_iter`` (10),
+        ``label_tol`` (0.01), ``min_signals`` (10), ``min_separation`` (0.3),
+        ``max_uncertainty`` (10 m: the widest range of a converged estimate).
         For hinge and bayes: ``min_signals``.
 
     Returns
@@ -98,7 +109,7 @@ def estimate_heights(
     if not np.isfinite(init_threshold):
         raise ModelError("init_threshold must be a finite C/N0 in dB-Hz", fix="e.g. 30")
     table = _as_table(intersections)
-    ids, codes, height, cn0, signal = _columns(table)
+    ids, codes, height, cn0, signal, order = _columns(table)
     n = len(ids)
 
     if method in ("4PL-B", "4PL"):
@@ -109,6 +120,7 @@ def estimate_heights(
             n,
             init_threshold=init_threshold,
             signal=signal,
+            order=order,
             bootstrap=method == "4PL-B",
             **options,
         )
@@ -210,10 +222,9 @@ def _columns(table: pd.DataFrame):
             where=f"column 'cn0', rows {_rows(np.isinf(cn0))}",
             fix="use NaN (empty) for blocked signals",
         )
-    signal = None
-    if "signal" in table.columns:
-        signal = pd.factorize(table["signal"])[0]
-    return np.asarray(ids, dtype=object), codes.astype(np.intp), height, cn0, signal
+    signal = pd.factorize(table["signal"])[0] if "signal" in table.columns else None
+    order = _numeric(table, "order") if "order" in table.columns else None
+    return np.asarray(ids, dtype=object), codes.astype(np.intp), height, cn0, signal, order
 
 
 def _numeric(table, column) -> np.ndarray:

@@ -31,6 +31,11 @@ __all__ = ["WEIGHTINGS", "BuildingFits", "fourplb", "height_weights", "map_fit"]
 #: Reweighting schemes of the height fit; see :func:`height_weights`.
 WEIGHTINGS = ("none", "height", "balanced")
 
+#: With the visibility model, at least this fraction of the signals crossing a building below
+#: its fitted roof line must be unblocked by other buildings; otherwise the lower edge of the
+#: remaining data is where the buildings in front end, not where this one does.
+MIN_VISIBLE = 0.1
+
 #: Width (m) of the intersection-height bins of the ``height`` weighting: finer than any
 #: building's height uncertainty, coarse enough to hold several signals each.
 HEIGHT_BIN = 1.0
@@ -53,8 +58,10 @@ class BuildingFits:
     height_upper: np.ndarray
 
 
-def height_weights(height, groups, n_groups, scheme, c=None):
+def height_weights(height, groups, n_groups, scheme, c=None, mask=None):
     """Sample weights of the height fit, normalised to a mean of 1 within each building.
+
+    Rows outside ``mask`` (default: all rows are in) get weight 0.
 
     ``none``
         Every signal counts once (the paper's MLE).
@@ -68,29 +75,35 @@ def height_weights(height, groups, n_groups, scheme, c=None):
     """
     height = np.asarray(height, dtype=float)
     groups = np.asarray(groups, dtype=np.intp)
-    if scheme == "none":
+    mask = np.ones(height.size, dtype=bool) if mask is None else np.asarray(mask, dtype=bool)
+    out = np.zeros(height.size)
+    out[mask] = _weights(height[mask], groups[mask], n_groups, scheme, c)
+    return out
+
+
+def _weights(height, groups, n_groups, scheme, c):
+    n = np.bincount(groups, minlength=n_groups).astype(float)
+    if scheme == "none" or (scheme == "balanced" and c is None) or height.size == 0:
         return np.ones_like(height)
     if scheme == "height":
         bins = np.floor(height / HEIGHT_BIN).astype(np.int64)
         key = groups.astype(np.int64) * (1 << 32) + (bins - bins.min())
-        _, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
-        n = np.bincount(groups, minlength=n_groups).astype(float)
-        occupied = np.bincount(groups[np.unique(inverse, return_index=True)[1]], minlength=n_groups)
+        _, first, inverse, counts = np.unique(
+            key, return_index=True, return_inverse=True, return_counts=True
+        )
+        occupied = np.bincount(groups[first], minlength=n_groups)
         floor = n / np.maximum(occupied, 1)
         raw = 1.0 / np.maximum(counts[inverse], floor[groups])
     elif scheme == "balanced":
-        if c is None:
-            return np.ones_like(height)
         above = height > np.asarray(c)[groups]
         n_above = np.bincount(groups, weights=above.astype(float), minlength=n_groups)
-        n_below = np.bincount(groups, minlength=n_groups) - n_above
+        n_below = n - n_above
         raw = np.where(
             above, 1.0 / np.maximum(n_above, 1)[groups], 1.0 / np.maximum(n_below, 1)[groups]
         )
     else:
         raise ValueError(f"unknown weighting {scheme!r}; use one of {', '.join(WEIGHTINGS)}")
     total = np.bincount(groups, weights=raw, minlength=n_groups)
-    n = np.bincount(groups, minlength=n_groups)
     return raw * (n / np.maximum(total, 1e-300))[groups]
 
 
@@ -107,11 +120,14 @@ def fourplb(
     *,
     init_threshold: float = 30.0,
     signal=None,
+    order=None,
     weighting: str = "height",
+    visibility: bool = True,
     max_iter: int = 10,
     label_tol: float = 0.01,
     min_signals: int = 10,
-    min_separation: float = 0.1,
+    min_separation: float = 0.3,
+    max_uncertainty: float = 10.0,
     bootstrap: bool = True,
 ) -> tuple[BuildingFits, SignalClassifier]:
     """Run 4PL-B (or, with ``bootstrap=False``, the paper's one-shot 4PL) on coded arrays.
@@ -126,86 +142,128 @@ def fourplb(
         Number of buildings.
     init_threshold
         C/N0 at which the initial signal classifier gives Pr(open) = 0.5.
-    signal
-        Optional signal code of each row (rows of one signal crossing several buildings).
+    signal, order
+        Optional signal code of each row (rows of one signal crossing several buildings) and
+        the row's position along its ray (0 = first building crossed).
     weighting
         Reweighting of the height fit, one of :data:`WEIGHTINGS`.
+    visibility
+        With ``signal``: leave out, for a building, the rows whose ray is blocked by another
+        building (at the current estimates); such a signal says nothing about this building.
+        The first fit uses only the first building along each ray (needs ``order``).
     max_iter, label_tol
         Stop after ``max_iter`` iterations or when fewer than ``label_tol`` of every building's
         map labels change between two iterations.
     min_signals, min_separation
         A building needs at least ``min_signals`` rows, and its fitted asymptotes must differ by
-        at least ``min_separation`` (the height must change the open probability by that much),
-        for its estimate to count as converged.
+        at least ``min_separation`` for its estimate to count as converged: the roof line must
+        change the open probability by that much. (The paper's classifier, trained at one site
+        and applied to others, still had a - d of about 0.4.)
+    max_uncertainty
+        Widest height range (c, c + 3/b), in metres, of a converged estimate. The default, 10 m,
+        keeps the estimate within 5 m of both ends of its range: CityGML's accuracy class for
+        LOD1, the benchmark the paper measures itself against.
     bootstrap
-        False runs a single pass (label by the initial classifier, fit, stop): the paper's 4PL.
+        False runs a single pass (label by the initial classifier, fit, stop): the paper's 4PL,
+        which, as in the paper, always returns the fitted height when the optimiser converged
+        on data of both classes; the plausibility checks of 4PL-B are not applied to it.
 
     Returns
     -------
     (BuildingFits, SignalClassifier)
         The per-building fits and the final signal classifier.
     """
-    groups = np.asarray(groups, dtype=np.intp)
-    height = np.asarray(height, dtype=float)
-    cn0 = np.asarray(cn0, dtype=float)
-    n_rows = np.bincount(groups, minlength=n_groups)
-    usable = n_rows >= min_signals
-    rows = usable[groups]
-    g, h, s = groups[rows], height[rows], cn0[rows]
-    sig = None if signal is None else np.unique(np.asarray(signal)[rows], return_inverse=True)[1]
+    g = np.asarray(groups, dtype=np.intp)
+    h = np.asarray(height, dtype=float)
+    s = np.asarray(cn0, dtype=float)
+    sig = None if signal is None else np.unique(np.asarray(signal), return_inverse=True)[1]
+    occlusion = visibility and sig is not None
+    seen = np.ones(h.size, dtype=bool)
+    if occlusion and order is not None:
+        seen = np.asarray(order) == 0
 
     classifier = SignalClassifier.initial(init_threshold)
     labels = classifier.label(s)
-    weights = height_weights(h, g, n_groups, weighting)
-    fit, prev_map, iterations = None, None, 0
-    change = np.ones(n_groups)
+    fit, prev_map, change, iterations = None, None, np.ones(n_groups), 0
     for iterations in range(1, (max_iter if bootstrap else 1) + 1):
-        init = None if fit is None else fit.params
-        fit_labels = labels
-        fit = map_fit(h, fit_labels, g, n_groups, weights, init=init)
+        c_now = None if fit is None else fit.c
+        weights = height_weights(h, g, n_groups, weighting, c=c_now, mask=seen)
+        fit_labels, fit_seen = labels, seen
+        fit = map_fit(h, labels, g, n_groups, weights, init=None if fit is None else fit.params)
         if not bootstrap:
             break
         new_map = h > fit.c[g]
         if prev_map is not None:
-            changed = np.bincount(
-                g, weights=(new_map != prev_map).astype(float), minlength=n_groups
-            )
-            change = changed / np.maximum(n_rows, 1)
+            flips = (new_map != prev_map) & seen
+            change = np.bincount(g, flips, n_groups) / np.maximum(np.bincount(g, seen, n_groups), 1)
         prev_map = new_map
-        classifier = classifier.refit(*_classifier_data(s, new_map, sig))
+        classifier = classifier.refit(*_classifier_data(s, new_map, sig, seen))
         labels = classifier.label(s)
-        if weighting == "balanced":
-            weights = height_weights(h, g, n_groups, weighting, c=fit.c)
-        if prev_map is not None and iterations > 1 and np.all(change[usable] < label_tol):
+        if occlusion:
+            seen = _unoccluded(
+                h, g, sig, fit, _plausible(fit, h, g, seen, n_groups, min_separation)
+            )
+        if iterations > 1 and np.all(change < label_tol):
             break
 
+    below = h < fit.c[g]
+    hidden = np.bincount(g, below & fit_seen, n_groups) < MIN_VISIBLE * np.bincount(
+        g, below, n_groups
+    )
     result = _judge(
         fit,
-        g,
-        h,
-        fit_labels,
+        g[fit_seen],
+        h[fit_seen],
+        fit_labels[fit_seen],
         n_groups,
-        n_rows,
-        usable,
         change,
         iterations,
-        label_tol if bootstrap else np.inf,
+        label_tol,
         min_separation,
         min_signals,
+        max_uncertainty,
+        hidden,
+        strict=bootstrap,
     )
     return result, classifier
 
 
-def _classifier_data(cn0, open_map, sig):
-    """C/N0 and map label per signal: with signal ids, a signal is open only if it clears every
-    building it crosses, and counts once."""
+def _plausible(fit, h, g, seen, n_groups, min_separation):
+    """Buildings whose current fit may stand in front of others: separated asymptotes and an
+    inflection point inside the heights they were fitted on."""
+    lo, hi = _range(h[seen], g[seen], n_groups)
+    return (fit.a - fit.d >= min_separation) & (fit.c >= lo) & (fit.c <= hi)
+
+
+def _unoccluded(h, g, sig, fit, plausible):
+    """Rows whose ray surely clears every *other* building at the current estimates: it passes
+    above the top of each one's height range, c + 3/b. A signal that may have been blocked by
+    another building tells nothing about this one, whatever its C/N0."""
+    blocks = plausible[g] & (h < fit.c[g] + 3.0 / fit.b[g])
+    n_blocking = np.bincount(sig, blocks, int(sig.max()) + 1)
+    return (n_blocking[sig] - blocks) == 0
+
+
+def _classifier_data(cn0, open_map, sig, seen):
+    """C/N0 and map label of the signals the map fits used: with signal ids, a signal counts
+    once and is open only if it clears every building it was used for."""
     if sig is None:
-        return cn0, open_map
+        return cn0[seen], open_map[seen]
+    sig, cn0, open_map = sig[seen], cn0[seen], open_map[seen]
     n_sig = int(sig.max()) + 1 if sig.size else 0
     closed = np.bincount(sig, weights=(~open_map).astype(float), minlength=n_sig)
     first = np.full(n_sig, -1)
     first[sig[::-1]] = np.arange(sig.size)[::-1]
-    return cn0[first], closed == 0
+    used = first >= 0
+    return cn0[first[used]], closed[used] == 0
+
+
+def _range(h, g, n_groups):
+    lo = np.full(n_groups, np.inf)
+    hi = np.full(n_groups, -np.inf)
+    np.minimum.at(lo, g, h)
+    np.maximum.at(hi, g, h)
+    return lo, hi
 
 
 def _judge(
@@ -214,28 +272,40 @@ def _judge(
     h,
     labels,
     n_groups,
-    n_rows,
-    usable,
     change,
     iterations,
     label_tol,
     min_separation,
     min_signals,
+    max_uncertainty,
+    hidden,
+    *,
+    strict=True,
 ):
-    """Turn a fit into heights, with an explicit reason wherever it is not to be trusted."""
+    """Turn a fit on rows (g, h, labels) into heights, with an explicit reason wherever it is
+    not to be trusted (``strict``: also where 4PL-B's loop or the fit itself is implausible)."""
     a, b, c, d = (v.copy() for v in (fit.a, fit.b, fit.c, fit.d))
-    lo = np.full(n_groups, np.inf)
-    hi = np.full(n_groups, -np.inf)
-    np.minimum.at(lo, g, h)
-    np.maximum.at(hi, g, h)
+    n_rows = np.bincount(g, minlength=n_groups)
+    usable = n_rows >= min_signals
+    lo, hi = _range(h, g, n_groups)
     n_open = np.bincount(g, weights=labels.astype(float), minlength=n_groups)
+    n_below = np.bincount(g, h < c[g], minlength=n_groups)
     status = np.full(n_groups, "ok", dtype=object)
-    checks = [
-        (~fit.converged, "the 4PL optimiser did not converge"),
+    plausibility = [
         (change >= label_tol, f"labels still changing after {iterations} iterations"),
         (b <= B_BOUNDS[0] * 1.0001, "no slope: the height does not change the open probability"),
         ((c < lo) | (c > hi), "inflection point outside the observed intersection heights"),
         (a - d < min_separation, f"asymptotes closer than {min_separation} (a - d)"),
+        (3.0 / b > max_uncertainty, f"height range (c, c + 3/b) wider than {max_uncertainty:g} m"),
+        (hidden, "roof line hidden: most signals below it are blocked by other buildings"),
+        (
+            np.minimum(n_below, n_rows - n_below) < min_signals,
+            f"fewer than {min_signals} signals on one side of the roof line",
+        ),
+    ]
+    checks = [
+        (~fit.converged, "the 4PL optimiser did not converge"),
+        *(plausibility if strict else []),
         (n_open == 0, "no signal is labelled open"),
         (n_open == n_rows, "every signal is labelled open"),
         (~usable, f"fewer than {min_signals} signals"),
@@ -243,7 +313,6 @@ def _judge(
     for bad, reason in checks:  # the last failing check is the most basic one: it wins
         status[bad] = reason
     converged = status == "ok"
-    height = np.where(converged, c + 1.5 / b, np.nan)
     return BuildingFits(
         a=a,
         b=b,
@@ -253,7 +322,7 @@ def _judge(
         iterations=np.where(usable, iterations, 0),
         converged=converged,
         status=status,
-        height=height,
+        height=np.where(converged, c + 1.5 / b, np.nan),
         height_lower=np.where(converged, c, np.nan),
         height_upper=np.where(converged, c + 3.0 / b, np.nan),
     )

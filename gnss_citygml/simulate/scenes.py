@@ -85,8 +85,14 @@ def pitched(id_, x0, y0, x1, y1, ground, eave, ridge, strips=8):
     return Building(id_, tuple(parts), ground, ground + 0.5 * (eave + ridge))
 
 
-def multipart(id_, parts_rel, ground, truth_rel):
+def multipart(id_, parts_rel, ground, truth_rel=None):
+    """Parts at different heights. The truth is ``truth_rel`` when a representative part is
+    named (as the paper did for UCL), else the middle of the parts' height range (the paper's
+    rule for every other building)."""
     parts = tuple((poly, ground + rel) for poly, rel in parts_rel)
+    if truth_rel is None:
+        rels = [rel for _, rel in parts_rel]
+        truth_rel = 0.5 * (min(rels) + max(rels))
     return Building(id_, parts, ground, ground + truth_rel)
 
 
@@ -210,7 +216,6 @@ def _city(rng):
                             (box(x0 + w * 0.4, y0 + d * (1 - tower), x0 + w, y0 + d), rel),
                         ],
                         g,
-                        rel,
                     )
                 )
     sessions = []

@@ -52,12 +52,17 @@ def main():
     results = pd.concat(frames, ignore_index=True)
     results.to_csv(OUT / "paper_table_runs.csv", index=False)
 
-    print(f"\n## RMSE of the mapping algorithms (seeds {seeds}, thresholds "
-          f"{thresholds[0]:g}..{thresholds[-1]:g} dB-Hz, {interval:g} s epochs)\n")
+    print(
+        f"\n## RMSE of the mapping algorithms (seeds {seeds}, thresholds "
+        f"{thresholds[0]:g}..{thresholds[-1]:g} dB-Hz, {interval:g} s epochs)\n"
+    )
     print(markdown_table(summarise(results)))
     print("\nPer seed, 4PL-B RMSE (m):\n")
-    per_seed = summarise(results[results["method"] == "4PL-B"].assign(
-        preset=lambda d: d["preset"] + "/" + d["seed"].astype(str)))
+    per_seed = summarise(
+        results[results["method"] == "4PL-B"].assign(
+            preset=lambda d: d["preset"] + "/" + d["seed"].astype(str)
+        )
+    )
     print(markdown_table(per_seed))
     _plot(results[results["seed"] == seeds[0]], OUT / "paper_figure.png")
     print(f"\nfigure: {OUT / 'paper_figure.png'}")
@@ -86,8 +91,9 @@ def _plot(results, path):
                 g = g[g["converged"]]
                 if method == "4PL-B":
                     ax.fill_between(g["threshold"], g["lower"], g["upper"], color="C0", alpha=0.2)
-                ax.plot(g["threshold"], g["height"], "o-", ms=3, color=colours[method],
-                        label=method)
+                ax.plot(
+                    g["threshold"], g["height"], "o-", ms=3, color=colours[method], label=method
+                )
             ax.set_ylim(truth - 15, truth + 15)
             ax.set_title(f"{preset} ({loc}): {bid}", fontsize=9)
             ax.set_xlabel("initial threshold (dB-Hz)")
@@ -107,8 +113,10 @@ def _throughput():
         start = time.perf_counter()
         estimate_heights(one, init_threshold=30.0)
         times.append(time.perf_counter() - start)
-    print(f"- one building, 10,000 signals: {1e3 * min(times):.1f} ms per 4PL-B fit "
-          f"(best of 5; median {1e3 * np.median(times):.1f} ms)")
+    print(
+        f"- one building, 10,000 signals: {1e3 * min(times):.1f} ms per 4PL-B fit "
+        f"(best of 5; median {1e3 * np.median(times):.1f} ms)"
+    )
 
     rng = np.random.default_rng(0)
     n_b, n_s = 1000, 1000
@@ -116,16 +124,19 @@ def _throughput():
     building = np.repeat(np.arange(n_b), n_s)
     height = truth[building] + rng.uniform(-30.0, 40.0, building.size)
     is_open = rng.random(building.size) < logistic4(height, 0.97, 1.5, truth[building], 0.03)
-    cn0 = np.where(is_open, rng.normal(41.0, 4.0, building.size), rng.normal(26.0, 5.0, building.size))
+    n = building.size
+    cn0 = np.where(is_open, rng.normal(41.0, 4.0, n), rng.normal(26.0, 5.0, n))
     cn0[cn0 < 12.0] = np.nan
     table = pd.DataFrame({"building": building, "height": height, "cn0": cn0})
     start = time.perf_counter()
     out = estimate_heights(table, init_threshold=30.0)
     seconds = time.perf_counter() - start
     err = out["height"].to_numpy() - truth
-    print(f"- 1,000 buildings x 1,000 signals: {seconds:.1f} s "
-          f"({building.size / seconds:,.0f} signals/s), {int(out['converged'].sum())} converged, "
-          f"median |error| {np.nanmedian(np.abs(err)):.2f} m")
+    print(
+        f"- 1,000 buildings x 1,000 signals: {seconds:.1f} s "
+        f"({building.size / seconds:,.0f} signals/s), {int(out['converged'].sum())} converged, "
+        f"median |error| {np.nanmedian(np.abs(err)):.2f} m"
+    )
 
 
 if __name__ == "__main__":

@@ -27,3 +27,27 @@ def synthetic_intersections(rng, truth=45.0, n=4000, building="b1", blocked=0.4,
 @pytest.fixture
 def rng():
     return np.random.default_rng(12345)
+
+
+def occluded_pair(rng, n=6000, front=30.0, back=20.0, alone=0.4):
+    """Rays crossing a tall building ``A`` and then a lower one ``B`` behind it, plus rays that
+    cross ``B`` alone. A signal is open only if it clears both roofs it crosses."""
+    rows = []
+    for k in range(n):
+        if rng.random() < alone:
+            hb = rng.uniform(5.0, 45.0)
+            rows.append((k, "B", hb, 0, hb > back))
+            continue
+        ha = rng.uniform(5.0, 60.0)
+        hb = ha + rng.uniform(5.0, 25.0)  # the ray keeps rising on its way to B
+        is_open = ha > front and hb > back
+        rows.append((k, "A", ha, 0, is_open))
+        rows.append((k, "B", hb, 1, is_open))
+    sig, bld, h, order, is_open = map(np.array, zip(*rows, strict=True))
+    per_signal = {s: o for s, o in zip(sig, is_open, strict=True)}
+    strength = {
+        s: rng.normal(41.0, 4.0) if o else rng.normal(24.0, 5.0) for s, o in per_signal.items()
+    }
+    cn0 = np.array([strength[s] for s in sig])
+    cn0[cn0 < 12.0] = np.nan
+    return pd.DataFrame({"signal": sig, "building": bld, "height": h, "order": order, "cn0": cn0})

@@ -1,7 +1,7 @@
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import synthetic_intersections
+from conftest import occluded_pair, synthetic_intersections
 
 from gnss_citygml import (
     HEIGHTS_COLUMNS,
@@ -118,3 +118,41 @@ def test_error_messages_say_what_where_and_how():
     err = MissingColumnError(["cn0"], where="intersections.csv", have=["building"])
     expected = "missing column(s) 'cn0' (intersections.csv): add the column(s)"
     assert str(err) == expected + " (the table has: building)"
+
+
+def test_visibility_model_ignores_signals_blocked_by_a_nearer_building(rng):
+    table = occluded_pair(rng)
+    seen = estimate_heights(table).set_index("id")
+    assert seen.loc["A", "converged"] and seen.loc["B", "converged"]
+    assert seen.loc["A", "height"] == pytest.approx(30.0, abs=1.5)
+    assert seen.loc["B", "height"] == pytest.approx(20.0, abs=1.5)
+    blind = estimate_heights(table, visibility=False).set_index("id")
+    # Without it, signals blocked by A count as closed above B's roof: the upper asymptote
+    # (the open fraction of signals clearing B) sinks.
+    assert seen.loc["B", "a"] > 0.9 > blind.loc["B", "a"]
+    assert seen.loc["B", "n_signals"] < (table["building"] == "B").sum()
+
+
+def test_a_building_seen_only_behind_another_is_not_guessed(rng):
+    table = occluded_pair(rng, alone=0.0)
+    out = estimate_heights(table).set_index("id")
+    assert out.loc["A", "converged"]
+    assert not out.loc["B", "converged"]
+    assert np.isnan(out.loc["B", "height"])
+    assert "roof line" in out.loc["B", "status"]
+
+
+def test_a_blurred_roof_line_is_reported_as_too_uncertain(rng):
+    table = synthetic_intersections(rng, 45.0, n=6000, noise=12.0)
+    out = estimate_heights(table).iloc[0]
+    assert not out["converged"]
+    assert out["status"] == "height range (c, c + 3/b) wider than 10 m"
+    loose = estimate_heights(table, max_uncertainty=100.0).iloc[0]
+    assert loose["converged"]
+    assert loose["height_upper"] - loose["height_lower"] > 10.0
+
+
+def test_the_one_shot_4pl_always_answers_when_its_fit_converges(rng):
+    table = synthetic_intersections(rng, 45.0, n=6000, noise=12.0)
+    out = estimate_heights(table, method="4PL").iloc[0]
+    assert out["converged"] and np.isfinite(out["height"])

@@ -81,9 +81,13 @@ def test_cn0_distributions_overlap_but_separate(sims):
 
 
 def test_diffraction_loss_is_itu_knife_edge():
-    assert diffraction_loss(0.0, 50.0) == pytest.approx(6.0, abs=0.1)  # grazing: 6 dB
-    assert diffraction_loss(-50.0, 50.0) == 0.0
-    assert diffraction_loss(2.0, 10.0) > diffraction_loss(0.5, 10.0) > 6.0
+    assert diffraction_loss(0.0, 50.0, 30.0) == pytest.approx(6.0, abs=0.1)  # grazing: 6 dB
+    assert diffraction_loss(-50.0, 50.0, 30.0) == 0.0
+    assert diffraction_loss(2.0, 10.0, 30.0) > diffraction_loss(0.5, 10.0, 30.0) > 6.0
+    # v = 1 m x sqrt(2 / (0.1903 m x 10 m)) = 1.025 at the horizon: J(v) = 14.0 dB
+    assert diffraction_loss(1.0, 10.0, 0.0) == pytest.approx(14.0, abs=0.1)
+    # a steep ray 1 m below the edge is diffracted less than a low one
+    assert diffraction_loss(1.0, 10.0, 70.0) < diffraction_loss(1.0, 10.0, 10.0)
 
 
 def test_location_errors(sims):

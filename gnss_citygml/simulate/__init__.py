@@ -151,7 +151,7 @@ def _session(
     blocked = np.zeros(ep.size, dtype=bool)
     blocked[ray[clearance > 0]] = True
     loss = np.zeros(ep.size)
-    np.maximum.at(loss, ray, diffraction_loss(clearance, dist))
+    np.maximum.at(loss, ray, diffraction_loss(clearance, dist, s_el[ray]))
 
     # C/N0 of the direct (possibly diffracted) and reflected components.
     m = SignalModel

@@ -42,13 +42,19 @@ class SignalModel:
     tracking_threshold = 12.0  # below this nothing is tracked
 
 
-def diffraction_loss(clearance, distance):
+def diffraction_loss(clearance, distance, elevation):
     """Knife-edge diffraction loss (dB, >= 0) of ITU-R P.526.
 
-    ``clearance`` is how far (m) the line of sight passes *below* the edge (negative when it
-    passes above), ``distance`` the horizontal distance (m) from receiver to edge.
+    ``clearance`` is how far (m) the line of sight passes *below* the edge, measured vertically
+    (negative when it passes above), ``distance`` the horizontal distance (m) from receiver to
+    edge and ``elevation`` (deg) the ray's elevation. The Fresnel parameter takes the clearance
+    perpendicular to the ray, ``clearance cos(el)``, over the slant path ``distance / cos(el)``:
+    a steep ray passes the edge within a wide vertical zone of strong diffraction.
     """
-    v = np.asarray(clearance, dtype=float) * np.sqrt(2.0 / (WAVELENGTH * np.maximum(distance, 1.0)))
+    cos_el = np.maximum(np.cos(np.radians(elevation)), 1e-3)
+    perp = np.asarray(clearance, dtype=float) * cos_el
+    slant = np.maximum(np.asarray(distance, dtype=float) / cos_el, 1.0)
+    v = perp * np.sqrt(2.0 / (WAVELENGTH * slant))
     loss = 6.9 + 20.0 * np.log10(np.sqrt((v - 0.1) ** 2 + 1.0) + v - 0.1)
     return np.where(v > -0.78, np.maximum(loss, 0.0), 0.0)
 

@@ -26,7 +26,7 @@ import numpy as np
 from .classifier import SignalClassifier
 from .fourpl import B_BOUNDS, FourPLFit, fit_4pl
 
-__all__ = ["WEIGHTINGS", "BuildingFits", "fourplb", "height_weights", "map_fit"]
+__all__ = ["WEIGHTINGS", "Acceptance", "BuildingFits", "fourplb", "height_weights", "map_fit"]
 
 #: Reweighting schemes of the height fit; see :func:`height_weights`.
 WEIGHTINGS = ("none", "height", "balanced")
@@ -39,6 +39,16 @@ MIN_VISIBLE = 0.1
 #: Width (m) of the intersection-height bins of the ``height`` weighting: finer than any
 #: building's height uncertainty, coarse enough to hold several signals each.
 HEIGHT_BIN = 1.0
+
+
+@dataclass(frozen=True)
+class Acceptance:
+    """What a 4PL-B estimate must satisfy to count as converged (see :func:`fourplb`)."""
+
+    label_tol: float = 0.01
+    min_signals: int = 10
+    min_separation: float = 0.3
+    max_uncertainty: float = 10.0
 
 
 @dataclass(frozen=True)
@@ -206,24 +216,9 @@ def fourplb(
         if iterations > 1 and np.all(change < label_tol):
             break
 
-    below = h < fit.c[g]
-    hidden = np.bincount(g, below & fit_seen, n_groups) < MIN_VISIBLE * np.bincount(
-        g, below, n_groups
-    )
+    accept = Acceptance(label_tol, min_signals, min_separation, max_uncertainty)
     result = _judge(
-        fit,
-        g[fit_seen],
-        h[fit_seen],
-        fit_labels[fit_seen],
-        n_groups,
-        change,
-        iterations,
-        label_tol,
-        min_separation,
-        min_signals,
-        max_uncertainty,
-        hidden,
-        strict=bootstrap,
+        fit, g, h, fit_labels, fit_seen, n_groups, change, iterations, accept, strict=bootstrap
     )
     return result, classifier
 
@@ -266,24 +261,16 @@ def _range(h, g, n_groups):
     return lo, hi
 
 
-def _judge(
-    fit,
-    g,
-    h,
-    labels,
-    n_groups,
-    change,
-    iterations,
-    label_tol,
-    min_separation,
-    min_signals,
-    max_uncertainty,
-    hidden,
-    *,
-    strict=True,
-):
-    """Turn a fit on rows (g, h, labels) into heights, with an explicit reason wherever it is
+def _judge(fit, g, h, labels, seen, n_groups, change, iterations, accept, *, strict=True):
+    """Turn a fit on the ``seen`` rows into heights, with an explicit reason wherever it is
     not to be trusted (``strict``: also where 4PL-B's loop or the fit itself is implausible)."""
+    below_all = h < fit.c[g]
+    hidden = np.bincount(g, below_all & seen, n_groups) < MIN_VISIBLE * np.bincount(
+        g, below_all, n_groups
+    )
+    g, h, labels = g[seen], h[seen], labels[seen]
+    label_tol, min_signals = accept.label_tol, accept.min_signals
+    min_separation, max_uncertainty = accept.min_separation, accept.max_uncertainty
     a, b, c, d = (v.copy() for v in (fit.a, fit.b, fit.c, fit.d))
     n_rows = np.bincount(g, minlength=n_groups)
     usable = n_rows >= min_signals

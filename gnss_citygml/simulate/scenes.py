@@ -96,8 +96,12 @@ def multipart(id_, parts_rel, ground, truth_rel=None):
     return Building(id_, parts, ground, ground + truth_rel)
 
 
-def _static(rng, receiver, start, xy, duration=1800.0):
-    return Session(receiver, start, duration, (tuple(map(float, xy)),))
+def _static_sessions(rng, site, starts, duration, place):
+    """One static recording per start time (s), at the point ``place(rng)`` draws."""
+    return tuple(
+        Session(f"{site}_{k}", float(start), duration, (tuple(map(float, place(rng))),))
+        for k, start in enumerate(starts)
+    )
 
 
 def _ucl(rng):
@@ -118,9 +122,12 @@ def _ucl(rng):
         flat("gower_east", box(75, -10, 95, 70), g, 15.0),
         flat("south_range", box(-45, -60, 45, -45), g, 12.0),
     )
-    sessions = tuple(
-        _static(rng, f"ucl_{k}", start, (rng.uniform(-18, 18), rng.uniform(8, 28)))
-        for k, start in enumerate([0.0, 3 * 3600.0 + 1234.0])
+    sessions = _static_sessions(
+        rng,
+        "ucl",
+        [0.0, 3 * 3600.0 + 1234.0],
+        1800.0,
+        lambda r: (r.uniform(-18, 18), r.uniform(8, 28)),  # in the quad, facing the portico
     )
     return Scene(
         "ucl", 51.5246, -0.1340, g, (main, *neighbours), sessions, 10.0, 85.0, ("ucl_main",)
@@ -135,15 +142,12 @@ def _goodchild(rng):
         flat("west_block", box(-30, -5, -8, 20), g, 14.0),
         flat("east_block", box(48, -5, 70, 20), g, 14.0),
     )
-    sessions = tuple(
-        _static(
-            rng,
-            f"goodchild_{k}",
-            2400.0 * k + 777.0 * (k % 2),
-            (rng.uniform(4, 36), 18.5 + rng.uniform(-1.0, 1.0)),
-            duration=1350.0,
-        )
-        for k in range(6)
+    sessions = _static_sessions(
+        rng,
+        "goodchild",
+        [2400.0 * k + 777.0 * (k % 2) for k in range(6)],
+        1350.0,
+        lambda r: (r.uniform(4, 36), 18.5 + r.uniform(-1.0, 1.0)),  # mid-street, 3.5 m out
     )
     return Scene(
         "goodchild",
@@ -163,15 +167,12 @@ def _hermitage(rng):
     terrace = pitched("hermitage_terrace", 0, 0, 60, 9, g, 9.0, 11.0)
     across = pitched("across_terrace", -10, 26, 70, 35, g, 8.5, 11.0)
     behind = pitched("behind_terrace", -10, -40, 70, -31, g, 8.5, 11.0)
-    sessions = tuple(
-        _static(
-            rng,
-            f"hermitage_{k}",
-            2900.0 * k + 400.0,
-            (rng.uniform(8, 52), 22.5 + rng.uniform(-1.0, 1.0)),
-            duration=1670.0,
-        )
-        for k in range(5)
+    sessions = _static_sessions(
+        rng,
+        "hermitage",
+        [2900.0 * k + 400.0 for k in range(5)],
+        1670.0,
+        lambda r: (r.uniform(8, 52), 22.5 + r.uniform(-1.0, 1.0)),  # far pavement
     )
     return Scene(
         "hermitage",

@@ -129,7 +129,8 @@ def fit_4pl(
         Number of groups (default ``groups.max() + 1``).
     init
         Optional ``(n_groups, 4)`` starting values ``(a, b, c, d)``, e.g. the previous fit in an
-        iteration. Otherwise each group starts from its best single-threshold split.
+        iteration, used where they are likelier than the best increasing step (the b -> inf
+        limit of the fit) at three slopes, from which each group starts otherwise.
     b_bounds
         Bounds of the slope ``b`` in units of 1/x (default :data:`B_BOUNDS`).
     max_iter, tol
@@ -160,10 +161,13 @@ def fit_4pl(
     lo, hi = _group_range(x, g, n_groups)
     span = np.maximum(hi - lo, 1e-6)
 
-    if init is None:
-        theta0 = _best_start(_initial_theta(x, y, w, g, n_groups, lo, hi), x, y, w, g, n_groups)
-    else:
-        theta0 = _to_theta(init)
+    step = _initial_theta(x, y, w, g, n_groups, lo, hi)
+    starts = [step, *(s for s in [step.copy(), step.copy()])]
+    starts[1][:, 1] += np.log(4.0)  # 4x steeper
+    starts[2][:, 1] -= np.log(4.0)  # 4x gentler
+    if init is not None:
+        starts.append(np.nan_to_num(_to_theta(init)))
+    theta0 = _likeliest(starts, x, y, w, g, n_groups)
     box_lo = np.column_stack(
         [
             np.full(n_groups, -_LOGIT_BOUND),
@@ -279,17 +283,17 @@ def _initial_theta(x, y, w, g, n_groups, lo, hi):
     return _to_theta(np.column_stack([a0, b0, mid, d0]))
 
 
-def _best_start(theta, x, y, w, g, n_groups):
-    """Of the step start with its slope, 4x steeper and 4x gentler, the likeliest per group:
-    too gentle a start can slide into the flat (a = d) basin of the likelihood."""
-    best, best_ll = theta, None
+def _likeliest(starts, x, y, w, g, n_groups):
+    """Per group, the likeliest of several starting points. The best step with three slopes
+    guards against too gentle a start sliding into the flat (a = d) basin of the likelihood; a
+    caller's start (the previous fit in 4PL-B) is kept only while it is still the likeliest, so
+    an iteration cannot stay trapped where an earlier one went wrong."""
     everyone = np.ones(n_groups, dtype=bool)
-    for factor in (1.0, 4.0, 0.25):
-        cand = theta.copy()
-        cand[:, 1] += np.log(factor)
+    best, best_ll = None, None
+    for cand in starts:
         ll = _evaluate(cand, x, y, w, g, n_groups, everyone)[0]
-        if best_ll is None:
-            best_ll = ll
+        if best is None:
+            best, best_ll = cand, ll
             continue
         better = ll > best_ll
         best = np.where(better[:, None], cand, best)

@@ -283,6 +283,8 @@ def _judge(fit, g, h, labels, seen, n_groups, change, iterations, accept, *, str
         (b <= B_BOUNDS[0] * 1.0001, "no slope: the height does not change the open probability"),
         ((c < lo) | (c > hi), "inflection point outside the observed intersection heights"),
         (a - d < min_separation, f"asymptotes closer than {min_separation} (a - d)"),
+        # Relabelling by h > c presumes the map classifies below c as closed and above as open.
+        ((d >= 0.5) | (a <= 0.5), "the roof line does not separate open from closed signals"),
         (3.0 / b > max_uncertainty, f"height range (c, c + 3/b) wider than {max_uncertainty:g} m"),
         (hidden, "roof line hidden: most signals below it are blocked by other buildings"),
         (

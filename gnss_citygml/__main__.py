@@ -1,0 +1,5 @@
+"""``python -m gnss_citygml``: the same as the ``gnss-citygml`` command."""
+
+from .cli import main
+
+main()

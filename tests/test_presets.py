@@ -35,7 +35,8 @@ def _target(sim, threshold, **options):
 def test_open_sites_are_recovered_within_their_range(sims, preset, locations, threshold):
     row, truth = _target(sims(preset, locations), threshold)
     assert row["converged"], row["status"]
-    assert row["height"] == pytest.approx(truth, abs=2.0)
+    # GNSS fixes err by metres: the transition widens and c + 1.5/b drifts above the roof.
+    assert row["height"] == pytest.approx(truth, abs=1.5 if locations == "manual" else 3.0)
     assert row["height_lower"] - 1.0 <= truth <= row["height_upper"] + 1.0
 
 

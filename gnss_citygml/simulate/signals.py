@@ -80,7 +80,8 @@ def gnss_fix_errors(rng, az, el, received, nlos, cn0, dt=1.0):
         ``(n_epochs, n_sat)`` C/N0 of the received signals.
     """
     n_ep, n_sat = az.shape
-    noise = ar1(rng, n_ep, dt, 30.0, 3.0, (n_sat,))  # code multipath and atmosphere residuals
+    # code noise, multipath and atmosphere residuals of a phone's linearly polarised antenna
+    noise = ar1(rng, n_ep, dt, 30.0, 5.0, (n_sat,))
     extra = np.abs(ar1(rng, n_ep, dt, 60.0, 15.0, (n_sat,)))  # extra path of reflections
     err = noise + np.where(nlos, extra, 0.0)
     a, e = np.radians(np.nan_to_num(az)), np.radians(np.nan_to_num(el))

@@ -291,7 +291,7 @@ def _likeliest(starts, x, y, w, g, n_groups):
     everyone = np.ones(n_groups, dtype=bool)
     best, best_ll = None, None
     for cand in starts:
-        ll = _evaluate(cand, x, y, w, g, n_groups, everyone)[0]
+        ll = _evaluate(cand, x, y, w, g, n_groups, everyone, ll_only=True)[0]
         if best is None:
             best, best_ll = cand, ll
             continue
@@ -340,8 +340,9 @@ def _from_theta(theta):
 _PAIRS = [(i, j) for i in range(4) for j in range(i, 4)]
 
 
-def _evaluate(theta, x, y, w, g, n_groups, active):
-    """Log-likelihood, gradient and Fisher information (in theta) of the active groups."""
+def _evaluate(theta, x, y, w, g, n_groups, active, *, ll_only=False):
+    """Log-likelihood, gradient and Fisher information (in theta) of the active groups
+    (gradient and information left at zero with ``ll_only``)."""
     ll = np.zeros(n_groups)
     grad = np.zeros((n_groups, 4))
     fisher = np.zeros((n_groups, 4, 4))
@@ -363,6 +364,9 @@ def _evaluate(theta, x, y, w, g, n_groups, active):
     p = np.clip(d + (a - d) * s, _EPS, 1 - _EPS)
     q = 1 - p
     terms = w * (y * np.log(p) + (1 - y) * np.log(q))
+    if ll_only:
+        ll = terms.sum(keepdims=True) if n_groups == 1 else np.bincount(g, terms, n_groups)
+        return ll, grad, fisher
     ds = (a - d) * s * (1 - s)
     jac = np.stack(
         np.broadcast_arrays(

@@ -117,3 +117,20 @@ def test_bad_arguments():
         simulate("paris")
     with pytest.raises(InputError, match="unknown locations"):
         simulate("ucl", locations="psychic")
+
+
+def test_observations_carry_wgs84_positions_matching_the_grid(sims):
+    o = sims[("ucl", "manual")].observations
+    assert o["h"].isna().all()  # receiver heights come from the DEM, as in the paper
+    # 1 m of northing is 1/111.2 km of latitude in London; 1 m of easting 1/69.3 km of longitude
+    dlat = (o["lat"] - 51.5246) * 111_250.0
+    dlon = (o["lon"] + 0.1340) * 111_320.0 * np.cos(np.radians(51.5246))
+    np.testing.assert_allclose(dlat, o["n"], atol=0.5)
+    np.testing.assert_allclose(dlon, o["e"], atol=0.5)
+
+
+def test_start_time_moves_the_satellites():
+    a = simulate("ucl", interval=120.0)
+    b = simulate("ucl", interval=120.0, start="2024-06-01T15:00:00Z")
+    assert b.observations["time_utc"].iloc[0] == pd.Timestamp("2024-06-01T15:00:00Z")
+    assert not np.allclose(a.observations["azimuth"].iloc[:5], b.observations["azimuth"].iloc[:5])

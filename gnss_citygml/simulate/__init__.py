@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
+from pyproj import Transformer
 
 from ..errors import InputError
 from ..raycast import footprint_entries
@@ -58,6 +59,7 @@ def simulate(
     seed: int = 0,
     interval: float = 1.0,
     max_range: float = 500.0,
+    start: str | pd.Timestamp = EPOCH,
 ) -> Simulation:
     """Simulate a preset site.
 
@@ -73,15 +75,18 @@ def simulate(
         Seconds between epochs (1 Hz like the paper's recordings by default).
     max_range
         Horizontal range (m) of the rays cast for the intersections.
+    start
+        UTC time of the scene's first recording; the satellites move on from there.
 
     Returns
     -------
     Simulation
         ``observations`` (one row per epoch x satellite above the mask, with ``cn0`` NaN for
-        blocked signals, reported position ``e``, ``n``, ``z`` and the true ``e_true``,
-        ``n_true``, ``z_true``, ``los``), ``intersections`` (``signal``, ``building``,
-        ``height``, ``distance``, ``order``, ``cn0``, ``receiver``) and ``truth`` (``id``,
-        ``height``, ``ground``, ``target``).
+        blocked signals; the reported position as ``lat``, ``lon`` (WGS84) with ``h`` empty, as
+        the DEM gives receiver heights, and in the scene's grid as ``e``, ``n``, ``z`` (ODN);
+        the truth as ``e_true``, ``n_true``, ``z_true`` and ``los``), ``intersections``
+        (``signal``, ``building``, ``height``, ``distance``, ``order``, ``cn0``, ``receiver``)
+        and ``truth`` (``id``, ``height``, ``ground``, ``target``).
 
     Examples
     --------
@@ -99,17 +104,18 @@ def simulate(
         )
     rng = np.random.default_rng(seed)
     scene = make_scene(preset, rng)
-    device = rng.normal(0.0, SignalModel.device_sd)
     parts = [(p, top) for b in scene.buildings for p, top in b.parts]
-    part_polys = np.array([p for p, _ in parts], dtype=object)
-    part_tops = np.array([t for _, t in parts])
-    footprints = np.array([b.footprint for b in scene.buildings], dtype=object)
-    frames = [
-        _session(rng, scene, s, device, part_polys, part_tops, footprints, locations, interval)
-        for s in scene.sessions
-    ]
+    site = _Site(
+        scene=scene,
+        parts=np.array([p for p, _ in parts], dtype=object),
+        tops=np.array([t for _, t in parts]),
+        footprints=np.array([b.footprint for b in scene.buildings], dtype=object),
+        device=rng.normal(0.0, SignalModel.device_sd),
+        start=pd.Timestamp(start),
+    )
+    frames = [_session(rng, site, s, locations, interval) for s in scene.sessions]
     obs = pd.concat(frames, ignore_index=True)
-    inter = _intersections(obs, scene, footprints, max_range)
+    inter = _intersections(obs, scene, site.footprints, max_range)
     targets = set(scene.targets) or {b.id for b in scene.buildings}
     truth = pd.DataFrame(
         {
@@ -122,22 +128,26 @@ def simulate(
     return Simulation(scene, obs, inter, truth)
 
 
-def _session(
-    rng,
-    scene: Scene,
-    session: Session,
-    device,
-    part_polys,
-    part_tops,
-    footprints,
-    locations,
-    interval,
-):
+@dataclass(frozen=True)
+class _Site:
+    """What every session of a simulation shares."""
+
+    scene: Scene
+    parts: np.ndarray  # flat-topped roof parts of all buildings
+    tops: np.ndarray  # their tops (ODN, m)
+    footprints: np.ndarray  # one per building
+    device: float  # C/N0 offset of the phone (dB)
+    start: pd.Timestamp
+
+
+def _session(rng, site: _Site, session: Session, locations, interval):
+    scene, device = site.scene, site.device
+    part_polys, part_tops, footprints = site.parts, site.tops, site.footprints
     t = session.start + np.arange(0.0, session.duration, interval)
     n_ep = t.size
     true_xy = _positions(session, t)
     antenna = rng.normal(1.1, 0.1)  # a phone held in the hand
-    letters, svids, sat_xyz = satellite_ecef(t)
+    letters, svids, sat_xyz = satellite_ecef(t + (site.start - EPOCH).total_seconds())
     az, el = sky(scene.lat, scene.lon, scene.ground, sat_xyz)
     visible = (el >= scene.min_elevation) & (el <= scene.max_elevation)
     ep, sat = np.nonzero(visible)
@@ -194,15 +204,19 @@ def _session(
         )
         err = np.column_stack([de, dn])
     rep = true_xy + err
+    lon, lat, _ = _geodetic(scene).transform(rep[:, 0], rep[:, 1], np.zeros(n_ep))
     return pd.DataFrame(
         {
-            "time_utc": EPOCH + pd.to_timedelta(t[ep], unit="s"),
+            "time_utc": site.start + pd.to_timedelta(t[ep], unit="s"),
             "receiver": session.receiver,
             "constellation": letters[sat],
             "svid": svids[sat],
             "azimuth": s_az,
             "elevation": s_el,
             "cn0": cn0,
+            "lat": lat[ep],
+            "lon": lon[ep],
+            "h": np.nan,
             "e": rep[ep, 0],
             "n": rep[ep, 1],
             "z": scene.ground + ASSUMED_ANTENNA,
@@ -211,6 +225,16 @@ def _session(
             "z_true": zt,
             "los": ~blocked,
         }
+    )
+
+
+def _geodetic(scene: Scene):
+    """Scene grid (east, north, up from the scene origin on the WGS84 ellipsoid) to WGS84
+    longitude, latitude: an exact conversion, no datum shift involved."""
+    return Transformer.from_pipeline(
+        "+proj=pipeline +step +inv +proj=topocentric +ellps=WGS84 "
+        f"+lat_0={scene.lat} +lon_0={scene.lon} +h_0=0 "
+        "+step +inv +proj=cart +ellps=WGS84 +step +proj=unitconvert +xy_in=rad +xy_out=deg"
     )
 
 

@@ -135,7 +135,7 @@ def simulate(preset, output_dir, locations, seed, interval, fmt):
     "--weighting",
     type=click.Choice(["height", "balanced", "none"]),
     default=None,
-    help="Reweighting of the 4PL height fit (4PL-B and 4PL; default: height).",
+    help="Reweighting of the 4PL height fit (4PL-B and 4PL; default: none).",
 )
 def heights(intersections, output, method, init_threshold, weighting):
     """Estimate building heights from an intersections table (CSV or Parquet)."""

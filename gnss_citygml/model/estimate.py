@@ -69,7 +69,7 @@ def estimate_heights(
     init_threshold
         C/N0 (dB-Hz) where the initial signal classifier gives Pr(open) = 0.5.
     **options
-        For 4PL-B and 4PL: ``weighting`` (``height`` default, ``balanced`` or ``none``),
+        For 4PL-B and 4PL: ``weighting`` (``none``, the default, ``height`` or ``balanced``),
         ``visibility`` (True: with ``signal`` and ``order``, a signal blocked by another
         building at the current estimates is left out for this one), ``max_iter`` (10),
         ``label_tol`` (0.01), ``min_signals`` (10), ``min_separation`` (0.3),
@@ -102,7 +102,7 @@ def estimate_heights(
             f"unknown option(s) {', '.join(unknown)} for method {method}",
             fix="use " + ", ".join(sorted(allowed)),
         )
-    if options.get("weighting", "height") not in WEIGHTINGS:
+    if options.get("weighting", "none") not in WEIGHTINGS:
         raise ModelError(
             f"unknown weighting {options['weighting']!r}", fix="use one of " + ", ".join(WEIGHTINGS)
         )

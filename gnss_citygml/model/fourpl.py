@@ -158,7 +158,7 @@ def fit_4pl(
     if n_groups is None:
         n_groups = int(g.max()) + 1 if g.size else 1
     counts = np.bincount(g, weights=(w > 0).astype(float), minlength=n_groups)
-    lo, hi = _group_range(x, g, n_groups)
+    lo, hi = group_range(x, g, n_groups)
     span = np.maximum(hi - lo, 1e-6)
 
     step = _initial_theta(x, y, w, g, n_groups, lo, hi)
@@ -229,7 +229,8 @@ def fit_4pl(
     return FourPLFit(a, b, c, d, ll, converged & ~empty, n_iter, separable)
 
 
-def _group_range(x, g, n_groups):
+def group_range(x, g, n_groups):
+    """Smallest and largest ``x`` of every group (0 for an empty group)."""
     lo = np.full(n_groups, np.inf)
     hi = np.full(n_groups, -np.inf)
     np.minimum.at(lo, g, x)

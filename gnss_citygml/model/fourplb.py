@@ -27,9 +27,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from .classifier import SignalClassifier
-from .fourpl import B_BOUNDS, FourPLFit, fit_4pl
+from .fourpl import B_BOUNDS, fit_4pl, group_range
 
-__all__ = ["WEIGHTINGS", "Acceptance", "BuildingFits", "fourplb", "height_weights", "map_fit"]
+__all__ = ["WEIGHTINGS", "Acceptance", "BuildingFits", "fourplb", "height_weights"]
 
 #: Reweighting schemes of the height fit; see :func:`height_weights`.
 WEIGHTINGS = ("none", "height", "balanced")
@@ -120,11 +120,6 @@ def _weights(height, groups, n_groups, scheme, c):
     return raw * (n / np.maximum(total, 1e-300))[groups]
 
 
-def map_fit(height, labels, groups, n_groups, weights, init=None) -> FourPLFit:
-    """Fit every building's map classifier (a 4PL in intersection height) at once."""
-    return fit_4pl(height, labels, weights, groups, n_groups, init=init)
-
-
 def fourplb(
     groups,
     height,
@@ -202,7 +197,8 @@ def fourplb(
         c_now = None if fit is None else fit.c
         weights = height_weights(h, g, n_groups, weighting, c=c_now, mask=seen)
         fit_labels, fit_seen = labels, seen
-        fit = map_fit(h, labels, g, n_groups, weights, init=None if fit is None else fit.params)
+        # every building's map classifier, a 4PL in intersection height, fitted at once
+        fit = fit_4pl(h, labels, weights, g, n_groups, init=None if fit is None else fit.params)
         if not bootstrap:
             break
         new_map = h > fit.c[g]
@@ -229,7 +225,7 @@ def fourplb(
 def _plausible(fit, h, g, seen, n_groups, min_separation):
     """Buildings whose current fit may stand in front of others: separated asymptotes and an
     inflection point inside the heights they were fitted on."""
-    lo, hi = _range(h[seen], g[seen], n_groups)
+    lo, hi = group_range(h[seen], g[seen], n_groups)
     return (fit.a - fit.d >= min_separation) & (fit.c >= lo) & (fit.c <= hi)
 
 
@@ -256,14 +252,6 @@ def _classifier_data(cn0, open_map, sig, seen):
     return cn0[first[used]], closed[used] == 0
 
 
-def _range(h, g, n_groups):
-    lo = np.full(n_groups, np.inf)
-    hi = np.full(n_groups, -np.inf)
-    np.minimum.at(lo, g, h)
-    np.maximum.at(hi, g, h)
-    return lo, hi
-
-
 def _judge(fit, g, h, labels, seen, n_groups, change, iterations, accept, *, strict=True):
     """Turn a fit on the ``seen`` rows into heights, with an explicit reason wherever it is
     not to be trusted (``strict``: also where 4PL-B's loop or the fit itself is implausible)."""
@@ -277,7 +265,7 @@ def _judge(fit, g, h, labels, seen, n_groups, change, iterations, accept, *, str
     a, b, c, d = (v.copy() for v in (fit.a, fit.b, fit.c, fit.d))
     n_rows = np.bincount(g, minlength=n_groups)
     usable = n_rows >= min_signals
-    lo, hi = _range(h, g, n_groups)
+    lo, hi = group_range(h, g, n_groups)
     n_open = np.bincount(g, weights=labels.astype(float), minlength=n_groups)
     n_below = np.bincount(g, h < c[g], minlength=n_groups)
     status = np.full(n_groups, "ok", dtype=object)

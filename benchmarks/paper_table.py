@@ -64,9 +64,31 @@ def main():
         )
     )
     print(markdown_table(per_seed))
+    print("\n" + _coverage(results))
     _plot(results[results["seed"] == seeds[0]], OUT / "paper_figure.png")
     print(f"\nfigure: {OUT / 'paper_figure.png'}")
     _throughput()
+
+
+def _coverage(results):
+    """How honest 4PL-B's range is: the share of converged runs whose range (c, c + 3/b)
+    contains the true height, the mean range width, the bias of c + 1.5/b and the RMSE of c."""
+    ok = results[(results["method"] == "4PL-B") & results["converged"]].copy()
+    ok["covered"] = (ok["truth"] >= ok["lower"]) & (ok["truth"] <= ok["upper"])
+    ok["width"] = ok["upper"] - ok["lower"]
+    ok["c_error2"] = (ok["lower"] - ok["truth"]) ** 2
+    lines = [
+        "## 4PL-B uncertainty: range (c, c + 3/b) against the truth",
+        "",
+        "| locations | preset | range covers truth | mean width | bias of c + 1.5/b | RMSE of c |",
+        "|---|---|---|---|---|---|",
+    ]
+    for (loc, preset), g in ok.groupby(["locations", "preset"], sort=False):
+        lines.append(
+            f"| {loc} | {preset} | {g['covered'].mean():.0%} | {g['width'].mean():.1f} m "
+            f"| {g['error'].mean():+.2f} m | {np.sqrt(g['c_error2'].mean()):.2f} m |"
+        )
+    return "\n".join(lines)
 
 
 def _plot(results, path):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
+from dataclasses import asdict
 
 import numpy as np
 import pandas as pd
@@ -124,54 +125,26 @@ def estimate_heights(
             bootstrap=method == "4PL-B",
             **options,
         )
-        out = pd.DataFrame(
-            {
-                "id": ids,
-                "height": fits.height,
-                "height_lower": fits.height_lower,
-                "height_upper": fits.height_upper,
-                "a": fits.a,
-                "b": fits.b,
-                "c": fits.c,
-                "d": fits.d,
-                "n_signals": fits.n_signals,
-                "iterations": fits.iterations,
-                "converged": fits.converged,
-                "method": method,
-                "status": fits.status,
-            }
-        )
-        out.attrs["signal_classifier"] = {
-            "a": classifier.a,
-            "b": classifier.b,
-            "c": classifier.c,
-            "d": classifier.d,
-        }
-        return out
-
-    func = hinge_heights if method == "hinge" else bayes_heights
-    h = func(codes, height, cn0, n, init_threshold=init_threshold)
-    n_signals = np.bincount(codes, minlength=n)
-    min_signals = options.get("min_signals", 10)
-    ok = n_signals >= min_signals
-    nan = np.full(n, np.nan)
-    return pd.DataFrame(
-        {
-            "id": ids,
+        columns = {name: getattr(fits, name) for name in HEIGHTS_COLUMNS[1:] if name != "method"}
+    else:
+        func = hinge_heights if method == "hinge" else bayes_heights
+        h = func(codes, height, cn0, n, init_threshold=init_threshold)
+        n_signals = np.bincount(codes, minlength=n)
+        min_signals = options.get("min_signals", 10)
+        ok = n_signals >= min_signals
+        nan = np.full(n, np.nan)
+        columns = {
             "height": np.where(ok, h, np.nan),
-            "height_lower": nan,
-            "height_upper": nan,
-            "a": nan,
-            "b": nan,
-            "c": nan,
-            "d": nan,
+            **dict.fromkeys(["height_lower", "height_upper", "a", "b", "c", "d"], nan),
             "n_signals": n_signals,
             "iterations": np.where(ok, 1, 0),
             "converged": ok,
-            "method": method,
             "status": np.where(ok, "ok", f"fewer than {min_signals} signals").astype(object),
         }
-    )
+    out = pd.DataFrame({"id": ids, **columns, "method": method})[HEIGHTS_COLUMNS]
+    if method in ("4PL-B", "4PL"):
+        out.attrs["signal_classifier"] = asdict(classifier)
+    return out
 
 
 def _as_table(intersections) -> pd.DataFrame:

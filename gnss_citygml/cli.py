@@ -14,7 +14,16 @@ import click
 
 from . import __version__
 from .errors import GnssCityGMLError
+from .model.estimate import METHODS
+from .simulate.scenes import PRESETS
 
+_SEED = click.option(
+    "--seed",
+    type=int,
+    default=0,
+    show_default=True,
+    help="Seed of the simulation's random choices.",
+)
 _QUIET = click.option("--quiet", "-q", is_flag=True, help="No progress output.")
 _THRESHOLD = click.option(
     "--init-threshold",
@@ -36,7 +45,7 @@ def cli():
     "--preset",
     "presets",
     multiple=True,
-    type=click.Choice(["ucl", "goodchild", "hermitage", "city"]),
+    type=click.Choice(list(PRESETS)),
     help="Sites to run (default: all four).",
 )
 @click.option(
@@ -52,7 +61,7 @@ def cli():
     show_default=True,
     help="Seconds between simulated epochs (1 = the paper's 1 Hz).",
 )
-@click.option("--seed", type=int, default=0, show_default=True)
+@_SEED
 @_QUIET
 def demo(presets, thresholds, interval, seed, quiet):
     """Accuracy of 4PL-B and the paper's baselines on the simulated sites.
@@ -64,8 +73,8 @@ def demo(presets, thresholds, interval, seed, quiet):
     from .accuracy import markdown_table, run_accuracy, summarise
 
     values = _floats(thresholds, "--thresholds")
-    presets = presets or ("ucl", "goodchild", "hermitage", "city")
-    n_runs = len(presets) * 2 * 4 * len(values)
+    presets = presets or tuple(PRESETS)
+    n_runs = len(presets) * 2 * len(METHODS) * len(values)
     with _progress(n_runs, "fitting", quiet) as bar:
         results = run_accuracy(
             presets,
@@ -78,7 +87,7 @@ def demo(presets, thresholds, interval, seed, quiet):
 
 
 @cli.command()
-@click.argument("preset", type=click.Choice(["ucl", "goodchild", "hermitage", "city"]))
+@click.argument("preset", type=click.Choice(list(PRESETS)))
 @click.option(
     "--output-dir",
     "-o",
@@ -93,7 +102,7 @@ def demo(presets, thresholds, interval, seed, quiet):
     show_default=True,
     help="Receiver positions: hand-surveyed or the phone's fixes.",
 )
-@click.option("--seed", type=int, default=0, show_default=True)
+@_SEED
 @click.option(
     "--interval", type=float, default=1.0, show_default=True, help="Seconds between epochs."
 )
@@ -126,7 +135,7 @@ def simulate(preset, output_dir, locations, seed, interval, fmt):
 )
 @click.option(
     "--method",
-    type=click.Choice(["4PL-B", "4PL", "hinge", "bayes"]),
+    type=click.Choice(list(METHODS)),
     default="4PL-B",
     show_default=True,
 )

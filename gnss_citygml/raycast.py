@@ -66,9 +66,7 @@ def footprint_entries(x, y, bearing, footprints, max_range: float = 500.0):
     ray_idx, fp_idx = tree.query(rays, predicate="intersects")
     if ray_idx.size == 0:
         return empty
-    inside = shapely.contains_xy(footprints[fp_idx], x[ray_idx], y[ray_idx]) | shapely.touches(
-        footprints[fp_idx], shapely.points(x[ray_idx], y[ray_idx])
-    )
+    inside = shapely.intersects_xy(footprints[fp_idx], x[ray_idx], y[ray_idx])  # or on an edge
     ray_idx, fp_idx = ray_idx[~inside], fp_idx[~inside]
     edges, edge_start, edge_count = _edges(footprints)
     dist = np.full(ray_idx.size, np.inf)

@@ -162,9 +162,8 @@ def fit_4pl(
     span = np.maximum(hi - lo, 1e-6)
 
     step = _initial_theta(x, y, w, g, n_groups, lo, hi)
-    starts = [step, *(s for s in [step.copy(), step.copy()])]
-    starts[1][:, 1] += np.log(4.0)  # 4x steeper
-    starts[2][:, 1] -= np.log(4.0)  # 4x gentler
+    slope = np.array([0.0, 1.0, 0.0, 0.0])
+    starts = [step, step + np.log(4.0) * slope, step - np.log(4.0) * slope]  # b, 4b, b/4
     if init is not None:
         starts.append(np.nan_to_num(_to_theta(init)))
     theta0 = _likeliest(starts, x, y, w, g, n_groups)

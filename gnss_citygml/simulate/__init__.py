@@ -141,8 +141,7 @@ class _Site:
 
 
 def _session(rng, site: _Site, session: Session, locations, interval):
-    scene, device = site.scene, site.device
-    part_polys, part_tops, footprints = site.parts, site.tops, site.footprints
+    scene = site.scene
     t = session.start + np.arange(0.0, session.duration, interval)
     n_ep = t.size
     true_xy = _positions(session, t)
@@ -156,8 +155,8 @@ def _session(rng, site: _Site, session: Session, locations, interval):
     zt = scene.ground + antenna
 
     # True line of sight against the true roofs.
-    ray, part, dist, _ = footprint_entries(xt, yt, s_az, part_polys)
-    clearance = part_tops[part] - (zt + dist * np.tan(np.radians(s_el[ray])))
+    ray, part, dist, _ = footprint_entries(xt, yt, s_az, site.parts)
+    clearance = site.tops[part] - (zt + dist * np.tan(np.radians(s_el[ray])))
     blocked = np.zeros(ep.size, dtype=bool)
     blocked[ray[clearance > 0]] = True
     loss = np.zeros(ep.size)
@@ -168,11 +167,13 @@ def _session(rng, site: _Site, session: Session, locations, interval):
     base = (
         m.zenith_cn0
         - m.horizon_loss * (1.0 - np.sin(np.radians(s_el)))
-        + device
+        + site.device
         + rng.normal(0.0, m.session_sd)
     )
     direct = base - loss + rng.normal(0.0, m.fading_sd, ep.size)
-    behind, _, _, _ = footprint_entries(xt, yt, (s_az + 180.0) % 360.0, footprints, max_range=60.0)
+    behind, _, _, _ = footprint_entries(
+        xt, yt, (s_az + 180.0) % 360.0, site.footprints, max_range=60.0
+    )
     facade = np.zeros(ep.size, dtype=bool)
     facade[behind] = True
     reflects = blocked & (rng.random(ep.size) < np.where(facade, 0.75, 0.25))

@@ -1,5 +1,8 @@
 """Shared fixtures: small datasets drawn from known curves and simulated scenes."""
 
+import os
+from pathlib import Path
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -22,6 +25,23 @@ def synthetic_intersections(rng, truth=45.0, n=4000, building="b1", blocked=0.4,
     cn0[~is_open & (rng.random(n) < blocked)] = np.nan
     cn0[cn0 < 12.0] = np.nan
     return pd.DataFrame({"building": building, "height": h, "cn0": cn0})
+
+
+SHARED_DATA = Path(
+    os.environ.get(
+        "GNSS_CITYGML_SHARED_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"
+    )
+)
+
+
+@pytest.fixture(scope="session")
+def shared_data() -> Path:
+    """The project's reference data (``../shared/data`` or ``$GNSS_CITYGML_SHARED_DATA``).
+
+    Missing data fails the test run instead of skipping it: CI always has it."""
+    if not SHARED_DATA.is_dir():
+        pytest.fail(f"reference data not found at {SHARED_DATA}: set GNSS_CITYGML_SHARED_DATA")
+    return SHARED_DATA
 
 
 @pytest.fixture

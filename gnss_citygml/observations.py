@@ -1,0 +1,214 @@
+"""The observations table: one row per (epoch, receiver, satellite above the mask).
+
+This is the toolkit's interchange format (DESIGN.md): ``time_utc``, ``receiver``, ``lat``,
+``lon`` (deg, ETRS89/WGS84), ``h`` (ellipsoidal height, m; may be empty when the DEM gives
+the receiver height), ``constellation`` (RINEX letter), ``svid``, ``azimuth`` (deg from TRUE
+north), ``elevation`` (deg) and ``cn0`` (dB-Hz; empty = above the horizon but not received,
+i.e. blocked). :func:`check_observations` turns any table a user hands in into that schema or
+says exactly which row is wrong and why.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from .errors import InputError, MissingColumnError
+from .tables import read_table, write_table
+
+__all__ = [
+    "CONSTELLATIONS",
+    "OBSERVATION_COLUMNS",
+    "check_observations",
+    "read_observations",
+    "write_observations",
+]
+
+#: Column order of the observations table.
+OBSERVATION_COLUMNS = [
+    "time_utc",
+    "receiver",
+    "lat",
+    "lon",
+    "h",
+    "constellation",
+    "svid",
+    "azimuth",
+    "elevation",
+    "cn0",
+]
+
+#: RINEX system letters: GPS, GLONASS, Galileo, BeiDou, QZSS, SBAS, NavIC.
+CONSTELLATIONS = ("G", "R", "E", "C", "J", "S", "I")
+
+_REQUIRED = [c for c in OBSERVATION_COLUMNS if c != "h"]
+_RANGES = {
+    "lat": (-90.0, 90.0),
+    "lon": (-180.0, 180.0),
+    "azimuth": (0.0, 360.0),
+    "elevation": (-90.0, 90.0),
+    "cn0": (0.0, 100.0),
+}
+
+
+def read_observations(path) -> pd.DataFrame:
+    """Read an observations table (CSV or Parquet) and check it (:func:`check_observations`).
+
+    Errors name the file and, for bad values, the line of the CSV file (or the Parquet row).
+    """
+    table = read_table(path)
+    line_offset = 2 if str(path).lower().endswith(".csv") else 0  # header line, 1-based lines
+    return check_observations(table, where=str(path), line_offset=line_offset)
+
+
+def write_observations(table: pd.DataFrame, path, *, overwrite: bool = True) -> None:
+    """Write an observations table (CSV or Parquet by suffix), atomically."""
+    write_table(check_observations(table, where="observations to write"), path, overwrite=overwrite)
+
+
+def check_observations(
+    table: pd.DataFrame, *, where: str = "observations", line_offset: int = 0
+) -> pd.DataFrame:
+    """The table in the observations schema, or an :class:`InputError` naming the first bad row.
+
+    Parameters
+    ----------
+    table
+        A table with at least the columns of :data:`OBSERVATION_COLUMNS` except ``h``.
+    where
+        What to call the table in error messages (a file name).
+    line_offset
+        Added to the 0-based row number to name a line (2 for a CSV file with a header);
+        0 names rows instead.
+
+    Returns
+    -------
+    DataFrame
+        The columns of :data:`OBSERVATION_COLUMNS` first (``h`` added as NaN when absent),
+        other columns after them untouched; ``time_utc`` as UTC timestamps, numbers as float,
+        ``svid`` as int, ``receiver`` and ``constellation`` as str.
+
+    Examples
+    --------
+    >>> t = pd.DataFrame({"time_utc": ["2020-02-11T08:50:00Z"], "receiver": ["s10"],
+    ...     "lat": [51.5247], "lon": [-0.1343], "constellation": ["G"], "svid": [5],
+    ...     "azimuth": [120.5], "elevation": [33.0], "cn0": [float("nan")]})
+    >>> check_observations(t).dtypes["time_utc"]
+    datetime64[ns, UTC]
+    >>> t.loc[0, "elevation"] = 95.0
+    >>> check_observations(t)
+    Traceback (most recent call last):
+    ...
+    gnss_citygml.errors.InputError: elevation 95 outside -90..90 (observations, row 0): ...
+    """
+    missing = [c for c in _REQUIRED if c not in table.columns]
+    if missing:
+        raise MissingColumnError(missing, where=where, have=list(table.columns))
+    out = table.copy()
+    if "h" not in out.columns:
+        out["h"] = np.nan
+
+    def locate(row: int) -> str:
+        return f"{where}, line {row + line_offset}" if line_offset else f"{where}, row {row}"
+
+    out["time_utc"] = _times(out["time_utc"], locate)
+    for column in ("lat", "lon", "h", "azimuth", "elevation", "cn0"):
+        out[column] = _numbers(out[column], column, locate)
+    for column in ("lat", "lon", "azimuth", "elevation"):
+        _no_gaps(out[column], column, locate)
+    out["svid"] = _svids(out["svid"], locate)
+    out["receiver"] = _labels(out["receiver"], "receiver", locate)
+    out["constellation"] = _labels(out["constellation"], "constellation", locate).str.upper()
+    bad = ~out["constellation"].isin(CONSTELLATIONS)
+    if bad.any():
+        row = _first_bad(bad.to_numpy())
+        raise InputError(
+            f"unknown constellation {out['constellation'].iloc[row]!r}",
+            where=locate(row),
+            fix="use a RINEX letter: " + ", ".join(CONSTELLATIONS),
+        )
+    for column, (lo, hi) in _RANGES.items():
+        values = out[column].to_numpy()
+        bad = (values < lo) | (values > hi)
+        if column == "azimuth":
+            bad |= values == hi  # 360 is 0
+        if bad.any():
+            row = _first_bad(bad)
+            raise InputError(
+                f"{column} {values[row]:g} outside {lo:g}..{hi:g}",
+                where=locate(row),
+                fix=_RANGE_FIX[column],
+            )
+    others = [c for c in out.columns if c not in OBSERVATION_COLUMNS]
+    return out[OBSERVATION_COLUMNS + others].reset_index(drop=True)
+
+
+_RANGE_FIX = {
+    "lat": "give latitudes in degrees (ETRS89/WGS84), not projected coordinates",
+    "lon": "give longitudes in degrees (ETRS89/WGS84), not projected coordinates",
+    "azimuth": "give azimuths in degrees clockwise from true north, 0 <= azimuth < 360",
+    "elevation": "give elevations in degrees above the horizon",
+    "cn0": "give C/N0 in dB-Hz, leaving it empty for satellites not received",
+}
+
+
+def _show(value) -> str:
+    """A cell as the user wrote it: strings quoted, numbers plain."""
+    return repr(value) if isinstance(value, str) else f"{getattr(value, 'item', lambda: value)()}"
+
+
+def _first_bad(bad: np.ndarray) -> int:
+    return int(np.flatnonzero(bad)[0])
+
+
+def _times(column: pd.Series, locate) -> pd.Series:
+    times = pd.to_datetime(column, utc=True, errors="coerce", format="mixed")
+    times = times.astype("datetime64[ns, UTC]")
+    bad = times.isna().to_numpy()
+    if bad.any():
+        row = _first_bad(bad)
+        raise InputError(
+            f"time_utc {_show(column.iloc[row])} is not a time",
+            where=locate(row),
+            fix="write times as ISO 8601, e.g. 2020-02-11T08:49:29.000Z",
+        )
+    return times
+
+
+def _numbers(column: pd.Series, name: str, locate) -> pd.Series:
+    numbers = pd.to_numeric(column, errors="coerce").astype(float)
+    bad = (numbers.isna() & column.notna()).to_numpy()
+    if bad.any():
+        row = _first_bad(bad)
+        raise InputError(
+            f"{name} {_show(column.iloc[row])} is not a number",
+            where=locate(row),
+            fix=f"give {name} as a number" + (" or leave it empty" if name in ("h", "cn0") else ""),
+        )
+    return numbers
+
+
+def _no_gaps(column: pd.Series, name: str, locate) -> None:
+    bad = column.isna().to_numpy()
+    if bad.any():
+        raise InputError(f"{name} is empty", where=locate(_first_bad(bad)), fix=f"give {name}")
+
+
+def _svids(column: pd.Series, locate) -> pd.Series:
+    numbers = pd.to_numeric(column, errors="coerce")
+    bad = (numbers.isna() | (numbers % 1 != 0) | (numbers < 0)).to_numpy()
+    if bad.any():
+        row = _first_bad(bad)
+        raise InputError(
+            f"svid {_show(column.iloc[row])} is not a satellite number",
+            where=locate(row),
+            fix="give the satellite's PRN / slot number as a whole number",
+        )
+    return numbers.astype(np.int64)
+
+
+def _labels(column: pd.Series, name: str, locate) -> pd.Series:
+    bad = column.isna().to_numpy()
+    if bad.any():
+        raise InputError(f"{name} is empty", where=locate(_first_bad(bad)), fix=f"give {name}")
+    return column.astype(str).str.strip()

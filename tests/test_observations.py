@@ -1,0 +1,85 @@
+"""The observations table: schema, round trip, and one clear error per kind of bad row."""
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from gnss_citygml.errors import InputError, MissingColumnError
+from gnss_citygml.observations import (
+    OBSERVATION_COLUMNS,
+    check_observations,
+    read_observations,
+    write_observations,
+)
+from gnss_citygml.simulate import simulate
+
+
+@pytest.fixture(scope="module")
+def observations():
+    return simulate("hermitage", locations="manual", seed=0, interval=60.0).observations
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".parquet"])
+def test_round_trip(tmp_path, observations, suffix):
+    path = tmp_path / f"obs{suffix}"
+    write_observations(observations, path)
+    back = read_observations(path)
+    assert list(back.columns[: len(OBSERVATION_COLUMNS)]) == OBSERVATION_COLUMNS
+    assert str(back["time_utc"].dtype) == "datetime64[ns, UTC]"
+    assert back["svid"].dtype == np.int64
+    assert len(back) == len(observations)
+    np.testing.assert_array_equal(back["cn0"].isna(), observations["cn0"].isna())
+    np.testing.assert_allclose(back["azimuth"], observations["azimuth"])
+    assert (back["time_utc"] == observations["time_utc"]).all()
+
+
+def test_h_is_optional(observations):
+    out = check_observations(observations.drop(columns="h"))
+    assert out["h"].isna().all()
+
+
+def test_missing_columns_are_named(observations):
+    with pytest.raises(MissingColumnError, match="'azimuth'.*'cn0'"):
+        check_observations(observations.drop(columns=["azimuth", "cn0"]))
+
+
+@pytest.mark.parametrize(
+    ("column", "value", "message"),
+    [
+        ("azimuth", 360.0, "azimuth 360 outside 0..360"),
+        ("azimuth", -1.0, "azimuth -1 outside"),
+        ("elevation", 91.0, "elevation 91 outside -90..90"),
+        ("lat", 530000.0, "lat 530000 outside"),
+        ("cn0", "strong", "cn0 'strong' is not a number"),
+        ("time_utc", "yesterday", "time_utc 'yesterday' is not a time"),
+        ("constellation", "X", "unknown constellation 'X'"),
+        ("svid", 3.5, "svid 3.5 is not a satellite number"),
+        ("elevation", np.nan, "elevation is empty"),
+    ],
+)
+def test_bad_value_names_the_csv_line(tmp_path, observations, column, value, message):
+    table = observations.head(10).copy()
+    table[column] = table[column].astype(object)
+    table.loc[7, column] = value
+    path = tmp_path / "obs.csv"
+    table.to_csv(path, index=False)
+    with pytest.raises(InputError) as err:
+        read_observations(path)
+    assert message in err.value.what
+    assert err.value.where == f"{path}, line 9"  # header is line 1, row 0 is line 2
+    assert err.value.fix
+
+
+def test_blocked_signals_stay_empty(tmp_path, observations):
+    path = tmp_path / "obs.csv"
+    write_observations(observations, path)
+    text = path.read_text().splitlines()
+    n_empty = sum(1 for line in text[1:] if ",," in line or line.endswith(","))
+    assert n_empty >= observations["cn0"].isna().sum() > 0
+    assert read_observations(path)["cn0"].isna().sum() == observations["cn0"].isna().sum()
+
+
+def test_other_columns_are_kept(observations):
+    out = check_observations(observations.assign(note="x"))
+    assert (out["note"] == "x").all()
+    assert isinstance(out, pd.DataFrame)

@@ -1,0 +1,433 @@
+"""Footprints (GeoPackage, MasterMap GML) and DEM ground heights, on real files.
+
+Synthetic footprints and DEMs are written to ``tmp_path`` with geopandas and rasterio; the real
+OS MasterMap tile and OS Terrain 50 zip are read in place from the shared data folder.
+"""
+
+import gzip
+import time
+
+import geopandas as gpd
+import numpy as np
+import pyproj
+import pytest
+import rasterio
+import shapely
+from rasterio.transform import from_origin
+
+from gnss_citygml.buildings import (
+    DemCoverageError,
+    building_ground,
+    read_footprints,
+    sample_ground,
+)
+from gnss_citygml.errors import InputError, MissingColumnError
+
+BNG = "EPSG:27700"
+#: The synthetic DEM: 2 m cells, 500 x 400, west 500000, north 201000.
+WEST, NORTH, CELL, WIDTH, HEIGHT = 500000.0, 201000.0, 2.0, 500, 400
+
+
+def plane(e, n):
+    """The synthetic DEM's heights: exact under bilinear interpolation."""
+    return 10.0 + 0.01 * (np.asarray(e) - WEST) + 0.02 * (np.asarray(n) - 200000.0)
+
+
+def write_dem(path, *, nodata_box=None, crs=BNG):
+    """A float64 GeoTIFF of ``plane`` at the cell centres, with an optional nodata hole."""
+    cols, rows = np.meshgrid(np.arange(WIDTH), np.arange(HEIGHT))
+    e, n = WEST + (cols + 0.5) * CELL, NORTH - (rows + 0.5) * CELL
+    z = plane(e, n)
+    if nodata_box is not None:
+        z[shapely.contains_xy(shapely.box(*nodata_box), e, n)] = -9999.0
+    with rasterio.open(
+        path, "w", driver="GTiff", width=WIDTH, height=HEIGHT, count=1, dtype="float64",
+        crs=crs, transform=from_origin(WEST, NORTH, CELL, CELL), nodata=-9999.0,
+    ) as ds:  # fmt: skip
+        ds.write(z, 1)
+    return path
+
+
+def cells_under(geometry):
+    """Heights of the DEM cells whose centres lie inside ``geometry`` (brute force)."""
+    west, south, east, north = geometry.bounds
+    cols = np.arange(
+        max(int((west - WEST) // CELL) - 1, 0), min(int((east - WEST) // CELL) + 2, WIDTH)
+    )
+    rows = np.arange(
+        max(int((NORTH - north) // CELL) - 1, 0), min(int((NORTH - south) // CELL) + 2, HEIGHT)
+    )
+    cols, rows = np.meshgrid(cols, rows)
+    e, n = WEST + (cols + 0.5) * CELL, NORTH - (rows + 0.5) * CELL
+    inside = shapely.contains_xy(geometry, e, n)
+    return plane(e[inside], n[inside])
+
+
+# The canonical footprints (BNG, inside the synthetic DEM; no edge passes through a cell centre:
+# the centres have odd coordinates).
+SQUARE = shapely.box(500100.0, 200300.0, 500140.0, 200330.0)
+COURTYARD = shapely.Polygon(
+    [(500200, 200400), (500260, 200400), (500260, 200460), (500200, 200460)],
+    [[(500220, 200420), (500240, 200420), (500240, 200440), (500220, 200440)]],
+)
+BOWTIE = shapely.Polygon(
+    [(500300.4, 200500), (500340.4, 200540), (500340.4, 200500), (500300.4, 200540)]
+)
+TWO_PARTS = shapely.MultiPolygon(
+    [shapely.box(500400, 200600, 500420, 200620), shapely.box(500440, 200600, 500460, 200630)]
+)
+SHED = shapely.box(500601.2, 200701.2, 500601.9, 200701.7)  # smaller than a cell
+
+
+@pytest.fixture
+def footprints_gpkg(tmp_path):
+    """A GeoPackage: a square, one with a courtyard, a bow-tie and a multipolygon."""
+    path = tmp_path / "footprints.gpkg"
+    frame = gpd.GeoDataFrame(
+        {"toid": ["sq", "court", "bow", "multi"], "storeys": [2, 5, 1, 3]},
+        geometry=[SQUARE, COURTYARD, BOWTIE, TWO_PARTS],
+        crs=BNG,
+    )
+    frame.to_file(path, layer="buildings")
+    return path
+
+
+@pytest.fixture
+def dem(tmp_path):
+    return write_dem(tmp_path / "dem.tif")
+
+
+def buildings_table(ids, geometries):
+    return gpd.GeoDataFrame({"id": ids}, geometry=geometries, crs=BNG)
+
+
+# --- footprints ---------------------------------------------------------------------------------
+
+
+def test_geopackage_footprints_repaired_with_a_warning(footprints_gpkg):
+    with pytest.warns(UserWarning, match=r"repaired 1 invalid footprint\(s\).*bow"):
+        b = read_footprints(footprints_gpkg)
+    assert b.crs == BNG
+    assert list(b.columns) == ["id", "storeys", "geometry"]
+    assert b["id"].tolist() == ["sq", "court", "bow", "multi"]
+    assert b["storeys"].tolist() == [2, 5, 1, 3]
+    assert b.geometry.is_valid.all()
+    assert set(b.geom_type) == {"MultiPolygon"}  # as the GeoPackage layer stores them
+    # the courtyard keeps its hole, the bow-tie becomes its two triangles (2 x 400 m2)
+    assert b.geometry[1].area == pytest.approx(60 * 60 - 20 * 20)
+    assert not b.geometry[1].contains(shapely.Point(500230, 200430))
+    assert b.geometry[2].geom_type == "MultiPolygon"
+    assert b.geometry[2].area == pytest.approx(800.0)
+    assert b.geometry[3].equals(TWO_PARTS)
+
+
+def test_id_rules(tmp_path):
+    path = tmp_path / "ids.gpkg"
+    frame = gpd.GeoDataFrame(
+        {"name": ["x", "y"], "ref": [7.0, 8.0]}, geometry=[SQUARE, TWO_PARTS], crs=BNG
+    )
+    frame.to_file(path)
+    # no toid/id/fid column: the GeoPackage feature id (1, 2, ...)
+    assert read_footprints(path)["id"].tolist() == ["1", "2"]
+    chosen = read_footprints(path, id_field="ref")
+    assert chosen["id"].tolist() == ["7", "8"]  # integral floats as integers
+    assert list(chosen.columns) == ["id", "name", "geometry"]  # the id field moved to `id`
+    with pytest.raises(MissingColumnError, match=r"'toid'.*name, ref"):
+        read_footprints(path, id_field="toid")
+
+
+def test_footprints_in_wgs84_are_transformed_to_bng(tmp_path):
+    to_wgs84 = pyproj.Transformer.from_crs(BNG, "EPSG:4326", always_xy=True, allow_ballpark=False)
+    building = shapely.box(529540.0, 182290.0, 529560.0, 182305.0)  # by the London GNSS log
+    in_degrees = shapely.transform(building, lambda xy: np.column_stack(to_wgs84.transform(*xy.T)))
+    path = tmp_path / "wgs84.gpkg"
+    gpd.GeoDataFrame({"id": ["ucl"]}, geometry=[in_degrees], crs="EPSG:4326").to_file(path)
+    b = read_footprints(path)
+    assert b.crs == BNG
+    back = shapely.get_coordinates(b.geometry[0])
+    assert np.abs(back - shapely.get_coordinates(building)).max() < 1e-3
+
+
+def test_mastermap_tile(shared_data):
+    folder = shared_data / "footprints"
+    before = sorted(p.name for p in folder.iterdir())
+    b = read_footprints(folder / "mastermap-topo_3473984_0.gml")
+    assert sorted(p.name for p in folder.iterdir()) == before  # no .gfs sidecar left
+    assert not list(folder.glob("*.gfs"))
+    assert len(b) == 160
+    assert b["id"].str.startswith("osgb").all() and b["id"].is_unique
+    assert "osgb1000005430576" in set(b["id"])
+    assert b.crs == BNG
+    assert b.geometry.is_valid.all()
+    assert all("Building" in list(group) for group in b["descriptiveGroup"])
+    # within the tile's extent of the README (E 527947-530467, N 181967-182983)
+    west, south, east, north = b.total_bounds
+    assert 527947 <= west and east <= 530467 and 181967 <= south and north <= 182983
+    assert (west, south, east, north) == pytest.approx((529289.73, 182059.7, 529755.2, 182542.65))
+    # the first building's calculatedAreaValue is OS's own area of its polygon
+    assert b.geometry.area.to_numpy() == pytest.approx(b["calculatedAreaValue"], rel=1e-3)
+
+
+MASTERMAP_GZ = """<?xml version="1.0" encoding="UTF-8"?>
+<osgb:FeatureCollection xmlns:osgb="http://www.ordnancesurvey.co.uk/xml/namespaces/osgb"
+    xmlns:gml="http://www.opengis.net/gml" fid="test">
+  <osgb:topographicMember><osgb:TopographicArea fid="osgb1000000000001">
+    <osgb:featureCode>10021</osgb:featureCode>
+    <osgb:descriptiveGroup>Building</osgb:descriptiveGroup>
+    <osgb:descriptiveGroup>Structure</osgb:descriptiveGroup>
+    <osgb:polygon><gml:Polygon srsName="urn:ogc:def:crs:EPSG::27700"><gml:outerBoundaryIs>
+      <gml:LinearRing><gml:coordinates>500100,200300 500140,200300 500140,200330 500100,200330
+        500100,200300</gml:coordinates></gml:LinearRing></gml:outerBoundaryIs></gml:Polygon>
+    </osgb:polygon></osgb:TopographicArea></osgb:topographicMember>
+  <osgb:topographicMember><osgb:TopographicArea fid="osgb1000000000002">
+    <osgb:featureCode>10056</osgb:featureCode>
+    <osgb:descriptiveGroup>General Surface</osgb:descriptiveGroup>
+    <osgb:polygon><gml:Polygon srsName="urn:ogc:def:crs:EPSG::27700"><gml:outerBoundaryIs>
+      <gml:LinearRing><gml:coordinates>500201,200401 500261,200401 500261,200461
+        500201,200401</gml:coordinates></gml:LinearRing></gml:outerBoundaryIs></gml:Polygon>
+    </osgb:polygon></osgb:TopographicArea></osgb:topographicMember>
+</osgb:FeatureCollection>
+"""
+
+
+def test_gzipped_mastermap_with_repeated_descriptive_group(tmp_path):
+    path = tmp_path / "tile.gml.gz"
+    path.write_bytes(gzip.compress(MASTERMAP_GZ.encode()))
+    b = read_footprints(path)
+    assert b["id"].tolist() == ["osgb1000000000001"]
+    assert list(b["descriptiveGroup"][0]) == ["Building", "Structure"]
+    assert b.geometry[0].equals(SQUARE)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["tile.gml.gz"]  # no .gfs
+
+
+# --- bad footprints -----------------------------------------------------------------------------
+
+
+def write_layer(path, geometries, *, crs=BNG, layer=None, **columns):
+    frame = gpd.GeoDataFrame(columns, geometry=list(geometries), crs=crs)
+    frame.to_file(path, layer=layer)
+    return path
+
+
+def test_empty_layer(tmp_path):
+    path = write_layer(tmp_path / "empty.gpkg", [], layer="none", toid=[])
+    with pytest.raises(InputError, match=r"the layer has no features \(.*empty.gpkg, layer none\)"):
+        read_footprints(path)
+
+
+@pytest.mark.filterwarnings("ignore:'crs' was not provided")
+def test_no_crs(tmp_path):
+    path = write_layer(tmp_path / "nocrs.gpkg", [SQUARE], crs=None, toid=["a"])
+    with pytest.raises(InputError, match=r"no CRS \(.*nocrs.gpkg.*-a_srs EPSG:27700"):
+        read_footprints(path)
+
+
+@pytest.mark.filterwarnings("ignore:'crs' was not provided")
+def test_degrees_without_crs_or_in_a_projected_crs(tmp_path):
+    square = shapely.box(-0.1342, 51.5246, -0.1340, 51.5248)
+    path = write_layer(tmp_path / "nocrs.gpkg", [square], crs=None, toid=["a"])
+    with pytest.raises(InputError, match=r"no CRS and coordinates that look like longitude"):
+        read_footprints(path)
+    path = write_layer(tmp_path / "mislabelled.gpkg", [square], toid=["a"])
+    with pytest.raises(InputError, match=r"look like degrees but their CRS is OSGB.*EPSG:4326"):
+        read_footprints(path)
+    path = write_layer(tmp_path / "metres.gpkg", [SQUARE], crs="EPSG:4326", toid=["a"])
+    with pytest.raises(InputError, match=r"\(degrees\) but their coordinates look like metres"):
+        read_footprints(path)
+
+
+def test_duplicate_ids(tmp_path):
+    path = write_layer(tmp_path / "dup.gpkg", [SQUARE, COURTYARD, TWO_PARTS], toid=["a", "b", "a"])
+    with pytest.raises(InputError, match=r"1 duplicate id\(s\) in 'toid': a \(.*dup.gpkg"):
+        read_footprints(path)
+
+
+def test_missing_ids_and_clashing_id_column(tmp_path):
+    path = write_layer(tmp_path / "gap.gpkg", [SQUARE, COURTYARD], toid=["a", None])
+    with pytest.raises(InputError, match=r"1 feature\(s\) without an id in 'toid': rows 1"):
+        read_footprints(path)
+    path = write_layer(tmp_path / "two.gpkg", [SQUARE], toid=["a"], ID=[1])
+    with pytest.raises(InputError, match=r"column 'ID' besides the id field 'toid'"):
+        read_footprints(path)
+
+
+def test_points_and_missing_geometries_are_not_footprints(tmp_path):
+    geometries = [SQUARE, shapely.Point(500000, 200000), None]
+    path = write_layer(tmp_path / "mixed.geojson", geometries, toid=["a", "p", "n"])
+    with pytest.raises(
+        InputError, match=r"2 feature\(s\) are not polygons \(Point, missing\): p, n"
+    ):
+        read_footprints(path)
+
+
+def test_a_footprint_with_no_area_is_dropped_with_a_warning(tmp_path):
+    flat = shapely.Polygon([(500100, 200300), (500120, 200300), (500140, 200300)])
+    path = write_layer(tmp_path / "flat.gpkg", [SQUARE, flat], toid=["sq", "flat"])
+    with pytest.warns(UserWarning, match=r"dropped 1 footprint\(s\) with no area: flat"):
+        b = read_footprints(path)
+    assert b["id"].tolist() == ["sq"]
+
+
+def test_several_layers_need_a_choice(tmp_path):
+    path = tmp_path / "two_layers.gpkg"
+    write_layer(path, [SQUARE], layer="old", toid=["a"])
+    write_layer(path, [COURTYARD], layer="new", toid=["b"])
+    with pytest.raises(InputError, match=r"several layers \(old, new\).*--layer"):
+        read_footprints(path)
+    assert read_footprints(path, layer="new")["id"].tolist() == ["b"]
+    with pytest.raises(InputError, match=r"cannot read the footprints.*layer nope"):
+        read_footprints(path, layer="nope")
+
+
+def test_missing_file(tmp_path):
+    with pytest.raises(InputError, match=r"footprint file not found"):
+        read_footprints(tmp_path / "nothing.gpkg")
+
+
+# --- DEM ----------------------------------------------------------------------------------------
+
+
+def test_bilinear_sampling_is_exact_on_a_plane(dem, rng):
+    e = rng.uniform(WEST + 1.0, WEST + WIDTH * CELL - 1.0, 10000)  # between cell centres
+    n = rng.uniform(NORTH - HEIGHT * CELL + 1.0, NORTH - 1.0, 10000)
+    assert np.abs(sample_ground(dem, e, n) - plane(e, n)).max() < 1e-9
+    # the outer half cell takes the edge cells' value across the edge
+    assert sample_ground(dem, [WEST + 0.3], [200500.0])[0] == pytest.approx(plane(WEST + 1, 200500))
+
+
+@pytest.mark.parametrize("statistic", ["median", "min", "mean"])
+def test_ground_statistics_match_the_cells_under_each_footprint(footprints_gpkg, dem, statistic):
+    with pytest.warns(UserWarning, match="repaired"):
+        b = read_footprints(footprints_gpkg)
+    ground = building_ground(b, dem, statistic)["ground"].to_numpy()
+    expected = [getattr(np, statistic)(cells_under(g)) for g in b.geometry]
+    assert ground == pytest.approx(expected, abs=1e-9)
+
+
+def test_ground_of_a_square_small_and_overlapping_footprints(dem):
+    # 20 x 15 cell centres under SQUARE: the median is the plane at its centre
+    inner = shapely.box(500110.0, 200310.0, 500130.0, 200320.0)  # inside SQUARE: overlaps it
+    b = buildings_table(["sq", "shed", "inner"], [SQUARE, SHED, inner])
+    ground = building_ground(b, dem)["ground"].to_numpy()
+    assert ground[0] == pytest.approx(plane(500120.0, 200315.0))
+    point = shapely.point_on_surface(SHED)
+    assert ground[1] == pytest.approx(plane(point.x, point.y))
+    assert ground[2] == pytest.approx(np.median(cells_under(inner)))
+    assert len(cells_under(SQUARE)) == 20 * 15
+
+
+def test_many_buildings_against_brute_force(dem, rng):
+    west = rng.uniform(WEST + 2, WEST + WIDTH * CELL - 40, 400)
+    south = rng.uniform(NORTH - HEIGHT * CELL + 2, NORTH - 40, 400)
+    boxes = shapely.box(
+        west, south, west + rng.uniform(3, 35, 400), south + rng.uniform(3, 35, 400)
+    )
+    b = buildings_table([f"b{i}" for i in range(400)], boxes)
+    ground = building_ground(b, dem, "median")["ground"].to_numpy()
+    expected = [np.median(cells_under(g)) for g in boxes]
+    assert ground == pytest.approx(expected, abs=1e-9)
+
+
+def test_nodata_under_a_building_is_an_error_but_not_under_its_courtyard(tmp_path):
+    courtyard_hole = write_dem(tmp_path / "hole.tif", nodata_box=(500225, 200425, 500237, 200437))
+    b = buildings_table(["court", "sq"], [COURTYARD, SQUARE])
+    assert building_ground(b, courtyard_hole)["ground"][0] == pytest.approx(
+        np.median(cells_under(COURTYARD))
+    )
+    under_square = write_dem(tmp_path / "gap.tif", nodata_box=(500120, 200310, 500124, 200314))
+    with pytest.raises(DemCoverageError, match=r"1 building\(s\) over nodata.*: sq \(.*gap.tif"):
+        building_ground(b, under_square)
+    with pytest.raises(DemCoverageError, match=r"over nodata cells of the DEM: 0 "):
+        sample_ground(under_square, [500121.0], [200311.0])
+
+
+def test_buildings_and_receivers_off_the_dem(dem):
+    far = [
+        shapely.box(WEST - 10 + 100 * i, NORTH - 5, WEST + 5 + 100 * i, NORTH + 5)
+        for i in range(12)
+    ]
+    b = buildings_table([f"edge{i}" for i in range(12)] + ["sq"], [*far, SQUARE])
+    with pytest.raises(
+        DemCoverageError, match=r"12 building\(s\) not wholly on the DEM: edge0, "
+    ) as caught:
+        building_ground(b, dem)
+    assert caught.value.items == [f"edge{i}" for i in range(12)]
+    assert "edge9 and 2 more" in str(caught.value)
+    with pytest.raises(DemCoverageError, match=r"2 point\(s\) off the DEM: r1, r3 \("):
+        sample_ground(dem, [500500, 499999, 501000, 502000], [200500, 200500, 200200, 200200],
+                      labels=["r0", "r1", "r2", "r3"])  # fmt: skip
+
+
+def test_dem_crs_rules(tmp_path, dem):
+    b = buildings_table(["sq"], [SQUARE])
+    no_crs = write_dem(tmp_path / "nocrs.tif", crs=None)
+    with pytest.raises(InputError, match=r"the DEM has no CRS \(.*nocrs.tif\).*assume_crs"):
+        building_ground(b, no_crs)
+    assert building_ground(b, no_crs, assume_crs=BNG)["ground"][0] == pytest.approx(
+        plane(500120.0, 200315.0)
+    )
+    utm = write_dem(tmp_path / "utm.tif", crs="EPSG:32630")
+    with pytest.raises(InputError, match=r"not in EPSG:27700.*gdalwarp"):
+        sample_ground(utm, [500500.0], [200500.0])
+    with pytest.raises(InputError, match=r"unknown ground statistic 'max'"):
+        building_ground(b, dem, "max")
+    with pytest.raises(InputError, match=r"cannot open the DEM"):
+        sample_ground(tmp_path / "none.tif", [500500.0], [200500.0])
+
+
+def test_os_terrain_50_tile_in_its_zip(shared_data):
+    tile = f"zip://{shared_data / 'footprints' / 'os_terrain50_asc_skye.zip'}!/asc_skye/NG33.asc"
+    # NG33.asc: xllcorner 130000, yllcorner 830000, 50 m cells; its data row 10 (from the north)
+    # reads "... 14.4 17.2 19 ..." at columns 19-21, and the south-east corner cell is 132.6
+    e = np.array([130000 + 50 * 20 + 25, 130000 + 50 * 20 + 50, 140000 - 25])
+    n = np.array([840000 - 50 * 10 - 25, 840000 - 50 * 10 - 25, 830000 + 25])
+    heights = sample_ground(tile, e, n, assume_crs=BNG)
+    assert heights == pytest.approx([17.2, (17.2 + 19.0) / 2, 132.6], abs=1e-5)
+    with pytest.raises(InputError, match="no CRS"):
+        sample_ground(tile, e, n)
+    with pytest.raises(DemCoverageError, match=r"1 point\(s\) off the DEM: 1 \(zip://"):
+        sample_ground(tile, [135000.0, 140100.0], [835000.0, 835000.0], assume_crs=BNG)
+
+
+def test_mastermap_ground_on_a_synthetic_dem(shared_data, tmp_path):
+    b = read_footprints(shared_data / "footprints" / "mastermap-topo_3473984_0.gml")
+    path = tmp_path / "london.tif"
+    west, north, cell = 529200.0, 182600.0, 1.0
+    cols, rows = np.meshgrid(np.arange(600), np.arange(600))
+    z = 20.0 + 0.01 * (west + cols + 0.5 - 529000) - 0.02 * (north - rows - 0.5 - 182000)
+    with rasterio.open(
+        path, "w", driver="GTiff", width=600, height=600, count=1, dtype="float64",
+        crs=BNG, transform=from_origin(west, north, cell, cell),
+    ) as ds:  # fmt: skip
+        ds.write(z, 1)
+    start = time.perf_counter()
+    ground = building_ground(b, path, "mean")["ground"].to_numpy()
+    seconds = time.perf_counter() - start
+    # the mean of a plane over the cell centres in a footprint: the plane at their centroid
+    for k in (0, 80, 159):
+        ee, nn = np.meshgrid(west + np.arange(600) + 0.5, north - np.arange(600) - 0.5)
+        inside = shapely.contains_xy(b.geometry[k], ee, nn)
+        ce, cn = ee[inside].mean(), nn[inside].mean()
+        assert ground[k] == pytest.approx(20.0 + 0.01 * (ce - 529000) - 0.02 * (cn - 182000))
+    assert seconds < 5.0
+
+
+def test_plain_gml_is_read_without_a_gfs_sidecar(tmp_path):
+    path = write_layer(tmp_path / "plain.gml", [SQUARE, COURTYARD], toid=["a", "b"])
+    (tmp_path / "plain.xsd").unlink()  # without its schema GDAL would write a .gfs
+    b = read_footprints(path)
+    assert b["id"].tolist() == ["a", "b"]
+    assert b.crs == BNG and b.geometry[1].equals(COURTYARD)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["plain.gml"]
+
+
+def test_other_bad_arguments(dem):
+    with pytest.raises(InputError, match=r"the DEM has no band 2 .*from 1 to 1"):
+        sample_ground(dem, [500500.0], [200500.0], band=2)
+    b = buildings_table(
+        ["sq", "line"], [SQUARE, shapely.LineString([(500100, 200300), (500200, 200300)])]
+    )
+    with pytest.raises(InputError, match=r"1 feature\(s\) are not polygons \(LineString\): line"):
+        building_ground(b, dem)
+    with pytest.raises(InputError, match=r"in EPSG:4326, not EPSG:27700"):
+        building_ground(b.set_crs("EPSG:4326", allow_override=True), dem)

@@ -16,8 +16,10 @@ import shapely
 
 __all__ = ["footprint_entries"]
 
-#: (pair, edge) combinations handled per numpy chunk: bounds the memory of a large cast.
-_CHUNK = 2_000_000
+#: Rays cast per batch, and (ray x footprint, edge) combinations per numpy chunk within a
+#: batch: they bound the memory of a large cast and keep its arrays in the CPU cache.
+_RAYS = 1 << 15
+_CHUNK = 1 << 18
 
 
 def footprint_entries(x, y, bearing, footprints, max_range: float = 500.0):
@@ -56,19 +58,30 @@ def footprint_entries(x, y, bearing, footprints, max_range: float = 500.0):
     empty = (np.array([], dtype=np.intp), np.array([], dtype=np.intp), np.array([]), np.array([]))
     if x.size == 0 or footprints.size == 0:
         return empty
-    rays = shapely.linestrings(
-        np.stack(
-            [np.column_stack([x, y]), np.column_stack([x + dx * max_range, y + dy * max_range])],
-            axis=1,
-        )
-    )
     tree = shapely.STRtree(footprints)
-    ray_idx, fp_idx = tree.query(rays, predicate="intersects")
-    if ray_idx.size == 0:
-        return empty
+    boxes = shapely.bounds(footprints)
+    edges = _edges(footprints)
+    batches = []
+    for lo in range(0, x.size, _RAYS):
+        rays = slice(lo, lo + _RAYS)
+        ray, fp, dist, cos = _entries(
+            x[rays], y[rays], dx[rays], dy[rays], footprints, tree, boxes, edges, max_range
+        )
+        batches.append((ray + lo, fp, dist, cos))
+    return tuple(np.concatenate(column) for column in zip(*batches, strict=True))
+
+
+def _entries(x, y, dx, dy, footprints, tree, boxes, edges, max_range):
+    """:func:`footprint_entries` for one batch of rays."""
+    ends = np.column_stack([x + dx * max_range, y + dy * max_range])
+    segments = np.stack([np.column_stack([x, y]), ends], axis=1)
+    # Bounding-box candidates (fast), then an exact ray x bounding-box test in numpy.
+    ray_idx, fp_idx = tree.query(shapely.linestrings(segments))
+    near = _crosses_box(x[ray_idx], y[ray_idx], dx[ray_idx], dy[ray_idx], boxes[fp_idx])
+    ray_idx, fp_idx = ray_idx[near], fp_idx[near]
     inside = shapely.intersects_xy(footprints[fp_idx], x[ray_idx], y[ray_idx])  # or on an edge
     ray_idx, fp_idx = ray_idx[~inside], fp_idx[~inside]
-    edges, edge_start, edge_count = _edges(footprints)
+    edge_xy, edge_start, edge_count = edges
     dist = np.full(ray_idx.size, np.inf)
     cos_inc = np.zeros(ray_idx.size)
     # Expand every pair to the edges of its footprint, in chunks of bounded size.
@@ -81,17 +94,28 @@ def footprint_entries(x, y, bearing, footprints, max_range: float = 500.0):
         counts = per_pair[pairs]
         rep = np.repeat(pairs, counts)
         offs = np.arange(counts.sum()) - np.repeat(bounds[pairs] - bounds[lo], counts)
-        e = edges[edge_start[fp_idx[rep]] + offs]
+        e = edge_xy[edge_start[fp_idx[rep]] + offs]
         t, cos = _ray_segment_distance(
             x[ray_idx[rep]], y[ray_idx[rep]], dx[ray_idx[rep]], dy[ray_idx[rep]], e
         )
-        np.minimum.at(dist, rep, t)
+        block = bounds[pairs] - bounds[lo]  # where each pair's edges start in this chunk
+        dist[pairs] = np.minimum.reduceat(t, block)
         first = np.isfinite(t) & (t == dist[rep])
         cos_inc[rep[first]] = cos[first]
     keep = dist <= max_range
     ray_idx, fp_idx, dist, cos_inc = ray_idx[keep], fp_idx[keep], dist[keep], cos_inc[keep]
     order = np.lexsort((dist, ray_idx))
     return ray_idx[order], fp_idx[order], dist[order], cos_inc[order]
+
+
+def _crosses_box(x, y, dx, dy, box):
+    """Whether the line through each origin (unit direction ``dx``, ``dy``) passes through the
+    axis-aligned box (xmin, ymin, xmax, ymax): the separating-axis test along the line's
+    normal. With the boxes of the ray segment and the footprint overlapping (the tree query),
+    this makes the segment x box test exact."""
+    hx, hy = 0.5 * (box[:, 2] - box[:, 0]), 0.5 * (box[:, 3] - box[:, 1])
+    cx, cy = box[:, 0] + hx, box[:, 1] + hy
+    return np.abs(dx * (cy - y) - dy * (cx - x)) <= hx * np.abs(dy) + hy * np.abs(dx)
 
 
 def _edges(footprints):

@@ -157,6 +157,9 @@ def fit_4pl(
     g = np.zeros(x.shape, dtype=np.intp) if groups is None else np.asarray(groups, dtype=np.intp)
     if n_groups is None:
         n_groups = int(g.max()) + 1 if g.size else 1
+    if np.any(g[1:] < g[:-1]):  # group the samples: the likelihood sums run block by block
+        order = np.argsort(g, kind="stable")
+        x, y, w, g = x[order], y[order], w[order], g[order]
     counts = np.bincount(g, weights=(w > 0).astype(float), minlength=n_groups)
     lo, hi = group_range(x, g, n_groups)
     span = np.maximum(hi - lo, 1e-6)
@@ -186,7 +189,8 @@ def fit_4pl(
     theta = np.clip(np.nan_to_num(theta0), box_lo, box_hi)
 
     active = counts > 0
-    ll, grad, fisher = _evaluate(theta, x, y, w, g, n_groups, active)
+    data = _ActiveRows(x, y, w, g, active)
+    ll, grad, fisher = _evaluate(theta, *data.arrays, n_groups, active)
     lam = np.full(n_groups, 1e-3)
     converged = np.zeros(n_groups, dtype=bool)
     n_iter = np.zeros(n_groups, dtype=int)
@@ -202,7 +206,7 @@ def fit_4pl(
         step = _damped_step(grad[idx], fisher[idx], lam[idx], frozen)
         trial = theta.copy()
         trial[idx] = np.clip(theta[idx] + step, box_lo[idx], box_hi[idx])
-        t_ll, t_grad, t_fisher = _evaluate(trial, x, y, w, g, n_groups, active)
+        t_ll, t_grad, t_fisher = _evaluate(trial, *data.shrink(active), n_groups, active)
         gain = t_ll[idx] - ll[idx]
         accept = gain >= -1e-12 * (1.0 + np.abs(ll[idx]))
         acc = idx[accept]
@@ -228,6 +232,22 @@ def fit_4pl(
     return FourPLFit(a, b, c, d, ll, converged & ~empty, n_iter, separable)
 
 
+class _ActiveRows:
+    """The samples of the groups still iterating, compacted whenever they fall to half, so
+    that a few slow groups cost their own rows per iteration, not the whole dataset's."""
+
+    def __init__(self, x, y, w, g, active):
+        self.arrays = (x, y, w, g)
+        self.shrink(active)
+
+    def shrink(self, active):
+        g = self.arrays[3]
+        keep = active[g]
+        if keep.sum() <= 0.5 * g.size:
+            self.arrays = tuple(v[keep] for v in self.arrays)
+        return self.arrays
+
+
 def group_range(x, g, n_groups):
     """Smallest and largest ``x`` of every group (0 for an empty group)."""
     lo = np.full(n_groups, np.inf)
@@ -246,8 +266,11 @@ def _initial_theta(x, y, w, g, n_groups, lo, hi):
     theta = np.zeros((n_groups, 4))
     if x.size == 0:
         return theta
-    order = np.lexsort((x, g))
-    xs, ys, ws, gs = x[order], y[order], w[order], g[order]
+    if _sorted_by_group_then_x(x, g):
+        xs, ys, ws, gs = x, y, w, g
+    else:
+        order = np.lexsort((x, g))
+        xs, ys, ws, gs = x[order], y[order], w[order], g[order]
     starts = np.searchsorted(gs, np.arange(n_groups))
     ends = np.searchsorted(gs, np.arange(n_groups), side="right")
     ones = _within_cumsum(ws * ys, starts, gs)  # weighted open labels at or below each sample
@@ -281,6 +304,11 @@ def _initial_theta(x, y, w, g, n_groups, lo, hi):
     q3 = xs[np.minimum(starts + (3 * count) // 4, xs.size - 1)]
     b0 = 12.0 / np.maximum(q3 - q1, 1e-3)
     return _to_theta(np.column_stack([a0, b0, mid, d0]))
+
+
+def _sorted_by_group_then_x(x, g):
+    same = g[1:] == g[:-1]
+    return not (np.any(g[1:] < g[:-1]) or np.any(same & (x[1:] < x[:-1])))
 
 
 def _likeliest(starts, x, y, w, g, n_groups):
@@ -337,57 +365,68 @@ def _from_theta(theta):
     return np.column_stack([a, np.exp(theta[:, 1]), theta[:, 2], a * expit(theta[:, 3])])
 
 
-_PAIRS = [(i, j) for i in range(4) for j in range(i, 4)]
+#: Samples per block of :func:`_evaluate`: a block's temporaries stay in the CPU cache and in
+#: the allocator's heap; whole-array temporaries are slower by 2x on a few million samples.
+_BLOCK = 1 << 16
 
 
 def _evaluate(theta, x, y, w, g, n_groups, active, *, ll_only=False):
     """Log-likelihood, gradient and Fisher information (in theta) of the active groups
-    (gradient and information left at zero with ``ll_only``)."""
+    (gradient and information left at zero with ``ll_only``), summed block by block.
+
+    The hot loop of every fit. Samples sorted by group make each block's sums cover a short
+    range of groups (:func:`fit_4pl` sorts them); any order gives the same result."""
     ll = np.zeros(n_groups)
     grad = np.zeros((n_groups, 4))
     fisher = np.zeros((n_groups, 4, 4))
-    if n_groups == 1:
-        if not active[0]:
-            return ll, grad, fisher
-        alpha, beta, c, delta = theta[0]
-    else:
-        sel = active[g]
-        if not sel.all():
-            x, y, w, g = x[sel], y[sel], w[sel], g[sel]
-        alpha, beta, c, delta = (np.take(theta[:, k], g) for k in range(4))
-    if x.size == 0:
-        return ll, grad, fisher
-    a, r = expit(alpha), expit(delta)
-    d = a * r
-    b = np.exp(beta)
-    s = expit(b * (x - c))
+    sel = active[g]
+    if not sel.all():
+        x, y, w, g = x[sel], y[sel], w[sel], g[sel]
+    a_g, r_g = expit(theta[:, 0]), expit(theta[:, 3])
+    per_group = (a_g, a_g * r_g, np.exp(theta[:, 1]), theta[:, 2], r_g)
+    for lo in range(0, x.size, _BLOCK):
+        block = slice(lo, lo + _BLOCK)
+        gb = g[block]
+        first, last = gb.min(), gb.max() + 1
+        sums = _block_sums(
+            x[block], y[block], w[block], gb - first, per_group, first, last, ll_only
+        )
+        ll[first:last] += sums[0]
+        if not ll_only:
+            grad[first:last] += sums[1]
+            fisher[first:last] += sums[2]
+    return ll, grad, fisher
+
+
+def _block_sums(x, y, w, g, per_group, first, last, ll_only):
+    """Per-group sums of one block of samples (``g`` counted from group ``first``)."""
+    n = last - first
+    a, d, b, c, r = (np.take(v[first:last], g) for v in per_group)
+    x_c = x - c
+    s = _sigmoid(b * x_c)
     p = np.clip(d + (a - d) * s, _EPS, 1 - _EPS)
     q = 1 - p
-    terms = w * (y * np.log(p) + (1 - y) * np.log(q))
+    ll = np.bincount(g, w * (y * np.log(p) + (1 - y) * np.log(q)), n)
     if ll_only:
-        ll = terms.sum(keepdims=True) if n_groups == 1 else np.bincount(g, terms, n_groups)
-        return ll, grad, fisher
-    ds = (a - d) * s * (1 - s)
-    jac = np.stack(
-        np.broadcast_arrays(
-            a * (1 - a) * (s + (1 - s) * r), ds * b * (x - c), -ds * b, (1 - s) * a * r * (1 - r)
-        )
-    )
+        return (ll,)
+    s_low = 1 - s
+    dsb = (a - d) * s * s_low * b
+    jac = (a * (1 - a) * (s + s_low * r), dsb * x_c, -dsb, s_low * a * r * (1 - r))
     info = w / (p * q)
     resid = info * (y - p)
-    if n_groups == 1:
-        ll[0] = terms.sum()
-        grad[0] = jac @ resid
-        fisher[0] = (jac * info) @ jac.T
-        return ll, grad, fisher
-    ll = np.bincount(g, terms, minlength=n_groups)
-    for k in range(4):
-        grad[:, k] = np.bincount(g, resid * jac[k], minlength=n_groups)
-    for i, j in _PAIRS:
-        fisher[:, i, j] = fisher[:, j, i] = np.bincount(
-            g, info * jac[i] * jac[j], minlength=n_groups
-        )
+    grad = np.column_stack([np.bincount(g, resid * j, n) for j in jac])
+    fisher = np.empty((n, 4, 4))
+    for i in range(4):
+        weighted = info * jac[i]
+        for j in range(i, 4):
+            fisher[:, i, j] = fisher[:, j, i] = np.bincount(g, weighted * jac[j], n)
     return ll, grad, fisher
+
+
+def _sigmoid(z):
+    """The logistic function, faster than scipy's ``expit`` on large arrays."""
+    with np.errstate(over="ignore"):
+        return 1.0 / (1.0 + np.exp(-z))
 
 
 def _damped_step(grad, fisher, lam, frozen):

@@ -183,8 +183,15 @@ def fourplb(
     """
     g = np.asarray(groups, dtype=np.intp)
     h = np.asarray(height, dtype=float)
-    s = np.asarray(cn0, dtype=float)
-    sig = None if signal is None else np.unique(np.asarray(signal), return_inverse=True)[1]
+    by_group = np.lexsort((h, g))  # a building's rows together, by height: faster fits
+    g, h = g[by_group], h[by_group]
+    s = np.asarray(cn0, dtype=float)[by_group]
+    if signal is not None:
+        sig = np.unique(np.asarray(signal)[by_group], return_inverse=True)[1]
+    else:
+        sig = None
+    if order is not None:
+        order = np.asarray(order)[by_group]
     occlusion = visibility and sig is not None
     seen = np.ones(h.size, dtype=bool)
     if occlusion and order is not None:
@@ -198,7 +205,15 @@ def fourplb(
         weights = height_weights(h, g, n_groups, weighting, c=c_now, mask=seen)
         fit_labels, fit_seen = labels, seen
         # every building's map classifier, a 4PL in intersection height, fitted at once
-        fit = fit_4pl(h, labels, weights, g, n_groups, init=None if fit is None else fit.params)
+        use = weights > 0  # rows left out weigh nothing: do not carry them through the fit
+        fit = fit_4pl(
+            h[use],
+            labels[use],
+            weights[use],
+            g[use],
+            n_groups,
+            init=None if fit is None else fit.params,
+        )
         if not bootstrap:
             break
         new_map = h > fit.c[g]

@@ -1,0 +1,491 @@
+"""ETRS89 <-> British National Grid + ODN heights with the Ordnance Survey grids, and grid bearings.
+
+The transformation is PROJ's EPSG:4937 (ETRS89 geographic 3D) <-> EPSG:7405 (OSGB36 / British
+National Grid + ODN height), which PROJ carries out with two Ordnance Survey grids:
+
+- ``uk_os_OSTN15_NTv2_OSGBtoETRS.tif`` (OSTN15, horizontal: "OSGB36 to ETRS89 (2)"),
+- ``uk_os_OSGM15_GB.tif`` (OSGM15 geoid: "ETRS89 to ODN height (2)").
+
+Smartphone WGS84 coordinates are taken as ETRS89 (PROJ's "ETRS89 to WGS 84 (1)" is a null
+transformation too).
+
+The grids are looked for, in order, in an explicit ``grid_dir`` (or ``$GNSS_CITYGML_GRID_DIR``),
+pyproj's user data directory and PROJ's data directories; with ``network=True`` missing grids
+are downloaded from PROJ's CDN into the user data directory first (:func:`fetch_grids`). A grid
+that cannot be found is a :class:`GridError`, never a fallback. The folders are added to PROJ's
+search path with :func:`pyproj.datadir.append_data_dir` (``PROJ_DATA`` is never touched).
+
+Two PROJ behaviours are guarded against:
+
+- a transformer built without ``allow_ballpark=False`` silently uses a *ballpark* vertical step
+  (ODN height = ellipsoidal height, about 50 m wrong) on the outlying islands; every transformer
+  here is checked to be the single OSTN15 + OSGM15 pipeline and to reproduce an OS test point;
+- PROJ returns ``inf`` without an error for a point outside the grids (or, with its network
+  streaming on but unreachable, anywhere): any non-finite result is an
+  :class:`OutsideExtentError` naming the points.
+
+PROJ's GeoTIFF block cache thrashes when points jump between distant parts of Great Britain
+(about 1,000 points/s instead of millions): widely spread points are transformed in a
+spatially sorted order and put back in their original order.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import json
+import os
+import urllib.request
+from pathlib import Path
+
+import numpy as np
+import numpy.typing as npt
+import pandas as pd
+import pyproj
+from pyproj import Proj, Transformer
+from pyproj.datadir import append_data_dir, get_data_dir, get_user_data_dir
+from pyproj.exceptions import ProjError
+from pyproj.sync import get_proj_endpoint
+
+from .errors import GnssCityGMLError, InputError
+
+__all__ = [
+    "ETRS89",
+    "GRIDS",
+    "GRID_DIR_ENV",
+    "OSGB_ODN",
+    "GridError",
+    "OutsideExtentError",
+    "fetch_grids",
+    "from_osgb",
+    "grid_bearing",
+    "grid_status",
+    "meridian_convergence",
+    "to_osgb",
+]
+
+#: ETRS89 geographic 3D (latitude, longitude, ellipsoidal height).
+ETRS89 = "EPSG:4937"
+#: OSGB36 / British National Grid + ODN height.
+OSGB_ODN = "EPSG:7405"
+#: Environment variable naming a folder that holds the grids.
+GRID_DIR_ENV = "GNSS_CITYGML_GRID_DIR"
+#: The PROJ grids the transformation needs, with what each is for.
+GRIDS = {
+    "uk_os_OSTN15_NTv2_OSGBtoETRS.tif": "OSTN15 horizontal shifts (OSGB36 to ETRS89 (2))",
+    "uk_os_OSGM15_GB.tif": "OSGM15 geoid (ETRS89 to ODN height (2))",
+}
+
+_HOW_TO_GET = (
+    "run `gnss-citygml grids --fetch` (downloads them into pyproj's user data directory), or "
+    + " and ".join(f"`projsync --file {name}`" for name in GRIDS)
+    + f", or put them in a folder given by --grid-dir or ${GRID_DIR_ENV}"
+)
+#: OS test point TP09 (London), ETRS89 (lon, lat, h) and OSGB36 (E, N, ODN) from the OS test
+#: files. Per direction: source CRS, target CRS, TP09 in, TP09 out, tolerance per coordinate.
+_TP09_ETRS = (-0.11992557180, 51.48936564950, 66.057)
+_TP09_OSGB = (530624.974, 178388.464, 20.544)
+_DIRECTIONS = {
+    "to_osgb": (ETRS89, OSGB_ODN, _TP09_ETRS, _TP09_OSGB, (0.01, 0.01, 0.005)),
+    "from_osgb": (OSGB_ODN, ETRS89, _TP09_OSGB, _TP09_ETRS, (1e-7, 1e-7, 0.005)),
+}
+#: Folders this module added to PROJ's search path: not searched for another grid_dir.
+_APPENDED: set[str] = set()
+#: Points listed by name in an error message.
+_LIST_POINTS = 5
+
+
+class GridError(GnssCityGMLError):
+    """A PROJ grid is missing, cannot be downloaded, or PROJ would not use it."""
+
+
+class OutsideExtentError(InputError):
+    """Points lie outside the OSTN15 / OSGM15 grids (or their coordinates are not numbers)."""
+
+
+def to_osgb(
+    lat: npt.ArrayLike,
+    lon: npt.ArrayLike,
+    h: npt.ArrayLike,
+    *,
+    grid_dir: str | os.PathLike | None = None,
+    network: bool = False,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """ETRS89 latitude, longitude, ellipsoidal height to British National Grid + ODN height.
+
+    Parameters
+    ----------
+    lat, lon
+        ETRS89 (or WGS84) latitude and longitude (deg); array_like, broadcast together with ``h``.
+    h
+        Ellipsoidal height (m). NaN where unknown: the point still gets its easting and
+        northing, and its ODN height is NaN.
+    grid_dir
+        A folder holding the grids, searched first (default ``$GNSS_CITYGML_GRID_DIR``).
+    network
+        Download missing grids from PROJ's CDN into pyproj's user data directory.
+
+    Returns
+    -------
+    (e, n, odn)
+        Easting, northing (m, EPSG:27700) and ODN height (m, EPSG:5701) as float arrays of the
+        broadcast shape.
+
+    Raises
+    ------
+    GridError
+        A grid is missing (the message names it and how to get it).
+    OutsideExtentError
+        Some points are outside the grids or have non-finite coordinates (the message names
+        them).
+    """
+    return _run("to_osgb", lon, lat, h, grid_dir, network)
+
+
+def from_osgb(
+    e: npt.ArrayLike,
+    n: npt.ArrayLike,
+    odn: npt.ArrayLike,
+    *,
+    grid_dir: str | os.PathLike | None = None,
+    network: bool = False,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """British National Grid + ODN height to ETRS89 latitude, longitude, ellipsoidal height.
+
+    The inverse of :func:`to_osgb`, with the same parameters, grids and errors.
+
+    Parameters
+    ----------
+    e, n
+        Easting and northing (m, EPSG:27700); array_like, broadcast together with ``odn``.
+    odn
+        ODN height (m); NaN where unknown gives NaN ellipsoidal height.
+    grid_dir, network
+        As for :func:`to_osgb`.
+
+    Returns
+    -------
+    (lat, lon, h)
+        ETRS89 latitude, longitude (deg) and ellipsoidal height (m).
+    """
+    lon, lat, h = _run("from_osgb", e, n, odn, grid_dir, network)
+    return lat, lon, h
+
+
+def meridian_convergence(lat: npt.ArrayLike, lon: npt.ArrayLike) -> np.ndarray:
+    """The meridian convergence of British National Grid (deg): grid bearing = azimuth - this.
+
+    Positive east of the central meridian (2 deg W), where true north points west of grid
+    north. Computed by PROJ (:meth:`pyproj.Proj.get_factors`) on the Airy ellipsoid; taking
+    ETRS89 coordinates for OSGB36 ones changes it by less than 0.002 deg.
+
+    Parameters
+    ----------
+    lat, lon
+        Latitude and longitude (deg), array_like.
+
+    Returns
+    -------
+    numpy.ndarray
+        Convergence (deg), of the broadcast shape.
+
+    Examples
+    --------
+    >>> round(float(meridian_convergence(51.5246, -0.1340)), 3)  # Gower Street, London
+    1.461
+    """
+    lat, lon = np.broadcast_arrays(np.asarray(lat, dtype=float), np.asarray(lon, dtype=float))
+    factors = _bng().get_factors(lon.ravel(), lat.ravel())
+    return np.asarray(factors.meridian_convergence, dtype=float).reshape(lat.shape)
+
+
+def grid_bearing(lat: npt.ArrayLike, lon: npt.ArrayLike, azimuth: npt.ArrayLike) -> np.ndarray:
+    """British National Grid bearing (deg in [0, 360)) of a true azimuth at a point.
+
+    Parameters
+    ----------
+    lat, lon
+        Latitude and longitude of the point (deg).
+    azimuth
+        Azimuth (deg clockwise from true north).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(azimuth - meridian_convergence(lat, lon)) % 360``.
+
+    Examples
+    --------
+    >>> round(float(grid_bearing(51.5246, -0.1340, 0.0)), 3)
+    358.539
+    """
+    return (np.asarray(azimuth, dtype=float) - meridian_convergence(lat, lon)) % 360.0
+
+
+def grid_status(grid_dir: str | os.PathLike | None = None) -> pd.DataFrame:
+    """Where each needed grid is found, for ``gnss-citygml grids``.
+
+    Parameters
+    ----------
+    grid_dir
+        A folder searched first (default ``$GNSS_CITYGML_GRID_DIR``).
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per grid: ``grid`` (file name), ``purpose``, ``found`` (bool), ``source``
+        (which search location, or ``"missing"``) and ``path`` (the file, or ``""``).
+    """
+    rows = []
+    for name, purpose in GRIDS.items():
+        hit = _find(name, _search_dirs(grid_dir))
+        source, path = hit if hit else ("missing", "")
+        rows.append((name, purpose, bool(hit), source, str(path)))
+    return pd.DataFrame(rows, columns=["grid", "purpose", "found", "source", "path"])
+
+
+def fetch_grids(
+    target_dir: str | os.PathLike | None = None,
+    *,
+    endpoint: str | None = None,
+    force: bool = False,
+) -> list[Path]:
+    """Download the grids from PROJ's CDN (as ``projsync`` does), checking their SHA-256.
+
+    The checksums come from the CDN's catalogue ``files.geojson``. Each file is written to a
+    ``.part`` file in the same folder and renamed into place once verified.
+
+    Parameters
+    ----------
+    target_dir
+        Destination folder (default: pyproj's user data directory, created if needed).
+    endpoint
+        Base URL of the CDN (default: PROJ's, :func:`pyproj.sync.get_proj_endpoint`).
+    force
+        Download grids that are already in ``target_dir`` again.
+
+    Returns
+    -------
+    list of pathlib.Path
+        The grid files in ``target_dir``.
+
+    Raises
+    ------
+    GridError
+        The CDN cannot be reached (e.g. offline) or a download does not match its checksum.
+    """
+    target = Path(target_dir) if target_dir is not None else Path(get_user_data_dir(True))
+    target.mkdir(parents=True, exist_ok=True)
+    paths = [target / name for name in GRIDS]
+    todo = [p for p in paths if force or not p.is_file()]
+    if not todo:
+        return paths
+    base = (endpoint or get_proj_endpoint()).rstrip("/")
+    checksums = _catalogue(base)
+    for path in todo:
+        url = f"{base}/{path.name}"
+        if path.name not in checksums:
+            raise GridError(
+                f"{path.name} is not in the grid catalogue", where=f"{base}/files.geojson"
+            )
+        _download(url, path, checksums[path.name])
+    return paths
+
+
+def _run(direction, x, y, z, grid_dir, network):
+    """Validate, locate grids, transform (spatially sorted if spread out), check the result."""
+    x, y, z = np.broadcast_arrays(*(np.asarray(a, dtype=float) for a in (x, y, z)))
+    shape = x.shape
+    x, y, z = x.ravel(), y.ravel(), z.ravel()
+    geographic = direction == "to_osgb"
+    _check_finite(x, y, z, geographic)
+    transformer = _transformer(direction, _grid_folders(grid_dir, network))
+    no_z = np.isnan(z)
+    z = np.where(no_z, 0.0, z)
+    order = _spatial_order(x, y, 1.0 if geographic else 100_000.0)
+    if order is not None:
+        out = transformer.transform(x[order], y[order], z[order])
+        result = [np.empty_like(x) for _ in range(3)]
+        for dst, src in zip(result, out, strict=True):
+            dst[order] = src
+    else:
+        result = list(transformer.transform(x, y, z))
+    bad = ~(np.isfinite(result[0]) & np.isfinite(result[1]) & np.isfinite(result[2]))
+    if bad.any():
+        raise OutsideExtentError(
+            f"{int(bad.sum())} point(s) outside the OSTN15/OSGM15 grids",
+            where=_name_points(bad, x, y, geographic),
+            fix="the grids cover Great Britain and its islands (OSTN15 extent); check the "
+            "coordinates, their order and their CRS",
+        )
+    result[2][no_z] = np.nan
+    return tuple(r.reshape(shape) for r in result)
+
+
+def _check_finite(x, y, z, geographic):
+    """Non-finite horizontal coordinates and infinite heights are input errors."""
+    bad = ~(np.isfinite(x) & np.isfinite(y)) | np.isinf(z)
+    if bad.any():
+        raise OutsideExtentError(
+            f"{int(bad.sum())} point(s) with non-finite coordinates",
+            where=_name_points(bad, x, y, geographic),
+            fix="drop or fill these points (a missing height may be NaN)",
+        )
+
+
+def _name_points(bad, x, y, geographic) -> str:
+    """The first few bad points by index and coordinates."""
+    index = np.flatnonzero(bad)
+    if geographic:
+        names = [f"#{i} (lat {y[i]:.6f}, lon {x[i]:.6f})" for i in index[:_LIST_POINTS]]
+    else:
+        names = [f"#{i} (E {x[i]:.3f}, N {y[i]:.3f})" for i in index[:_LIST_POINTS]]
+    more = f" and {index.size - _LIST_POINTS} more" if index.size > _LIST_POINTS else ""
+    return "points " + ", ".join(names) + more
+
+
+def _spatial_order(x, y, cell):
+    """A permutation grouping points by ``cell``-sized squares, or None if they are close."""
+    if x.size < 2 or max(np.ptp(x), np.ptp(y)) <= cell:
+        return None
+    key = np.floor((y - y.min()) / cell) * (np.floor(np.ptp(x) / cell) + 1)
+    key += np.floor((x - x.min()) / cell)
+    return np.argsort(key, kind="stable")
+
+
+def _search_dirs(grid_dir) -> list[tuple[str, Path]]:
+    """The folders searched for grids, in order, each with a label for messages."""
+    dirs = []
+    if grid_dir is None and os.environ.get(GRID_DIR_ENV):
+        dirs.append((f"${GRID_DIR_ENV}", Path(os.environ[GRID_DIR_ENV])))
+    elif grid_dir is not None:
+        dirs.append(("grid_dir", Path(grid_dir)))
+    if dirs and not dirs[0][1].is_dir():
+        raise GridError(
+            f"grid folder {dirs[0][1]} does not exist",
+            where=dirs[0][0],
+            fix=f"give an existing folder holding {', '.join(GRIDS)}",
+        )
+    dirs.append(("pyproj user data directory", Path(get_user_data_dir())))
+    for folder in get_data_dir().split(os.pathsep):
+        if folder not in _APPENDED:
+            dirs.append(("PROJ data directory", Path(folder)))
+    return dirs
+
+
+def _find(name, dirs):
+    """(label, path) of the first folder holding ``name``, or None."""
+    for label, folder in dirs:
+        if (folder / name).is_file():
+            return label, (folder / name).resolve()
+    return None
+
+
+def _grid_folders(grid_dir, network) -> tuple[str, ...]:
+    """The folders holding the grids, downloading them first if allowed; else GridError."""
+    dirs = _search_dirs(grid_dir)
+    hits = {name: _find(name, dirs) for name in GRIDS}
+    missing = [name for name, hit in hits.items() if hit is None]
+    if missing and network:
+        fetch_grids()
+        hits = {name: _find(name, dirs) for name in GRIDS}
+        missing = [name for name, hit in hits.items() if hit is None]
+    if missing:
+        raise GridError(
+            "missing PROJ grid(s) " + ", ".join(missing),
+            where="searched " + ", ".join(f"{folder} ({label})" for label, folder in dirs),
+            fix=_HOW_TO_GET,
+        )
+    return tuple(sorted({str(path.parent) for _, path in hits.values()}))
+
+
+@functools.cache
+def _transformer(direction: str, folders: tuple[str, ...]) -> Transformer:
+    """The checked OSTN15 + OSGM15 transformer, cached by direction and grid folders."""
+    searched = get_data_dir().split(os.pathsep) + [get_user_data_dir()]
+    for folder in folders:
+        if folder not in searched:
+            append_data_dir(folder)
+            _APPENDED.add(folder)
+    src, dst, start, expected, tolerance = _DIRECTIONS[direction]
+    try:
+        best = Transformer.from_crs(src, dst, always_xy=True, only_best=True, allow_ballpark=False)
+    except ProjError as exc:
+        raise GridError(
+            f"PROJ cannot use the grids for {src} -> {dst}: {exc}",
+            where=", ".join(folders),
+            fix="replace the grid files: " + _HOW_TO_GET,
+        ) from exc
+    _check_operation(best, start, expected, tolerance)
+    return best
+
+
+def _check_operation(transformer: Transformer, start, expected, tolerance) -> None:
+    """Refuse anything but the single OSTN15 + OSGM15 pipeline reproducing OS point TP09."""
+    uses_grids = all(f"grids={name}" in transformer.definition for name in GRIDS)
+    if not uses_grids or "ballpark" in transformer.description.lower():
+        raise GridError(
+            f"PROJ chose {transformer.description!r} instead of the OSTN15/OSGM15 pipeline",
+            where=f"pyproj {pyproj.__version__}, PROJ {pyproj.proj_version_str}",
+            fix="report this with the PROJ version; check the grid files: " + _HOW_TO_GET,
+        )
+    got = np.array(transformer.transform(*start))
+    if not np.all(np.abs(got - np.array(expected)) <= np.array(tolerance)):
+        raise GridError(
+            f"the grids do not reproduce Ordnance Survey test point TP09 (got {got.tolist()}, "
+            f"expected {list(expected)})",
+            where=transformer.definition,
+            fix="the grid files are damaged or not PROJ-data's: " + _HOW_TO_GET,
+        )
+
+
+@functools.cache
+def _bng() -> Proj:
+    """British National Grid as a projection, for its scale factors and convergence."""
+    return Proj("EPSG:27700")
+
+
+def _catalogue(base: str) -> dict[str, str]:
+    """File name -> SHA-256 from the CDN's ``files.geojson``."""
+    url = f"{base}/files.geojson"
+    try:
+        with urllib.request.urlopen(url, timeout=60) as response:
+            features = json.load(response)["features"]
+    except (OSError, ValueError, KeyError) as exc:
+        raise GridError(
+            f"cannot read PROJ's grid catalogue ({exc})",
+            where=url,
+            fix="connect to the internet, or copy " + ", ".join(GRIDS) + " from another "
+            f"machine into a folder given by --grid-dir or ${GRID_DIR_ENV}",
+        ) from exc
+    return {
+        f["properties"]["name"]: f["properties"].get("sha256", "")
+        for f in features
+        if f.get("properties", {}).get("name") in GRIDS
+    }
+
+
+def _download(url: str, path: Path, sha256: str) -> None:
+    """Fetch ``url`` to ``path`` through a ``.part`` file, checking the SHA-256 if known."""
+    part = path.with_name(path.name + ".part")
+    digest = hashlib.sha256()
+    try:
+        with urllib.request.urlopen(url, timeout=60) as response, part.open("wb") as out:
+            while chunk := response.read(1 << 20):
+                digest.update(chunk)
+                out.write(chunk)
+        if sha256 and digest.hexdigest() != sha256:
+            raise GridError(
+                f"{path.name} does not match its SHA-256 checksum",
+                where=url,
+                fix="try again later; the download was incomplete or altered",
+            )
+        part.replace(path)
+    except OSError as exc:
+        raise GridError(
+            f"cannot download {path.name} ({exc})",
+            where=url,
+            fix=f"check the internet connection, or copy the file into {path.parent}",
+        ) from exc
+    finally:
+        part.unlink(missing_ok=True)

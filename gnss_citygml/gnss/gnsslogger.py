@@ -1,0 +1,820 @@
+"""Android GnssLogger logs: C/N0 per received signal, UTC epoch times, receiver positions.
+
+GnssLogger (Google's logging app, versions 1.4 of 2016 to 3.x) writes a text file of
+comma-separated records, each line starting with its record type (``Raw``, ``Fix``,
+``Status``, ``Agc``, sensor records, ...). ``#`` lines form the header: a ``# Version:`` line
+and one ``# <Type>,<column>,...`` line per record type. Columns are found by these header
+names, never by position: old logs say ``ElapsedRealtimeMillis`` and ``Latitude`` /
+``(UTC)TimeInMs`` where newer ones say ``utcTimeMillis`` and ``LatitudeDegrees`` /
+``UnixTimeMillis``; the London log of 2020 even repeats ``CarrierFrequencyHz`` (the first
+one is used).
+
+**Epoch time.** GPS time (ns since 1980-01-06) = ``TimeNanos - (FullBiasNanos +
+BiasNanos)``, in int64: ``FullBiasNanos`` (~1.3e18) has more digits than a float64 holds.
+Each row uses its own ``FullBiasNanos``: all rows of an epoch share one clock, and the bias
+follows the clock drift and any hardware clock reset, where a single bias for the whole log
+would drift (15 microseconds over the 5 minutes of the London log) or jump. UTC = GPS -
+leap seconds (17 s from 2015-07-01, 18 s from 2017-01-01). ``TimeOffsetNanos``
+(sub-microsecond) is left out so that the rows of an epoch share one time.
+
+**Which measurements are kept.** This project needs the C/N0 of each received signal, not
+pseudoranges, so a row is kept when the receiver is *tracking* the signal: its ``State`` has
+primary code lock, ``STATE_CODE_LOCK`` (0x1) or, for Galileo E1, ``STATE_GAL_E1BC_CODE_LOCK``
+(0x400). Time-of-week decoding is not required: it resolves the pseudorange ambiguity, not
+the C/N0, and requiring it would drop strong signals (e.g. 282 Galileo rows at 35 dB-Hz in the
+2016-08-22 demo log). Flags without primary code lock are not enough ("time known" 0x4000 /
+0x8000 alone, or the secondary-code pair 0x10000 | 0x800 the Galaxy S10 keeps on lost Galileo
+channels): in every staged log such rows have ``ReceivedSvTimeUncertaintyNanos`` = 1 s
+("unknown") and mostly noise-level C/N0 (London: median 13.5 dB-Hz against 32 dB-Hz for the
+kept rows), while every row with primary code lock has an uncertainty below 1 microsecond.
+Rows are also dropped when their clock has no ``FullBiasNanos`` (no GPS time), their
+constellation is unknown, the GLONASS slot is unknown (``Svid`` 93-106 is a frequency
+channel + 100, not a satellite: all GLONASS rows of the 2016-08-22 demo log) or the carrier
+frequency is in no GNSS band. Dropped rows are kept in :attr:`GnssLog.dropped` with a
+``reason``, for counting and inspection.
+
+**Signals.** ``constellation`` is the RINEX letter (G GPS, R GLONASS, E Galileo, C BeiDou,
+J QZSS, S SBAS, I NavIC); ``svid`` the RINEX satellite number (QZSS ``Svid`` 193-202 becomes
+1-10, SBAS 120-158 becomes 20-58). ``band`` comes from ``CarrierFrequencyHz`` with RINEX band
+numbers: ``L1`` (1559-1610 MHz: GPS/QZSS L1, Galileo E1, BeiDou B1, GLONASS G1), ``L5``
+(1164-1189 MHz: GPS L5, Galileo E5a, BeiDou B2a), ``L2``, ``L6``, ``L7`` (E5b/B2I/G3); no
+frequency (logs before dual-frequency phones) means ``L1``.
+
+**Bad input.** Only the records this reader uses (``Raw``, ``Fix``, ``Status``) are checked:
+a field count different from their header, an empty required field or a value that is not a
+number is a bad line; so is any line that is not a record (a first field that is not a word).
+A bad line raises :class:`~gnss_citygml.errors.InputError` naming the file and line; with
+``lenient=True`` bad lines are skipped, counted in :attr:`GnssLog.skipped_lines` and reported
+with a warning. The last line of a file that has no line end and fewer fields than its header
+is a log cut off while being written (the London log of 2020 ends so): it is skipped with a
+warning in both modes. A missing ``# Version:`` line or ``# <Type>,...`` header raises in both
+modes; an unknown version raises, or warns with ``lenient=True`` (columns are read from the
+header anyway).
+
+**Receiver positions.** :func:`positions` takes them from the ``Fix`` rows of one provider
+(nearest in time or interpolated); :func:`read_surveyed_positions` and
+:func:`surveyed_positions` take them from a file of manually surveyed positions (see
+:func:`read_surveyed_positions` for its format).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import re
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+import pandas as pd
+
+from gnss_citygml.errors import InputError, MissingColumnError
+from gnss_citygml.gnss.gpstime import GPS_EPOCH, gps_to_utc
+
+__all__ = [
+    "GnssLog",
+    "positions",
+    "read_gnsslogger",
+    "read_surveyed_positions",
+    "surveyed_positions",
+]
+
+#: Android's raw GNSS measurements began in 2016: an earlier epoch is a wrong clock field.
+_EARLIEST = "2015-07-01"
+_EARLIEST_GPS_NS = int((np.datetime64(_EARLIEST, "ns") - GPS_EPOCH) / np.timedelta64(1, "ns"))
+#: Android ``GnssStatus.CONSTELLATION_*`` (index) -> RINEX letter; "?" = unknown.
+_LETTERS = np.array(["?", "G", "S", "R", "J", "C", "E", "I"])
+_STATE_CODE_LOCK = 0x1
+_STATE_GAL_E1BC_CODE_LOCK = 0x400
+#: RINEX band name, lowest and highest carrier frequency (MHz).
+_BANDS = (
+    ("L1", 1559.0, 1610.0),
+    ("L2", 1215.0, 1256.0),
+    ("L5", 1164.0, 1189.0),
+    ("L6", 1258.0, 1300.0),
+    ("L7", 1189.0, 1215.0),
+)
+_KNOWN_MAJOR_VERSIONS = ("1", "2", "3")
+_VERSION = re.compile(r"v?(\d+)(\.\d+)+")
+_RECORD_TYPE = re.compile(r"[A-Za-z]+")
+_INT = r"[+-]?(\d{1,18}|[1-8]\d{18})"  # fits int64
+_NAT = np.iinfo(np.int64).min  # numpy's NaT
+_FIX_HINT = "repair or delete the line, or read the log leniently (lenient=True, --lenient)"
+
+
+class _Column(NamedTuple):
+    """A column the reader needs: its possible header names and how to convert it."""
+
+    names: tuple[str, ...]
+    kind: str  # "int", "float" or "str"
+    may_be_empty: bool = False
+    required: bool = True
+
+
+_RAW = {
+    "time_nanos": _Column(("TimeNanos",), "int"),
+    "full_bias": _Column(("FullBiasNanos",), "int", may_be_empty=True),
+    "bias": _Column(("BiasNanos",), "float", may_be_empty=True),
+    "svid": _Column(("Svid",), "int"),
+    "constellation": _Column(("ConstellationType",), "int"),
+    "cn0": _Column(("Cn0DbHz",), "float"),
+    "state": _Column(("State",), "int"),
+    "frequency": _Column(("CarrierFrequencyHz",), "float", may_be_empty=True, required=False),
+}
+_FIX = {
+    "provider": _Column(("Provider",), "str"),
+    "lat": _Column(("LatitudeDegrees", "Latitude"), "float"),
+    "lon": _Column(("LongitudeDegrees", "Longitude"), "float"),
+    "altitude": _Column(("AltitudeMeters", "Altitude"), "float", may_be_empty=True),
+    "accuracy": _Column(("AccuracyMeters", "Accuracy"), "float", may_be_empty=True),
+    "time_ms": _Column(("UnixTimeMillis", "(UTC)TimeInMs"), "int"),
+}
+_STATUS = {
+    "time_ms": _Column(("UnixTimeMillis",), "int", may_be_empty=True),
+    "constellation": _Column(("ConstellationType",), "int"),
+    "svid": _Column(("Svid",), "int"),
+    "frequency": _Column(("CarrierFrequencyHz",), "float", may_be_empty=True, required=False),
+    "cn0": _Column(("Cn0DbHz",), "float"),
+    "azimuth": _Column(("AzimuthDegrees",), "float"),
+    "elevation": _Column(("ElevationDegrees",), "float"),
+}
+_RECORDS = {"Raw": _RAW, "Fix": _FIX, "Status": _STATUS}
+
+
+@dataclass(frozen=True, eq=False, repr=False)
+class GnssLog:
+    """One GnssLogger log, read by :func:`read_gnsslogger`.
+
+    Attributes
+    ----------
+    path
+        The log file.
+    version
+        GnssLogger version from the header (e.g. ``"2.0.0.1"``, or ``"Not Available"``).
+    raw
+        One row per kept measurement (a received signal at an epoch): ``time_utc``
+        (datetime64[ns, UTC], the epoch), ``constellation`` (RINEX letter), ``svid`` (RINEX
+        number), ``band`` (``"L1"``, ``"L5"``, ...), ``cn0`` (dB-Hz), ``state`` (Android
+        ``GnssMeasurement`` state bits).
+    fixes
+        One row per ``Fix`` record: ``time_utc``, ``provider`` (lower case: ``gps``, ``flp``,
+        ``nlp``, ...), ``lat``, ``lon`` (deg, WGS84), ``altitude`` (m above the WGS84
+        ellipsoid, as Android reports it), ``accuracy`` (m; NaN if not logged).
+    status
+        One row per ``Status`` record with a time: ``time_utc``, ``constellation``,
+        ``svid``, ``band``, ``azimuth``, ``elevation`` (deg, as the phone computed them),
+        ``cn0``.
+    dropped
+        The ``Raw`` rows that were not kept: the columns of ``raw`` (``time_utc`` NaT when the
+        clock had no GPS time) and ``reason``.
+    skipped_lines
+        Number of bad lines skipped (``lenient=True``, or a cut-off last line).
+    """
+
+    path: Path
+    version: str
+    raw: pd.DataFrame
+    fixes: pd.DataFrame
+    status: pd.DataFrame
+    dropped: pd.DataFrame
+    skipped_lines: int = 0
+
+    @property
+    def receiver(self) -> str:
+        """The receiver name: the log's file name without suffix."""
+        return self.path.stem
+
+    @property
+    def epochs(self) -> pd.DatetimeIndex:
+        """The sorted, distinct epoch times of the kept measurements."""
+        return pd.DatetimeIndex(self.raw["time_utc"].unique()).sort_values()
+
+    def __repr__(self) -> str:
+        return (
+            f"GnssLog({self.path.name!r}, version={self.version!r}, raw={len(self.raw)}, "
+            f"dropped={len(self.dropped)}, fixes={len(self.fixes)}, status={len(self.status)}, "
+            f"skipped_lines={self.skipped_lines})"
+        )
+
+
+def read_gnsslogger(path: str | Path, *, lenient: bool = False) -> GnssLog:
+    """Read an Android GnssLogger text log (version 1.4 to 3.x).
+
+    Parameters
+    ----------
+    path
+        The log file (``gnss_log_*.txt``).
+    lenient
+        Skip bad lines (counted in :attr:`GnssLog.skipped_lines`, with a warning) instead of
+        raising.
+
+    Returns
+    -------
+    GnssLog
+        The kept measurements, dropped measurements, fixes and status rows (see the module
+        documentation for the rules).
+
+    Raises
+    ------
+    InputError
+        The file cannot be read, has no ``# Version:`` line or no header for records it
+        contains, an unknown version (unless lenient), or a bad line (unless lenient), naming
+        the file and line.
+
+    """
+    path = Path(path)
+    try:
+        text = path.read_bytes().decode("utf-8", errors="replace")
+    except OSError as exc:
+        raise InputError(f"cannot read the log: {exc.strerror or exc}", where=str(path)) from exc
+    version, headers, records, bad, cut_line = _split_lines(text, path, lenient)
+    tables = {}
+    for kind, columns in _RECORDS.items():
+        numbers, lines = records[kind]
+        if numbers and kind not in headers:
+            raise InputError(
+                f"{kind} records but no '# {kind},...' header line",
+                where=f"{path}, line {numbers[0]}",
+                fix=f"restore the log's header (its '# {kind},' line names the columns)",
+            )
+        table, bad_rows = _parse_records(kind, headers.get(kind), numbers, lines, columns, path)
+        bad += bad_rows
+        tables[kind] = (table, np.asarray(numbers, dtype=np.int64))
+    raw, dropped, bad_time = _measurements(*tables["Raw"])
+    bad += bad_time
+    if bad:
+        line, reason = min(bad)
+        if not lenient:
+            raise InputError(f"bad line: {reason}", where=f"{path}, line {line}", fix=_FIX_HINT)
+        warnings.warn(
+            f"{path}: skipped {len(bad)} bad line(s); the first, line {line}: {reason}",
+            stacklevel=2,
+        )
+    if cut_line is not None:
+        warnings.warn(
+            f"{path}: the last line ({cut_line}) is cut off (fewer fields than its header and "
+            "no line end: the log was closed while being written); skipped",
+            stacklevel=2,
+        )
+    bad_lines = np.array([line for line, _ in bad], dtype=np.int64)
+    raw_numbers = tables["Raw"][1]
+    return GnssLog(
+        path=path,
+        version=version,
+        raw=_without(raw, raw_numbers, bad_lines),
+        dropped=_without(dropped, raw_numbers, bad_lines),
+        fixes=_fixes(_without(*tables["Fix"], bad_lines)),
+        status=_status(_without(*tables["Status"], bad_lines)),
+        skipped_lines=len(bad) + (cut_line is not None),
+    )
+
+
+def positions(
+    log: GnssLog, *, provider: str = "gps", method: str = "nearest", max_gap: float = 2.0
+) -> pd.DataFrame:
+    """The receiver position at each epoch of ``log``, from its ``Fix`` rows.
+
+    Parameters
+    ----------
+    log
+        A log from :func:`read_gnsslogger`.
+    provider
+        Fix provider (case-insensitive): ``gps`` (the chipset), ``flp`` (fused), ``nlp``
+        (network), ...
+    method
+        ``"nearest"``: the fix nearest in time; ``"interpolate"``: linear in time between the
+        fixes just before and just after the epoch (the end fix before the first or after the
+        last fix).
+    max_gap
+        Largest time (s) between an epoch and its nearest fix: epochs further from every fix
+        have no position.
+
+    Returns
+    -------
+    pd.DataFrame
+        ``time_utc``, ``lat``, ``lon`` (deg, WGS84), ``h`` (m above the WGS84 ellipsoid; NaN
+        where the fix had no altitude), one row per epoch in :attr:`GnssLog.epochs`.
+
+    Raises
+    ------
+    InputError
+        Unknown method or provider, or epochs without a usable fix (with their count and
+        the first of them).
+    """
+    if method not in ("nearest", "interpolate"):
+        raise InputError(
+            f"unknown position method {method!r}", fix="use 'nearest' or 'interpolate'"
+        )
+    fixes = log.fixes[log.fixes["provider"] == provider.lower()]
+    if fixes.empty:
+        have = sorted(log.fixes["provider"].unique())
+        raise InputError(
+            f"no Fix rows from provider {provider!r}",
+            where=str(log.path),
+            fix=f"choose one of {have}" if have else "give surveyed positions instead",
+        )
+    fixes = fixes.sort_values("time_utc").drop_duplicates("time_utc", keep="last")
+    epochs = log.epochs
+    fix_ns, t = _ns(fixes["time_utc"]), _ns(epochs)
+    gap = round(max_gap * 1e9)
+    # the fixes at or just before and at or just after each epoch (clipped to the ends)
+    before = np.searchsorted(fix_ns, t, side="right").clip(1, len(fix_ns)) - 1
+    after = np.searchsorted(fix_ns, t, side="left").clip(0, len(fix_ns) - 1)
+    d_before, d_after = t - fix_ns[before], fix_ns[after] - t
+    nearest = np.where(np.abs(d_after) < np.abs(d_before), after, before)
+    ok = np.abs(t - fix_ns[nearest]) <= gap
+    if method == "nearest":
+        lo = hi = nearest
+        weight = np.zeros(len(t))
+    else:  # before the first or after the last fix: lo == hi, the end fix
+        lo, hi = before, after
+        span = (fix_ns[hi] - fix_ns[lo]).astype(float)
+        weight = np.divide(d_before, span, out=np.zeros(len(t)), where=span > 0)
+    if not ok.all():
+        raise InputError(
+            f"{np.count_nonzero(~ok)} of {len(t)} epochs have no {provider!r} fix within "
+            f"{max_gap:g} s ({method})",
+            where=f"{log.path}, first at {epochs[~ok][0]}",
+            fix="raise max_gap, choose another provider or method, or give surveyed positions",
+        )
+    lat, h = fixes["lat"].to_numpy(), fixes["altitude"].to_numpy()
+    lon = np.degrees(np.unwrap(np.radians(fixes["lon"].to_numpy())))  # no jump at 180 deg
+    lon = lon[lo] + weight * (lon[hi] - lon[lo])
+    return pd.DataFrame(
+        {
+            "time_utc": epochs,
+            "lat": lat[lo] + weight * (lat[hi] - lat[lo]),
+            "lon": (lon + 180.0) % 360.0 - 180.0,
+            "h": h[lo] + weight * (h[hi] - h[lo]),
+        }
+    )
+
+
+def read_surveyed_positions(path: str | Path) -> pd.DataFrame:
+    """Read a CSV file of manually surveyed receiver positions.
+
+    The file has a header line and one row per receiver and time span::
+
+        receiver,start_utc,end_utc,lat,lon,h
+        london_ucl_2020-02-11_SM-G973F_gnss_log,2020-02-11T08:49:00Z,2020-02-11T08:55:00Z,51.524700,-0.134140,
+        # lines starting with '#' and blank lines are ignored
+
+    ``receiver`` names a log (its file name without suffix, :attr:`GnssLog.receiver`).
+    ``start_utc`` and ``end_utc`` are ISO 8601 times, UTC unless they carry an offset; the
+    span includes both ends (where one span ends as the next one starts, the later span
+    wins). ``lat``, ``lon`` are WGS84 / ETRS89 degrees and ``h`` the ellipsoidal height in
+    metres, empty when the height should come from the terrain model. Spans of one receiver
+    must not overlap.
+
+    Parameters
+    ----------
+    path
+        The CSV file.
+
+    Returns
+    -------
+    pd.DataFrame
+        ``receiver``, ``start_utc``, ``end_utc`` (datetime64[ns, UTC]), ``lat``, ``lon``,
+        ``h``, sorted by receiver and start; the file name is in ``attrs["path"]``.
+
+    Raises
+    ------
+    InputError
+        Missing columns, a value that cannot be read, a position out of range, a span that
+        ends before it starts or overlapping spans, naming the file and line.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"cannot read the positions file: {exc}", where=str(path)) from exc
+    lines = [
+        (n, line)
+        for n, line in enumerate(text.splitlines(), 1)
+        if line.strip() and not line.lstrip().startswith("#")
+    ]
+    wanted = ["receiver", "start_utc", "end_utc", "lat", "lon", "h"]
+    if not lines:
+        raise MissingColumnError(wanted, where=str(path), have=[])
+    header = [name.strip() for name in next(csv.reader([lines[0][1]]))]
+    missing = [name for name in wanted if name not in header]
+    if missing:
+        raise MissingColumnError(missing, where=f"{path}, line {lines[0][0]}", have=header)
+    rows = []
+    for n, line in lines[1:]:
+        fields = next(csv.reader([line]))
+        where = f"{path}, line {n}"
+        if len(fields) != len(header):
+            raise InputError(f"{len(fields)} fields, the header has {len(header)}", where=where)
+        rows.append(_surveyed_row(dict(zip(header, fields, strict=True)), where) + (n,))
+    table = pd.DataFrame(rows, columns=[*wanted, "line"]).astype(
+        {"receiver": str, "lat": float, "lon": float, "h": float}
+    )
+    table["start_utc"] = pd.to_datetime(table["start_utc"], utc=True).astype("datetime64[ns, UTC]")
+    table["end_utc"] = pd.to_datetime(table["end_utc"], utc=True).astype("datetime64[ns, UTC]")
+    table = table.sort_values(["receiver", "start_utc"], kind="stable").reset_index(drop=True)
+    same = table["receiver"].eq(table["receiver"].shift())
+    overlap = same & (table["start_utc"] < table["end_utc"].shift())
+    if overlap.any():
+        k = int(np.flatnonzero(overlap)[0])
+        raise InputError(
+            f"the span of receiver {table['receiver'][k]!r} overlaps the span on line "
+            f"{table['line'][k - 1]}",
+            where=f"{path}, line {table['line'][k]}",
+            fix="make the spans of one receiver disjoint",
+        )
+    table = table.drop(columns="line")
+    table.attrs["path"] = str(path)
+    return table
+
+
+def surveyed_positions(surveyed: pd.DataFrame, receiver: str, times) -> pd.DataFrame:
+    """The surveyed position of ``receiver`` at each of ``times``.
+
+    Parameters
+    ----------
+    surveyed
+        A table from :func:`read_surveyed_positions`.
+    receiver
+        The receiver name (e.g. :attr:`GnssLog.receiver`).
+    times
+        Times (datetime64 UTC, e.g. :attr:`GnssLog.epochs`).
+
+    Returns
+    -------
+    pd.DataFrame
+        ``time_utc``, ``lat``, ``lon``, ``h`` (NaN where the file left it empty), one row per
+        time, in the given order.
+
+    Raises
+    ------
+    InputError
+        The receiver is not in the table, or some times are in none of its spans.
+
+    Examples
+    --------
+    >>> surveyed = pd.DataFrame({
+    ...     "receiver": ["phone"],
+    ...     "start_utc": [pd.Timestamp("2020-02-11 08:49", tz="UTC")],
+    ...     "end_utc": [pd.Timestamp("2020-02-11 08:55", tz="UTC")],
+    ...     "lat": [51.5247], "lon": [-0.1341], "h": [np.nan]})
+    >>> surveyed_positions(surveyed, "phone", [pd.Timestamp("2020-02-11 08:50", tz="UTC")])
+                       time_utc      lat     lon   h
+    0 2020-02-11 08:50:00+00:00  51.5247 -0.1341 NaN
+    """
+    where = surveyed.attrs.get("path", "surveyed positions")
+    spans = surveyed[surveyed["receiver"] == receiver].sort_values("start_utc")
+    if spans.empty:
+        have = sorted(surveyed["receiver"].unique())
+        raise InputError(
+            f"receiver {receiver!r} has no surveyed position",
+            where=where,
+            fix=f"add rows for it (the file has: {', '.join(have) or 'no rows'})",
+        )
+    times = pd.DatetimeIndex(pd.to_datetime(times, utc=True)).as_unit("ns")
+    t, start, end = _ns(times), _ns(spans["start_utc"]), _ns(spans["end_utc"])
+    k = np.searchsorted(start, t, side="right") - 1
+    ok = (k >= 0) & (t <= end[k.clip(0)])
+    if not ok.all():
+        raise InputError(
+            f"{np.count_nonzero(~ok)} of {len(t)} epochs of receiver {receiver!r} are in none "
+            "of its surveyed spans",
+            where=f"{where}, first at {times[~ok][0]}",
+            fix="add or widen a span for these times",
+        )
+    return pd.DataFrame(
+        {
+            "time_utc": times,
+            "lat": spans["lat"].to_numpy()[k],
+            "lon": spans["lon"].to_numpy()[k],
+            "h": spans["h"].to_numpy()[k],
+        }
+    )
+
+
+def _surveyed_row(row: dict[str, str], where: str) -> tuple:
+    """One row of a surveyed positions file, checked: (receiver, start, end, lat, lon, h)."""
+    receiver = row["receiver"].strip()
+    if not receiver:
+        raise InputError("empty receiver name", where=where)
+    start, end = (_utc_time(row[name], name, where) for name in ("start_utc", "end_utc"))
+    if end < start:
+        raise InputError("the span ends before it starts", where=where)
+    lat, lon = (
+        _number(row[name], name, where, limit) for name, limit in (("lat", 90), ("lon", 180))
+    )
+    h = _number(row["h"], "h", where) if row["h"].strip() else np.nan
+    return receiver, start, end, lat, lon, h
+
+
+def _utc_time(text: str, name: str, where: str) -> pd.Timestamp:
+    """An ISO 8601 time, UTC unless it has an offset."""
+    try:
+        stamp = pd.Timestamp(text.strip())
+    except ValueError:
+        stamp = pd.NaT
+    if pd.isna(stamp):
+        raise InputError(f"{name} {text!r} is not a time", where=where, fix="use ISO 8601 times")
+    return stamp.tz_localize("UTC") if stamp.tz is None else stamp.tz_convert("UTC")
+
+
+def _number(text: str, name: str, where: str, limit: float = np.inf) -> float:
+    """A finite number within +-limit."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = np.nan
+    if not abs(value) <= limit or not np.isfinite(value):
+        within = f" within +-{limit:g}" if np.isfinite(limit) else ""
+        raise InputError(f"{name} {text!r} is not a number{within}", where=where)
+    return value
+
+
+def _split_lines(text: str, path: Path, lenient: bool):
+    """One pass over the lines: the version, the headers, the records this reader uses.
+
+    Returns ``(version, headers, records, bad, cut_line)``: ``headers[kind] = (line, names)``;
+    ``records[kind] = (line numbers, lines)``, only lines with the field count of their
+    header; ``bad`` a list of ``(line, reason)``; ``cut_line`` the number of a cut-off last
+    line (or None).
+    """
+    version = version_line = None
+    headers: dict[str, tuple[int, list[str]]] = {}
+    records: dict[str, tuple[list[int], list[str]]] = {kind: ([], []) for kind in _RECORDS}
+    raw_numbers, raw_lines = records["Raw"]
+    bad: list[tuple[int, str]] = []
+    lines = text.split("\n")
+    for n, line in enumerate(lines, 1):
+        line = line.rstrip("\r")
+        if line.startswith("Raw,"):  # the bulk of a log: keep this path short
+            raw_numbers.append(n)
+            raw_lines.append(line)
+            continue
+        if line.startswith("#"):
+            body = line[1:].strip()
+            if body.startswith("Version:"):
+                version, version_line = body[len("Version:") :].strip(), n
+            elif _RECORD_TYPE.fullmatch(kind := body.split(",", 1)[0].strip()) and "," in body:
+                names = [name.strip() for name in body.split(",")[1:]]
+                if headers.get(kind, (n, names))[1] != names:
+                    raise InputError(
+                        f"a second, different '# {kind},...' header",
+                        where=f"{path}, line {n}",
+                        fix="split the file into one log per header",
+                    )
+                headers[kind] = (n, names)
+            continue
+        if not line.strip(" ,\t"):
+            continue  # blank lines, and the lone "," lines some versions write
+        kind = line.split(",", 1)[0]
+        if kind in records:
+            records[kind][0].append(n)
+            records[kind][1].append(line)
+        elif not _RECORD_TYPE.fullmatch(kind):
+            bad.append((n, f"not a GnssLogger record: {line[:40]!r}"))
+    if version is None:
+        raise InputError(
+            "not a GnssLogger log: no '# Version:' header line",
+            where=str(path),
+            fix="give a log written by Android GnssLogger, with its header",
+        )
+    version = _check_version(version, path, version_line, lenient)
+    cut_line = None
+    for kind, (numbers, texts) in records.items():
+        if kind not in headers or not numbers:
+            continue
+        header_line, names = headers[kind]
+        commas = np.fromiter((t.count(",") for t in texts), dtype=np.int64, count=len(texts))
+        # a lone CR inside a line would split it in two for the CSV parser
+        carriage = np.fromiter(("\r" in t for t in texts), dtype=bool, count=len(texts))
+        wrong = np.flatnonzero((commas != len(names)) | carriage)
+        if len(wrong) and numbers[wrong[-1]] == len(lines) and commas[wrong[-1]] < len(names):
+            cut_line = numbers[wrong[-1]]  # the last line of the file, without a line end
+            wrong = wrong[:-1]
+        bad += [
+            (
+                numbers[i],
+                f"{kind} row of {commas[i] + 1} fields where its header (line "
+                f"{header_line}) has {len(names) + 1}",
+            )
+            for i in wrong
+        ]
+        keep = np.ones(len(numbers), dtype=bool)
+        keep[wrong] = False
+        if cut_line is not None and numbers[-1] == cut_line:
+            keep[-1] = False
+        records[kind] = (
+            [n for n, k in zip(numbers, keep, strict=True) if k],
+            [t for t, k in zip(texts, keep, strict=True) if k],
+        )
+    return version, headers, records, bad, cut_line
+
+
+def _check_version(text: str, path: Path, line: int, lenient: bool) -> str:
+    """The version from the text of the ``# Version:`` line; unknown ones raise or warn."""
+    if text.startswith("Not Available"):
+        return "Not Available"
+    match = _VERSION.match(text)
+    version = match.group(0).lstrip("v") if match else text.split()[0] if text else ""
+    if match and match.group(1) in _KNOWN_MAJOR_VERSIONS:
+        return version
+    what = f"unknown GnssLogger version {version!r}"
+    if not lenient:
+        raise InputError(
+            what,
+            where=f"{path}, line {line}",
+            fix="this reader knows versions 1.x to 3.x; read the log leniently (lenient=True, "
+            "--lenient) to try the columns its header names",
+        )
+    warnings.warn(f"{path}: {what}; reading the columns its header names", stacklevel=4)
+    return version
+
+
+def _parse_records(kind, header, numbers, lines, columns, path):
+    """The needed columns of one record type as numbers; returns (table, bad lines)."""
+    if header is None:  # no header and no records of this type
+        names = [col.names[0] for col in columns.values()]
+    else:
+        header_line, names = header
+    positions = {}
+    for key, col in columns.items():
+        found = [names.index(name) for name in col.names if name in names]
+        if found:
+            positions[key] = found[0] + 1  # + 1: field 0 is the record type
+    missing = [
+        col.names[0] for key, col in columns.items() if col.required and key not in positions
+    ]
+    if missing and lines:
+        raise MissingColumnError(missing, where=f"{path}, line {header_line}", have=names)
+    if lines:
+        text = pd.read_csv(
+            io.StringIO("\n".join(lines)),
+            header=None,
+            usecols=sorted(positions.values()),
+            dtype=str,
+            na_filter=False,
+            quoting=csv.QUOTE_NONE,
+        )
+    else:
+        text = pd.DataFrame({pos: pd.Series(dtype=str) for pos in positions.values()})
+    table = {}
+    bad = np.zeros(len(lines), dtype=bool)
+    reasons = np.full(len(lines), "", dtype=object)
+    for key, col in columns.items():
+        if key not in positions:
+            table[key] = np.full(len(lines), np.nan)
+            continue
+        values, wrong = _convert(text[positions[key]], col)
+        table[key] = values
+        name = names[positions[key] - 1]
+        new = wrong & ~bad
+        reasons[new] = [
+            f"{kind} {name} is {v!r}, not {'an integer' if col.kind == 'int' else 'a number'}"
+            if v.strip()
+            else f"{kind} {name} is empty"
+            for v in text[positions[key]].to_numpy()[new]
+        ]
+        bad |= wrong
+    numbers = np.asarray(numbers, dtype=np.int64)
+    return pd.DataFrame(table), list(zip(numbers[bad].tolist(), reasons[bad], strict=True))
+
+
+def _convert(text: pd.Series, col: _Column) -> tuple[np.ndarray, np.ndarray]:
+    """Values of one text column and the mask of bad ones. Missing ints are 0, floats NaN."""
+    text = text.str.strip()
+    empty = (text == "").to_numpy(dtype=bool)
+    if col.kind == "str":
+        return text.to_numpy(dtype=object), empty & (not col.may_be_empty)
+    if col.kind == "int":
+        good = text.str.fullmatch(_INT).to_numpy(dtype=bool)
+        values = np.where(good, text.to_numpy(dtype=object), "0").astype(np.int64)
+    else:
+        values = pd.to_numeric(text, errors="coerce").to_numpy(dtype=float)
+        empty = empty | text.str.lower().eq("nan").to_numpy()  # Java writes "NaN" for none
+        good = ~np.isnan(values)
+    return values, ~good & ~(empty & col.may_be_empty)
+
+
+def _measurements(table: pd.DataFrame, numbers: np.ndarray):
+    """Raw rows -> (kept, dropped with ``reason``, bad lines with impossible times)."""
+    full_bias = table["full_bias"].to_numpy()
+    bias = np.nan_to_num(table["bias"].to_numpy())
+    gps_ns = table["time_nanos"].to_numpy() - full_bias - np.rint(bias).astype(np.int64)
+    has_time = full_bias != 0
+    too_early = has_time & (gps_ns < _EARLIEST_GPS_NS)
+    timed = has_time & ~too_early
+    utc_ns = np.full(gps_ns.shape, _NAT, dtype=np.int64)
+    utc_ns[timed] = gps_to_utc(gps_ns[timed]).astype(np.int64)
+    bad = [
+        (
+            n,
+            f"Raw GPS time {GPS_EPOCH + np.timedelta64(int(t), 'ns')} is before {_EARLIEST}: "
+            "TimeNanos or FullBiasNanos is wrong",
+        )
+        for n, t in zip(numbers[too_early].tolist(), gps_ns[too_early], strict=True)
+    ]
+    letter = _letters(table["constellation"].to_numpy())
+    state = table["state"].to_numpy()
+    locked = (state & _STATE_CODE_LOCK > 0) | (
+        (letter == "E") & (state & _STATE_GAL_E1BC_CODE_LOCK > 0)
+    )
+    svid = _rinex_svid(letter, table["svid"].to_numpy())
+    band = _band(table["frequency"].to_numpy())
+    reason = np.select(
+        [letter == "?", ~has_time, ~locked, (letter == "R") & (svid > 24), band == ""],
+        [
+            "unknown constellation",
+            "no GPS time (FullBiasNanos empty)",
+            "no code lock (State)",
+            "GLONASS slot unknown (Svid is a frequency channel)",
+            "carrier frequency in no GNSS band",
+        ],
+        default="",
+    )
+    signals = pd.DataFrame(
+        {
+            "time_utc": _utc(utc_ns),
+            "constellation": letter,
+            "svid": svid,
+            "band": band,
+            "cn0": table["cn0"].to_numpy(),
+            "state": state,
+        }
+    )
+    kept = reason == ""
+    return signals[kept], signals[~kept].assign(reason=reason[~kept]), bad
+
+
+def _utc(ns: np.ndarray) -> pd.DatetimeIndex:
+    """int64 ns since 1970 (``_NAT`` for none) -> datetime64[ns, UTC]."""
+    return pd.DatetimeIndex(ns.astype("datetime64[ns]")).tz_localize("UTC")
+
+
+def _ns(times) -> np.ndarray:
+    """UTC times -> int64 ns since 1970."""
+    return pd.DatetimeIndex(times).as_unit("ns").asi8
+
+
+def _letters(constellation_type: np.ndarray) -> np.ndarray:
+    """Android ConstellationType -> RINEX letter ("?" for unknown)."""
+    known = (constellation_type >= 0) & (constellation_type < len(_LETTERS))
+    return _LETTERS[np.where(known, constellation_type, 0)]
+
+
+def _rinex_svid(letter: np.ndarray, svid: np.ndarray) -> np.ndarray:
+    """Android Svid -> RINEX satellite number (QZSS 193-202 -> 1-10, SBAS 120-158 -> 20-58)."""
+    svid = svid.copy()
+    svid[(letter == "J") & (svid >= 193)] -= 192
+    svid[(letter == "S") & (svid >= 120)] -= 100
+    return svid
+
+
+def _band(frequency_hz: np.ndarray) -> np.ndarray:
+    """RINEX band name per carrier frequency; missing -> L1, outside every band -> ""."""
+    mhz = frequency_hz / 1e6
+    band = np.full(mhz.shape, "", dtype=object)
+    band[np.isnan(mhz) | (mhz == 0)] = "L1"
+    for name, low, high in _BANDS:
+        band[(mhz >= low) & (mhz < high)] = name
+    return band
+
+
+def _without(frame: pd.DataFrame, numbers: np.ndarray, bad_lines: np.ndarray) -> pd.DataFrame:
+    """``frame`` without the rows from bad lines (its index = position in ``numbers``)."""
+    keep = ~np.isin(numbers[frame.index.to_numpy()], bad_lines)
+    return frame[keep].reset_index(drop=True)
+
+
+def _fixes(table: pd.DataFrame) -> pd.DataFrame:
+    """Fix records -> the ``fixes`` table."""
+    return pd.DataFrame(
+        {
+            "time_utc": _utc(table["time_ms"].to_numpy() * 10**6),
+            "provider": table["provider"].astype(str).str.lower(),
+            "lat": table["lat"],
+            "lon": table["lon"],
+            "altitude": table["altitude"],
+            "accuracy": table["accuracy"],
+        }
+    )
+
+
+def _status(table: pd.DataFrame) -> pd.DataFrame:
+    """Status records with a time (``UnixTimeMillis`` is empty or 0 before a GPS fix)."""
+    letter = _letters(table["constellation"].to_numpy())
+    band = _band(table["frequency"].to_numpy())
+    keep = (table["time_ms"].to_numpy() > 0) & (letter != "?") & (band != "")
+    table = table[keep]
+    return pd.DataFrame(
+        {
+            "time_utc": _utc(table["time_ms"].to_numpy() * 10**6),
+            "constellation": letter[keep],
+            "svid": _rinex_svid(letter[keep], table["svid"].to_numpy()),
+            "band": band[keep],
+            "azimuth": table["azimuth"].to_numpy(),
+            "elevation": table["elevation"].to_numpy(),
+            "cn0": table["cn0"].to_numpy(),
+        }
+    )

@@ -59,3 +59,33 @@ def test_entry_points_report_the_version(command):
         argv = [sys.executable, *command]
     out = subprocess.run([*argv, "--version"], capture_output=True, text=True, check=True)
     assert out.stdout.startswith("gnss-citygml, version")
+
+
+DEMO_2016 = "google_demo_pseudoranges_log_2016_08_22_14_45_50.txt"
+
+
+def test_observe_a_real_log(shared_data, tmp_path, capsys):
+    out_path = tmp_path / "obs.parquet"
+    log, nav = shared_data / "gnss" / DEMO_2016, shared_data / "orbits" / "hour2350.16n"
+    code, out, err = run(["observe", str(log), "--orbits", str(nav), "-o", str(out_path)], capsys)
+    assert code == 0, err
+    assert "1863 signals (1850 received, 13 blocked)" in out
+    assert err.startswith("warning: ") and "without orbit data" in err  # Galileo, BeiDou
+    assert len(pd.read_parquet(out_path)) == 1863
+
+
+def test_observe_with_orbits_of_another_day_writes_nothing(shared_data, tmp_path, capsys):
+    out_path = tmp_path / "obs.parquet"
+    log, nav = shared_data / "gnss" / DEMO_2016, shared_data / "orbits" / "hour1820.16n"
+    code, _, err = run(["observe", str(log), "--orbits", str(nav), "-o", str(out_path)], capsys)
+    assert code == 2
+    assert "error: the orbits cover 2016-06-29" in err and "2016-08-22 21:45:56" in err
+    assert not list(tmp_path.iterdir())
+
+
+def test_grids_status(shared_data, tmp_path, capsys, monkeypatch):
+    code, out, _ = run(["grids", "--grid-dir", str(shared_data / "geodesy")], capsys)
+    assert code == 0 and out.count("uk_os_") == 4
+    monkeypatch.setenv("PROJ_USER_WRITABLE_DIRECTORY", str(tmp_path / "user"))  # an empty one
+    code, out, err = run(["grids", "--grid-dir", str(tmp_path)], capsys)
+    assert code == 1 and out.count("MISSING") == 2 and "grids --fetch" in err

@@ -1,43 +1,15 @@
-"""The ``gnss-citygml`` command: one click group, one thin subcommand per job.
-
-Subcommands only parse options and compose the library's stages. Every
-:class:`~gnss_citygml.errors.GnssCityGMLError` becomes one line on stderr
-(``error: <what> (<where>): <how to fix>``) and exit code 2, never a traceback.
-"""
+"""Subcommands around the height model: the simulated demo, simulation, and heights."""
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import click
 
-from . import __version__
-from .errors import GnssCityGMLError
-from .model.estimate import METHODS
-from .simulate.scenes import PRESETS
-
-_SEED = click.option(
-    "--seed",
-    type=int,
-    default=0,
-    show_default=True,
-    help="Seed of the simulation's random choices.",
-)
-_QUIET = click.option("--quiet", "-q", is_flag=True, help="No progress output.")
-_THRESHOLD = click.option(
-    "--init-threshold",
-    type=float,
-    default=30.0,
-    show_default=True,
-    help="C/N0 (dB-Hz) where the initial signal classifier gives 50 %.",
-)
-
-
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
-@click.version_option(__version__, prog_name="gnss-citygml")
-def cli():
-    """3D city maps (CityGML LOD1 / CityJSON) from crowdsourced smartphone GNSS data."""
+from ..model.estimate import METHODS
+from ..simulate.scenes import PRESETS
+from . import cli
+from .options import QUIET, SEED, THRESHOLD, floats, progress
 
 
 @cli.command()
@@ -61,8 +33,8 @@ def cli():
     show_default=True,
     help="Seconds between simulated epochs (1 = the paper's 1 Hz).",
 )
-@_SEED
-@_QUIET
+@SEED
+@QUIET
 def demo(presets, thresholds, interval, seed, quiet):
     """Accuracy of 4PL-B and the paper's baselines on the simulated sites.
 
@@ -70,12 +42,12 @@ def demo(presets, thresholds, interval, seed, quiet):
     positions, estimates the heights with every method and initial threshold, and prints the
     RMSE table of the paper ("Root Mean Square Error of mapping algorithms").
     """
-    from .accuracy import markdown_table, run_accuracy, summarise
+    from ..accuracy import markdown_table, run_accuracy, summarise
 
-    values = _floats(thresholds, "--thresholds")
+    values = floats(thresholds, "--thresholds")
     presets = presets or tuple(PRESETS)
     n_runs = len(presets) * 2 * len(METHODS) * len(values)
-    with _progress(n_runs, "fitting", quiet) as bar:
+    with progress(n_runs, "fitting", quiet) as bar:
         results = run_accuracy(
             presets,
             thresholds=values,
@@ -102,7 +74,7 @@ def demo(presets, thresholds, interval, seed, quiet):
     show_default=True,
     help="Receiver positions: hand-surveyed or the phone's fixes.",
 )
-@_SEED
+@SEED
 @click.option(
     "--interval", type=float, default=1.0, show_default=True, help="Seconds between epochs."
 )
@@ -111,8 +83,8 @@ def demo(presets, thresholds, interval, seed, quiet):
 )
 def simulate(preset, output_dir, locations, seed, interval, fmt):
     """Simulate a site and write its observations, intersections and true heights."""
-    from .simulate import simulate as run
-    from .tables import write_table
+    from ..simulate import simulate as run
+    from ..tables import write_table
 
     sim = run(preset, locations=locations, seed=seed, interval=interval)
     output_dir.mkdir(parents=True, exist_ok=True)
@@ -139,7 +111,7 @@ def simulate(preset, output_dir, locations, seed, interval, fmt):
     default="4PL-B",
     show_default=True,
 )
-@_THRESHOLD
+@THRESHOLD
 @click.option(
     "--weighting",
     type=click.Choice(["height", "balanced", "none"]),
@@ -148,8 +120,8 @@ def simulate(preset, output_dir, locations, seed, interval, fmt):
 )
 def heights(intersections, output, method, init_threshold, weighting):
     """Estimate building heights from an intersections table (CSV or Parquet)."""
-    from .model.estimate import estimate_heights
-    from .tables import read_table, write_table
+    from ..model.estimate import estimate_heights
+    from ..tables import read_table, write_table
 
     options = {} if weighting is None else {"weighting": weighting}
     out = estimate_heights(
@@ -158,34 +130,3 @@ def heights(intersections, output, method, init_threshold, weighting):
     write_table(out, output)
     ok = int(out["converged"].sum())
     click.echo(f"{ok} of {len(out)} buildings converged -> {output}")
-
-
-def _floats(text, option):
-    try:
-        return [float(v) for v in text.split(",") if v.strip()]
-    except ValueError:
-        raise click.BadParameter(
-            f"{text!r} is not a comma-separated list of numbers", param_hint=option
-        ) from None
-
-
-def _progress(total, label, quiet):
-    from tqdm import tqdm
-
-    return tqdm(total=total, desc=label, disable=quiet or None, file=sys.stderr, leave=False)
-
-
-def main(argv=None):
-    """Entry point: run the click group, turning the toolkit's errors into one line."""
-    try:
-        cli.main(args=argv, prog_name="gnss-citygml", standalone_mode=False)
-    except GnssCityGMLError as exc:
-        click.echo(f"error: {exc.one_line()}", err=True)
-        sys.exit(exc.exit_code)
-    except click.exceptions.Abort:
-        click.echo("aborted", err=True)
-        sys.exit(1)
-    except click.ClickException as exc:
-        exc.show()
-        sys.exit(exc.exit_code)
-    sys.exit(0)

@@ -1,0 +1,120 @@
+"""Subcommands of the GNSS stage: ``observe`` (logs + orbits -> observations) and ``grids``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from . import cli
+from .options import QUIET, progress
+
+GRID_DIR = click.option(
+    "--grid-dir",
+    type=click.Path(file_okay=False, path_type=Path),
+    envvar="GNSS_CITYGML_GRID_DIR",
+    help="Folder holding the OSTN15/OSGM15 grids (default: PROJ's user data folder).",
+)
+
+
+@cli.command()
+@click.argument("logs", nargs=-1, required=True, type=click.Path(path_type=Path))
+@click.option(
+    "--orbits",
+    "orbit_files",
+    multiple=True,
+    required=True,
+    type=click.Path(path_type=Path),
+    help="SP3 or RINEX navigation file covering the logs (repeat for several).",
+)
+@click.option(
+    "--positions",
+    "surveyed",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="CSV of manually surveyed positions (receiver,start_utc,end_utc,lat,lon,h); "
+    "default: the logs' own fixes.",
+)
+@click.option(
+    "--provider",
+    default="gps",
+    show_default=True,
+    help="Fix provider of the logs' positions (gps, flp, nlp).",
+)
+@click.option(
+    "--interpolate", is_flag=True, help="Interpolate fixes in time instead of the nearest."
+)
+@click.option("--min-elevation", type=float, default=10.0, show_default=True, help="Degrees.")
+@click.option("--max-elevation", type=float, default=85.0, show_default=True, help="Degrees.")
+@click.option("--band", default="L1", show_default=True, help="Signal band kept (L1 or L5).")
+@click.option("--lenient", is_flag=True, help="Skip bad log lines (counted) instead of failing.")
+@click.option(
+    "--output",
+    "-o",
+    type=click.Path(dir_okay=False, path_type=Path),
+    required=True,
+    help="Observations table (.parquet or .csv).",
+)
+@QUIET
+def observe(
+    logs,
+    orbit_files,
+    surveyed,
+    provider,
+    interpolate,
+    min_elevation,
+    max_elevation,
+    band,
+    lenient,
+    output,
+    quiet,
+):
+    """Turn GnssLogger LOGS and satellite orbits into an observations table.
+
+    One row per epoch and satellite between the elevation masks, with the phone's C/N0, or
+    empty C/N0 where the phone received nothing (a blocked signal).
+    """
+    from ..gnss.observe import observe as run
+    from ..observations import write_observations
+
+    with progress(len(logs), "logs", quiet) as bar:
+        table = run(
+            logs,
+            orbit_files,
+            surveyed=surveyed,
+            provider=provider,
+            method="interpolate" if interpolate else "nearest",
+            min_elevation=min_elevation,
+            max_elevation=max_elevation,
+            band=band,
+            lenient=lenient,
+            progress=lambda _: bar.update(1),
+        )
+    write_observations(table, output)
+    received = int(table["cn0"].notna().sum())
+    click.echo(
+        f"{len(table)} signals ({received} received, {len(table) - received} blocked) "
+        f"from {table['receiver'].nunique()} receiver(s) -> {output}"
+    )
+
+
+@cli.command()
+@GRID_DIR
+@click.option("--fetch", is_flag=True, help="Download missing grids from PROJ's CDN.")
+def grids(grid_dir, fetch):
+    """Show where the OSTN15 / OSGM15 grids are (and fetch them with --fetch)."""
+    from ..geodesy import fetch_grids, grid_status
+
+    if fetch:
+        for path in fetch_grids():
+            click.echo(f"fetched {path}")
+    status = grid_status(grid_dir)
+    for row in status.itertuples(index=False):
+        where = row.path if row.found else "MISSING"
+        click.echo(f"{row.grid}  {row.purpose}: {where}")
+    if not status["found"].all():
+        click.echo(
+            "some grids are missing: run `gnss-citygml grids --fetch`, or give the folder "
+            "that holds them with --grid-dir",
+            err=True,
+        )
+        raise SystemExit(1)

@@ -1,0 +1,42 @@
+"""Options and helpers shared by the subcommands (defined once, as in rasterio's ``rio``)."""
+
+from __future__ import annotations
+
+import sys
+
+import click
+
+__all__ = ["QUIET", "SEED", "THRESHOLD", "floats", "progress"]
+
+SEED = click.option(
+    "--seed",
+    type=int,
+    default=0,
+    show_default=True,
+    help="Seed of the simulation's random choices.",
+)
+QUIET = click.option("--quiet", "-q", is_flag=True, help="No progress output.")
+THRESHOLD = click.option(
+    "--init-threshold",
+    type=float,
+    default=30.0,
+    show_default=True,
+    help="C/N0 (dB-Hz) where the initial signal classifier gives 50 %.",
+)
+
+
+def floats(text, option):
+    """A comma-separated list of numbers, or a usage error naming ``option``."""
+    try:
+        return [float(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise click.BadParameter(
+            f"{text!r} is not a comma-separated list of numbers", param_hint=option
+        ) from None
+
+
+def progress(total, label, quiet):
+    """A progress bar on stderr (only on a terminal; never with ``--quiet``)."""
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc=label, disable=quiet or None, file=sys.stderr, leave=False)

@@ -4,6 +4,12 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
+# The OSTN15/OSGM15 grids: the shared reference data when it is there, else PROJ's user folder
+# (`gnss-citygml grids --fetch` puts them there).
+GRID_DIR ?= $(wildcard ../shared/data/geodesy)
+GRIDS := $(if $(GRID_DIR),--grid-dir $(GRID_DIR))
+DEMO := examples/city
+
 .PHONY: test demo lint bench clean
 
 $(STAMP): pyproject.toml
@@ -20,10 +26,15 @@ test: lint
 	$(BIN)/python -m pytest
 
 demo: $(STAMP)
-	$(BIN)/gnss-citygml demo
+	mkdir -p demo-out
+	$(BIN)/gnss-citygml estimate $(DEMO)/observations.parquet $(DEMO)/footprints.gpkg \
+		--dem $(DEMO)/dem.tif -o demo-out/heights.gpkg --overwrite $(GRIDS)
 
 bench: $(STAMP)
+	$(BIN)/python benchmarks/raycast.py
+	$(BIN)/python benchmarks/observe.py
+	$(BIN)/python benchmarks/geodesy.py $(GRIDS)
 	$(BIN)/python benchmarks/paper_table.py
 
 clean:
-	rm -rf $(VENV) .pytest_cache .ruff_cache build *.egg-info
+	rm -rf $(VENV) demo-out .pytest_cache .ruff_cache build *.egg-info

@@ -10,11 +10,12 @@ import os
 import tempfile
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 
 from .errors import InputError
 
-__all__ = ["atomic_path", "read_table", "write_table"]
+__all__ = ["atomic_path", "read_table", "write_layer", "write_table"]
 
 
 @contextlib.contextmanager
@@ -27,7 +28,10 @@ def atomic_path(path, *, overwrite: bool = True):
     if not folder.is_dir():
         raise InputError("output folder does not exist", where=str(folder), fix="create it first")
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=folder)
+        # the temporary name keeps the suffix: drivers (GDAL's GeoPackage) check it
+        fd, tmp = tempfile.mkstemp(
+            prefix=f".{path.name}.", suffix=f".part{path.suffix}", dir=folder
+        )
     except OSError as exc:
         raise InputError(
             "cannot write to the output folder",
@@ -37,10 +41,17 @@ def atomic_path(path, *, overwrite: bool = True):
     os.close(fd)
     try:
         yield Path(tmp)
+        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes it private; a new file is not
         os.replace(tmp, path)
     finally:
         if os.path.exists(tmp):
             os.unlink(tmp)
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
 
 
 def read_table(path) -> pd.DataFrame:
@@ -79,3 +90,18 @@ def write_table(table: pd.DataFrame, path, *, overwrite: bool = True) -> None:
             table.to_csv(tmp, index=False)
         else:
             table.to_parquet(tmp, index=False)
+
+
+def write_layer(frame, path, layer: str, *, overwrite: bool = True) -> None:
+    """Write a GeoDataFrame as a new GeoPackage holding one ``layer``, atomically.
+
+    List-valued attributes (OS MasterMap's ``descriptiveGroup``, read by GDAL as lists) are
+    written as text joined by ``|``, which every GIS reads."""
+    out = frame.copy()
+    for column in out.columns.drop(out.geometry.name):
+        if out[column].map(lambda v: isinstance(v, list | tuple | np.ndarray)).any():
+            out[column] = out[column].map(
+                lambda v: "|".join(map(str, v)) if isinstance(v, list | tuple | np.ndarray) else v
+            )
+    with atomic_path(path, overwrite=overwrite) as tmp:
+        out.to_file(tmp, layer=layer, driver="GPKG")

@@ -2,6 +2,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import geopandas as gpd
 import pandas as pd
 import pytest
 
@@ -15,17 +16,19 @@ def run(args, capsys):
     return exc.value.code, out.out, out.err
 
 
-def test_simulate_then_heights(tmp_path, capsys):
-    code, out, _ = run(["simulate", "hermitage", "-o", str(tmp_path), "--interval", "30"], capsys)
+def test_simulate_then_heights(shared_data, tmp_path, capsys):
+    grids = str(shared_data / "geodesy")
+    args = ["simulate", "hermitage", "-o", str(tmp_path), "--interval", "30", "--grid-dir", grids]
+    code, out, _ = run(args, capsys)
     assert code == 0 and "intersections" in out
-    for name in ("observations", "intersections", "truth"):
-        assert (tmp_path / f"{name}.csv").is_file()
+    for name in ("observations.csv", "intersections.csv", "truth.csv", "footprints.gpkg"):
+        assert (tmp_path / name).is_file()
     heights = tmp_path / "heights.csv"
     code, out, _ = run(["heights", str(tmp_path / "intersections.csv"), "-o", str(heights)], capsys)
     assert code == 0 and "converged" in out
     table = pd.read_csv(heights)
     assert "hermitage_terrace" in set(table["id"])
-    assert not list(tmp_path.glob("*.part"))
+    assert not list(tmp_path.glob("*.part*"))
 
 
 def test_user_errors_are_one_line_with_exit_code_2(tmp_path, capsys):
@@ -42,8 +45,9 @@ def test_user_errors_are_one_line_with_exit_code_2(tmp_path, capsys):
     assert not (tmp_path / "h.csv").exists()
 
 
-def test_unknown_output_format_writes_nothing(tmp_path, capsys):
-    run(["simulate", "ucl", "-o", str(tmp_path), "--interval", "120"], capsys)
+def test_unknown_output_format_writes_nothing(shared_data, tmp_path, capsys):
+    grids = str(shared_data / "geodesy")
+    run(["simulate", "ucl", "-o", str(tmp_path), "--interval", "120", "--grid-dir", grids], capsys)
     code, _, err = run(
         ["heights", str(tmp_path / "intersections.csv"), "-o", str(tmp_path / "h.xlsx")], capsys
     )
@@ -89,3 +93,41 @@ def test_grids_status(shared_data, tmp_path, capsys, monkeypatch):
     monkeypatch.setenv("PROJ_USER_WRITABLE_DIRECTORY", str(tmp_path / "user"))  # an empty one
     code, out, err = run(["grids", "--grid-dir", str(tmp_path)], capsys)
     assert code == 1 and out.count("MISSING") == 2 and "grids --fetch" in err
+
+
+def test_estimate_from_simulated_files(shared_data, tmp_path, capsys):
+    grids = str(shared_data / "geodesy")
+    code, _, _ = run(
+        ["simulate", "hermitage", "-o", str(tmp_path), "--interval", "30", "--grid-dir", grids],
+        capsys,
+    )
+    assert code == 0
+    out_path = tmp_path / "heights.gpkg"
+    args = [
+        "estimate",
+        str(tmp_path / "observations.csv"),
+        str(tmp_path / "footprints.gpkg"),
+        "--dem",
+        str(tmp_path / "dem.tif"),
+        "-o",
+        str(out_path),
+        "--grid-dir",
+        grids,
+    ]
+    code, out, err = run(args, capsys)
+    assert code == 0, err
+    assert "buildings have a height" in out
+    heights = gpd.read_file(out_path, layer="heights").set_index("id")
+    truth = pd.read_csv(tmp_path / "truth.csv").set_index("id")
+    assert heights.crs.to_epsg() == 27700
+    assert (
+        abs(heights.loc["hermitage_terrace", "height"] - truth.loc["hermitage_terrace", "height"])
+        < 1.5
+    )
+    before = out_path.read_bytes()
+    code, _, err = run(args, capsys)  # the output exists now
+    assert code == 2 and "output exists" in err
+    code, _, err = run([*args[:4], str(tmp_path / "nope.tif"), *args[5:], "--overwrite"], capsys)
+    assert code == 2 and err.startswith("error: ") and "nope.tif" in err
+    assert out_path.read_bytes() == before  # a failed run leaves the old output alone
+    assert not list(tmp_path.glob(".*part*"))

@@ -24,9 +24,9 @@ def cli():
     """3D city maps (CityGML LOD1 / CityJSON) from crowdsourced smartphone GNSS data."""
 
 
-from . import models, observe  # noqa: E402  (the subcommands register themselves on cli)
+from . import estimate, models, observe  # noqa: E402  (subcommands register on cli)
 
-__all__ = ["cli", "main", "models", "observe"]
+__all__ = ["cli", "estimate", "main", "models", "observe"]
 
 
 def _one_line_warning(message, category, filename, lineno, file=None, line=None):

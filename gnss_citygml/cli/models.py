@@ -1,4 +1,4 @@
-"""Subcommands around the height model: the simulated demo, simulation, and heights."""
+"""Subcommands around the height model: accuracy on simulated sites, simulation, heights."""
 
 from __future__ import annotations
 
@@ -9,6 +9,7 @@ import click
 from ..model.estimate import METHODS
 from ..simulate.scenes import PRESETS
 from . import cli
+from .observe import GRID_DIR
 from .options import QUIET, SEED, THRESHOLD, floats, progress
 
 
@@ -35,7 +36,7 @@ from .options import QUIET, SEED, THRESHOLD, floats, progress
 )
 @SEED
 @QUIET
-def demo(presets, thresholds, interval, seed, quiet):
+def accuracy(presets, thresholds, interval, seed, quiet):
     """Accuracy of 4PL-B and the paper's baselines on the simulated sites.
 
     Simulates the paper's three sites and a small city with manual and GNSS receiver
@@ -81,15 +82,17 @@ def demo(presets, thresholds, interval, seed, quiet):
 @click.option(
     "--format", "fmt", type=click.Choice(["csv", "parquet"]), default="csv", show_default=True
 )
-def simulate(preset, output_dir, locations, seed, interval, fmt):
-    """Simulate a site and write its observations, intersections and true heights."""
+@GRID_DIR
+def simulate(preset, output_dir, locations, seed, interval, fmt, grid_dir):
+    """Simulate a site and write the files a user brings to `estimate`: observations,
+    footprints.gpkg and dem.tif (EPSG:27700), plus the intersections and the true heights."""
     from ..simulate import simulate as run
+    from ..simulate.files import write_site
     from ..tables import write_table
 
     sim = run(preset, locations=locations, seed=seed, interval=interval)
-    output_dir.mkdir(parents=True, exist_ok=True)
-    for name in ("observations", "intersections", "truth"):
-        write_table(getattr(sim, name), output_dir / f"{name}.{fmt}")
+    write_site(sim, output_dir, grid_dir=grid_dir, fmt=fmt)
+    write_table(sim.intersections, output_dir / f"intersections.{fmt}")
     click.echo(
         f"{len(sim.observations)} signals, {len(sim.intersections)} intersections, "
         f"{len(sim.truth)} buildings -> {output_dir}"

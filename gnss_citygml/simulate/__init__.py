@@ -30,7 +30,7 @@ from .constellations import satellite_ecef, sky
 from .scenes import PRESETS, Scene, Session, make_scene
 from .signals import SignalModel, ar1, diffraction_loss, gnss_fix_errors
 
-__all__ = ["LOCATIONS", "PRESETS", "Simulation", "simulate"]
+__all__ = ["LOCATIONS", "PRESETS", "Simulation", "local_to_wgs84", "simulate"]
 
 #: Where the receiver positions come from.
 LOCATIONS = ("manual", "gnss")
@@ -205,7 +205,7 @@ def _session(rng, site: _Site, session: Session, locations, interval):
         )
         err = np.column_stack([de, dn])
     rep = true_xy + err
-    lon, lat, _ = _geodetic(scene).transform(rep[:, 0], rep[:, 1], np.zeros(n_ep))
+    lon, lat = local_to_wgs84(scene, rep[:, 0], rep[:, 1])
     return pd.DataFrame(
         {
             "time_utc": site.start + pd.to_timedelta(t[ep], unit="s"),
@@ -229,9 +229,15 @@ def _session(rng, site: _Site, session: Session, locations, interval):
     )
 
 
+def local_to_wgs84(scene: Scene, x, y):
+    """WGS84 longitude and latitude (deg) of points of the scene's local grid (m east and north
+    of the scene's origin on the WGS84 ellipsoid): an exact conversion, no datum shift."""
+    x = np.asarray(x, dtype=float)
+    lon, lat, _ = _geodetic(scene).transform(x, np.asarray(y, dtype=float), np.zeros_like(x))
+    return lon, lat
+
+
 def _geodetic(scene: Scene):
-    """Scene grid (east, north, up from the scene origin on the WGS84 ellipsoid) to WGS84
-    longitude, latitude: an exact conversion, no datum shift involved."""
     return Transformer.from_pipeline(
         "+proj=pipeline +step +inv +proj=topocentric +ellps=WGS84 "
         f"+lat_0={scene.lat} +lon_0={scene.lon} +h_0=0 "

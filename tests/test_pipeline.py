@@ -1,0 +1,97 @@
+"""The whole pipeline on simulated sites written as real files: GeoPackage, GeoTIFF, Parquet."""
+
+import geopandas as gpd
+import numpy as np
+import pandas as pd
+import pytest
+import shapely
+
+from gnss_citygml.buildings import read_footprints
+from gnss_citygml.errors import InputError
+from gnss_citygml.observations import read_observations
+from gnss_citygml.pipeline import STAGES, estimate, intersections, receivers
+from gnss_citygml.simulate import simulate
+from gnss_citygml.simulate.files import write_site
+
+
+@pytest.fixture(scope="module")
+def site(shared_data, tmp_path_factory):
+    sim = simulate("hermitage", locations="manual", seed=0, interval=20.0)
+    folder = tmp_path_factory.mktemp("hermitage")
+    paths = write_site(sim, folder, grid_dir=shared_data / "geodesy")
+    return sim, paths, shared_data / "geodesy"
+
+
+def test_heights_from_files(site):
+    sim, paths, grids = site
+    stages = []
+    out = estimate(
+        read_observations(paths["observations"]),
+        read_footprints(paths["footprints"]),
+        str(paths["dem"]),
+        grid_dir=grids,
+        progress=stages.append,
+    )
+    assert stages == list(STAGES)
+    assert out.crs.to_epsg() == 27700 and len(out) == len(sim.truth)
+    truth = sim.truth.set_index("id")
+    row = out.set_index("id").loc["hermitage_terrace"]
+    assert row["converged"] and row["status"] == "ok"
+    assert abs(row["height"] - truth.loc["hermitage_terrace", "height"]) < 1.0
+    assert row["ground"] == pytest.approx(truth.loc["hermitage_terrace", "ground"])
+    assert row["relative_height"] == pytest.approx(row["height"] - row["ground"])
+    assert row["height_lower"] < row["height"] < row["height_upper"]
+    # never a guess: a building without a converged fit has no height
+    bad = out[~out["converged"]]
+    assert bad["height"].isna().all() and (bad["status"] != "ok").all()
+
+
+def test_pipeline_intersections_match_the_simulators(site):
+    """Geodesy + DEM + ray casting from the files reproduce the simulator's own intersections
+    (cast in its local grid): same signals and buildings, heights within centimetres."""
+    sim, paths, grids = site
+    obs = read_observations(paths["observations"])
+    rx = receivers(obs, str(paths["dem"]), grid_dir=grids)
+    ours = intersections(rx, read_footprints(paths["footprints"]))
+    theirs = sim.intersections
+    key = ["signal", "building"]
+    both = ours.merge(theirs, on=key, suffixes=("", "_sim"))
+    assert len(both) >= 0.99 * max(len(ours), len(theirs))
+    diff = np.abs(both["height"] - both["height_sim"])
+    assert np.median(diff) < 0.02 and np.percentile(diff, 99) < 0.1
+
+
+def test_antenna_height_and_log_heights(site):
+    sim, paths, grids = site
+    obs = read_observations(paths["observations"]).head(50)
+    rx = receivers(obs, str(paths["dem"]), grid_dir=grids, antenna_height=1.5)
+    np.testing.assert_allclose(rx["z"], sim.scene.ground + 1.5, atol=1e-4)
+    with pytest.raises(InputError, match="without an ellipsoidal height"):
+        receivers(obs, receiver_height="log", grid_dir=grids)
+    with_h = obs.assign(h=80.0)
+    rx = receivers(with_h, receiver_height="log", grid_dir=grids)
+    assert (rx["z"] - 80.0).between(-50.0, -44.0).all()  # ODN is ~47 m above the ellipsoid
+
+
+def test_observations_far_from_the_footprints(site):
+    _, paths, grids = site
+    fp = read_footprints(paths["footprints"])
+    far = fp.assign(geometry=fp.geometry.translate(5000.0, 0.0))
+    with pytest.raises(InputError, match="outside the footprints' area") as err:
+        estimate(read_observations(paths["observations"]), far, str(paths["dem"]), grid_dir=grids)
+    assert "receiver hermitage_" in err.value.where
+
+
+def test_footprint_no_ray_enters(site):
+    _, paths, grids = site
+    fp = read_footprints(paths["footprints"])
+    x0, y0, *_ = fp.total_bounds
+    shed = gpd.GeoDataFrame(
+        {"id": ["shed"]}, geometry=[shapely.box(x0 - 45, y0 - 45, x0 - 40, y0 - 40)], crs=fp.crs
+    )
+    both = gpd.GeoDataFrame(pd.concat([fp, shed], ignore_index=True), crs=fp.crs)
+    obs = read_observations(paths["observations"])
+    out = estimate(obs, both, str(paths["dem"]), grid_dir=grids, max_range=30.0).set_index("id")
+    assert not out.loc["shed", "converged"] and np.isnan(out.loc["shed", "height"])
+    assert out.loc["shed", "n_signals"] == 0
+    assert out.loc["shed", "status"] == "no signal's ray enters the footprint"

@@ -221,12 +221,13 @@ def fourplb(
             flips = (new_map != prev_map) & seen
             change = np.bincount(g, flips, n_groups) / np.maximum(np.bincount(g, seen, n_groups), 1)
         prev_map = new_map
-        classifier = classifier.refit(*_classifier_data(s, new_map, sig, seen))
+        # Only plausible fits teach the classifier: a building whose map says nothing (flat,
+        # or its inflection point outside its data) would relabel its signals at random.
+        plausible = _plausible(fit, h, g, seen, n_groups, min_separation)
+        classifier = classifier.refit(*_classifier_data(s, new_map, sig, seen & plausible[g]))
         labels = classifier.label(s)
         if occlusion:
-            seen = _unoccluded(
-                h, g, sig, fit, _plausible(fit, h, g, seen, n_groups, min_separation)
-            )
+            seen = _unoccluded(h, g, sig, fit, plausible, order)
         if iterations > 1 and np.all(change < label_tol):
             break
 
@@ -244,13 +245,21 @@ def _plausible(fit, h, g, seen, n_groups, min_separation):
     return (fit.a - fit.d >= min_separation) & (fit.c >= lo) & (fit.c <= hi)
 
 
-def _unoccluded(h, g, sig, fit, plausible):
+def _unoccluded(h, g, sig, fit, plausible, order=None):
     """Rows whose ray surely clears every *other* building at the current estimates: it passes
     above the top of each one's height range, c + 3/b. A signal that may have been blocked by
-    another building tells nothing about this one, whatever its C/N0."""
+    another building tells nothing about this one, whatever its C/N0. A building without a
+    plausible estimate may stand at any height: with ``order``, the rows behind it along the
+    ray are left out too."""
     blocks = plausible[g] & (h < fit.c[g] + 3.0 / fit.b[g])
-    n_blocking = np.bincount(sig, blocks, int(sig.max()) + 1)
-    return (n_blocking[sig] - blocks) == 0
+    n_sig = int(sig.max()) + 1
+    n_blocking = np.bincount(sig, blocks, n_sig)
+    clear = (n_blocking[sig] - blocks) == 0
+    if order is not None:
+        first_unknown = np.full(n_sig, np.iinfo(np.int64).max)
+        np.minimum.at(first_unknown, sig[~plausible[g]], order[~plausible[g]])
+        clear &= order <= first_unknown[sig]
+    return clear
 
 
 def _classifier_data(cn0, open_map, sig, seen):

@@ -53,7 +53,7 @@ class Simulation:
 
 
 def simulate(
-    preset: str,
+    preset: str | Scene,
     *,
     locations: str = "manual",
     seed: int = 0,
@@ -66,7 +66,8 @@ def simulate(
     Parameters
     ----------
     preset
-        ``ucl``, ``goodchild``, ``hermitage`` or ``city``.
+        ``ucl``, ``goodchild``, ``hermitage`` or ``city``, or a :class:`~.scenes.Scene` of
+        one's own (e.g. a large :func:`~.scenes.city_scene`).
     locations
         ``manual`` (surveyed by hand, ~1-2 m) or ``gnss`` (the phone's own fixes).
     seed
@@ -94,7 +95,7 @@ def simulate(
     >>> sorted(sim.truth.loc[sim.truth.target, "id"])
     ['goodchild_block']
     """
-    if preset not in PRESETS:
+    if not isinstance(preset, Scene) and preset not in PRESETS:
         raise InputError(
             f"unknown simulator preset {preset!r}", fix="use one of " + ", ".join(PRESETS)
         )
@@ -103,7 +104,7 @@ def simulate(
             f"unknown locations {locations!r}", fix="use one of " + ", ".join(LOCATIONS)
         )
     rng = np.random.default_rng(seed)
-    scene = make_scene(preset, rng)
+    scene = preset if isinstance(preset, Scene) else make_scene(preset, rng)
     parts = [(p, top) for b in scene.buildings for p, top in b.parts]
     site = _Site(
         scene=scene,

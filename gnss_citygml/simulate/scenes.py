@@ -21,7 +21,7 @@ import numpy as np
 import shapely
 from shapely.geometry import Polygon, box
 
-__all__ = ["PRESETS", "Building", "Scene", "Session", "make_scene"]
+__all__ = ["PRESETS", "Building", "Scene", "Session", "city_scene", "make_scene"]
 
 
 @dataclass(frozen=True)
@@ -187,12 +187,15 @@ def _hermitage(rng):
     )
 
 
-def _city(rng):
+def city_scene(rng, columns=6, rows=5, walkers=8, walk_seconds=300.0, walk_length=None):
+    """A grid of ``columns`` x ``rows`` blocks, 60 m apart, one building each (flat, pitched or
+    multi-part, 8-45 m), and ``walkers`` people each walking ``walk_seconds`` along a street:
+    the whole street, or a stretch of ``walk_length`` metres of it."""
     g = 20.0
     buildings = []
     pitch = 60.0  # block spacing; streets are 60 - block size wide
-    for i in range(6):
-        for j in range(5):
+    for i in range(columns):
+        for j in range(rows):
             x0, y0 = i * pitch, j * pitch
             w, d = rng.uniform(28, 42), rng.uniform(28, 42)
             kind = rng.choice(["flat", "flat", "pitched", "multi"])
@@ -220,15 +223,29 @@ def _city(rng):
                     )
                 )
     sessions = []
-    for k in range(8):
+    for k in range(walkers):
         if k % 2 == 0:  # walk west-east along a street between block rows
-            y = int(rng.integers(0, 5)) * pitch + 51.0  # mid-street: blocks end by 42 m
-            path = ((-10.0, y), (5 * pitch + 40.0, y))
+            y = int(rng.integers(0, rows)) * pitch + 51.0  # mid-street: blocks end by 42 m
+            ends = (-10.0, columns * pitch - 20.0)
+            path = [(x, y) for x in _stretch(rng, ends, walk_length)]
         else:  # walk south-north along a street between block columns
-            x = int(rng.integers(0, 6)) * pitch + 51.0
-            path = ((x, -10.0), (x, 4 * pitch + 40.0))
-        sessions.append(Session(f"walker_{k}", 1500.0 * k, 300.0, path, walking=True))
+            x = int(rng.integers(0, columns)) * pitch + 51.0
+            ends = (-10.0, rows * pitch - 20.0)
+            path = [(x, y) for y in _stretch(rng, ends, walk_length)]
+        sessions.append(Session(f"walker_{k}", 1500.0 * k, walk_seconds, tuple(path), True))
     return Scene("city", 51.5200, -0.1000, g, tuple(buildings), tuple(sessions), 10.0, 85.0, ())
+
+
+def _stretch(rng, ends, length):
+    """Start and end of a walk along a street from ``ends[0]`` to ``ends[1]``."""
+    if length is None or length >= ends[1] - ends[0]:
+        return ends
+    start = float(rng.uniform(ends[0], ends[1] - length))
+    return start, start + length
+
+
+def _city(rng):
+    return city_scene(rng)
 
 
 #: Scene factories by preset name; each takes a numpy Generator.

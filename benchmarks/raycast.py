@@ -1,0 +1,106 @@
+"""Cast + fit at city scale: 1,000,000 signals x 10,000 buildings through the pipeline.
+
+Simulates a 100 x 100 block city (6 km square, one building per block) walked by people with
+phones until about a million signals are observed, writes it as the files a user brings
+(observations, footprints GeoPackage, DEM GeoTIFF; cached in benchmarks/out/), then runs the
+pipeline's stages on them in a fresh process and prints the time of each stage, signals per
+second and the peak memory (RSS) of that process.
+
+    python benchmarks/raycast.py [--signals 1000000] [--blocks 100] [--grid-dir DIR]
+
+Targets (issue 4): cast + fit <= 60 s on a 2-core machine, peak memory <= 2 GB.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import resource
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+OUT = Path(__file__).parent / "out"
+DEFAULT_GRIDS = (
+    Path(
+        os.environ.get(
+            "GNSS_CITYGML_SHARED_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"
+        )
+    )
+    / "geodesy"
+)
+#: Signals per walker: 300 s at 1 Hz with about 30 satellites in view.
+SIGNALS_PER_WALKER = 9000
+
+
+def prepare(folder: Path, signals: int, blocks: int, grid_dir) -> None:
+    from gnss_citygml.simulate import simulate
+    from gnss_citygml.simulate.files import write_site
+    from gnss_citygml.simulate.scenes import city_scene
+
+    walkers = max(1, round(signals / SIGNALS_PER_WALKER))
+    scene = city_scene(np.random.default_rng(0), blocks, blocks, walkers=walkers, walk_length=300.0)
+    start = time.perf_counter()
+    sim = simulate(scene, seed=0, interval=1.0)
+    write_site(sim, folder, grid_dir=grid_dir)
+    print(
+        f"simulated {len(sim.observations):,} signals, {len(scene.buildings):,} buildings, "
+        f"{walkers} walkers in {time.perf_counter() - start:.0f} s -> {folder}"
+    )
+
+
+def run(folder: Path, grid_dir) -> None:
+    from gnss_citygml.buildings import building_ground, read_footprints
+    from gnss_citygml.model.estimate import estimate_heights
+    from gnss_citygml.observations import read_observations
+    from gnss_citygml.pipeline import intersections, receivers
+
+    times = {}
+
+    def timed(name, func, *args, **kwargs):
+        start = time.perf_counter()
+        result = func(*args, **kwargs)
+        times[name] = time.perf_counter() - start
+        return result
+
+    obs = timed("read observations", read_observations, folder / "observations.parquet")
+    fp = timed("read footprints", read_footprints, folder / "footprints.gpkg")
+    dem = str(folder / "dem.tif")
+    rx = timed("receivers (geodesy + DEM)", receivers, obs, dem, grid_dir=grid_dir)
+    fp = timed("ground under buildings", building_ground, fp, dem)
+    inter = timed("cast", intersections, rx, fp)
+    heights = timed("fit (4PL-B)", estimate_heights, inter)
+    peak_gb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024**2
+    for name, seconds in times.items():
+        print(f"  {name:28s} {seconds:7.2f} s")
+    cast_fit = times["cast"] + times["fit (4PL-B)"]
+    print(
+        f"{len(obs):,} signals x {len(fp):,} buildings: {len(inter):,} intersections, "
+        f"{int(heights['converged'].sum()):,} heights; cast + fit {cast_fit:.1f} s "
+        f"({len(obs) / cast_fit:,.0f} signals/s), all stages {sum(times.values()):.1f} s, "
+        f"peak memory {peak_gb:.2f} GB"
+    )
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--signals", type=int, default=1_000_000)
+    parser.add_argument("--blocks", type=int, default=100, help="blocks per side")
+    parser.add_argument("--grid-dir", type=Path, default=DEFAULT_GRIDS)
+    parser.add_argument("--run", type=Path, help=argparse.SUPPRESS)  # the measured process
+    args = parser.parse_args()
+    if args.run:
+        run(args.run, args.grid_dir)
+        return
+    folder = OUT / f"city_{args.blocks}x{args.blocks}_{args.signals}"
+    if not (folder / "dem.tif").exists():
+        prepare(folder, args.signals, args.blocks, args.grid_dir)
+    command = [sys.executable, __file__, "--run", str(folder), "--grid-dir", str(args.grid_dir)]
+    subprocess.run(command, check=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -115,7 +115,8 @@ def intersections(
     return pd.DataFrame(
         {
             "signal": receivers.index.to_numpy()[ray],
-            "building": buildings["id"].to_numpy()[fp],
+            # categorical: the city's ids once, not one string per row
+            "building": pd.Categorical.from_codes(fp, categories=buildings["id"].astype(str)),
             "height": height,
             "distance": dist,
             "order": np.arange(ray.size) - start,

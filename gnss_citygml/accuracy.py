@@ -8,7 +8,9 @@ converged count is reported beside it.
 
 from __future__ import annotations
 
+import tempfile
 import time
+from dataclasses import replace
 
 import numpy as np
 import pandas as pd
@@ -31,18 +33,24 @@ def run_accuracy(
     seed=0,
     interval=1.0,
     progress=None,
+    pipeline_grids=None,
     **options,
 ) -> pd.DataFrame:
     """One row per (preset, locations, method, threshold, target building).
 
     ``options`` go to :func:`estimate_heights` for the 4PL methods (e.g. ``weighting``).
     ``progress`` is an optional callable receiving a short text per finished run. The fit time
-    of each run is in ``seconds`` and the number of intersections in ``n_rows``.
+    of each run is in ``seconds`` and the number of intersections in ``n_rows``. With
+    ``pipeline_grids`` (the OSTN15/OSGM15 grid folder), the intersections are not the
+    simulator's own but the pipeline's, from the site written as files (observations,
+    footprints in British National Grid, DEM): geodesy and ray casting are judged too.
     """
     rows = []
     for preset in presets:
         for loc in locations:
             sim = simulate(preset, locations=loc, seed=seed, interval=interval)
+            if pipeline_grids is not None:
+                sim = replace(sim, intersections=_pipeline_intersections(sim, pipeline_grids))
             truth = sim.truth.set_index("id")
             targets = truth.index[truth["target"]]
             for method in methods:
@@ -79,6 +87,20 @@ def run_accuracy(
     result = pd.DataFrame(rows)
     result["error"] = result["height"] - result["truth"]
     return result
+
+
+def _pipeline_intersections(sim, grid_dir) -> pd.DataFrame:
+    """The intersections the pipeline computes from the site's files."""
+    from .buildings import read_footprints
+    from .observations import read_observations
+    from .pipeline import intersections, receivers
+    from .simulate.files import write_site
+
+    with tempfile.TemporaryDirectory() as folder:
+        paths = write_site(sim, folder, grid_dir=grid_dir)
+        obs = read_observations(paths["observations"])
+        rx = receivers(obs, str(paths["dem"]), grid_dir=grid_dir)
+        return intersections(rx, read_footprints(paths["footprints"]))
 
 
 def summarise(results: pd.DataFrame) -> pd.DataFrame:

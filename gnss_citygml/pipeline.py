@@ -57,12 +57,12 @@ def receivers(
             f"unknown receiver height source {receiver_height!r}",
             fix="use one of " + ", ".join(RECEIVER_HEIGHTS),
         )
-    keys = ["lat", "lon", "h"]
-    places, where = np.unique(
-        observations[keys].to_numpy(dtype=float), axis=0, return_inverse=True, equal_nan=True
-    )
-    where = where.ravel()
-    lat, lon, h = places.T
+    # the rows of an epoch share a position: transform each run of equal positions once
+    coords = observations[["lat", "lon", "h"]].to_numpy(dtype=float)
+    same = (coords[1:] == coords[:-1]) | (np.isnan(coords[1:]) & np.isnan(coords[:-1]))
+    starts = np.r_[True, ~same.all(axis=1)]
+    where = np.cumsum(starts) - 1
+    lat, lon, h = coords[starts].T
     if receiver_height == "log" and np.isnan(h).any():
         raise InputError(
             "observations without an ellipsoidal height 'h'",

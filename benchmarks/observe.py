@@ -13,13 +13,13 @@ the time of the whole :func:`~gnss_citygml.gnss.observe.observe` stage.
 from __future__ import annotations
 
 import argparse
-import os
 import tempfile
 import time
 import warnings
 from pathlib import Path
 
 import numpy as np
+from shared_data import SHARED_DATA
 
 from gnss_citygml.gnss.gnsslogger import read_gnsslogger
 from gnss_citygml.gnss.observe import observe
@@ -29,11 +29,6 @@ SP3 = "orbits/GFZ0MGXRAP_20253200000_01D_05M_ORB.SP3"
 #: From the London log's day to the SP3 file's (same GPS - UTC, 18 s, on both days).
 SHIFT_S = int(
     (np.datetime64("2025-11-16T10:00") - np.datetime64("2020-02-11T08:49")).item().total_seconds()
-)
-DEFAULT_DATA = Path(
-    os.environ.get(
-        "GNSS_CITYGML_SHARED_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"
-    )
 )
 
 
@@ -71,7 +66,7 @@ def synthesise(source: Path, rows: int, shift_s: int = SHIFT_S) -> str:
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rows", type=int, default=100_000, help="Raw rows to synthesise")
-    parser.add_argument("--data", type=Path, default=DEFAULT_DATA, help="shared data folder")
+    parser.add_argument("--data", type=Path, default=SHARED_DATA, help="shared data folder")
     args = parser.parse_args()
     text = synthesise(args.data / LONDON, args.rows)
     with tempfile.TemporaryDirectory() as tmp:

@@ -14,12 +14,12 @@ threshold (the paper's figure of results), and print the fit throughput.
 from __future__ import annotations
 
 import argparse
-import os
 import time
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from shared_data import GRIDS
 
 from gnss_citygml import estimate_heights
 from gnss_citygml.accuracy import PAPER_THRESHOLDS, markdown_table, run_accuracy, summarise
@@ -28,14 +28,6 @@ from gnss_citygml.simulate import simulate
 
 PRESETS = ("ucl", "goodchild", "hermitage", "city")
 OUT = Path(__file__).parent / "out"
-GRIDS = (
-    Path(
-        os.environ.get(
-            "GNSS_CITYGML_SHARED_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"
-        )
-    )
-    / "geodesy"
-)
 
 
 def main():

@@ -14,7 +14,6 @@ Targets (issue 4): cast + fit <= 60 s on a 2-core machine, peak memory <= 2 GB.
 from __future__ import annotations
 
 import argparse
-import os
 import resource
 import subprocess
 import sys
@@ -22,16 +21,9 @@ import time
 from pathlib import Path
 
 import numpy as np
+from shared_data import GRIDS
 
 OUT = Path(__file__).parent / "out"
-DEFAULT_GRIDS = (
-    Path(
-        os.environ.get(
-            "GNSS_CITYGML_SHARED_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"
-        )
-    )
-    / "geodesy"
-)
 #: Signals per walker: 300 s at 1 Hz with about 30 satellites in view.
 SIGNALS_PER_WALKER = 9000
 
@@ -89,7 +81,7 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--signals", type=int, default=1_000_000)
     parser.add_argument("--blocks", type=int, default=100, help="blocks per side")
-    parser.add_argument("--grid-dir", type=Path, default=DEFAULT_GRIDS)
+    parser.add_argument("--grid-dir", type=Path, default=GRIDS)
     parser.add_argument("--run", type=Path, help=argparse.SUPPRESS)  # the measured process
     args = parser.parse_args()
     if args.run:

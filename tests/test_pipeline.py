@@ -1,5 +1,7 @@
 """The whole pipeline on simulated sites written as real files: GeoPackage, GeoTIFF, Parquet."""
 
+from dataclasses import replace
+
 import geopandas as gpd
 import numpy as np
 import pandas as pd
@@ -8,10 +10,12 @@ import shapely
 
 from gnss_citygml.buildings import read_footprints
 from gnss_citygml.errors import InputError
+from gnss_citygml.geodesy import from_osgb
 from gnss_citygml.observations import read_observations
 from gnss_citygml.pipeline import STAGES, estimate, intersections, receivers
-from gnss_citygml.simulate import simulate
+from gnss_citygml.simulate import simulate, wgs84_to_local
 from gnss_citygml.simulate.files import write_site
+from gnss_citygml.simulate.scenes import Building, Scene, Session
 
 
 @pytest.fixture(scope="module")
@@ -95,3 +99,51 @@ def test_footprint_no_ray_enters(site):
     assert not out.loc["shed", "converged"] and np.isnan(out.loc["shed", "height"])
     assert out.loc["shed", "n_signals"] == 0
     assert out.loc["shed", "status"] == "no signal's ray enters the footprint"
+
+
+def test_real_mastermap_footprints(shared_data, tmp_path):
+    """Real OS MasterMap footprints (Bloomsbury: courtyards, party walls, odd shapes) given
+    simulated heights and phones in the streets around them: the pipeline, reading the GML
+    itself, finds heights for the buildings the phones see well, within a few metres."""
+    grids = shared_data / "geodesy"
+    real = read_footprints(shared_data / "footprints" / "mastermap-topo_3473984_0.gml")
+    centre = (529540.0, 182293.0)  # Gower Street, where the London log was recorded
+    near = real[real.distance(shapely.Point(centre)) < 100.0].reset_index(drop=True)
+    rng = np.random.default_rng(7)
+    ground = 25.0
+    # MasterMap splits terraces house by house: touching polygons form a block of similar
+    # height (+- 1 m), blocks differ (10-30 m)
+    blocks = shapely.get_parts(shapely.union_all(near.geometry.buffer(0.2).to_numpy()))
+    block = shapely.STRtree(blocks).query(near.geometry.to_numpy(), predicate="within")[1]
+    assert block.size == len(near)
+    tops = ground + rng.uniform(10.0, 30.0, blocks.size)[block] + rng.uniform(-1, 1, len(near))
+    lat0, lon0, _ = from_osgb(*centre, 0.0, grid_dir=grids)
+    origin = Scene("bloomsbury", float(lat0), float(lon0), ground, (), ())
+
+    def local(xy):
+        lat, lon, _ = from_osgb(xy[:, 0], xy[:, 1], 0.0, grid_dir=grids)
+        return np.column_stack(wgs84_to_local(origin, lon, lat))
+
+    shapes = shapely.transform(near.geometry.to_numpy(), local)
+    buildings = tuple(
+        Building(bid, ((shape, top),), ground, top)
+        for bid, shape, top in zip(near["id"], shapes, tops, strict=True)
+    )
+    candidates = rng.uniform(-90.0, 90.0, (400, 2))
+    free = shapely.distance(shapely.union_all(shapes), shapely.points(candidates)) > 2.0
+    spots = candidates[free][:12]
+    sessions = tuple(
+        Session(f"phone_{k}", 900.0 * k, 600.0, (tuple(map(float, xy)),))
+        for k, xy in enumerate(spots)
+    )
+    scene = replace(origin, buildings=buildings, sessions=sessions)
+    sim = simulate(scene, seed=0, interval=5.0)
+    paths = write_site(sim, tmp_path, grid_dir=grids)  # the flat DEM; footprints not used
+    out = estimate(sim.observations, near, str(paths["dem"]), grid_dir=grids)
+    ok = out[out["converged"]].set_index("id")
+    error = ok["height"] - sim.truth.set_index("id").loc[ok.index, "height"]
+    # measured: 13 of 48 converge, median error 1.6 m; houses inside terraces, seen only
+    # over their neighbours' party walls, are the outliers (up to 12 m)
+    assert len(ok) >= 10
+    assert np.median(np.abs(error)) < 2.5
+    assert out["id"].str.startswith("osgb").all() and out.crs.to_epsg() == 27700

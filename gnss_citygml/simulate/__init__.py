@@ -30,7 +30,7 @@ from .constellations import satellite_ecef, sky
 from .scenes import PRESETS, Scene, Session, make_scene
 from .signals import SignalModel, ar1, diffraction_loss, gnss_fix_errors
 
-__all__ = ["LOCATIONS", "PRESETS", "Simulation", "local_to_wgs84", "simulate"]
+__all__ = ["LOCATIONS", "PRESETS", "Simulation", "local_to_wgs84", "simulate", "wgs84_to_local"]
 
 #: Where the receiver positions come from.
 LOCATIONS = ("manual", "gnss")
@@ -236,6 +236,16 @@ def local_to_wgs84(scene: Scene, x, y):
     x = np.asarray(x, dtype=float)
     lon, lat, _ = _geodetic(scene).transform(x, np.asarray(y, dtype=float), np.zeros_like(x))
     return lon, lat
+
+
+def wgs84_to_local(scene: Scene, lon, lat):
+    """The scene's local grid coordinates (m east, m north) of WGS84 points (deg): the
+    inverse of :func:`local_to_wgs84`."""
+    lon = np.asarray(lon, dtype=float)
+    x, y, _ = _geodetic(scene).transform(
+        lon, np.asarray(lat, dtype=float), np.zeros_like(lon), direction="INVERSE"
+    )
+    return x, y
 
 
 def _geodetic(scene: Scene):

@@ -131,3 +131,34 @@ def test_estimate_from_simulated_files(shared_data, tmp_path, capsys):
     assert code == 2 and err.startswith("error: ") and "nope.tif" in err
     assert out_path.read_bytes() == before  # a failed run leaves the old output alone
     assert not list(tmp_path.glob(".*part*"))
+
+
+def test_estimate_bad_observation_names_its_line(shared_data, tmp_path, capsys):
+    grids = str(shared_data / "geodesy")
+    run(
+        ["simulate", "hermitage", "-o", str(tmp_path), "--interval", "60", "--grid-dir", grids],
+        capsys,
+    )
+    obs = pd.read_csv(tmp_path / "observations.csv")
+    obs.loc[4, "azimuth"] = 400.0
+    obs.to_csv(tmp_path / "bad.csv", index=False)
+    code, _, err = run(
+        [
+            "estimate",
+            str(tmp_path / "bad.csv"),
+            str(tmp_path / "footprints.gpkg"),
+            "--dem",
+            str(tmp_path / "dem.tif"),
+            "-o",
+            str(tmp_path / "h.gpkg"),
+            "--grid-dir",
+            grids,
+        ],
+        capsys,
+    )
+    assert code == 2
+    assert err.strip() == (
+        f"error: azimuth 400 outside 0..360 ({tmp_path / 'bad.csv'}, line 6): give azimuths in "
+        "degrees clockwise from true north, 0 <= azimuth < 360"
+    )
+    assert not (tmp_path / "h.gpkg").exists()

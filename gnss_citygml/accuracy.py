@@ -13,6 +13,7 @@ import time
 import numpy as np
 import pandas as pd
 
+from .calibrate import calibrate_receivers
 from .model.estimate import METHODS, estimate_heights
 from .simulate import simulate
 
@@ -31,11 +32,15 @@ def run_accuracy(
     seed=0,
     interval=1.0,
     progress=None,
+    position_sd=None,
     **options,
 ) -> pd.DataFrame:
     """One row per (preset, locations, method, threshold, target building).
 
     ``options`` go to :func:`estimate_heights` for the 4PL methods (e.g. ``weighting``).
+    ``position_sd`` (a mapping from locations to metres, e.g. ``{"manual": 1, "gnss": 5}``)
+    turns on the self-calibration of receiver offsets (:mod:`gnss_citygml.calibrate`) for 4PL-B,
+    run for each initial threshold; the time it takes is part of ``seconds``.
     ``progress`` is an optional callable receiving a short text per finished run. The fit time
     of each run is in ``seconds`` and the number of intersections in ``n_rows``.
     """
@@ -43,15 +48,30 @@ def run_accuracy(
     for preset in presets:
         for loc in locations:
             sim = simulate(preset, locations=loc, seed=seed, interval=interval)
+            rays = sim.observations.assign(bearing=sim.observations["azimuth"])
+            footprints = pd.DataFrame(
+                {
+                    "id": [b.id for b in sim.scene.buildings],
+                    "geometry": [b.footprint for b in sim.scene.buildings],
+                }
+            )
             truth = sim.truth.set_index("id")
             targets = truth.index[truth["target"]]
             for method in methods:
                 opts = options if method in ("4PL-B", "4PL") else {}
                 for threshold in thresholds:
                     start = time.perf_counter()
-                    out = estimate_heights(
-                        sim.intersections, method=method, init_threshold=threshold, **opts
-                    )
+                    inter = sim.intersections
+                    if position_sd is not None and method == "4PL-B":
+                        fixed = calibrate_receivers(
+                            rays,
+                            footprints,
+                            position_sd=position_sd[loc],
+                            init_threshold=threshold,
+                            **opts,
+                        )
+                        inter = _recast(fixed, footprints)
+                    out = estimate_heights(inter, method=method, init_threshold=threshold, **opts)
                     seconds = time.perf_counter() - start
                     out = out.set_index("id").reindex(targets)
                     for bid, r in out.iterrows():
@@ -79,6 +99,13 @@ def run_accuracy(
     result = pd.DataFrame(rows)
     result["error"] = result["height"] - result["truth"]
     return result
+
+
+def _recast(rays: pd.DataFrame, footprints: pd.DataFrame) -> pd.DataFrame:
+    """The intersections table of rays cast from (corrected) positions."""
+    from .pipeline import intersections  # the pipeline composes the stages: import it lazily
+
+    return intersections(rays, footprints)
 
 
 def summarise(results: pd.DataFrame) -> pd.DataFrame:

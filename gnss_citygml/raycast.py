@@ -71,14 +71,23 @@ def footprint_entries(x, y, bearing, footprints, max_range: float = 500.0, *, gr
     for lo in range(0, x.size, _RAYS):
         rays = slice(lo, lo + _RAYS)
         ray, fp, *rest = _entries(
-            x[rays], y[rays], dx[rays], dy[rays], footprints, tree, boxes, edges, max_range
+            x[rays],
+            y[rays],
+            dx[rays],
+            dy[rays],
+            footprints,
+            tree,
+            boxes,
+            edges,
+            max_range,
+            gradient,
         )
         batches.append((ray + lo, fp, *rest))
     out = tuple(np.concatenate(column) for column in zip(*batches, strict=True))
     return out if gradient else out[:4]
 
 
-def _entries(x, y, dx, dy, footprints, tree, boxes, edges, max_range):
+def _entries(x, y, dx, dy, footprints, tree, boxes, edges, max_range, gradient=False):
     """:func:`footprint_entries` for one batch of rays."""
     ends = np.column_stack([x + dx * max_range, y + dy * max_range])
     segments = np.stack([np.column_stack([x, y]), ends], axis=1)
@@ -110,6 +119,8 @@ def _entries(x, y, dx, dy, footprints, tree, boxes, edges, max_range):
         dist[pairs] = np.minimum.reduceat(t, block)
         first = np.isfinite(t) & (t == dist[rep])
         cos_inc[rep[first]] = cos[first]
+        if not gradient:
+            continue
         # d t / d origin for the entry edge: t = (q x edge) / (ray x edge) with q = start - origin
         hit = e[first]
         grad[rep[first]] = (

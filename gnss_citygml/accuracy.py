@@ -10,11 +10,11 @@ from __future__ import annotations
 
 import tempfile
 import time
-from dataclasses import replace
 
 import numpy as np
 import pandas as pd
 
+from .calibrate import calibrate_receivers
 from .model.estimate import METHODS, estimate_heights
 from .simulate import simulate
 
@@ -34,11 +34,15 @@ def run_accuracy(
     interval=1.0,
     progress=None,
     pipeline_grids=None,
+    position_sd=None,
     **options,
 ) -> pd.DataFrame:
     """One row per (preset, locations, method, threshold, target building).
 
     ``options`` go to :func:`estimate_heights` for the 4PL methods (e.g. ``weighting``).
+    ``position_sd`` (a mapping from locations to metres, e.g. ``{"manual": 1, "gnss": 5}``)
+    turns on the self-calibration of receiver offsets (:mod:`gnss_citygml.calibrate`) for 4PL-B,
+    run for each initial threshold; the time it takes is part of ``seconds``.
     ``progress`` is an optional callable receiving a short text per finished run. The fit time
     of each run is in ``seconds`` and the number of intersections in ``n_rows``. With
     ``pipeline_grids`` (the OSTN15/OSGM15 grid folder), the intersections are not the
@@ -49,17 +53,24 @@ def run_accuracy(
     for preset in presets:
         for loc in locations:
             sim = simulate(preset, locations=loc, seed=seed, interval=interval)
-            if pipeline_grids is not None:
-                sim = replace(sim, intersections=_pipeline_intersections(sim, pipeline_grids))
+            rays, footprints, inter_all = _site(sim, pipeline_grids)
             truth = sim.truth.set_index("id")
             targets = truth.index[truth["target"]]
             for method in methods:
                 opts = options if method in ("4PL-B", "4PL") else {}
                 for threshold in thresholds:
                     start = time.perf_counter()
-                    out = estimate_heights(
-                        sim.intersections, method=method, init_threshold=threshold, **opts
-                    )
+                    inter = inter_all
+                    if position_sd is not None and method == "4PL-B":
+                        fixed = calibrate_receivers(
+                            rays,
+                            footprints,
+                            position_sd=position_sd[loc],
+                            init_threshold=threshold,
+                            **opts,
+                        )
+                        inter = _recast(fixed, footprints)
+                    out = estimate_heights(inter, method=method, init_threshold=threshold, **opts)
                     seconds = time.perf_counter() - start
                     out = out.set_index("id").reindex(targets)
                     for bid, r in out.iterrows():
@@ -79,7 +90,7 @@ def run_accuracy(
                                 else False,
                                 "status": r["status"],
                                 "seconds": seconds,
-                                "n_rows": len(sim.intersections),
+                                "n_rows": len(inter),
                             }
                         )
                     if progress:
@@ -89,18 +100,38 @@ def run_accuracy(
     return result
 
 
-def _pipeline_intersections(sim, grid_dir) -> pd.DataFrame:
-    """The intersections the pipeline computes from the site's files."""
+def _site(sim, grid_dir):
+    """The rays (receivers with ``e``, ``n``, ``z``, ``bearing``), footprints and intersections
+    of a simulated site: the simulator's own in its local grid, or, with ``grid_dir``, the
+    pipeline's from the site written as files (British National Grid)."""
+    if grid_dir is None:
+        rays = sim.observations.assign(bearing=sim.observations["azimuth"])
+        footprints = pd.DataFrame(
+            {
+                "id": [b.id for b in sim.scene.buildings],
+                "geometry": [b.footprint for b in sim.scene.buildings],
+            }
+        )
+        return rays, footprints, sim.intersections
     from .buildings import read_footprints
     from .observations import read_observations
-    from .pipeline import intersections, receivers
+    from .pipeline import receivers
     from .simulate.files import write_site
 
     with tempfile.TemporaryDirectory() as folder:
         paths = write_site(sim, folder, grid_dir=grid_dir)
-        obs = read_observations(paths["observations"])
-        rx = receivers(obs, str(paths["dem"]), grid_dir=grid_dir)
-        return intersections(rx, read_footprints(paths["footprints"]))
+        rays = receivers(
+            read_observations(paths["observations"]), str(paths["dem"]), grid_dir=grid_dir
+        )
+        footprints = read_footprints(paths["footprints"])
+    return rays, footprints, _recast(rays, footprints)
+
+
+def _recast(rays: pd.DataFrame, footprints: pd.DataFrame) -> pd.DataFrame:
+    """The intersections table of rays cast from (corrected) positions."""
+    from .pipeline import intersections  # the pipeline composes the stages: import it lazily
+
+    return intersections(rays, footprints)
 
 
 def summarise(results: pd.DataFrame) -> pd.DataFrame:

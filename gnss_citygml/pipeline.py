@@ -17,6 +17,7 @@ import pandas as pd
 import shapely
 
 from .buildings import building_ground, sample_ground
+from .calibrate import calibrate_receivers
 from .errors import InputError
 from .geodesy import grid_bearing, to_osgb
 from .model.estimate import HEIGHTS_COLUMNS, estimate_heights
@@ -142,6 +143,8 @@ def estimate(
     grid_dir=None,
     dem_crs=None,
     progress: Callable[[str], None] | None = None,
+    position_sd: float | None = None,
+    calibration_window: float | None = None,
     **options,
 ) -> gpd.GeoDataFrame:
     """Building heights from observations, footprints and a DEM.
@@ -172,6 +175,12 @@ def estimate(
         CRS of a DEM that has none (e.g. ``"EPSG:27700"`` for an OS Terrain ASCII grid).
     progress
         Optional callable told the name of each stage (:data:`STAGES`) as it starts.
+    position_sd, calibration_window
+        With ``position_sd`` (m, what the receiver positions are believed to be worth per
+        axis), 4PL-B first estimates one position offset per recording (or per
+        ``calibration_window`` seconds of it) jointly with the heights
+        (:func:`~gnss_citygml.calibrate.calibrate_receivers`). Off by default: it costs a few
+        extra casts and fits.
 
     Returns
     -------
@@ -207,6 +216,16 @@ def estimate(
     elif "ground" not in buildings.columns:
         raise InputError("building ground heights need a DEM", fix="give --dem")
     say(STAGES[3])
+    if position_sd is not None and method == "4PL-B":
+        rx = calibrate_receivers(
+            rx,
+            buildings,
+            position_sd=position_sd,
+            window=calibration_window,
+            init_threshold=init_threshold,
+            max_range=max_range,
+            **options,
+        )
     inter = intersections(rx, buildings, max_range=max_range, earth_curvature=earth_curvature)
     say(STAGES[4])
     heights = estimate_heights(inter, method=method, init_threshold=init_threshold, **options)

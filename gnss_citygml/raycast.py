@@ -22,7 +22,7 @@ _RAYS = 1 << 15
 _CHUNK = 1 << 18
 
 
-def footprint_entries(x, y, bearing, footprints, max_range: float = 500.0):
+def footprint_entries(x, y, bearing, footprints, max_range: float = 500.0, *, gradient=False):
     """The distance along each ray to each footprint it enters within ``max_range``.
 
     Parameters
@@ -35,6 +35,8 @@ def footprint_entries(x, y, bearing, footprints, max_range: float = 500.0):
         Sequence or array of shapely Polygons / MultiPolygons in the same grid.
     max_range
         Horizontal length of the rays (m).
+    gradient
+        Also return how each distance changes with the ray's origin.
 
     Returns
     -------
@@ -42,7 +44,9 @@ def footprint_entries(x, y, bearing, footprints, max_range: float = 500.0):
         Integer index of the ray and of the footprint, the horizontal distance (m) from the
         origin to the entry point, and the cosine of the angle between the ray and the normal of
         the wall it enters through (1 head-on, near 0 grazing), one entry per ray x footprint
-        crossing, sorted by ray and distance.
+        crossing, sorted by ray and distance. With ``gradient``, a fifth array of shape
+        ``(n, 2)``: the derivative of the distance with respect to the origin's ``x`` and ``y``
+        (the entry wall held fixed), e.g. ``(-1, 0)`` for a wall straight ahead to the east.
 
     Examples
     --------
@@ -56,6 +60,8 @@ def footprint_entries(x, y, bearing, footprints, max_range: float = 500.0):
     dx, dy = np.sin(rad), np.cos(rad)
     footprints = np.asarray(footprints, dtype=object)
     empty = (np.array([], dtype=np.intp), np.array([], dtype=np.intp), np.array([]), np.array([]))
+    if gradient:
+        empty = (*empty, np.zeros((0, 2)))
     if x.size == 0 or footprints.size == 0:
         return empty
     tree = shapely.STRtree(footprints)
@@ -64,14 +70,24 @@ def footprint_entries(x, y, bearing, footprints, max_range: float = 500.0):
     batches = []
     for lo in range(0, x.size, _RAYS):
         rays = slice(lo, lo + _RAYS)
-        ray, fp, dist, cos = _entries(
-            x[rays], y[rays], dx[rays], dy[rays], footprints, tree, boxes, edges, max_range
+        ray, fp, *rest = _entries(
+            x[rays],
+            y[rays],
+            dx[rays],
+            dy[rays],
+            footprints,
+            tree,
+            boxes,
+            edges,
+            max_range,
+            gradient,
         )
-        batches.append((ray + lo, fp, dist, cos))
-    return tuple(np.concatenate(column) for column in zip(*batches, strict=True))
+        batches.append((ray + lo, fp, *rest))
+    out = tuple(np.concatenate(column) for column in zip(*batches, strict=True))
+    return out if gradient else out[:4]
 
 
-def _entries(x, y, dx, dy, footprints, tree, boxes, edges, max_range):
+def _entries(x, y, dx, dy, footprints, tree, boxes, edges, max_range, gradient=False):
     """:func:`footprint_entries` for one batch of rays."""
     ends = np.column_stack([x + dx * max_range, y + dy * max_range])
     segments = np.stack([np.column_stack([x, y]), ends], axis=1)
@@ -84,6 +100,7 @@ def _entries(x, y, dx, dy, footprints, tree, boxes, edges, max_range):
     edge_xy, edge_start, edge_count = edges
     dist = np.full(ray_idx.size, np.inf)
     cos_inc = np.zeros(ray_idx.size)
+    grad = np.zeros((ray_idx.size, 2))
     # Expand every pair to the edges of its footprint, in chunks of bounded size.
     per_pair = edge_count[fp_idx]
     bounds = np.concatenate([[0], np.cumsum(per_pair)])
@@ -95,17 +112,25 @@ def _entries(x, y, dx, dy, footprints, tree, boxes, edges, max_range):
         rep = np.repeat(pairs, counts)
         offs = np.arange(counts.sum()) - np.repeat(bounds[pairs] - bounds[lo], counts)
         e = edge_xy[edge_start[fp_idx[rep]] + offs]
-        t, cos = _ray_segment_distance(
+        t, cos, denom = _ray_segment_distance(
             x[ray_idx[rep]], y[ray_idx[rep]], dx[ray_idx[rep]], dy[ray_idx[rep]], e
         )
         block = bounds[pairs] - bounds[lo]  # where each pair's edges start in this chunk
         dist[pairs] = np.minimum.reduceat(t, block)
         first = np.isfinite(t) & (t == dist[rep])
         cos_inc[rep[first]] = cos[first]
+        if not gradient:
+            continue
+        # d t / d origin for the entry edge: t = (q x edge) / (ray x edge) with q = start - origin
+        hit = e[first]
+        grad[rep[first]] = (
+            np.column_stack([-(hit[:, 3] - hit[:, 1]), hit[:, 2] - hit[:, 0]])
+            / (denom[first][:, None])
+        )
     keep = dist <= max_range
-    ray_idx, fp_idx, dist, cos_inc = ray_idx[keep], fp_idx[keep], dist[keep], cos_inc[keep]
+    ray_idx, fp_idx, dist, cos_inc, grad = (v[keep] for v in (ray_idx, fp_idx, dist, cos_inc, grad))
     order = np.lexsort((dist, ray_idx))
-    return ray_idx[order], fp_idx[order], dist[order], cos_inc[order]
+    return ray_idx[order], fp_idx[order], dist[order], cos_inc[order], grad[order]
 
 
 def _crosses_box(x, y, dx, dy, box):
@@ -134,8 +159,9 @@ def _edges(footprints):
 
 
 def _ray_segment_distance(x, y, dx, dy, e):
-    """Distance along rays (unit direction dx, dy) to segments e (inf where they miss), and the
-    cosine of the angle between each ray and the segment's normal."""
+    """Distance along rays (unit direction dx, dy) to segments e (inf where they miss), the
+    cosine of the angle between each ray and the segment's normal, and the cross product of
+    ray and segment directions."""
     ex, ey = e[:, 2] - e[:, 0], e[:, 3] - e[:, 1]
     denom = dx * ey - dy * ex
     qx, qy = e[:, 0] - x, e[:, 1] - y
@@ -144,4 +170,4 @@ def _ray_segment_distance(x, y, dx, dy, e):
         u = (qx * dy - qy * dx) / denom
     hit = (np.abs(denom) > 1e-12) & (t >= 0) & (u >= 0) & (u <= 1)
     cos = np.abs(denom) / np.maximum(np.hypot(ex, ey), 1e-12)
-    return np.where(hit, t, np.inf), cos
+    return np.where(hit, t, np.inf), cos, denom

@@ -73,3 +73,18 @@ def test_matches_shapely_intersection_on_random_rays():
         line = shapely.LineString([(x[r], y[r]), end])
         hit = shapely.intersection(line, polys[f])
         assert shapely.Point(x[r], y[r]).distance(hit) == pytest.approx(d, abs=1e-6)
+
+
+@pytest.mark.parametrize("bearing", [80.0, 100.0, 135.0])
+def test_distance_gradient_matches_finite_differences(bearing):
+    box = shapely.box(10, -50, 20, 50)
+    x, y, step = np.array([0.0, 1e-4, 0.0]), np.array([0.0, 0.0, 1e-4]), 1e-4
+    *_, grad = footprint_entries([0.0], [0.0], [bearing], [box], gradient=True)
+    _, _, dist, _ = footprint_entries(x, y, [bearing] * 3, [box])
+    assert grad.shape == (1, 2)
+    np.testing.assert_allclose(grad[0], (dist[1:] - dist[0]) / step, rtol=1e-4)
+
+
+def test_gradient_of_no_entries_has_two_columns():
+    *_, grad = footprint_entries([0.0], [0.0], [270.0], [SQUARE], gradient=True)
+    assert grad.shape == (0, 2)

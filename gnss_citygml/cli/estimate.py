@@ -43,6 +43,12 @@ from .options import QUIET, THRESHOLD, progress
 @THRESHOLD
 @click.option("--method", type=click.Choice(list(METHODS)), default="4PL-B", show_default=True)
 @click.option("--max-range", type=float, default=500.0, show_default=True, help="Ray length (m).")
+@click.option(
+    "--position-sd",
+    type=float,
+    help="Self-calibrate one position offset per recording with this prior (m per axis; "
+    "about 1 for hand-placed positions of static recordings). Off by default.",
+)
 @click.option("--dem-crs", help="CRS of a DEM that has none, e.g. EPSG:27700.")
 @GRID_DIR
 @click.option("--overwrite", is_flag=True, help="Replace an existing output file.")
@@ -61,6 +67,7 @@ def estimate(
     init_threshold,
     method,
     max_range,
+    position_sd,
     dem_crs,
     grid_dir,
     overwrite,
@@ -105,6 +112,7 @@ def estimate(
             max_range=max_range,
             grid_dir=grid_dir,
             dem_crs=dem_crs,
+            position_sd=position_sd,
             progress=stage,
         )
     write_layer(heights, output, "heights", overwrite=overwrite)

@@ -224,7 +224,13 @@ def fourplb(
         # Only plausible fits teach the classifier: a building whose map says nothing (flat,
         # or its inflection point outside its data) would relabel its signals at random.
         plausible = _plausible(fit, h, g, seen, n_groups, min_separation)
-        classifier = classifier.refit(*_classifier_data(s, new_map, sig, seen & plausible[g]))
+        teach = plausible
+        if not teach.any():
+            # A poor initial classifier (e.g. a low threshold labelling reflections open) can
+            # leave every first fit short of the separation: co-training would stop dead, so
+            # every map whose roof line lies inside its data teaches the classifier once.
+            teach = _plausible(fit, h, g, seen, n_groups, 0.0)
+        classifier = classifier.refit(*_classifier_data(s, new_map, sig, seen & teach[g]))
         labels = classifier.label(s)
         if occlusion:
             seen = _unoccluded(h, g, sig, fit, plausible, order)

@@ -1,0 +1,264 @@
+"""Self-calibration of receiver positions against the roof lines they see.
+
+A receiver position that is off by a constant vector for a whole recording (a point picked on a
+map, a phone fix biased by the street around it) moves every intersection height of that
+recording: ``height = z + distance * tan(elevation)`` and the distance to a wall changes with
+the receiver's position. Close to a wall this is a large effect (a receiver 3.5 m from a wall
+that is off by 1 m scales every intersection height above the antenna by 30 %), and recordings
+with different offsets blur each building's open/closed transition into a gentle slope.
+
+The same offset must explain the transitions of *every* building one recording sees: moving a
+receiver towards the block on one side of a street raises the roof line of the block on the
+other side. :func:`calibrate_receivers` therefore estimates one horizontal offset per recording
+(``receiver``, or per time window of it) jointly with the building heights, alternating
+
+1. 4PL-B on the intersections cast from the current positions (heights given offsets);
+2. per recording, the offset maximising the Bernoulli likelihood of its signals' labels under
+   every building's fitted map classifier, plus a Gaussian prior on the offset (offsets given
+   heights); the intersection heights are moved to first order in the offset, using each
+   ray's entry wall (:func:`~gnss_citygml.raycast.footprint_entries` with ``gradient``);
+
+and re-casting the rays exactly from the corrected positions after each round. The prior's
+standard deviation is what the positions are believed to be worth (about 1 m for hand-placed
+points; several metres for phone fixes) and removes the common-mode degeneracy: shifting every
+recording the same way can be absorbed by the heights, so only the prior pins it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from .errors import InputError, MissingColumnError
+from .model.fourplb import fourplb
+from .raycast import footprint_entries
+
+__all__ = ["calibrate_receivers"]
+
+_REQUIRED = ["receiver", "e", "n", "z", "bearing", "elevation", "cn0"]
+
+#: Rows whose distance changes faster than this with the receiver position (grazing walls,
+#: |d distance / d position| = 1 / sin(angle between ray and wall)) are left out of the offset
+#: likelihood: their first-order height change is not to be trusted over a metre.
+MAX_DISTANCE_GRADIENT = 4.0
+
+#: Half-width of the offset search of one round, in prior standard deviations, and its cap
+#: (m): several rounds, each re-casting exactly, cover larger offsets.
+SEARCH_SDS = 2.5
+SEARCH_CAP = 4.0
+
+#: Seconds over which one satellite's signals at one receiver are taken as one piece of
+#: evidence: its intersection height moves by about a transition width per minute (0.5 deg of
+#: elevation), and fading, multipath and the map's misfit are shared within that time. The
+#: log-likelihood of a recording's signals is scaled by ``epoch interval / CORRELATION_TIME``
+#: so that a few strongly-fitting but misspecified buildings cannot outweigh the prior.
+CORRELATION_TIME = 60.0
+
+
+def calibrate_receivers(
+    receivers: pd.DataFrame,
+    buildings,
+    *,
+    position_sd: float = 1.0,
+    window: float | None = None,
+    rounds: int = 3,
+    init_threshold: float = 30.0,
+    max_range: float = 500.0,
+    **options,
+) -> pd.DataFrame:
+    """Receiver positions corrected by one offset per recording, estimated with the heights.
+
+    Parameters
+    ----------
+    receivers
+        Observations with the receiver columns (DESIGN.md): ``receiver``, ``e``, ``n``, ``z``,
+        ``bearing``, ``elevation``, ``cn0`` (and ``time_utc`` with ``window``).
+    buildings
+        Table with ``id`` and ``geometry`` (footprints in the receivers' grid).
+    position_sd
+        Prior standard deviation (m, per axis) of a recording's position offset: what the
+        positions are believed to be worth.
+    window
+        Seconds: estimate one offset per window of each recording instead of one per recording
+        (for positions whose error drifts, e.g. phone fixes). ``None``: one per recording.
+    rounds
+        Rounds of (heights | offsets) alternation.
+    init_threshold, options
+        Passed to 4PL-B (see :func:`~gnss_citygml.model.estimate.estimate_heights`).
+    max_range
+        Horizontal range (m) of the rays.
+
+    Returns
+    -------
+    pandas.DataFrame
+        ``receivers`` with ``e`` and ``n`` corrected and the applied offsets in ``offset_e``
+        and ``offset_n`` (m).
+    """
+    missing = [c for c in _REQUIRED if c not in receivers.columns]
+    if window is not None and "time_utc" not in receivers.columns:
+        missing.append("time_utc")
+    if missing:
+        raise MissingColumnError(missing, where="receivers table", have=list(receivers.columns))
+    if not position_sd > 0:
+        raise InputError("position_sd must be positive", fix="e.g. 1 (m) for surveyed points")
+    unit, n_units = _units(receivers, window)
+    temper = min(1.0, _interval(receivers) / CORRELATION_TIME)
+    rays = _Rays(receivers, buildings, max_range)
+    offsets = np.zeros((n_units, 2))
+    best = None
+    for _ in range(rounds):
+        cast = rays.cast(offsets[unit])
+        fits, classifier = fourplb(
+            cast.building,
+            cast.height,
+            cast.cn0,
+            rays.n_buildings,
+            init_threshold=init_threshold,
+            signal=cast.ray,
+            order=cast.order,
+            **options,
+        )
+        n_ok = int(fits.converged.sum())
+        if best is not None and n_ok < best[0]:
+            offsets = best[1]  # the fits fell apart: keep the last offsets that held them
+            break
+        best = (n_ok, offsets)
+        use = _usable(cast, fits)
+        labels = classifier.label(cast.cn0[use])
+        slope = cast.height_gradient[use]
+        params = np.column_stack([fits.a, fits.b, fits.c, fits.d])[cast.building[use]]
+        step = _best_offsets(
+            cast.height[use],
+            slope,
+            labels,
+            params,
+            unit[cast.ray[use]],
+            n_units,
+            offsets,
+            position_sd,
+            temper,
+        )
+        offsets = offsets + step
+        if np.max(np.abs(step), initial=0.0) < 0.01 * position_sd:
+            break
+    out = receivers.copy()
+    out["offset_e"], out["offset_n"] = offsets[unit, 0], offsets[unit, 1]
+    out["e"] = out["e"] + out["offset_e"]
+    out["n"] = out["n"] + out["offset_n"]
+    return out
+
+
+def _units(receivers, window):
+    """The calibration unit (recording, or recording x time window) of every row."""
+    if window is None:
+        codes, names = pd.factorize(receivers["receiver"])
+        return codes.astype(np.intp), len(names)
+    t = pd.to_datetime(receivers["time_utc"])
+    start = t.groupby(receivers["receiver"]).transform("min")
+    slot = ((t - start).dt.total_seconds() // float(window)).astype(np.int64)
+    codes, names = pd.factorize(pd.MultiIndex.from_arrays([receivers["receiver"], slot]))
+    return codes.astype(np.intp), len(names)
+
+
+class _Cast:
+    """Intersections of one cast, as arrays (rows sorted by ray, then distance)."""
+
+    def __init__(self, ray, building, height, order, cn0, height_gradient):
+        self.ray, self.building, self.height = ray, building, height
+        self.order, self.cn0, self.height_gradient = order, cn0, height_gradient
+
+
+class _Rays:
+    """The rays of the receivers table, cast against the footprints from shifted origins."""
+
+    def __init__(self, receivers, buildings, max_range):
+        self.e = receivers["e"].to_numpy(dtype=float)
+        self.n = receivers["n"].to_numpy(dtype=float)
+        self.z = receivers["z"].to_numpy(dtype=float)
+        self.bearing = receivers["bearing"].to_numpy(dtype=float)
+        self.tan_el = np.tan(np.radians(receivers["elevation"].to_numpy(dtype=float)))
+        self.cn0 = receivers["cn0"].to_numpy(dtype=float)
+        self.footprints = np.asarray(buildings.geometry, dtype=object)
+        self.n_buildings = len(self.footprints)
+        self.max_range = max_range
+
+    def cast(self, shift) -> _Cast:
+        ray, fp, dist, _, grad = footprint_entries(
+            self.e + shift[:, 0],
+            self.n + shift[:, 1],
+            self.bearing,
+            self.footprints,
+            self.max_range,
+            gradient=True,
+        )
+        first = np.r_[True, ray[1:] != ray[:-1]]
+        start = np.maximum.accumulate(np.where(first, np.arange(ray.size), 0))
+        tan_el = self.tan_el[ray]
+        return _Cast(
+            ray,
+            fp,
+            self.z[ray] + dist * tan_el,
+            np.arange(ray.size) - start,
+            self.cn0[ray],
+            np.where(
+                np.hypot(grad[:, 0], grad[:, 1])[:, None] <= MAX_DISTANCE_GRADIENT,
+                grad * tan_el[:, None],
+                np.nan,
+            ),
+        )
+
+
+def _usable(cast: _Cast, fits) -> np.ndarray:
+    """Rows that inform an offset: their building's estimate converged, no building in front
+    of it along the ray may block it (at the top of its height range, c + 3/b) and the wall
+    they enter is not grazed."""
+    good = fits.converged[cast.building]
+    top = fits.c + 3.0 / fits.b
+    blocks = ~good | (cast.height < top[cast.building])
+    n_rays = int(cast.ray.max()) + 1 if cast.ray.size else 0
+    first_block = np.full(n_rays, np.iinfo(np.int64).max)
+    np.minimum.at(first_block, cast.ray[blocks], cast.order[blocks])
+    clear = cast.order <= first_block[cast.ray]
+    return good & clear & np.isfinite(cast.height_gradient[:, 0])
+
+
+def _interval(receivers) -> float:
+    """Median seconds between a receiver's epochs (1 s without ``time_utc``)."""
+    if "time_utc" not in receivers.columns:
+        return 1.0
+    when = pd.to_datetime(receivers["time_utc"])
+    t = (when - when.min()).dt.total_seconds().to_numpy()
+    key = pd.factorize(receivers["receiver"])[0]
+    order = np.lexsort((t, key))
+    t, key = t[order], key[order]
+    gaps = np.diff(t)[(np.diff(key) == 0) & (np.diff(t) > 0)]
+    return float(np.median(gaps)) if gaps.size else 1.0
+
+
+def _best_offsets(height, slope, labels, params, unit, n_units, current, sd, temper=1.0):
+    """Per unit, the step (added to ``current``) maximising the labels' 4PL log-likelihood
+    with heights moved to first order, plus the Gaussian prior on the total offset: a coarse
+    grid, then a finer one around its best point."""
+    radius = min(SEARCH_SDS * sd, SEARCH_CAP)
+    centre = np.zeros((n_units, 2))
+    for half, count in ((radius, 11), (radius / 5.0, 9)):
+        axis = np.linspace(-half, half, count)
+        grid = np.stack(np.meshgrid(axis, axis, indexing="ij"), -1).reshape(-1, 2)
+        score = np.empty((n_units, len(grid)))
+        for k, delta in enumerate(grid):
+            step = centre + delta
+            h = height + np.einsum("ij,ij->i", slope, step[unit])
+            score[:, k] = temper * _loglik(h, labels, params, unit, n_units)
+            total = current + step
+            score[:, k] -= 0.5 * np.sum(total**2, axis=1) / sd**2
+        centre = centre + grid[np.argmax(score, axis=1)]
+    informed = np.bincount(unit, minlength=n_units) > 0
+    return np.where(informed[:, None], centre, 0.0)  # no signal, no evidence: stay
+
+
+def _loglik(h, labels, params, unit, n_units):
+    a, b, c, d = params.T
+    with np.errstate(over="ignore"):
+        p = d + (a - d) / (1.0 + np.exp(-b * (h - c)))
+    p = np.clip(p, 1e-9, 1 - 1e-9)
+    return np.bincount(unit, np.where(labels, np.log(p), np.log1p(-p)), n_units)

@@ -29,10 +29,13 @@ demo: $(STAMP)
 	mkdir -p demo-out
 	$(BIN)/gnss-citygml estimate $(DEMO)/observations.parquet $(DEMO)/footprints.gpkg \
 		--dem $(DEMO)/dem.tif -o demo-out/heights.gpkg --overwrite $(GRIDS)
+	$(BIN)/gnss-citygml convert demo-out/heights.gpkg -o demo-out/city.city.json --overwrite
+	$(BIN)/gnss-citygml convert demo-out/heights.gpkg -o demo-out/city.gml --overwrite
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/raycast.py
 	$(BIN)/python benchmarks/observe.py
+	$(BIN)/python benchmarks/export.py
 	$(BIN)/python benchmarks/geodesy.py $(GRIDS)
 	$(BIN)/python benchmarks/paper_table.py
 

@@ -162,3 +162,38 @@ def test_estimate_bad_observation_names_its_line(shared_data, tmp_path, capsys):
         "degrees clockwise from true north, 0 <= azimuth < 360"
     )
     assert not (tmp_path / "h.gpkg").exists()
+
+
+def test_convert_and_validate(shared_data, tmp_path, capsys):
+    grids = str(shared_data / "geodesy")
+    run(
+        ["simulate", "hermitage", "-o", str(tmp_path), "--interval", "30", "--grid-dir", grids],
+        capsys,
+    )
+    heights = tmp_path / "heights.gpkg"
+    code, _, err = run(
+        [
+            "estimate",
+            str(tmp_path / "observations.csv"),
+            str(tmp_path / "footprints.gpkg"),
+            "--dem",
+            str(tmp_path / "dem.tif"),
+            "-o",
+            str(heights),
+            "--grid-dir",
+            grids,
+        ],
+        capsys,
+    )
+    assert code == 0, err
+    for name in ("city.city.json", "city.city.jsonl", "city.gml"):
+        code, out, err = run(["convert", str(heights), "-o", str(tmp_path / name)], capsys)
+        assert code == 0, err
+        assert "valid" in out
+        code, out, _ = run(["validate", str(tmp_path / name)], capsys)
+        assert code == 0 and "valid" in out
+    broken = shared_data / "citymodels" / "cityjson" / "invalid"
+    code, out, _ = run(["validate", str(sorted(broken.glob("*.json"))[0])], capsys)
+    assert code == 1 and "invalid" in out
+    code, _, err = run(["validate", str(tmp_path / "nope.gml")], capsys)
+    assert code == 2 and err.startswith("error: ")

@@ -24,9 +24,9 @@ def cli():
     """3D city maps (CityGML LOD1 / CityJSON) from crowdsourced smartphone GNSS data."""
 
 
-from . import estimate, models, observe  # noqa: E402  (subcommands register on cli)
+from . import citymodel, estimate, models, observe  # noqa: E402  (subcommands register on cli)
 
-__all__ = ["cli", "estimate", "main", "models", "observe"]
+__all__ = ["cli", "citymodel", "estimate", "main", "models", "observe"]
 
 
 def _one_line_warning(message, category, filename, lineno, file=None, line=None):

@@ -1,0 +1,190 @@
+"""Subcommands around city models: convert a footprint layer, export heights, validate a file."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import click
+
+from . import cli
+from .options import QUIET, progress
+
+_SCHEMA_DIR = click.option(
+    "--schema-dir",
+    type=click.Path(file_okay=False, path_type=Path),
+    envvar="GNSS_CITYGML_SCHEMA_DIR",
+    help="Official schemas (CityJSON JSON schemas; optionally a schemas.opengis.net tree).",
+)
+_MODEL_OPTIONS = [
+    click.option(
+        "--output",
+        "-o",
+        type=click.Path(dir_okay=False, path_type=Path),
+        required=True,
+        help="OUT.city.json (CityJSON 2.0), OUT.city.jsonl (CityJSONSeq) or OUT.gml (CityGML 2.0).",
+    ),
+    click.option("--overwrite", is_flag=True, help="Replace an existing output."),
+    click.option("--strict", is_flag=True, help="Stop if a building has no usable height."),
+    click.option("--no-validate", "no_validate", is_flag=True, help="Skip validating the output."),
+    _SCHEMA_DIR,
+    QUIET,
+]
+
+
+def _model_options(func):
+    for option in reversed(_MODEL_OPTIONS):
+        func = option(func)
+    return func
+
+
+def _write_model(frame, output, overwrite, strict, no_validate, schema_dir, quiet):
+    """Write the buildings in the format the output's name asks for; report skips."""
+    from ..export import write_citygml, write_cityjson, write_cityjsonseq
+
+    name = output.name.lower()
+    if name.endswith(".jsonl"):
+        writer = write_cityjsonseq
+    elif name.endswith(".json"):
+        writer = write_cityjson
+    elif name.endswith((".gml", ".xml")):
+        writer = write_citygml
+    else:
+        raise click.BadParameter("name it .city.json, .city.jsonl or .gml", param_hint="--output")
+    with progress(len(frame), "writing", quiet) as bar:
+        result = writer(
+            frame,
+            output,
+            validate=not no_validate,
+            schema_dir=schema_dir,
+            overwrite=overwrite,
+            strict=strict,
+            progress=bar.update,
+        )
+    for building, reason in result.skipped.itertuples(index=False):
+        click.echo(f"skipped {building}: {reason}", err=True)
+    checked = "" if result.report is None else ", valid (" + ", ".join(result.report.checks) + ")"
+    click.echo(f"{result.written} buildings, {len(result.skipped)} skipped -> {output}{checked}")
+
+
+@cli.command()
+@click.argument("input_", metavar="INPUT", type=click.Path(path_type=Path))
+@click.option("--layer", help="Layer of INPUT (default: its only polygon layer).")
+@click.option("--id-field", help="Field with the building ids (default: toid, id or fid).")
+@click.option(
+    "--height-field",
+    default="height",
+    show_default=True,
+    help="Field with the roof height in metres (absolute ODN unless --relative).",
+)
+@click.option("--relative", is_flag=True, help="The height field is above the ground.")
+@click.option("--ground-field", help="Field with the ground height (m ODN).")
+@click.option("--dem", help="DEM for the ground under each footprint (instead of --ground-field).")
+@click.option("--dem-crs", help="CRS of a DEM without one, e.g. EPSG:27700.")
+@_model_options
+def convert(
+    input_,
+    layer,
+    id_field,
+    height_field,
+    relative,
+    ground_field,
+    dem,
+    dem_crs,
+    output,
+    overwrite,
+    strict,
+    no_validate,
+    schema_dir,
+    quiet,
+):
+    """Turn footprints with a height attribute into CityJSON, CityJSONSeq or CityGML LOD1.
+
+    INPUT is the heights layer of `estimate` or any polygon source with a height field (e.g.
+    OS Building Height Attribute's abshmax, or relh2 with --relative).
+    """
+    from ..buildings import building_ground, read_footprints
+    from ..export import buildings_with_heights
+
+    if ground_field is not None and dem is not None:
+        raise click.UsageError("give the ground with --ground-field or --dem, not both")
+    frame = read_footprints(input_, layer=layer, id_field=id_field)
+    if dem is not None:
+        frame = building_ground(frame, dem, assume_crs=dem_crs)
+    frame = buildings_with_heights(
+        frame, height_field, relative=relative, ground_field=ground_field
+    )
+    _write_model(frame, output, overwrite, strict, no_validate, schema_dir, quiet)
+
+
+@cli.command()
+@click.argument("heights", type=click.Path(path_type=Path))
+@click.option(
+    "--footprints",
+    required=True,
+    type=click.Path(path_type=Path),
+    help="The footprints the heights were estimated for (GeoPackage, MasterMap GML).",
+)
+@click.option("--layer", help="Layer of the footprints.")
+@click.option("--id-field", help="Field of the footprints with the building ids.")
+@click.option("--dem", help="DEM for the ground, when the heights table has no ground column.")
+@click.option("--dem-crs", help="CRS of a DEM without one, e.g. EPSG:27700.")
+@_model_options
+def export(
+    heights,
+    footprints,
+    layer,
+    id_field,
+    dem,
+    dem_crs,
+    output,
+    overwrite,
+    strict,
+    no_validate,
+    schema_dir,
+    quiet,
+):
+    """Write the city model of a heights table (CSV or Parquet, from `heights`)."""
+    from ..buildings import building_ground, read_footprints
+    from ..errors import InputError
+    from ..tables import read_table
+
+    table = read_table(heights)
+    table["id"] = table["id"].astype(str)
+    frame = read_footprints(footprints, layer=layer, id_field=id_field)
+    if dem is not None:
+        frame = building_ground(frame, dem, assume_crs=dem_crs).drop(
+            columns=[c for c in ("ground",) if c in table.columns]
+        )
+    unknown = ~table["id"].isin(frame["id"])
+    if unknown.any():
+        raise InputError(
+            f"{unknown.sum()} height(s) for buildings not among the footprints: "
+            + ", ".join(table["id"][unknown].head(10)),
+            where=str(heights),
+            fix="give the footprints the heights were estimated for",
+        )
+    frame = frame.merge(table, on="id", how="left")  # footprints without a height are skipped
+    _write_model(frame, output, overwrite, strict, no_validate, schema_dir, quiet)
+
+
+@cli.command()
+@click.argument("path", type=click.Path(path_type=Path))
+@_SCHEMA_DIR
+@click.option(
+    "--max-errors", type=int, default=50, show_default=True, help="Errors listed (all are counted)."
+)
+def validate(path, schema_dir, max_errors):
+    """Check a CityGML 2.0, CityJSON or CityJSONSeq file: exit 0 valid, 1 invalid, 2 error."""
+    from ..validate import validate_file
+
+    report = validate_file(path, schema_dir=schema_dir)
+    for issue in report.errors[:max_errors]:
+        click.echo(f"{issue.object_id or '-'}\t{issue.rule}\t{issue.message}")
+    if len(report.errors) > max_errors:
+        counts = ", ".join(f"{rule} {n}" for rule, n in report.rule_counts().items())
+        click.echo(f"... {len(report.errors) - max_errors} more ({counts})")
+    for note in report.notes:
+        click.echo(f"note: {note}", err=True)
+    click.echo(report.summary())
+    sys.exit(report.exit_code)

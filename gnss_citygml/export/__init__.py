@@ -1,0 +1,33 @@
+"""3D city models from the buildings table: CityJSON 2.0, CityJSONSeq and CityGML 2.0 LOD1.
+
+Each writer checks the table (:func:`prepare_buildings`), skips and lists the buildings without
+a usable height, extrudes the footprints into LOD1 solids (:func:`extrude`), writes a temporary
+file beside the output, validates it (:func:`gnss_citygml.validate.validate_file`) and only then
+renames it into place.
+"""
+
+from .citygml import gml_ids, write_citygml
+from .cityjson import write_cityjson, write_cityjsonseq
+from .lod1 import (
+    ExportResult,
+    InvalidOutputError,
+    Prisms,
+    buildings_with_heights,
+    extrude,
+    prepare_buildings,
+    snap_footprints,
+)
+
+__all__ = [
+    "ExportResult",
+    "InvalidOutputError",
+    "Prisms",
+    "buildings_with_heights",
+    "extrude",
+    "gml_ids",
+    "prepare_buildings",
+    "snap_footprints",
+    "write_citygml",
+    "write_cityjson",
+    "write_cityjsonseq",
+]

@@ -1,0 +1,271 @@
+"""CityJSON 2.0 and CityJSONSeq: one LOD1 ``Building`` per footprint, with its height estimate.
+
+Each building is a ``Building`` with a ``Solid`` of ``lod`` ``"1"`` (semantic surfaces
+``GroundSurface``, ``RoofSurface``, ``WallSurface``); a MultiPolygon footprint gives a
+``Building`` with one ``BuildingPart`` child per polygon (ids ``<id>-1``, ``<id>-2``, ...).
+Vertices are integers in millimetres (``transform.scale`` 0.001, ``translate`` the whole metres
+below the data) and identical vertices are stored once. ``metadata.referenceSystem`` is
+``https://www.opengis.net/def/crs/EPSG/0/7405`` (British National Grid + ODN heights).
+
+Attributes are plain CityJSON attributes, not an Extension: ``measuredHeight`` (roof - ground,
+m, as in the spec), ``creationDate`` (the export date), then every column of the buildings table
+under its own name (for an estimate: ``height`` the absolute roof height in m ODN,
+``height_lower``/``height_upper`` its range, ``ground``, ``n_signals``, ``converged``,
+``method``, ...). Missing values (NaN) are left out. Plain attributes need no Extension file
+reachable at a URL, so every CityJSON reader and validator accepts the files offline.
+
+CityJSONSeq (``.city.jsonl``) has the CityJSON header on its first line (empty ``CityObjects``
+and ``vertices``) and one ``CityJSONFeature`` per building on each following line, written
+chunk by chunk: memory does not grow with the number of buildings.
+"""
+
+from __future__ import annotations
+
+import json
+
+import geopandas as gpd
+import numpy as np
+import pandas as pd
+
+from ..tables import atomic_path
+from .lod1 import (
+    CHUNK,
+    SCALE,
+    SURFACES,
+    ExportResult,
+    Prisms,
+    Progress,
+    attribute_columns,
+    attribute_values,
+    chunks,
+    creation_date,
+    extrude,
+    measured_heights,
+    nested_text,
+    part_ids,
+    prepare_buildings,
+    validated_output,
+)
+
+__all__ = ["CRS_URL", "VERSION", "write_cityjson", "write_cityjsonseq"]
+
+#: The CityJSON version written.
+VERSION = "2.0"
+#: EPSG:7405, OSGB36 / British National Grid + ODN height, as CityJSON names a CRS.
+CRS_URL = "https://www.opengis.net/def/crs/EPSG/0/7405"
+
+_SURFACES_JSON = json.dumps([{"type": kind} for kind in SURFACES], separators=(",", ":"))
+_RESERVED = ("measuredHeight", "creationDate")
+
+
+def write_cityjson(
+    buildings: gpd.GeoDataFrame,
+    path,
+    *,
+    validate: bool = True,
+    schema_dir=None,
+    overwrite: bool = False,
+    strict: bool = False,
+    date=None,
+    title: str | None = None,
+    progress: Progress | None = None,
+) -> ExportResult:
+    """Write the buildings as one CityJSON 2.0 file of LOD1 solids.
+
+    Parameters
+    ----------
+    buildings
+        The buildings table with heights (see
+        :func:`~gnss_citygml.export.lod1.prepare_buildings`): ``id``, ``geometry``, ``ground``,
+        ``height`` (absolute roof, m ODN) and any attributes.
+    path
+        The output file (``.city.json``).
+    validate
+        Validate the file (:func:`gnss_citygml.validate.validate_file`) before it is renamed
+        into place; an invalid file raises :class:`InvalidOutputError` and is not kept.
+    schema_dir
+        Folder of the official CityJSON JSON schemas, for the validation (default:
+        ``$GNSS_CITYGML_SCHEMA_DIR``; without it the JSON Schema check is left out).
+    overwrite
+        Replace an existing file.
+    strict
+        Stop with an error if a building has no usable height, instead of skipping it.
+    date
+        The creation date written (``datetime.date`` or ``YYYY-MM-DD``; default today).
+    title
+        ``metadata.title``.
+    progress
+        Called with the number of buildings written after each chunk.
+
+    Returns
+    -------
+    ExportResult
+        Buildings written and skipped, and the validation report.
+
+    Examples
+    --------
+    >>> import tempfile, shapely
+    >>> frame = gpd.GeoDataFrame({"id": ["osgb1"], "ground": [20.0], "height": [32.5]},
+    ...                          geometry=[shapely.box(529500, 182300, 529510, 182308)],
+    ...                          crs="EPSG:27700")
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     out = write_cityjson(frame, f"{folder}/b.city.json", date="2024-05-01")
+    ...     model = json.load(open(out.path))
+    >>> out.written, out.report.valid
+    (1, True)
+    >>> model["CityObjects"]["osgb1"]["attributes"]
+    {'measuredHeight': 12.5, 'creationDate': '2024-05-01', 'ground': 20.0, 'height': 32.5}
+    """
+    plan = prepare_buildings(buildings, strict=strict)
+    date = creation_date(date)
+    header, translate = _header(plan.bounds_mm(), date, title)
+    frames = list(plan.chunks())
+    if not frames:
+        return plan.result(path, None)  # raises: nothing to write
+    frame = pd.concat(frames, ignore_index=True)
+    parts = part_ids(frame["id"], frame.geometry)
+    prisms = extrude(frame.geometry, frame["ground"], frame["height"], numbering="all")
+    with atomic_path(path, overwrite=overwrite) as tmp:
+        with open(tmp, "w", encoding="utf-8") as out:
+            out.write(_dumps(header)[:-1] + ',"CityObjects":{')
+            for part in chunks(len(frame)):
+                objects = _objects(frame.iloc[part], prisms.take(part), parts[part], date)
+                out.write(("," if part.start else "") + ",".join(objects))
+                if progress is not None:
+                    progress(part.stop - part.start)
+            out.write('},"vertices":[')
+            for part in chunks(len(prisms.vertices), 64 * CHUNK):
+                text = ",".join(_vertex_texts(prisms.vertices[part] - translate))
+                out.write(("," if part.start else "") + text)
+            out.write("]}\n")
+        report = validated_output(tmp, path, validate, schema_dir)
+    return plan.result(path, report)
+
+
+def write_cityjsonseq(
+    buildings: gpd.GeoDataFrame,
+    path,
+    *,
+    validate: bool = True,
+    schema_dir=None,
+    overwrite: bool = False,
+    strict: bool = False,
+    date=None,
+    title: str | None = None,
+    progress: Progress | None = None,
+) -> ExportResult:
+    """Write the buildings as CityJSONSeq: a header line, then one CityJSONFeature per line.
+
+    Parameters and the result are those of :func:`write_cityjson` (``path``: ``.city.jsonl``).
+    Buildings are extruded and written a chunk at a time, so memory stays flat however many
+    buildings there are.
+
+    Examples
+    --------
+    >>> import tempfile, shapely
+    >>> frame = gpd.GeoDataFrame({"id": ["a", "b"], "ground": [20.0, 21.0],
+    ...                           "height": [32.5, 30.0]}, crs="EPSG:27700",
+    ...                          geometry=[shapely.box(529500, 182300, 529510, 182308),
+    ...                                    shapely.box(529520, 182300, 529530, 182308)])
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     out = write_cityjsonseq(frame, f"{folder}/b.city.jsonl")
+    ...     lines = [json.loads(line) for line in open(out.path)]
+    >>> [line["type"] for line in lines], lines[2]["vertices"][:2]
+    (['CityJSON', 'CityJSONFeature', 'CityJSONFeature'], [[20000, 0, 1000], [20000, 0, 10000]])
+    """
+    plan = prepare_buildings(buildings, strict=strict)
+    date = creation_date(date)
+    header, translate = _header(plan.bounds_mm(), date, title)
+    header.update({"CityObjects": {}, "vertices": []})
+    with atomic_path(path, overwrite=overwrite) as tmp:
+        with open(tmp, "w", encoding="utf-8") as out:
+            out.write(_dumps(header) + "\n")
+            for rows in plan.chunks():
+                prisms = extrude(rows.geometry, rows["ground"], rows["height"])
+                objects = _objects(rows, prisms, part_ids(rows["id"], rows.geometry), date)
+                vertices = nested_text(
+                    _vertex_texts(prisms.vertices - translate),
+                    [(prisms.vertex_start, "[", "]", ",")],
+                )
+                out.writelines(
+                    f'{{"type":"CityJSONFeature","id":{_dumps(key)},"CityObjects":{{{obj}}},'
+                    f'"vertices":{v}}}\n'
+                    for key, obj, v in zip(rows["id"].tolist(), objects, vertices, strict=True)
+                )
+                if progress is not None:
+                    progress(len(rows))
+        result = plan.result(path, None)  # raises if nothing was written
+        result.report = validated_output(tmp, path, validate, schema_dir)
+    return result
+
+
+def _dumps(value) -> str:
+    return json.dumps(value, separators=(",", ":"), ensure_ascii=False, allow_nan=False)
+
+
+def _header(bounds: np.ndarray, date: str, title: str | None) -> tuple[dict, np.ndarray]:
+    """The CityJSON object without CityObjects and vertices, and the translation (mm)."""
+    translate = (bounds[:3] // 1000) * 1000  # whole metres below the data
+    metadata = {
+        "referenceSystem": CRS_URL,
+        "geographicalExtent": (bounds * SCALE).round(3).tolist(),
+        "referenceDate": date,
+    }
+    if title is not None:
+        metadata["title"] = title
+    header = {
+        "type": "CityJSON",
+        "version": VERSION,
+        "transform": {"scale": [SCALE] * 3, "translate": (translate * SCALE).tolist()},
+        "metadata": metadata,
+    }
+    return header, translate
+
+
+def _objects(rows: gpd.GeoDataFrame, prisms: Prisms, parts, date: str) -> list[str]:
+    """Per building, its CityObjects (the building, then its parts) as JSON members."""
+    columns = [(n, k) for n, k in attribute_columns(rows) if n not in _RESERVED]
+    values = [(name, attribute_values(rows[name], kind)) for name, kind in columns]
+    heights = measured_heights(rows["ground"], rows["height"])
+    solids = _solids(prisms)
+    building_start = prisms.building_start.tolist()
+    out = []
+    for b, key in enumerate(rows["id"].tolist()):
+        attributes = {"measuredHeight": heights[b], "creationDate": date}
+        attributes.update((name, column[b]) for name, column in values if column[b] is not None)
+        text = f'{_dumps(key)}:{{"type":"Building","attributes":{_dumps(attributes)}'
+        own = solids[building_start[b] : building_start[b + 1]]
+        if not parts[b]:
+            out.append(f'{text},"geometry":[{own[0]}]}}')
+            continue
+        members = [f'{text},"children":{_dumps(parts[b])}}}']
+        members.extend(
+            f'{_dumps(part)}:{{"type":"BuildingPart","parents":[{_dumps(key)}],'
+            f'"geometry":[{solid}]}}'
+            for part, solid in zip(parts[b], own, strict=True)
+        )
+        out.append(",".join(members))
+    return out
+
+
+def _solids(prisms: Prisms) -> list[str]:
+    """Each solid as a CityJSON Solid geometry (lod 1, with semantic surfaces)."""
+    boundaries = nested_text(
+        map(str, prisms.ring_vertices.tolist()),
+        [
+            (prisms.ring_start, "[", "]", ","),
+            (prisms.face_start, "[", "]", ","),
+            (prisms.solid_start, "[[", "]]", ","),
+        ],
+    )
+    values = nested_text(prisms.face_kind.astype(str), [(prisms.solid_start, "[[", "]]", ",")])
+    return [
+        f'{{"type":"Solid","lod":"1","boundaries":{b},'
+        f'"semantics":{{"surfaces":{_SURFACES_JSON},"values":{v}}}}}'
+        for b, v in zip(boundaries, values, strict=True)
+    ]
+
+
+def _vertex_texts(vertices: np.ndarray) -> list[str]:
+    """``[x,y,z]`` for each row of integer vertices."""
+    return [f"[{x},{y},{z}]" for x, y, z in vertices.tolist()]

@@ -399,21 +399,30 @@ def _evaluate(theta, x, y, w, g, n_groups, active, *, ll_only=False):
 
 
 def _block_sums(x, y, w, g, per_group, first, last, ll_only):
-    """Per-group sums of one block of samples (``g`` counted from group ``first``)."""
+    """Per-group sums of one block of samples (``g`` counted from group ``first``). A block of
+    one group (one building, or a large one spanning blocks) sums by matrix products."""
     n = last - first
-    a, d, b, c, r = (np.take(v[first:last], g) for v in per_group)
+    if n == 1:
+        a, d, b, c, r = (v[first] for v in per_group)
+    else:
+        a, d, b, c, r = (np.take(v[first:last], g) for v in per_group)
     x_c = x - c
     s = _sigmoid(b * x_c)
     p = np.clip(d + (a - d) * s, _EPS, 1 - _EPS)
     q = 1 - p
-    ll = np.bincount(g, w * (y * np.log(p) + (1 - y) * np.log(q)), n)
+    terms = w * (y * np.log(p) + (1 - y) * np.log(q))
+    ll = terms.sum(keepdims=True) if n == 1 else np.bincount(g, terms, n)
     if ll_only:
         return (ll,)
     s_low = 1 - s
     dsb = (a - d) * s * s_low * b
-    jac = (a * (1 - a) * (s + s_low * r), dsb * x_c, -dsb, s_low * a * r * (1 - r))
+    jac = np.stack(
+        np.broadcast_arrays(a * (1 - a) * (s + s_low * r), dsb * x_c, -dsb, s_low * a * r * (1 - r))
+    )
     info = w / (p * q)
     resid = info * (y - p)
+    if n == 1:
+        return ll, (jac @ resid)[None, :], ((jac * info) @ jac.T)[None, :, :]
     grad = np.column_stack([np.bincount(g, resid * j, n) for j in jac])
     fisher = np.empty((n, 4, 4))
     for i in range(4):

@@ -1,7 +1,11 @@
 """CityJSON 2.0 and CityJSONSeq export: round trips checked by our validator and, independently,
-by python-jsonschema with the official CityJSON 2.0.1 schemas and by volumes computed here."""
+by python-jsonschema with the official CityJSON 2.0.1 schemas, by cjio (CityJSON's own command
+line, a separate process) and by volumes computed here."""
 
 import json
+import subprocess
+import sys
+from pathlib import Path
 
 import geopandas as gpd
 import jsonschema
@@ -231,6 +235,42 @@ def test_sequence_volumes_match_the_file(tmp_path):
         volumes.update(solid_volumes(feature["CityObjects"], feature["vertices"], transform))
     assert volumes["courtyard"] == pytest.approx(128 * 12.5)
     assert volumes["concave-U"] == pytest.approx(63 * 12.5)
+
+
+def cjio_info(source: Path, stream: bool) -> str:
+    """``cjio FILE info --long`` (``cjio stdin`` for CityJSONSeq); fails unless cjio exits 0."""
+    command = Path(sys.executable).parent / "cjio"
+    args = ["stdin"] if stream else [str(source)]
+    out = subprocess.run(
+        [str(command), *args, "info", "--long"],
+        input=source.read_text() if stream else None,
+        capture_output=True,
+        text=True,
+    )
+    assert out.returncode == 0, out.stdout + out.stderr
+    return out.stdout
+
+
+@pytest.mark.parametrize("writer", [write_cityjson, write_cityjsonseq])
+def test_cjio_loads_the_files(tmp_path, writer):
+    stream = writer is write_cityjsonseq
+    path = tmp_path / ("b.city.jsonl" if stream else "b.city.json")
+    writer(heights_table(), path)
+    lines = [json.loads(line) for line in path.read_text().splitlines()]
+    n_vertices = sum(len(line["vertices"]) for line in lines)
+    text = cjio_info(path, stream)
+    # the box, the courtyard, the U, 12/B and two-parts, whose 2 polygons are BuildingParts
+    assert "|-- Building (5)\n    |-- BuildingPart (2)" in text
+    for line in (
+        "CityJSON version = 2.0",
+        "EPSG = 7405",
+        f"bbox = [ {E:.3f} {N:.3f} {GROUND:.3f} {E + 50:.3f} {N + 29:.3f} {ROOF:.3f} ]",
+        f"vertices_total = {n_vertices}",
+        "geom primitives = ['Solid']",
+        "LoD = ['1']",
+        "semantics surfaces = ['GroundSurface', 'RoofSurface', 'WallSurface']",
+    ):
+        assert line in text.splitlines()
 
 
 def test_real_mastermap_footprints(tmp_path, shared_data):

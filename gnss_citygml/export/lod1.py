@@ -42,6 +42,7 @@ from ..errors import GnssCityGMLError, InputError, MissingColumnError
 from ..validate import Report, validate_file
 
 __all__ = [
+    "CHECK_CHUNK",
     "CHUNK",
     "SCALE",
     "SURFACES",
@@ -56,10 +57,12 @@ __all__ = [
     "chunks",
     "creation_date",
     "extrude",
+    "hash_texts",
     "measured_heights",
     "nested_text",
     "part_ids",
     "prepare_buildings",
+    "repeated_positions",
     "snap_footprints",
     "validated_output",
 ]
@@ -68,6 +71,8 @@ __all__ = [
 SCALE = 0.001
 #: Buildings extruded and written at once by the streaming writers.
 CHUNK = 2048
+#: Rows of the buildings table checked at once by :func:`prepare_buildings`.
+CHECK_CHUNK = 8 * CHUNK
 #: Semantic surface kinds, in the order of :attr:`Prisms.face_kind`.
 SURFACES = ("GroundSurface", "RoofSurface", "WallSurface")
 
@@ -461,12 +466,20 @@ class Plan:
         Buildings handed out so far.
     """
 
-    def __init__(self, frame: gpd.GeoDataFrame, rows: np.ndarray, skipped: list, strict: bool):
+    def __init__(
+        self,
+        frame: gpd.GeoDataFrame,
+        rows: np.ndarray,
+        skipped: list,
+        strict: bool,
+        bounds: np.ndarray,
+    ):
         self.frame = frame
         self.rows = rows
         self.skipped = skipped
         self.strict = strict
         self.written = 0
+        self._bounds = bounds
 
     def chunks(self, size: int = CHUNK) -> Iterator[gpd.GeoDataFrame]:
         """The buildings, ``size`` at a time: text ``id``, snapped footprints, a fresh index."""
@@ -491,11 +504,7 @@ class Plan:
 
     def bounds_mm(self) -> np.ndarray:
         """(min e, min n, min ground, max e, max n, max roof) of the buildings, in mm."""
-        e0, n0, e1, n1 = shapely.total_bounds(self.frame.geometry.to_numpy()[self.rows])
-        ground = _numeric(self.frame, "ground")[self.rows]
-        roof = _numeric(self.frame, "height")[self.rows]
-        values = np.array([e0, n0, ground.min(), e1, n1, roof.max()])
-        return np.rint(values * 1000).astype(np.int64)
+        return np.rint(self._bounds * 1000).astype(np.int64)
 
     def result(self, path, report: Report | None) -> ExportResult:
         """What was written; an error if nothing was."""
@@ -511,6 +520,10 @@ class Plan:
 
 def prepare_buildings(buildings: gpd.GeoDataFrame, *, strict: bool = False) -> Plan:
     """Check the buildings table and set aside the buildings without a usable height.
+
+    The table is read :data:`CHECK_CHUNK` rows at a time; across chunks only a hash of each id
+    (8 bytes), the positions of the usable buildings and the bounds are kept, so the memory
+    used does not grow with the table beyond a few bytes per building.
 
     Parameters
     ----------
@@ -547,18 +560,107 @@ def prepare_buildings(buildings: gpd.GeoDataFrame, *, strict: bool = False) -> P
             where="buildings",
             fix="transform them with to_crs('EPSG:27700') (read_footprints does)",
         )
-    ids = _ids(buildings["id"])
-    geoms = buildings.geometry.to_numpy()
-    bad = ~np.isin(shapely.get_type_id(geoms), [3, 6])  # Polygon, MultiPolygon
-    if bad.any():
+    checks = _Checks(len(buildings))
+    for part in chunks(len(buildings), CHECK_CHUNK):
+        checks.add(buildings.iloc[part], part.start)
+    checks.raise_errors(buildings)
+    skipped = checks.skipped
+    if strict and skipped:
         raise InputError(
-            f"{bad.sum()} building(s) without a polygon footprint: {_listing(ids[bad])}",
+            f"{len(skipped)} building(s) without a usable height: "
+            + _listing([f"{i} ({r})" for i, r in skipped]),
             where="buildings",
-            fix="give Polygon or MultiPolygon footprints (drop or repair the others)",
+            fix="drop them, or leave out --strict to skip them",
         )
-    _check_part_ids(ids, geoms)
-    ground, height = _numeric(buildings, "ground"), _numeric(buildings, "height")
-    reason = np.full(len(buildings), None, dtype=object)
+    if not checks.usable.any():
+        raise InputError(
+            f"none of the {len(buildings)} buildings has a usable height",
+            where="buildings",
+            fix="check the height and ground columns (see the skipped reasons)",
+        )
+    bounds = np.concatenate([checks.low, checks.high])
+    return Plan(buildings, np.flatnonzero(checks.usable), skipped, strict, bounds)
+
+
+class _Checks:
+    """What :func:`prepare_buildings` gathers over the chunks of a table of n buildings."""
+
+    def __init__(self, n: int):
+        self.hashes = np.zeros(n, dtype=np.int64)  # of each id
+        self.usable = np.zeros(n, dtype=bool)
+        self.low, self.high = np.full(3, np.inf), np.full(3, -np.inf)  # e, n, z
+        self.skipped: list[tuple[str, str]] = []
+        self.no_id: list[np.ndarray] = []  # positions
+        self.not_polygon: list[str] = []  # ids
+        self.part_hashes: list[np.ndarray] = []  # of each part id of a MultiPolygon
+        self.part_rows: list[np.ndarray] = []  # position of the building of each part
+        self.numeric = True
+
+    def add(self, frame: gpd.GeoDataFrame, first: int) -> None:
+        """Check the buildings ``frame``, which start at position ``first`` of the table."""
+        self.no_id.append(np.flatnonzero(frame["id"].isna().to_numpy()) + first)
+        ids = frame["id"].astype(str).to_numpy(dtype=object)
+        self.hashes[first : first + len(ids)] = hash_texts(ids)
+        geoms = frame.geometry.to_numpy()
+        kind = shapely.get_type_id(geoms)
+        self.not_polygon.extend(ids[~np.isin(kind, [3, 6])].tolist())
+        multi = kind == 6
+        if multi.any():
+            groups = part_ids(ids[multi], geoms[multi])
+            self.part_hashes.append(hash_texts([p for group in groups for p in group]))
+            sizes = [len(group) for group in groups]
+            self.part_rows.append(np.repeat(np.flatnonzero(multi) + first, sizes))
+        try:
+            ground, height = _numeric(frame, "ground"), _numeric(frame, "height")
+        except InputError:  # reported for the whole table by raise_errors
+            self.numeric = False
+            return
+        reason = _reasons(frame, ground, height)
+        skip = reason != None  # noqa: E711 - elementwise comparison of an object array
+        self.skipped.extend(zip(ids[skip].tolist(), reason[skip].tolist(), strict=True))
+        keep = ~skip
+        self.usable[first : first + len(ids)] = keep
+        if keep.any():
+            e0, n0, e1, n1 = shapely.total_bounds(geoms[keep])
+            self.low = np.minimum(self.low, [e0, n0, ground[keep].min()])
+            self.high = np.maximum(self.high, [e1, n1, height[keep].max()])
+
+    def raise_errors(self, buildings: gpd.GeoDataFrame) -> None:
+        """Raise the first error found, in the order the checks are documented."""
+        no_id = np.concatenate(self.no_id) if self.no_id else np.zeros(0, dtype=np.int64)
+        if no_id.size:
+            raise InputError(
+                f"{no_id.size} building(s) without an id (rows {_listing(no_id)})",
+                where="buildings",
+                fix="give every building an id",
+            )
+        ids = buildings["id"]
+        suspects = repeated_positions(self.hashes)
+        texts = ids.iloc[suspects].astype(str).to_numpy(dtype=object)
+        repeated = pd.unique(texts[pd.Series(texts, dtype=object).duplicated().to_numpy()])
+        if repeated.size:
+            raise InputError(
+                f"{repeated.size} duplicate building id(s): {_listing(repeated)}",
+                where="buildings",
+                fix="give each building its own id",
+            )
+        if self.not_polygon:
+            raise InputError(
+                f"{len(self.not_polygon)} building(s) without a polygon footprint: "
+                + _listing(self.not_polygon),
+                where="buildings",
+                fix="give Polygon or MultiPolygon footprints (drop or repair the others)",
+            )
+        if self.part_hashes:
+            parts = np.concatenate(self.part_hashes), np.concatenate(self.part_rows)
+            _check_part_ids(buildings, self.hashes, *parts)
+        if not self.numeric:
+            _numeric(buildings, "ground"), _numeric(buildings, "height")  # raises
+
+
+def _reasons(frame: gpd.GeoDataFrame, ground: np.ndarray, height: np.ndarray) -> np.ndarray:
+    """Why each building cannot be modelled, or None."""
+    reason = np.full(len(frame), None, dtype=object)
     rules = [
         (np.rint(height * 1000) <= np.rint(ground * 1000), "roof not above the ground"),
         (~np.isfinite(ground), "no ground height"),
@@ -566,49 +668,37 @@ def prepare_buildings(buildings: gpd.GeoDataFrame, *, strict: bool = False) -> P
     ]
     for mask, text in rules:  # the last rule that applies wins: the most basic one
         reason[mask] = text
-    if "converged" in buildings.columns:
-        converged = buildings["converged"].astype("boolean")  # missing: no estimate at all
+    if "converged" in frame.columns:
+        converged = frame["converged"].astype("boolean")  # missing: no estimate at all
         failed = (~converged).fillna(False).to_numpy(dtype=bool)
-        status = buildings["status"].astype(str).to_numpy() if "status" in buildings else None
+        status = frame["status"].astype(str).to_numpy() if "status" in frame else None
         reason[failed] = [
             "height estimate did not converge" + (f" ({status[i]})" if status is not None else "")
             for i in np.flatnonzero(failed)
         ]
-    skip = reason != None  # noqa: E711 - elementwise comparison of an object array
-    if strict and skip.any():
-        raise InputError(
-            f"{skip.sum()} building(s) without a usable height: "
-            + _listing([f"{i} ({r})" for i, r in zip(ids[skip], reason[skip], strict=True)]),
-            where="buildings",
-            fix="drop them, or leave out --strict to skip them",
-        )
-    if skip.all():
-        raise InputError(
-            f"none of the {len(buildings)} buildings has a usable height",
-            where="buildings",
-            fix="check the height and ground columns (see the skipped reasons)",
-        )
-    skipped = list(zip(ids[skip].tolist(), reason[skip].tolist(), strict=True))
-    return Plan(buildings, np.flatnonzero(~skip), skipped, strict)
+    return reason
 
 
-def _ids(column: pd.Series) -> np.ndarray:
-    missing = column.isna().to_numpy()
-    if missing.any():
-        raise InputError(
-            f"{missing.sum()} building(s) without an id (rows {_listing(np.flatnonzero(missing))})",
-            where="buildings",
-            fix="give every building an id",
-        )
-    ids = column.astype(str).to_numpy(dtype=object)
-    repeated = pd.unique(ids[pd.Series(ids).duplicated().to_numpy()])
-    if repeated.size:
-        raise InputError(
-            f"{repeated.size} duplicate building id(s): {_listing(repeated)}",
-            where="buildings",
-            fix="give each building its own id",
-        )
-    return ids
+def hash_texts(texts) -> np.ndarray:
+    """A 64-bit hash of each of a sequence of texts (Python's: comparable within a process)."""
+    return np.fromiter(map(hash, texts), dtype=np.int64, count=len(texts))
+
+
+def repeated_positions(hashes: np.ndarray) -> np.ndarray:
+    """Sorted positions of the hashes that occur more than once (texts that may repeat).
+
+    Examples
+    --------
+    >>> repeated_positions(np.array([5, 3, 5, 7, 3, 9])).tolist()
+    [0, 1, 2, 4]
+    """
+    order = np.argsort(hashes, kind="stable")
+    ranked = hashes[order]
+    same = ranked[1:] == ranked[:-1]
+    twice = np.zeros(len(hashes), dtype=bool)
+    twice[1:] = same
+    twice[:-1] |= same
+    return np.sort(order[twice])
 
 
 def _listing(items) -> str:
@@ -705,13 +795,22 @@ def part_ids(ids, footprints) -> list[list[str]]:
     return [[f"{i}-{k}" for k in range(1, n + 1)] for i, n in zip(ids, counts, strict=True)]
 
 
-def _check_part_ids(ids: np.ndarray, footprints: np.ndarray) -> None:
-    """Refuse part ids (of MultiPolygon footprints) that are building ids."""
-    multi = shapely.get_type_id(footprints) == 6
-    if not multi.any():
+def _check_part_ids(buildings: gpd.GeoDataFrame, hashes, part_hashes, part_rows) -> None:
+    """Refuse part ids (of MultiPolygon footprints) that are building ids.
+
+    ``hashes`` are those of the building ids, ``part_hashes`` those of the part ids and
+    ``part_rows`` the position of the building of each part; texts are compared only where
+    hashes match.
+    """
+    suspects = np.flatnonzero(np.isin(hashes, part_hashes))
+    if not suspects.size:
         return
-    parts = {p for group in part_ids(ids[multi], footprints[multi]) for p in group}
-    taken = ids[pd.Index(ids).isin(parts)]
+    owners = np.unique(part_rows[np.isin(part_hashes, hashes[suspects])])
+    rows = buildings.iloc[owners]
+    ids = rows["id"].astype(str).to_numpy(dtype=object)
+    parts = {p for group in part_ids(ids, rows.geometry.to_numpy()) for p in group}
+    texts = buildings["id"].iloc[suspects].astype(str).to_numpy(dtype=object)
+    taken = texts[pd.Index(texts, dtype=object).isin(parts)]
     if taken.size:
         raise InputError(
             f"building part ids clash with building ids: {_listing(sorted(taken))}",

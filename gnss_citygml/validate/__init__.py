@@ -1,0 +1,106 @@
+"""Validation of CityGML 2.0, CityJSON and CityJSONSeq files: schemas, structure, geometry.
+
+:func:`validate_file` finds the format from the file's content and returns a :class:`Report`
+listing every error with the object it concerns and the rule it breaks. The checks live in the
+modules of this package:
+
+- :mod:`.citygml`: CityGML 2.0, XML Schema validation against the official schemas, offline,
+  and the solids read by :mod:`.gml`;
+- :mod:`.cityjson`: CityJSON (1.0 to 2.0) and CityJSONSeq, the spec's structural rules
+  (:mod:`.cityjson_rules`) and the official JSON schemas (:mod:`.json_schema`);
+- :mod:`.geometry`: the solids of both formats, with the matching val3dity error codes;
+- :mod:`.schemas`: where the official schemas are found.
+
+A report is ``valid`` when it lists no error. A file that cannot be validated at all (missing,
+not CityGML or CityJSON, a CityGML version other than 2.0, schemas not found) raises an
+:class:`~gnss_citygml.errors.InputError` instead: exit code 0 valid, 1 invalid, 2 could not
+validate.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..errors import InputError
+from .citygml import validate_citygml
+from .cityjson import validate_cityjson
+from .geometry import PLANARITY_TOLERANCE, SNAP_TOLERANCE
+from .report import Issue, Report
+from .schemas import SCHEMA_DIR_ENV, schema_folder
+
+__all__ = [
+    "PLANARITY_TOLERANCE",
+    "SCHEMA_DIR_ENV",
+    "SNAP_TOLERANCE",
+    "Issue",
+    "Report",
+    "validate_file",
+]
+
+
+def validate_file(path, *, schema_dir=None) -> Report:
+    """Validate a CityGML 2.0, CityJSON or CityJSONSeq file.
+
+    Parameters
+    ----------
+    path
+        The file. Its format is found from its content: XML is CityGML; a JSON document is
+        CityJSON (or a lone CityJSONFeature); JSON objects one per line, the first a CityJSON
+        header, are CityJSONSeq.
+    schema_dir
+        Folder of the official schemas (default ``$GNSS_CITYGML_SCHEMA_DIR``): the CityJSON JSON
+        schemas (``cityjson.min.schema.json`` in it or in a version sub-folder, also under
+        ``cityjson/``) and, optionally, a ``schemas.opengis.net`` tree used for CityGML instead
+        of the schemas bundled in ``citysmith``.
+
+    Returns
+    -------
+    Report
+
+    Raises
+    ------
+    InputError
+        The file cannot be validated: missing, neither CityGML nor CityJSON, CityGML other than
+        2.0, or the schemas cannot be found or compiled.
+
+    Examples
+    --------
+    >>> import json
+    >>> import tempfile
+    >>> cube = {"type": "CityJSON", "version": "2.0", "CityObjects": {"c": {
+    ...     "type": "GenericCityObject", "geometry": [{"type": "Solid", "lod": "1",
+    ...     "boundaries": [[[[0, 3, 2, 1]], [[4, 5, 6, 7]], [[0, 1, 5, 4]], [[1, 2, 6, 5]],
+    ...                     [[2, 3, 7, 6]], [[3, 0, 4, 8]]]]}]}},
+    ...     "transform": {"scale": [1, 1, 1], "translate": [0, 0, 0]},
+    ...     "vertices": [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0],
+    ...                  [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]]}
+    >>> with tempfile.NamedTemporaryFile("w", suffix=".city.json") as f:
+    ...     _ = f.write(json.dumps(cube)); f.flush()
+    ...     report = validate_file(f.name)
+    >>> report.valid
+    False
+    >>> [(e.object_id, e.rule) for e in report.errors]
+    [('c', 'vertex-index')]
+    >>> report.errors[0].message
+    'Solid (lod 1): vertex index 8 out of range (8 vertices)'
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("file not found", where=str(path), fix="check the path")
+    schema_dir = schema_folder(schema_dir)
+    try:
+        with open(path, "rb") as f:
+            head = f.read(4096).lstrip(b"\xef\xbb\xbf \t\r\n")
+    except OSError as exc:
+        raise InputError(
+            f"cannot read the file ({exc.strerror})", where=str(path), fix="check it"
+        ) from None
+    if head.startswith(b"<"):
+        return validate_citygml(path, schema_dir)
+    if head.startswith(b"{"):
+        return validate_cityjson(path, schema_dir)
+    raise InputError(
+        "not a CityGML (XML) or CityJSON (JSON) file",
+        where=str(path),
+        fix="give a .gml, .city.json or .city.jsonl file",
+    )

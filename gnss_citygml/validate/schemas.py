@@ -1,0 +1,65 @@
+"""Where the official schemas are: the schema folder, the CityGML 2.0 tree, CityJSON's files."""
+
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+
+from ..errors import InputError
+
+__all__ = ["SCHEMA_DIR_ENV", "citygml_schema_folder", "cityjson_schema_file", "schema_folder"]
+
+#: Environment variable naming the folder of the official schemas.
+SCHEMA_DIR_ENV = "GNSS_CITYGML_SCHEMA_DIR"
+
+
+def schema_folder(schema_dir) -> Path | None:
+    """The schema folder given, else ``$GNSS_CITYGML_SCHEMA_DIR`` (None if neither)."""
+    if schema_dir is None:
+        schema_dir = os.environ.get(SCHEMA_DIR_ENV) or None
+        if schema_dir is None:
+            return None
+    folder = Path(schema_dir)
+    if not folder.is_dir():
+        raise InputError(
+            "schema folder not found",
+            where=str(folder),
+            fix=f"give the folder of the official schemas (--schema-dir, ${SCHEMA_DIR_ENV})",
+        )
+    return folder
+
+
+def citygml_schema_folder(schema_dir: Path | None) -> Path:
+    """The folder with ``schemas.opengis.net``: ``schema_dir`` when it has it, else citysmith's."""
+    if schema_dir is not None and (schema_dir / "schemas.opengis.net/citygml/2.0").is_dir():
+        return schema_dir
+    try:
+        from citysmith.schema import bundled_schema_dir
+    except ImportError:
+        raise InputError(
+            "the CityGML 2.0 schemas are not available",
+            where="validate",
+            fix="pip install citysmith (bundles the official schemas), or give --schema-dir "
+            "holding a schemas.opengis.net tree",
+        ) from None
+    return Path(bundled_schema_dir())
+
+
+def cityjson_schema_file(folder: Path, version: str | None, kind: str) -> Path | None:
+    """The newest ``<kind>.min.schema.json`` for ``version`` (any version if None)."""
+    name = f"{kind}.min.schema.json"
+    direct = folder / name
+    if direct.is_file():
+        text = direct.read_text(encoding="utf-8")[:2000]
+        found = re.search(r"/schemas/(\d+\.\d+)", text)
+        return direct if version is None or (found and found.group(1) == version) else None
+    candidates = [
+        p
+        for base in (folder, folder / "cityjson")
+        for p in base.glob(f"*/{name}")
+        if version is None or p.parent.name == version or p.parent.name.startswith(version + ".")
+    ]
+    if not candidates:
+        return None
+    return max(candidates, key=lambda p: tuple(int(v) for v in re.findall(r"\d+", p.parent.name)))

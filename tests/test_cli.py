@@ -95,25 +95,32 @@ def test_grids_status(shared_data, tmp_path, capsys, monkeypatch):
     assert code == 1 and out.count("MISSING") == 2 and "grids --fetch" in err
 
 
-def test_estimate_from_simulated_files(shared_data, tmp_path, capsys):
-    grids = str(shared_data / "geodesy")
-    code, _, _ = run(
-        ["simulate", "hermitage", "-o", str(tmp_path), "--interval", "30", "--grid-dir", grids],
-        capsys,
-    )
-    assert code == 0
-    out_path = tmp_path / "heights.gpkg"
-    args = [
+def simulated_site(folder, grids, capsys, interval="30"):
+    """A simulated Hermitage Rd written as a user's files in ``folder``."""
+    args = ["simulate", "hermitage", "-o", str(folder), "--interval", interval, "--grid-dir", grids]
+    code, _, err = run(args, capsys)
+    assert code == 0, err
+
+
+def estimate_args(folder, grids, observations="observations.csv", output="heights.gpkg"):
+    return [
         "estimate",
-        str(tmp_path / "observations.csv"),
-        str(tmp_path / "footprints.gpkg"),
+        str(folder / observations),
+        str(folder / "footprints.gpkg"),
         "--dem",
-        str(tmp_path / "dem.tif"),
+        str(folder / "dem.tif"),
         "-o",
-        str(out_path),
+        str(folder / output),
         "--grid-dir",
         grids,
     ]
+
+
+def test_estimate_from_simulated_files(shared_data, tmp_path, capsys):
+    grids = str(shared_data / "geodesy")
+    simulated_site(tmp_path, grids, capsys)
+    out_path = tmp_path / "heights.gpkg"
+    args = estimate_args(tmp_path, grids)
     code, out, err = run(args, capsys)
     assert code == 0, err
     assert "buildings have a height" in out
@@ -135,27 +142,11 @@ def test_estimate_from_simulated_files(shared_data, tmp_path, capsys):
 
 def test_estimate_bad_observation_names_its_line(shared_data, tmp_path, capsys):
     grids = str(shared_data / "geodesy")
-    run(
-        ["simulate", "hermitage", "-o", str(tmp_path), "--interval", "60", "--grid-dir", grids],
-        capsys,
-    )
+    simulated_site(tmp_path, grids, capsys, interval="60")
     obs = pd.read_csv(tmp_path / "observations.csv")
     obs.loc[4, "azimuth"] = 400.0
     obs.to_csv(tmp_path / "bad.csv", index=False)
-    code, _, err = run(
-        [
-            "estimate",
-            str(tmp_path / "bad.csv"),
-            str(tmp_path / "footprints.gpkg"),
-            "--dem",
-            str(tmp_path / "dem.tif"),
-            "-o",
-            str(tmp_path / "h.gpkg"),
-            "--grid-dir",
-            grids,
-        ],
-        capsys,
-    )
+    code, _, err = run(estimate_args(tmp_path, grids, "bad.csv", "h.gpkg"), capsys)
     assert code == 2
     assert err.strip() == (
         f"error: azimuth 400 outside 0..360 ({tmp_path / 'bad.csv'}, line 6): give azimuths in "
@@ -166,25 +157,9 @@ def test_estimate_bad_observation_names_its_line(shared_data, tmp_path, capsys):
 
 def test_convert_and_validate(shared_data, tmp_path, capsys):
     grids = str(shared_data / "geodesy")
-    run(
-        ["simulate", "hermitage", "-o", str(tmp_path), "--interval", "30", "--grid-dir", grids],
-        capsys,
-    )
+    simulated_site(tmp_path, grids, capsys)
     heights = tmp_path / "heights.gpkg"
-    code, _, err = run(
-        [
-            "estimate",
-            str(tmp_path / "observations.csv"),
-            str(tmp_path / "footprints.gpkg"),
-            "--dem",
-            str(tmp_path / "dem.tif"),
-            "-o",
-            str(heights),
-            "--grid-dir",
-            grids,
-        ],
-        capsys,
-    )
+    code, _, err = run(estimate_args(tmp_path, grids), capsys)
     assert code == 0, err
     for name in ("city.city.json", "city.city.jsonl", "city.gml"):
         code, out, err = run(["convert", str(heights), "-o", str(tmp_path / name)], capsys)

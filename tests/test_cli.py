@@ -172,3 +172,22 @@ def test_convert_and_validate(shared_data, tmp_path, capsys):
     assert code == 1 and "invalid" in out
     code, _, err = run(["validate", str(tmp_path / "nope.gml")], capsys)
     assert code == 2 and err.startswith("error: ")
+
+
+def test_export_a_heights_table(shared_data, tmp_path, capsys):
+    grids = str(shared_data / "geodesy")
+    simulated_site(tmp_path, grids, capsys)
+    table = tmp_path / "h.csv"
+    code, _, err = run(["heights", str(tmp_path / "intersections.csv"), "-o", str(table)], capsys)
+    assert code == 0, err
+    args = ["export", str(table), "--footprints", str(tmp_path / "footprints.gpkg")]
+    args += ["--dem", str(tmp_path / "dem.tif"), "-o", str(tmp_path / "city.city.json")]
+    code, out, err = run(args, capsys)
+    assert code == 0, err
+    written = int(out.split(" buildings")[0])
+    assert written == int(pd.read_csv(table)["converged"].sum()) >= 1
+    pd.concat([pd.read_csv(table), pd.DataFrame({"id": ["ghost"], "height": [40.0]})]).to_csv(
+        table, index=False
+    )
+    code, _, err = run([*args, "--overwrite"], capsys)
+    assert code == 2 and "1 height(s) for buildings not among the footprints: ghost" in err

@@ -146,25 +146,14 @@ def export(
 ):
     """Write the city model of a heights table (CSV or Parquet, from `heights`)."""
     from ..buildings import building_ground, read_footprints
-    from ..errors import InputError
+    from ..export import footprints_with_heights
     from ..tables import read_table
 
     table = read_table(heights)
-    table["id"] = table["id"].astype(str)
     frame = read_footprints(footprints, layer=layer, id_field=id_field)
     if dem is not None:
-        frame = building_ground(frame, dem, assume_crs=dem_crs).drop(
-            columns=[c for c in ("ground",) if c in table.columns]
-        )
-    unknown = ~table["id"].isin(frame["id"])
-    if unknown.any():
-        raise InputError(
-            f"{unknown.sum()} height(s) for buildings not among the footprints: "
-            + ", ".join(table["id"][unknown].head(10)),
-            where=str(heights),
-            fix="give the footprints the heights were estimated for",
-        )
-    frame = frame.merge(table, on="id", how="left")  # footprints without a height are skipped
+        frame = building_ground(frame, dem, assume_crs=dem_crs)
+    frame = footprints_with_heights(frame, table, where=str(heights))
     _write_model(frame, output, overwrite, strict, no_validate, schema_dir, quiet)
 
 

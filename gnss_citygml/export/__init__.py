@@ -14,6 +14,7 @@ from .lod1 import (
     Prisms,
     buildings_with_heights,
     extrude,
+    footprints_with_heights,
     prepare_buildings,
     snap_footprints,
 )
@@ -24,6 +25,7 @@ __all__ = [
     "Prisms",
     "buildings_with_heights",
     "extrude",
+    "footprints_with_heights",
     "gml_ids",
     "prepare_buildings",
     "snap_footprints",

@@ -57,6 +57,7 @@ __all__ = [
     "chunks",
     "creation_date",
     "extrude",
+    "footprints_with_heights",
     "hash_texts",
     "measured_heights",
     "nested_text",
@@ -361,6 +362,27 @@ def _ragged_take(values: np.ndarray, starts: np.ndarray, sizes: np.ndarray) -> n
 
 
 # --- the buildings table --------------------------------------------------------------------
+
+
+def footprints_with_heights(
+    footprints: gpd.GeoDataFrame, heights: pd.DataFrame, *, where: str = "heights table"
+) -> gpd.GeoDataFrame:
+    """The footprints joined with a heights table (``id`` and the heights columns), e.g. one
+    written by ``gnss-citygml heights``. Footprints without a row keep empty heights (the
+    writers skip and list them); a ``ground`` already on the footprints (from a DEM) wins over
+    the table's. Heights of ids that are not among the footprints are an error."""
+    table = heights.assign(id=heights["id"].astype(str))
+    if "ground" in footprints.columns:
+        table = table.drop(columns=["ground"], errors="ignore")
+    unknown = ~table["id"].isin(footprints["id"])
+    if unknown.any():
+        raise InputError(
+            f"{int(unknown.sum())} height(s) for buildings not among the footprints: "
+            + ", ".join(table["id"][unknown].head(10)),
+            where=where,
+            fix="give the footprints the heights were estimated for",
+        )
+    return footprints.merge(table, on="id", how="left")
 
 
 def buildings_with_heights(

@@ -30,6 +30,7 @@ import numpy as np
 import pandas as pd
 
 from .errors import InputError, MissingColumnError
+from .model.fourpl import logistic4
 from .model.fourplb import fourplb
 from .raycast import footprint_entries
 
@@ -257,8 +258,5 @@ def _best_offsets(height, slope, labels, params, unit, n_units, current, sd, tem
 
 
 def _loglik(h, labels, params, unit, n_units):
-    a, b, c, d = params.T
-    with np.errstate(over="ignore"):
-        p = d + (a - d) / (1.0 + np.exp(-b * (h - c)))
-    p = np.clip(p, 1e-9, 1 - 1e-9)
+    p = np.clip(logistic4(h, *params.T), 1e-9, 1 - 1e-9)
     return np.bincount(unit, np.where(labels, np.log(p), np.log1p(-p)), n_units)

@@ -55,6 +55,13 @@ def main():
         help="self-calibrate one offset per recording with 4PL-B (prior sd: manual 1 m, the "
         "paper's 'below 2 m'; phone fixes 5 m)",
     )
+    parser.add_argument(
+        "--window",
+        type=float,
+        default=None,
+        help="with --calibrate: one offset per WINDOW seconds of a recording (30 suits phone "
+        "fixes, whose simulated errors drift over 30-60 s) instead of one per recording",
+    )
     parser.add_argument("--thresholds", default=None, help="comma-separated C/N0 thresholds")
     parser.add_argument("--methods", default=None, help="comma-separated methods (default all)")
     args = parser.parse_args()
@@ -66,6 +73,7 @@ def main():
     options = {} if args.weighting is None else {"weighting": args.weighting}
     if args.calibrate:
         options["position_sd"] = POSITION_SD
+        options["calibration_window"] = args.window
     if args.methods:
         options["methods"] = tuple(args.methods.split(","))
     presets = args.presets.split(",")

@@ -35,6 +35,7 @@ def run_accuracy(
     progress=None,
     pipeline_grids=None,
     position_sd=None,
+    calibration_window=None,
     **options,
 ) -> pd.DataFrame:
     """One row per (preset, locations, method, threshold, target building).
@@ -42,7 +43,8 @@ def run_accuracy(
     ``options`` go to :func:`estimate_heights` for the 4PL methods (e.g. ``weighting``).
     ``position_sd`` (a mapping from locations to metres, e.g. ``{"manual": 1, "gnss": 5}``)
     turns on the self-calibration of receiver offsets (:mod:`gnss_citygml.calibrate`) for 4PL-B,
-    run for each initial threshold; the time it takes is part of ``seconds``.
+    run for each initial threshold, with one offset per recording or, with
+    ``calibration_window`` (s), per window of it; the time it takes is part of ``seconds``.
     ``progress`` is an optional callable receiving a short text per finished run. The fit time
     of each run is in ``seconds`` and the number of intersections in ``n_rows``. With
     ``pipeline_grids`` (the OSTN15/OSGM15 grid folder), the intersections are not the
@@ -66,6 +68,7 @@ def run_accuracy(
                             rays,
                             footprints,
                             position_sd=position_sd[loc],
+                            window=calibration_window,
                             init_threshold=threshold,
                             **opts,
                         )

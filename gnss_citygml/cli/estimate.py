@@ -49,6 +49,12 @@ from .options import QUIET, THRESHOLD, progress
     help="Self-calibrate one position offset per recording with this prior (m per axis; "
     "about 1 for hand-placed positions of static recordings). Off by default.",
 )
+@click.option(
+    "--calibration-window",
+    type=float,
+    help="With --position-sd: one offset per this many seconds of a recording (about 30 for "
+    "phone fixes, whose errors drift) instead of one per recording.",
+)
 @click.option("--dem-crs", help="CRS of a DEM that has none, e.g. EPSG:27700.")
 @GRID_DIR
 @click.option("--overwrite", is_flag=True, help="Replace an existing output file.")
@@ -68,6 +74,7 @@ def estimate(
     method,
     max_range,
     position_sd,
+    calibration_window,
     dem_crs,
     grid_dir,
     overwrite,
@@ -113,6 +120,7 @@ def estimate(
             grid_dir=grid_dir,
             dem_crs=dem_crs,
             position_sd=position_sd,
+            calibration_window=calibration_window,
             progress=stage,
         )
     write_layer(heights, output, "heights", overwrite=overwrite)

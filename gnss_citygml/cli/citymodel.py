@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 
 from . import cli
-from .options import QUIET, progress
+from .options import QUIET, output_file, progress
 
 _SCHEMA_DIR = click.option(
     "--schema-dir",
@@ -17,12 +17,8 @@ _SCHEMA_DIR = click.option(
     help="Official schemas (CityJSON JSON schemas; optionally a schemas.opengis.net tree).",
 )
 _MODEL_OPTIONS = [
-    click.option(
-        "--output",
-        "-o",
-        type=click.Path(dir_okay=False, path_type=Path),
-        required=True,
-        help="OUT.city.json (CityJSON 2.0), OUT.city.jsonl (CityJSONSeq) or OUT.gml (CityGML 2.0).",
+    output_file(
+        "OUT.city.json (CityJSON 2.0), OUT.city.jsonl (CityJSONSeq) or OUT.gml (CityGML 2.0)."
     ),
     click.option("--overwrite", is_flag=True, help="Replace an existing output."),
     click.option("--strict", is_flag=True, help="Stop if a building has no usable height."),
@@ -36,6 +32,14 @@ def _model_options(func):
     for option in reversed(_MODEL_OPTIONS):
         func = option(func)
     return func
+
+
+def _footprints(path, layer, id_field, dem, dem_crs):
+    """The footprints, with their ground from the DEM when one is given."""
+    from ..buildings import building_ground, read_footprints
+
+    frame = read_footprints(path, layer=layer, id_field=id_field)
+    return frame if dem is None else building_ground(frame, dem, assume_crs=dem_crs)
 
 
 def _write_model(frame, output, overwrite, strict, no_validate, schema_dir, quiet):
@@ -103,14 +107,11 @@ def convert(
     INPUT is the heights layer of `estimate` or any polygon source with a height field (e.g.
     OS Building Height Attribute's abshmax, or relh2 with --relative).
     """
-    from ..buildings import building_ground, read_footprints
     from ..export import buildings_with_heights
 
     if ground_field is not None and dem is not None:
         raise click.UsageError("give the ground with --ground-field or --dem, not both")
-    frame = read_footprints(input_, layer=layer, id_field=id_field)
-    if dem is not None:
-        frame = building_ground(frame, dem, assume_crs=dem_crs)
+    frame = _footprints(input_, layer, id_field, dem, dem_crs)
     frame = buildings_with_heights(
         frame, height_field, relative=relative, ground_field=ground_field
     )
@@ -145,14 +146,11 @@ def export(
     quiet,
 ):
     """Write the city model of a heights table (CSV or Parquet, from `heights`)."""
-    from ..buildings import building_ground, read_footprints
     from ..export import footprints_with_heights
     from ..tables import read_table
 
     table = read_table(heights)
-    frame = read_footprints(footprints, layer=layer, id_field=id_field)
-    if dem is not None:
-        frame = building_ground(frame, dem, assume_crs=dem_crs)
+    frame = _footprints(footprints, layer, id_field, dem, dem_crs)
     frame = footprints_with_heights(frame, table, where=str(heights))
     _write_model(frame, output, overwrite, strict, no_validate, schema_dir, quiet)
 

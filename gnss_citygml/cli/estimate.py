@@ -9,7 +9,7 @@ import click
 from ..model.estimate import METHODS
 from . import cli
 from .observe import GRID_DIR
-from .options import QUIET, THRESHOLD, progress
+from .options import QUIET, THRESHOLD, output_file, progress
 
 
 @cli.command()
@@ -21,13 +21,7 @@ from .options import QUIET, THRESHOLD, progress
     required=True,
     help="DEM raster in EPSG:27700 (GeoTIFF, ASCII grid, zip://...!/tile.asc).",
 )
-@click.option(
-    "--output",
-    "-o",
-    type=click.Path(dir_okay=False, path_type=Path),
-    required=True,
-    help="GeoPackage to write (layer 'heights').",
-)
+@output_file("GeoPackage to write (layer 'heights').")
 @click.option("--layer", help="Footprint layer (default: the only polygon layer).")
 @click.option("--id-field", help="Footprint id column (default: toid, id or fid).")
 @click.option("--min-elevation", type=float, default=10.0, show_default=True, help="Degrees.")

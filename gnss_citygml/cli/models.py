@@ -10,7 +10,7 @@ from ..model.estimate import METHODS
 from ..simulate.scenes import PRESETS
 from . import cli
 from .observe import GRID_DIR
-from .options import QUIET, SEED, THRESHOLD, floats, progress
+from .options import QUIET, SEED, THRESHOLD, floats, output_file, progress
 
 
 @cli.command()
@@ -101,13 +101,7 @@ def simulate(preset, output_dir, locations, seed, interval, fmt, grid_dir):
 
 @cli.command()
 @click.argument("intersections", type=click.Path(path_type=Path))
-@click.option(
-    "--output",
-    "-o",
-    type=click.Path(dir_okay=False, path_type=Path),
-    required=True,
-    help="Heights table (.csv or .parquet).",
-)
+@output_file("Heights table (.csv or .parquet).")
 @click.option(
     "--method",
     type=click.Choice(list(METHODS)),

@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from . import cli
-from .options import QUIET, progress
+from .options import QUIET, output_file, progress
 
 GRID_DIR = click.option(
     "--grid-dir",
@@ -47,13 +47,7 @@ GRID_DIR = click.option(
 @click.option("--max-elevation", type=float, default=85.0, show_default=True, help="Degrees.")
 @click.option("--band", default="L1", show_default=True, help="Signal band kept (L1 or L5).")
 @click.option("--lenient", is_flag=True, help="Skip bad log lines (counted) instead of failing.")
-@click.option(
-    "--output",
-    "-o",
-    type=click.Path(dir_okay=False, path_type=Path),
-    required=True,
-    help="Observations table (.parquet or .csv).",
-)
+@output_file("Observations table (.parquet or .csv).")
 @QUIET
 def observe(
     logs,

@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 import click
 
-__all__ = ["QUIET", "SEED", "THRESHOLD", "floats", "progress"]
+__all__ = ["QUIET", "SEED", "THRESHOLD", "floats", "output_file", "progress"]
 
 SEED = click.option(
     "--seed",
@@ -23,6 +24,17 @@ THRESHOLD = click.option(
     show_default=True,
     help="C/N0 (dB-Hz) where the initial signal classifier gives 50 %.",
 )
+
+
+def output_file(help_text):
+    """The required ``--output`` / ``-o`` file option of a command that writes one file."""
+    return click.option(
+        "--output",
+        "-o",
+        type=click.Path(dir_okay=False, path_type=Path),
+        required=True,
+        help=help_text,
+    )
 
 
 def floats(text, option):

@@ -18,10 +18,18 @@ from .calibrate import calibrate_receivers
 from .model.estimate import METHODS, estimate_heights
 from .simulate import simulate
 
-__all__ = ["PAPER_THRESHOLDS", "markdown_table", "run_accuracy", "summarise"]
+__all__ = ["PAPER_THRESHOLDS", "POSITIONS", "markdown_table", "run_accuracy", "summarise"]
 
 #: The paper's initial thresholds: 20, 21, ..., 40 dB-Hz.
 PAPER_THRESHOLDS = tuple(float(t) for t in range(20, 41))
+
+#: Where the rays start: the positions a user has (``reported``), the true ones (``true``), or
+#: the true ones moved by the mean error of all recordings (``common``): what remains when
+#: every recording's offset relative to the others is known, as perfect self-calibration would
+#: know it. Nothing in the signals tells that shared offset apart from the buildings' heights
+#: (it moves the rays to one building up and to the one opposite down), so ``common`` measures
+#: the information floor of a site's data; ``true`` the floor of the estimator itself.
+POSITIONS = ("reported", "common", "true")
 
 
 def run_accuracy(
@@ -36,6 +44,7 @@ def run_accuracy(
     pipeline_grids=None,
     position_sd=None,
     calibration_window=None,
+    positions="reported",
     **options,
 ) -> pd.DataFrame:
     """One row per (preset, locations, method, threshold, target building).
@@ -50,12 +59,21 @@ def run_accuracy(
     ``pipeline_grids`` (the OSTN15/OSGM15 grid folder), the intersections are not the
     simulator's own but the pipeline's, from the site written as files (observations,
     footprints in British National Grid, DEM): geodesy and ray casting are judged too.
+    ``positions`` (one of :data:`POSITIONS`, with the simulator's own intersections) moves the
+    rays' origins to measure the floors of the estimator and of the data.
     """
+    if positions not in POSITIONS:
+        raise ValueError(f"positions must be one of {', '.join(POSITIONS)}, not {positions!r}")
+    if positions != "reported" and pipeline_grids is not None:
+        raise ValueError("positions other than 'reported' need the simulator's intersections")
     rows = []
     for preset in presets:
         for loc in locations:
             sim = simulate(preset, locations=loc, seed=seed, interval=interval)
             rays, footprints, inter_all = _site(sim, pipeline_grids)
+            if positions != "reported":
+                rays = _oracle_rays(rays, positions)
+                inter_all = _recast(rays, footprints)
             truth = sim.truth.set_index("id")
             targets = truth.index[truth["target"]]
             for method in methods:
@@ -128,6 +146,17 @@ def _site(sim, grid_dir):
         )
         footprints = read_footprints(paths["footprints"])
     return rays, footprints, _recast(rays, footprints)
+
+
+def _oracle_rays(rays: pd.DataFrame, positions: str) -> pd.DataFrame:
+    """The simulated rays from their true origins, or from those moved by the mean error of
+    all recordings (each recording's mean error, averaged over recordings)."""
+    e, n = rays["e_true"].to_numpy(), rays["n_true"].to_numpy()
+    if positions == "common":
+        error = pd.DataFrame({"e": rays["e"].to_numpy() - e, "n": rays["n"].to_numpy() - n})
+        shared = error.groupby(rays["receiver"].to_numpy()).mean().mean()
+        e, n = e + shared["e"], n + shared["n"]
+    return rays.assign(e=e, n=n)
 
 
 def _recast(rays: pd.DataFrame, footprints: pd.DataFrame) -> pd.DataFrame:

@@ -1,0 +1,50 @@
+"""The accuracy runs behind the paper's table and its floors (rays from true positions)."""
+
+import pytest
+
+from gnss_citygml.accuracy import markdown_table, run_accuracy, summarise
+
+
+@pytest.fixture(scope="module")
+def runs():
+    return {
+        positions: run_accuracy(
+            ["goodchild"], ["manual"], ["4PL-B"], [30.0], interval=30.0, positions=positions
+        )
+        for positions in ("reported", "common", "true")
+    }
+
+
+def test_one_row_per_run_and_target(runs):
+    res = runs["reported"]
+    assert list(res["building"]) == ["goodchild_block"]
+    row = res.iloc[0]
+    assert row["error"] == pytest.approx(row["height"] - row["truth"])
+    assert row["lower"] < row["height"] < row["upper"]
+
+
+def test_true_positions_find_the_roof_with_the_inflection_point(runs):
+    # From the true positions only diffraction blurs the roof line, symmetrically: c finds it.
+    row = runs["true"].iloc[0]
+    assert row["converged"], row["status"]
+    assert row["lower"] == pytest.approx(row["truth"], abs=1.0)
+
+
+def test_common_offset_moves_the_rays(runs):
+    heights = {k: runs[k].iloc[0]["lower"] for k in runs}
+    assert len({round(h, 6) for h in heights.values()}) == 3
+
+
+def test_summary_table_cells(runs):
+    summary = summarise(runs["true"])
+    assert summary.loc[0, "converged"] == 1 and summary.loc[0, "runs"] == 1
+    rmse = abs(runs["true"].iloc[0]["error"])
+    assert summary.loc[0, "rmse"] == pytest.approx(rmse)
+    assert f"{rmse:.2f} m (1/1)" in markdown_table(summary)
+
+
+def test_unknown_positions_are_refused():
+    with pytest.raises(ValueError, match="positions must be one of"):
+        run_accuracy(["goodchild"], positions="guessed")
+    with pytest.raises(ValueError, match="simulator's intersections"):
+        run_accuracy(["goodchild"], positions="true", pipeline_grids="grids")

@@ -334,14 +334,16 @@ def _repaired(frame: gpd.GeoDataFrame, where: str) -> gpd.GeoDataFrame:
     ids = frame["id"].to_numpy()
     geoms = geoms.copy()
     geoms[invalid] = shapely.make_valid(geoms[invalid], method="structure", keep_collapsed=False)
-    warnings.warn(
-        f"repaired {invalid.sum()} invalid footprint(s) with make_valid: "
-        f"{_listing(ids[invalid])} ({where})",
-        UserWarning,
-        stacklevel=3,
-    )
-    frame = frame.set_geometry(geoms)
     empty = shapely.is_empty(geoms)
+    repaired = invalid & ~empty  # one message per footprint: repaired, or dropped
+    if repaired.any():
+        warnings.warn(
+            f"repaired {repaired.sum()} invalid footprint(s) with make_valid: "
+            f"{_listing(ids[repaired])} ({where})",
+            UserWarning,
+            stacklevel=3,
+        )
+    frame = frame.set_geometry(geoms)
     if empty.any():
         warnings.warn(
             f"dropped {empty.sum()} footprint(s) with no area: {_listing(ids[empty])} ({where})",

@@ -43,6 +43,7 @@ def run_accuracy(
     progress=None,
     pipeline_grids=None,
     position_sd=None,
+    calibrate=False,
     calibration_window=None,
     positions="reported",
     **options,
@@ -50,9 +51,11 @@ def run_accuracy(
     """One row per (preset, locations, method, threshold, target building).
 
     ``options`` go to :func:`estimate_heights` for the 4PL methods (e.g. ``weighting``).
-    ``position_sd`` (a mapping from locations to metres, e.g. ``{"manual": 1, "gnss": 5}``)
-    turns on the self-calibration of receiver offsets (:mod:`gnss_citygml.calibrate`) for 4PL-B,
-    run for each initial threshold, with one offset per recording or, with
+    ``position_sd`` (a mapping from locations to metres per axis, e.g. ``{"manual": 1,
+    "gnss": 5}``) makes the 4PL fits model the height errors of position errors that size
+    (``height_sd`` of :func:`~gnss_citygml.pipeline.intersections`); ``calibrate`` also turns
+    on the self-calibration of receiver offsets (:mod:`gnss_citygml.calibrate`) for 4PL-B with
+    that prior, run for each initial threshold, with one offset per recording or, with
     ``calibration_window`` (s), per window of it; the time it takes is part of ``seconds``.
     ``progress`` is an optional callable receiving a short text per finished run. The fit time
     of each run is in ``seconds`` and the number of intersections in ``n_rows``. With
@@ -66,14 +69,18 @@ def run_accuracy(
         raise ValueError(f"positions must be one of {', '.join(POSITIONS)}, not {positions!r}")
     if positions != "reported" and pipeline_grids is not None:
         raise ValueError("positions other than 'reported' need the simulator's intersections")
+    if calibrate and position_sd is None:
+        raise ValueError("calibrate needs position_sd, the prior of the receivers' offsets")
     rows = []
     for preset in presets:
         for loc in locations:
             sim = simulate(preset, locations=loc, seed=seed, interval=interval)
             rays, footprints, inter_all = _site(sim, pipeline_grids)
+            sd = None if position_sd is None else position_sd[loc]
             if positions != "reported":
                 rays = _oracle_rays(rays, positions)
-                inter_all = _recast(rays, footprints)
+            if positions != "reported" or sd is not None:
+                inter_all = _recast(rays, footprints, sd)
             truth = sim.truth.set_index("id")
             targets = truth.index[truth["target"]]
             for method in methods:
@@ -81,16 +88,16 @@ def run_accuracy(
                 for threshold in thresholds:
                     start = time.perf_counter()
                     inter = inter_all
-                    if position_sd is not None and method == "4PL-B":
+                    if calibrate and method == "4PL-B":
                         fixed = calibrate_receivers(
                             rays,
                             footprints,
-                            position_sd=position_sd[loc],
+                            position_sd=sd,
                             window=calibration_window,
                             init_threshold=threshold,
                             **opts,
                         )
-                        inter = _recast(fixed, footprints)
+                        inter = _recast(fixed, footprints, sd)
                     out = estimate_heights(inter, method=method, init_threshold=threshold, **opts)
                     seconds = time.perf_counter() - start
                     out = out.set_index("id").reindex(targets)
@@ -159,11 +166,11 @@ def _oracle_rays(rays: pd.DataFrame, positions: str) -> pd.DataFrame:
     return rays.assign(e=e, n=n)
 
 
-def _recast(rays: pd.DataFrame, footprints: pd.DataFrame) -> pd.DataFrame:
+def _recast(rays: pd.DataFrame, footprints: pd.DataFrame, position_sd=None) -> pd.DataFrame:
     """The intersections table of rays cast from (corrected) positions."""
     from .pipeline import intersections  # the pipeline composes the stages: import it lazily
 
-    return intersections(rays, footprints)
+    return intersections(rays, footprints, position_sd=position_sd)
 
 
 def summarise(results: pd.DataFrame) -> pd.DataFrame:

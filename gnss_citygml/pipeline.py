@@ -36,6 +36,12 @@ STAGES = ("observations", "receivers", "buildings", "ray casting", "height model
 EARTH_RADIUS = 6_371_000.0
 REFRACTION = 0.13
 
+#: Smallest cosine of the angle between a ray and the normal of the wall it enters through
+#: that :func:`intersections` uses for the height error of a position error: closer to
+#: grazing (beyond 84 deg) a metre of position moves the entry onto the neighbouring wall
+#: rather than 10 m along this one.
+MIN_INCIDENCE = 0.1
+
 
 def receivers(
     observations: pd.DataFrame,
@@ -92,6 +98,7 @@ def intersections(
     *,
     max_range: float = 500.0,
     earth_curvature: bool = False,
+    position_sd: float | None = None,
 ) -> pd.DataFrame:
     """The intersections table of DESIGN.md: every signal x building its ray enters.
 
@@ -99,8 +106,14 @@ def intersections(
     height ``z`` plus ``distance * tan(elevation)``, plus, with ``earth_curvature``, the fall
     of the ground away from the ray's tangent plane (``d^2 (1 - k) / 2R`` with the standard
     refraction coefficient k = 0.13: 2 cm at 500 m).
+
+    With ``position_sd`` (m per axis: how far the receiver positions may be off), a column
+    ``height_sd``: the standard deviation of each height that follows, ``position_sd *
+    tan(elevation) / cos(incidence)`` (a position error across the entry wall lengthens or
+    shortens the ray's way to it by itself over the cosine of the angle of incidence; along
+    the wall it changes nothing), with the cosine floored at :data:`MIN_INCIDENCE`.
     """
-    ray, fp, dist, _ = footprint_entries(
+    ray, fp, dist, incidence = footprint_entries(
         receivers["e"].to_numpy(),
         receivers["n"].to_numpy(),
         receivers["bearing"].to_numpy(),
@@ -113,6 +126,10 @@ def intersections(
         height += dist**2 * (1.0 - REFRACTION) / (2.0 * EARTH_RADIUS)
     first = np.r_[True, ray[1:] != ray[:-1]]
     start = np.maximum.accumulate(np.where(first, np.arange(ray.size), 0))
+    extra = {}
+    if position_sd is not None:
+        spread = np.tan(elevation) / np.maximum(incidence, MIN_INCIDENCE)
+        extra["height_sd"] = position_sd * spread
     return pd.DataFrame(
         {
             "signal": receivers.index.to_numpy()[ray],
@@ -123,6 +140,7 @@ def intersections(
             "order": np.arange(ray.size) - start,
             "cn0": receivers["cn0"].to_numpy()[ray],
             "receiver": receivers["receiver"].to_numpy()[ray],
+            **extra,
         }
     )
 
@@ -144,6 +162,7 @@ def estimate(
     dem_crs=None,
     progress: Callable[[str], None] | None = None,
     position_sd: float | None = None,
+    calibrate: bool = False,
     calibration_window: float | None = None,
     **options,
 ) -> gpd.GeoDataFrame:
@@ -175,12 +194,16 @@ def estimate(
         CRS of a DEM that has none (e.g. ``"EPSG:27700"`` for an OS Terrain ASCII grid).
     progress
         Optional callable told the name of each stage (:data:`STAGES`) as it starts.
-    position_sd, calibration_window
-        With ``position_sd`` (m, what the receiver positions are believed to be worth per
-        axis), 4PL-B first estimates one position offset per recording (or per
-        ``calibration_window`` seconds of it) jointly with the heights
-        (:func:`~gnss_citygml.calibrate.calibrate_receivers`). Off by default: it costs a few
-        extra casts and fits.
+    position_sd
+        How far (m per axis) the receiver positions may be off, e.g. 1 for points placed by
+        hand on a map: the height fits then model each signal's resulting height error
+        (``height_sd`` of :func:`intersections`) and the ranges carry the roof line's position
+        uncertainty. Default: the positions are taken as exact, as in the paper.
+    calibrate, calibration_window
+        With ``calibrate`` (needs ``position_sd``, the prior), 4PL-B first estimates one
+        position offset per recording (or per ``calibration_window`` seconds of it) jointly
+        with the heights (:func:`~gnss_citygml.calibrate.calibrate_receivers`). Off by
+        default: it costs a few extra casts and fits.
 
     Returns
     -------
@@ -190,6 +213,11 @@ def estimate(
         estimate did not converge, have empty heights and ``converged = False`` with the
         reason in ``status``: never a guess.
     """
+    if calibrate and position_sd is None:
+        raise InputError(
+            "self-calibration needs the receivers' position error as its prior",
+            fix="give position_sd (--position-sd), e.g. 1 m for points placed by hand",
+        )
     say = progress or (lambda stage: None)
     say(STAGES[0])
     obs = check_observations(observations)
@@ -216,7 +244,7 @@ def estimate(
     elif "ground" not in buildings.columns:
         raise InputError("building ground heights need a DEM", fix="give --dem")
     say(STAGES[3])
-    if position_sd is not None and method == "4PL-B":
+    if calibrate and method == "4PL-B":
         rx = calibrate_receivers(
             rx,
             buildings,
@@ -226,7 +254,13 @@ def estimate(
             max_range=max_range,
             **options,
         )
-    inter = intersections(rx, buildings, max_range=max_range, earth_curvature=earth_curvature)
+    inter = intersections(
+        rx,
+        buildings,
+        max_range=max_range,
+        earth_curvature=earth_curvature,
+        position_sd=position_sd,
+    )
     say(STAGES[4])
     heights = estimate_heights(inter, method=method, init_threshold=init_threshold, **options)
     say(STAGES[5])

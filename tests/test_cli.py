@@ -140,6 +140,23 @@ def test_estimate_from_simulated_files(shared_data, tmp_path, capsys):
     assert not list(tmp_path.glob(".*part*"))
 
 
+def test_estimate_with_position_errors(shared_data, tmp_path, capsys):
+    grids = str(shared_data / "geodesy")
+    simulated_site(tmp_path, grids, capsys, interval="60")
+    code, _, err = run([*estimate_args(tmp_path, grids), "--calibrate"], capsys)
+    assert code == 2 and "self-calibration needs" in err and "--position-sd" in err
+    code, _, err = run([*estimate_args(tmp_path, grids), "--position-sd", "-1"], capsys)
+    assert code == 2 and "--position-sd" in err
+    code, _, err = run([*estimate_args(tmp_path, grids), "--position-sd", "1"], capsys)
+    assert code == 0, err
+    row = gpd.read_file(tmp_path / "heights.gpkg", layer="heights").set_index("id")
+    row = row.loc["hermitage_terrace"]
+    assert row["converged"]
+    # the range carries the roof line's position uncertainty beyond the paper's (c, c + 3/b)
+    assert row["height_lower"] < row["c"]
+    assert row["height_upper"] > row["c"] + 3.0 / row["b"]
+
+
 def test_estimate_bad_observation_names_its_line(shared_data, tmp_path, capsys):
     grids = str(shared_data / "geodesy")
     simulated_site(tmp_path, grids, capsys, interval="60")

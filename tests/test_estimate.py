@@ -156,3 +156,52 @@ def test_the_one_shot_4pl_always_answers_when_its_fit_converges(rng):
     table = synthetic_intersections(rng, 45.0, n=6000, noise=12.0)
     out = estimate_heights(table, method="4PL").iloc[0]
     assert out["converged"] and np.isfinite(out["height"])
+
+
+def _blurred_by_positions(rng, truth=45.0, n=8000, recordings=4):
+    """Signals whose heights err by a known sd each (a receiver position error), the roof
+    line itself sharp; each recording's rows share part of the error."""
+    h_true = rng.uniform(20.0, 80.0, n)
+    is_open = h_true > truth
+    cn0 = np.where(is_open, rng.normal(40.0, 4.0, n), rng.normal(25.0, 5.0, n))
+    cn0[cn0 < 12.0] = np.nan
+    sd = rng.uniform(0.0, 3.0, n)
+    receiver = rng.integers(0, recordings, n)
+    height = h_true + sd * rng.normal(0.0, 1.0, n)
+    return pd.DataFrame(
+        {"building": "b1", "height": height, "cn0": cn0, "receiver": receiver, "height_sd": sd}
+    )
+
+
+def test_position_errors_are_modelled_and_widen_the_range(rng):
+    table = _blurred_by_positions(rng)
+    plain = estimate_heights(table.drop(columns="height_sd")).iloc[0]
+    row = estimate_heights(table).iloc[0]
+    assert row["converged"], row["status"]
+    assert row["b"] > 1.5 * plain["b"]  # the roof line's own sharpness, not the blur's
+    assert row["height"] == pytest.approx(row["c"] + 1.5 / row["b"])
+    assert row["c"] == pytest.approx(45.0, abs=0.5)
+    margin = row["c"] - row["height_lower"]
+    assert margin > 0.1
+    assert row["height_upper"] == pytest.approx(row["c"] + 3.0 / row["b"] + margin)
+
+
+def test_position_margin_counts_each_recording_once():
+    from gnss_citygml.model.fourpl import FourPLFit
+    from gnss_citygml.model.fourplb import position_margin
+
+    one = np.ones(1)
+    fit = FourPLFit(0.9 * one, one, 10.0 * one, 0.1 * one, one, one > 0, one, one < 0)
+    n = 400
+    g, h, sd = np.zeros(n, dtype=np.intp), np.full(n, 10.5), np.full(n, 2.0)
+    far = np.r_[h[:-10], np.full(10, 30.0)]  # rows far from the roof line do not count
+    assert position_margin(fit, g, far, sd, None, 1)[0] == pytest.approx(4.0)
+    four = np.arange(n) % 4
+    assert position_margin(fit, g, h, sd, four, 1)[0] == pytest.approx(2.0)
+
+
+def test_bad_height_sd_is_refused(rng):
+    table = _blurred_by_positions(rng, n=200)
+    table.loc[[3, 7], "height_sd"] = [-1.0, np.nan]
+    with pytest.raises(InputError, match=r"height_sd must be.*rows 3, 7"):
+        estimate_heights(table)

@@ -101,3 +101,27 @@ def test_constraints_hold(rng):
     x, y = draw_4pl(rng, 2000, 0.6, 2.0, 10.0, 0.5)
     fit = fit_4pl(x, y)
     assert 0 <= fit.d[0] < fit.a[0] <= 1 and fit.b[0] > 0
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_errors_in_x_are_modelled(seed):
+    # A transition 3 m wide (b = 1 per m) seen through heights with known errors of 0-3 m: the
+    # plain fit sees a blur; the fit told each sample's error recovers the slope.
+    rng = np.random.default_rng(seed)
+    n = 20_000
+    x_true, y = draw_4pl(rng, n, 0.9, 1.0, 30.0, 0.1)
+    sd = rng.uniform(0.0, 3.0, n)
+    x = x_true + rng.normal(0.0, 1.0, n) * sd
+    plain = fit_4pl(x, y)
+    eiv = fit_4pl(x, y, sd=sd)
+    assert eiv.converged[0]
+    assert plain.b[0] < 0.8
+    assert eiv.b[0] == pytest.approx(1.0, rel=0.2)
+    assert eiv.c[0] == pytest.approx(30.0, abs=0.15)
+    assert eiv.a[0] == pytest.approx(0.9, abs=0.03) and eiv.d[0] == pytest.approx(0.1, abs=0.03)
+
+
+def test_zero_errors_are_the_plain_fit(rng):
+    x, y = draw_4pl(rng, 3000, 0.85, 0.5, 25.0, 0.1)
+    plain, eiv = fit_4pl(x, y), fit_4pl(x, y, sd=np.zeros(x.size))
+    np.testing.assert_allclose(eiv.params, plain.params, rtol=1e-9)

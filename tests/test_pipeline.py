@@ -147,3 +147,37 @@ def test_real_mastermap_footprints(shared_data, tmp_path):
     assert len(ok) >= 10
     assert np.median(np.abs(error)) < 2.5
     assert out["id"].str.startswith("osgb").all() and out.crs.to_epsg() == 27700
+
+
+def test_height_errors_of_position_errors():
+    # A wall 10 m east of the receiver: head-on, at 60 deg from its normal, and grazing.
+    wall = gpd.GeoDataFrame({"id": ["w"]}, geometry=[shapely.box(10, -500, 20, 500)])
+    rx = pd.DataFrame(
+        {
+            "e": 0.0,
+            "n": 0.0,
+            "z": 1.0,
+            "bearing": [90.0, 30.0, 3.0],
+            "elevation": 45.0,
+            "cn0": 40.0,
+            "receiver": "r",
+        }
+    )
+    plain = intersections(rx, wall)
+    assert "height_sd" not in plain
+    out = intersections(rx, wall, position_sd=2.0)
+    np.testing.assert_allclose(out["height"], plain["height"])
+    # tan 45 = 1; 1 / cos 60 = 2; grazing (cos 3 deg from the wall = 0.05) capped at 10
+    np.testing.assert_allclose(out["height_sd"], [2.0, 4.0, 20.0])
+
+
+def test_calibration_needs_a_position_error(site):
+    sim, paths, grids = site
+    with pytest.raises(InputError, match="self-calibration needs"):
+        estimate(
+            read_observations(paths["observations"]),
+            read_footprints(paths["footprints"]),
+            str(paths["dem"]),
+            grid_dir=grids,
+            calibrate=True,
+        )

@@ -39,14 +39,20 @@ from .options import QUIET, THRESHOLD, output_file, progress
 @click.option("--max-range", type=float, default=500.0, show_default=True, help="Ray length (m).")
 @click.option(
     "--position-sd",
-    type=float,
-    help="Self-calibrate one position offset per recording with this prior (m per axis; "
-    "about 1 for hand-placed positions of static recordings). Off by default.",
+    type=click.FloatRange(min=0.0, min_open=True),
+    help="How far the receiver positions may be off (m per axis; about 1 for points placed by "
+    "hand): the fits model the height errors that follow and the ranges widen. Default: "
+    "positions taken as exact, as in the paper.",
+)
+@click.option(
+    "--calibrate",
+    is_flag=True,
+    help="Self-calibrate one position offset per recording, with --position-sd as the prior.",
 )
 @click.option(
     "--calibration-window",
-    type=float,
-    help="With --position-sd: one offset per this many seconds of a recording (about 30 for "
+    type=click.FloatRange(min=0.0, min_open=True),
+    help="With --calibrate: one offset per this many seconds of a recording (about 30 for "
     "phone fixes, whose errors drift) instead of one per recording.",
 )
 @click.option("--dem-crs", help="CRS of a DEM that has none, e.g. EPSG:27700.")
@@ -68,6 +74,7 @@ def estimate(
     method,
     max_range,
     position_sd,
+    calibrate,
     calibration_window,
     dem_crs,
     grid_dir,
@@ -114,6 +121,7 @@ def estimate(
             grid_dir=grid_dir,
             dem_crs=dem_crs,
             position_sd=position_sd,
+            calibrate=calibrate,
             calibration_window=calibration_window,
             progress=stage,
         )

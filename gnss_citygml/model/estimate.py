@@ -63,7 +63,12 @@ def estimate_heights(
         The intersections table (DataFrame or mapping of equal-length columns) with at least
         ``building`` (id), ``height`` (ODN height of the ray where it enters the footprint, m)
         and ``cn0`` (dB-Hz, NaN = blocked); optionally ``signal`` (rows with the same value are
-        one signal crossing several buildings), ``receiver``, ``distance`` and ``order``.
+        one signal crossing several buildings), ``receiver``, ``distance``, ``order`` and
+        ``height_sd`` (m: how far each height may be off owing to its receiver's position
+        error, e.g. from :func:`gnss_citygml.pipeline.intersections` given ``position_sd``).
+        With ``height_sd``, 4PL-B and 4PL model that error (the slope ``b`` is then the roof
+        line's own) and widen the range by the roof line's position uncertainty, each
+        ``receiver`` (recording) counting as one shared error.
     method
         ``4PL-B`` (default), ``4PL`` (no bootstrapping), ``hinge`` (Weissman) or ``bayes``
         (Irish et al.).
@@ -82,7 +87,8 @@ def estimate_heights(
     pandas.DataFrame
         The heights table, one row per building in order of first appearance: ``id``,
         ``height`` (c + 1.5/b for the 4PL methods), ``height_lower`` (c), ``height_upper``
-        (c + 3/b), ``a``, ``b``, ``c``, ``d``, ``n_signals``, ``iterations``, ``converged``,
+        (c + 3/b; with ``height_sd`` both moved out by twice the standard error of ``c`` from
+        position errors), ``a``, ``b``, ``c``, ``d``, ``n_signals``, ``iterations``, ``converged``,
         ``method`` and ``status``. A building whose estimate is not to be trusted has
         ``converged = False``, empty heights and the reason in ``status``. For 4PL-B,
         ``attrs["signal_classifier"]`` holds the final C/N0 classifier.
@@ -112,6 +118,7 @@ def estimate_heights(
     table = _as_table(intersections)
     ids, codes, height, cn0, signal, order = _columns(table)
     n = len(ids)
+    height_sd = _height_sd(table)
 
     if method in ("4PL-B", "4PL"):
         fits, classifier = fourplb(
@@ -123,6 +130,8 @@ def estimate_heights(
             signal=signal,
             order=order,
             bootstrap=method == "4PL-B",
+            height_sd=height_sd,
+            receiver=_recordings(table, height_sd),
             **options,
         )
         columns = {name: getattr(fits, name) for name in HEIGHTS_COLUMNS[1:] if name != "method"}
@@ -198,6 +207,27 @@ def _columns(table: pd.DataFrame):
     signal = pd.factorize(table["signal"])[0] if "signal" in table.columns else None
     order = _numeric(table, "order") if "order" in table.columns else None
     return np.asarray(ids, dtype=object), codes.astype(np.intp), height, cn0, signal, order
+
+
+def _recordings(table, height_sd) -> np.ndarray | None:
+    """Each row's recording, which the position-error margin needs (only with ``height_sd``)."""
+    if height_sd is None or "receiver" not in table.columns:
+        return None
+    return table["receiver"].to_numpy()
+
+
+def _height_sd(table) -> np.ndarray | None:
+    if "height_sd" not in table.columns:
+        return None
+    sd = _numeric(table, "height_sd")
+    bad = ~(np.isfinite(sd) & (sd >= 0))
+    if bad.any():
+        raise InputError(
+            "height_sd must be a finite number of metres, 0 or more",
+            where=f"column 'height_sd', rows {_rows(bad)}",
+            fix="give each row the standard deviation of its height, or drop the column",
+        )
+    return sd
 
 
 def _numeric(table, column) -> np.ndarray:

@@ -14,6 +14,13 @@ one optimiser call per building. The constraints are built into the parametrisat
 
 and the unconstrained parameters are kept in a box so that separable data (``b -> inf``,
 ``a -> 1``, ``d -> 0``) and one-class data end on a finite boundary instead of diverging.
+
+Errors in ``x``: when each sample's ``x`` is known only to a Gaussian standard deviation
+``sd`` (an intersection height from a receiver position a metre off), the curve a sample
+follows is the 4PL convolved with that error. With the probit approximation of the
+logistic-Gaussian integral (MacKay 1992) this is the same 4PL with the slope shrunk per sample,
+``b kappa`` with ``kappa = 1 / sqrt(1 + pi b^2 sd^2 / 8)``, so that ``b`` is the slope of the
+transition itself and the samples with precise ``x`` pin ``c`` and ``b`` more than the others.
 """
 
 from __future__ import annotations
@@ -111,6 +118,7 @@ def fit_4pl(
     n_groups: int | None = None,
     *,
     init=None,
+    sd=None,
     b_bounds: tuple[float, float] = B_BOUNDS,
     max_iter: int = 200,
     tol: float = 1e-9,
@@ -131,6 +139,9 @@ def fit_4pl(
         Optional ``(n_groups, 4)`` starting values ``(a, b, c, d)``, e.g. the previous fit in an
         iteration, used where they are likelier than the best increasing step (the b -> inf
         limit of the fit) at three slopes, from which each group starts otherwise.
+    sd
+        Optional standard deviation of each sample's ``x`` (errors in variables, see above);
+        default: ``x`` is exact.
     b_bounds
         Bounds of the slope ``b`` in units of 1/x (default :data:`B_BOUNDS`).
     max_iter, tol
@@ -155,11 +166,12 @@ def fit_4pl(
     y = np.asarray(y, dtype=float)
     w = np.ones_like(x) if weights is None else np.asarray(weights, dtype=float)
     g = np.zeros(x.shape, dtype=np.intp) if groups is None else np.asarray(groups, dtype=np.intp)
+    v = np.zeros_like(x) if sd is None else np.asarray(sd, dtype=float) ** 2
     if n_groups is None:
         n_groups = int(g.max()) + 1 if g.size else 1
     if np.any(g[1:] < g[:-1]):  # group the samples: the likelihood sums run block by block
         order = np.argsort(g, kind="stable")
-        x, y, w, g = x[order], y[order], w[order], g[order]
+        x, y, w, g, v = x[order], y[order], w[order], g[order], v[order]
     counts = np.bincount(g, weights=(w > 0).astype(float), minlength=n_groups)
     lo, hi = group_range(x, g, n_groups)
     span = np.maximum(hi - lo, 1e-6)
@@ -169,7 +181,7 @@ def fit_4pl(
     starts = [step, step + np.log(4.0) * slope, step - np.log(4.0) * slope]  # b, 4b, b/4
     if init is not None:
         starts.append(np.nan_to_num(_to_theta(init)))
-    theta0 = _likeliest(starts, x, y, w, g, n_groups)
+    theta0 = _likeliest(starts, x, y, w, g, v, n_groups)
     box_lo = np.column_stack(
         [
             np.full(n_groups, -_LOGIT_BOUND),
@@ -189,7 +201,7 @@ def fit_4pl(
     theta = np.clip(np.nan_to_num(theta0), box_lo, box_hi)
 
     active = counts > 0
-    data = _ActiveRows(x, y, w, g, active)
+    data = _ActiveRows(x, y, w, g, v, active)
     ll, grad, fisher = _evaluate(theta, *data.arrays, n_groups, active)
     lam = np.full(n_groups, 1e-3)
     converged = np.zeros(n_groups, dtype=bool)
@@ -236,8 +248,8 @@ class _ActiveRows:
     """The samples of the groups still iterating, compacted whenever they fall to half, so
     that a few slow groups cost their own rows per iteration, not the whole dataset's."""
 
-    def __init__(self, x, y, w, g, active):
-        self.arrays = (x, y, w, g)
+    def __init__(self, x, y, w, g, v, active):
+        self.arrays = (x, y, w, g, v)
         self.shrink(active)
 
     def shrink(self, active):
@@ -311,7 +323,7 @@ def _sorted_by_group_then_x(x, g):
     return not (np.any(g[1:] < g[:-1]) or np.any(same & (x[1:] < x[:-1])))
 
 
-def _likeliest(starts, x, y, w, g, n_groups):
+def _likeliest(starts, x, y, w, g, v, n_groups):
     """Per group, the likeliest of several starting points. The best step with three slopes
     guards against too gentle a start sliding into the flat (a = d) basin of the likelihood; a
     caller's start (the previous fit in 4PL-B) is kept only while it is still the likeliest, so
@@ -319,7 +331,7 @@ def _likeliest(starts, x, y, w, g, n_groups):
     everyone = np.ones(n_groups, dtype=bool)
     best, best_ll = None, None
     for cand in starts:
-        ll = _evaluate(cand, x, y, w, g, n_groups, everyone, ll_only=True)[0]
+        ll = _evaluate(cand, x, y, w, g, v, n_groups, everyone, ll_only=True)[0]
         if best is None:
             best, best_ll = cand, ll
             continue
@@ -370,7 +382,7 @@ def _from_theta(theta):
 _BLOCK = 1 << 16
 
 
-def _evaluate(theta, x, y, w, g, n_groups, active, *, ll_only=False):
+def _evaluate(theta, x, y, w, g, v, n_groups, active, *, ll_only=False):
     """Log-likelihood, gradient and Fisher information (in theta) of the active groups
     (gradient and information left at zero with ``ll_only``), summed block by block.
 
@@ -381,7 +393,7 @@ def _evaluate(theta, x, y, w, g, n_groups, active, *, ll_only=False):
     fisher = np.zeros((n_groups, 4, 4))
     sel = active[g]
     if not sel.all():
-        x, y, w, g = x[sel], y[sel], w[sel], g[sel]
+        x, y, w, g, v = x[sel], y[sel], w[sel], g[sel], v[sel]
     a_g, r_g = expit(theta[:, 0]), expit(theta[:, 3])
     per_group = (a_g, a_g * r_g, np.exp(theta[:, 1]), theta[:, 2], r_g)
     for lo in range(0, x.size, _BLOCK):
@@ -389,7 +401,7 @@ def _evaluate(theta, x, y, w, g, n_groups, active, *, ll_only=False):
         gb = g[block]
         first, last = gb.min(), gb.max() + 1
         sums = _block_sums(
-            x[block], y[block], w[block], gb - first, per_group, first, last, ll_only
+            x[block], y[block], w[block], v[block], gb - first, per_group, first, last, ll_only
         )
         ll[first:last] += sums[0]
         if not ll_only:
@@ -398,7 +410,7 @@ def _evaluate(theta, x, y, w, g, n_groups, active, *, ll_only=False):
     return ll, grad, fisher
 
 
-def _block_sums(x, y, w, g, per_group, first, last, ll_only):
+def _block_sums(x, y, w, v, g, per_group, first, last, ll_only):
     """Per-group sums of one block of samples (``g`` counted from group ``first``). A block of
     one group (one building, or a large one spanning blocks) sums by matrix products."""
     n = last - first
@@ -407,7 +419,8 @@ def _block_sums(x, y, w, g, per_group, first, last, ll_only):
     else:
         a, d, b, c, r = (np.take(v[first:last], g) for v in per_group)
     x_c = x - c
-    s = _sigmoid(b * x_c)
+    kappa = 1.0 / np.sqrt(1.0 + (np.pi / 8.0) * b * b * v)  # v: variance of x; d(b kappa)/db
+    s = _sigmoid(b * kappa * x_c)  # = kappa^3, hence the kappa^2 in the slope's jacobian
     p = np.clip(d + (a - d) * s, _EPS, 1 - _EPS)
     q = 1 - p
     terms = w * (y * np.log(p) + (1 - y) * np.log(q))
@@ -415,9 +428,11 @@ def _block_sums(x, y, w, g, per_group, first, last, ll_only):
     if ll_only:
         return (ll,)
     s_low = 1 - s
-    dsb = (a - d) * s * s_low * b
+    dsb = (a - d) * s * s_low * b * kappa
     jac = np.stack(
-        np.broadcast_arrays(a * (1 - a) * (s + s_low * r), dsb * x_c, -dsb, s_low * a * r * (1 - r))
+        np.broadcast_arrays(
+            a * (1 - a) * (s + s_low * r), dsb * kappa**2 * x_c, -dsb, s_low * a * r * (1 - r)
+        )
     )
     info = w / (p * q)
     resid = info * (y - p)

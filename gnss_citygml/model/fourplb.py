@@ -17,7 +17,11 @@ side of their roof line (a canyon where nearly all signals are blocked, a terrac
 all are open). Measured on the simulated sites, neither reweighting beat the paper's unweighted
 MLE once every fit starts from its likeliest step (see the README), so ``none`` is the default.
 A visibility model (``signal`` and ``order``) leaves out, for each building, the signals that
-another building blocks.
+another building blocks. Given how far each intersection height may be off from its receiver's
+position error (``height_sd``), the height fits model that error, as the paper's discussion
+plans ("modelling location error"): ``b`` is then the sharpness of the roof line itself, not
+of the blur that position errors add, and the range carries the roof line's own position
+uncertainty (:func:`position_margin`).
 """
 
 from __future__ import annotations
@@ -25,11 +29,19 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import pandas as pd
 
 from .classifier import SignalClassifier
 from .fourpl import B_BOUNDS, fit_4pl, group_range
 
-__all__ = ["WEIGHTINGS", "Acceptance", "BuildingFits", "fourplb", "height_weights"]
+__all__ = [
+    "WEIGHTINGS",
+    "Acceptance",
+    "BuildingFits",
+    "fourplb",
+    "height_weights",
+    "position_margin",
+]
 
 #: Reweighting schemes of the height fit; see :func:`height_weights`.
 WEIGHTINGS = ("none", "height", "balanced")
@@ -137,6 +149,8 @@ def fourplb(
     min_separation: float = 0.3,
     max_uncertainty: float = 10.0,
     bootstrap: bool = True,
+    height_sd=None,
+    receiver=None,
 ) -> tuple[BuildingFits, SignalClassifier]:
     """Run 4PL-B (or, with ``bootstrap=False``, the paper's one-shot 4PL) on coded arrays.
 
@@ -175,6 +189,12 @@ def fourplb(
         False runs a single pass (label by the initial classifier, fit, stop): the paper's 4PL,
         which, as in the paper, always returns the fitted height when the optimiser converged
         on data of both classes; the plausibility checks of 4PL-B are not applied to it.
+    height_sd, receiver
+        Optional standard deviation (m) of each row's intersection height owing to its
+        receiver's position error, and the row's recording (any hashable codes). With
+        ``height_sd`` the height 4PLs model that error (errors in variables, see
+        :mod:`.fourpl`), so ``b`` is the sharpness of the roof line itself, and the range is
+        widened by :func:`position_margin` for the part of the error no fit averages away.
 
     Returns
     -------
@@ -186,6 +206,9 @@ def fourplb(
     by_group = np.lexsort((h, g))  # a building's rows together, by height: faster fits
     g, h = g[by_group], h[by_group]
     s = np.asarray(cn0, dtype=float)[by_group]
+    sd = None if height_sd is None else np.asarray(height_sd, dtype=float)[by_group]
+    if receiver is not None:
+        receiver = pd.factorize(np.asarray(receiver, dtype=object)[by_group])[0]
     if signal is not None:
         sig = np.unique(np.asarray(signal)[by_group], return_inverse=True)[1]
     else:
@@ -213,6 +236,7 @@ def fourplb(
             g[use],
             n_groups,
             init=None if fit is None else fit.params,
+            sd=None if sd is None else sd[use],
         )
         if not bootstrap:
             break
@@ -238,8 +262,22 @@ def fourplb(
             break
 
     accept = Acceptance(label_tol, min_signals, min_separation, max_uncertainty)
+    margin = np.zeros(n_groups)
+    if sd is not None:
+        rec = None if receiver is None else receiver[fit_seen]
+        margin = position_margin(fit, g[fit_seen], h[fit_seen], sd[fit_seen], rec, n_groups)
     result = _judge(
-        fit, g, h, fit_labels, fit_seen, n_groups, change, iterations, accept, strict=bootstrap
+        fit,
+        g,
+        h,
+        fit_labels,
+        fit_seen,
+        n_groups,
+        change,
+        iterations,
+        accept,
+        strict=bootstrap,
+        margin=margin,
     )
     return result, classifier
 
@@ -282,7 +320,30 @@ def _classifier_data(cn0, open_map, sig, seen):
     return cn0[first[used]], closed[used] == 0
 
 
-def _judge(fit, g, h, labels, seen, n_groups, change, iterations, accept, *, strict=True):
+def position_margin(fit, g, h, sd, recording, n_groups):
+    """How far (m) the roof line may be off owing to the receivers' position errors: twice
+    the standard error of ``c`` when every recording's error is shared by all its rows.
+
+    The errors-in-variables fit averages the position errors of rows as if independent, but a
+    recording's offset (a point picked on a map, a phone's drifting fix) moves all its rows
+    alike. So each recording counts once, by its rows within the transition (``|h - c| <=
+    1.5/b + sd``), with the root mean square of their ``sd``: ``se(c)^2 = sum_r (n_r s_r)^2 /
+    (sum_r n_r)^2``. Without recordings all rows are one recording (the widest margin).
+    """
+    near = np.abs(h - fit.c[g]) <= 1.5 / fit.b[g] + sd
+    g, sd = g[near], sd[near]
+    rec = np.zeros(g.size, dtype=np.intp) if recording is None else recording[near]
+    key, pair = np.unique(np.column_stack([g, rec]), axis=0, return_inverse=True)
+    n = np.bincount(pair, minlength=len(key)).astype(float)
+    s2 = np.bincount(pair, sd**2, minlength=len(key)) / np.maximum(n, 1.0)
+    num = np.bincount(key[:, 0], n * n * s2, minlength=n_groups) if key.size else np.zeros(n_groups)
+    den = np.bincount(key[:, 0], n, minlength=n_groups) if key.size else np.zeros(n_groups)
+    return 2.0 * np.sqrt(num) / np.maximum(den, 1.0)
+
+
+def _judge(
+    fit, g, h, labels, seen, n_groups, change, iterations, accept, *, strict=True, margin=0.0
+):
     """Turn a fit on the ``seen`` rows into heights, with an explicit reason wherever it is
     not to be trusted (``strict``: also where 4PL-B's loop or the fit itself is implausible)."""
     below_all = h < fit.c[g]
@@ -333,6 +394,6 @@ def _judge(fit, g, h, labels, seen, n_groups, change, iterations, accept, *, str
         converged=converged,
         status=status,
         height=np.where(converged, c + 1.5 / b, np.nan),
-        height_lower=np.where(converged, c, np.nan),
-        height_upper=np.where(converged, c + 3.0 / b, np.nan),
+        height_lower=np.where(converged, c - margin, np.nan),
+        height_upper=np.where(converged, c + 3.0 / b + margin, np.nan),
     )

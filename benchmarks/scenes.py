@@ -7,7 +7,7 @@ and estimated with the initial thresholds 20, 30 and 40 dB-Hz; one line per scen
 locations, then the totals. The constants of the estimator are the paper's and the physics';
 none was chosen on these scenes or on the presets.
 
-    python benchmarks/scenes.py [--scenes 8]
+    python benchmarks/scenes.py [--scenes 8] [--position-sd]
 """
 
 from __future__ import annotations
@@ -18,10 +18,13 @@ import numpy as np
 import pandas as pd
 
 from gnss_citygml import estimate_heights
+from gnss_citygml.accuracy import site_tables
 from gnss_citygml.simulate import EPOCH, LOCATIONS, simulate
 from gnss_citygml.simulate.scenes import city_scene
 
 THRESHOLDS = (20.0, 30.0, 40.0)
+#: Position error (m per axis) the fits are told with --position-sd, as in paper_table.py.
+POSITION_SD = {"manual": 1.0, "gnss": 5.0}
 
 
 def random_scene(k: int):
@@ -37,26 +40,37 @@ def random_scene(k: int):
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scenes", type=int, default=8, help="number of random scenes")
+    parser.add_argument(
+        "--position-sd",
+        action="store_true",
+        help="the fits model position errors (manual 1 m, phone fixes 5 m per axis)",
+    )
     args = parser.parse_args()
     runs = []
-    print(
-        "| scene | layout | locations | converged | RMSE | median abs. error | worst | RMSE of c |"
-    )
-    print("|---|---|---|---|---|---|---|---|")
+    header = "converged | RMSE | median abs. error | worst | RMSE of c | range covers truth |"
+    print(f"| scene | layout | locations | {header}")
+    print("|---|---|---|---|---|---|---|---|---|")
     for k in range(args.scenes):
         scene, start, layout = random_scene(k)
         for locations in LOCATIONS:
             sim = simulate(scene, locations=locations, seed=k, start=start)
+            sd = POSITION_SD[locations] if args.position_sd else None
+            intersections = site_tables(sim, position_sd=sd)[2]
             truth = sim.truth.set_index("id")["height"]
             errors = []
             for threshold in THRESHOLDS:
-                out = estimate_heights(sim.intersections, init_threshold=threshold)
+                out = estimate_heights(intersections, init_threshold=threshold)
                 out = out.set_index("id")
                 ok = out["converged"].astype(bool)
                 true = truth.reindex(out.index)[ok]
+                lower, upper = out["height_lower"][ok], out["height_upper"][ok]
                 errors.append(
                     pd.DataFrame(
-                        {"error": out["height"][ok] - true, "c_error": out["c"][ok] - true}
+                        {
+                            "error": out["height"][ok] - true,
+                            "c_error": out["c"][ok] - true,
+                            "covered": (lower <= true) & (true <= upper),
+                        }
                     )
                 )
             err = pd.concat(errors)
@@ -65,8 +79,8 @@ def main():
             print(f"| {k} | {layout} | {locations} | {_cells(err, n_runs)} |", flush=True)
     every = pd.concat(runs)
     print("\nAll scenes, thresholds 20/30/40:\n")
-    print("| locations | converged | RMSE | median abs. error | worst | RMSE of c |")
-    print("|---|---|---|---|---|---|")
+    print(f"| locations | {header}")
+    print("|---|---|---|---|---|---|---|")
     totals = {
         loc: sum(r["runs"].iloc[0] for r in runs if r["locations"].iloc[0] == loc)
         for loc in LOCATIONS
@@ -80,6 +94,7 @@ def _cells(err: pd.DataFrame, n_runs: int) -> str:
     c_rmse = np.sqrt(np.mean(err["c_error"] ** 2))
     a = err["error"].abs()
     cells = [f"{len(err)}/{n_runs}", *(f"{v:.2f} m" for v in (rmse, a.median(), a.max(), c_rmse))]
+    cells.append(f"{err['covered'].mean():.0%}")
     return " | ".join(cells)
 
 

@@ -18,7 +18,14 @@ from .calibrate import calibrate_receivers
 from .model.estimate import METHODS, estimate_heights
 from .simulate import simulate
 
-__all__ = ["PAPER_THRESHOLDS", "POSITIONS", "markdown_table", "run_accuracy", "summarise"]
+__all__ = [
+    "PAPER_THRESHOLDS",
+    "POSITIONS",
+    "markdown_table",
+    "run_accuracy",
+    "site_tables",
+    "summarise",
+]
 
 #: The paper's initial thresholds: 20, 21, ..., 40 dB-Hz.
 PAPER_THRESHOLDS = tuple(float(t) for t in range(20, 41))
@@ -43,7 +50,7 @@ def run_accuracy(
     progress=None,
     pipeline_grids=None,
     position_sd=None,
-    calibrate=False,
+    calibration_sd=None,
     calibration_window=None,
     positions="reported",
     **options,
@@ -53,10 +60,11 @@ def run_accuracy(
     ``options`` go to :func:`estimate_heights` for the 4PL methods (e.g. ``weighting``).
     ``position_sd`` (a mapping from locations to metres per axis, e.g. ``{"manual": 1,
     "gnss": 5}``) makes the 4PL fits model the height errors of position errors that size
-    (``height_sd`` of :func:`~gnss_citygml.pipeline.intersections`); ``calibrate`` also turns
-    on the self-calibration of receiver offsets (:mod:`gnss_citygml.calibrate`) for 4PL-B with
-    that prior, run for each initial threshold, with one offset per recording or, with
-    ``calibration_window`` (s), per window of it; the time it takes is part of ``seconds``.
+    (``height_sd`` of :func:`~gnss_citygml.pipeline.intersections`). ``calibration_sd`` (a
+    mapping alike) turns on the self-calibration of receiver offsets
+    (:mod:`gnss_citygml.calibrate`) for 4PL-B with that prior, run for each initial threshold,
+    with one offset per recording or, with ``calibration_window`` (s), per window of it; the
+    time it takes is part of ``seconds``.
     ``progress`` is an optional callable receiving a short text per finished run. The fit time
     of each run is in ``seconds`` and the number of intersections in ``n_rows``. With
     ``pipeline_grids`` (the OSTN15/OSGM15 grid folder), the intersections are not the
@@ -65,22 +73,13 @@ def run_accuracy(
     ``positions`` (one of :data:`POSITIONS`, with the simulator's own intersections) moves the
     rays' origins to measure the floors of the estimator and of the data.
     """
-    if positions not in POSITIONS:
-        raise ValueError(f"positions must be one of {', '.join(POSITIONS)}, not {positions!r}")
-    if positions != "reported" and pipeline_grids is not None:
-        raise ValueError("positions other than 'reported' need the simulator's intersections")
-    if calibrate and position_sd is None:
-        raise ValueError("calibrate needs position_sd, the prior of the receivers' offsets")
+    _check_positions(positions, pipeline_grids)
     rows = []
     for preset in presets:
         for loc in locations:
             sim = simulate(preset, locations=loc, seed=seed, interval=interval)
-            rays, footprints, inter_all = _site(sim, pipeline_grids)
             sd = None if position_sd is None else position_sd[loc]
-            if positions != "reported":
-                rays = _oracle_rays(rays, positions)
-            if positions != "reported" or sd is not None:
-                inter_all = _recast(rays, footprints, sd)
+            rays, footprints, inter_all = site_tables(sim, pipeline_grids, positions, sd)
             truth = sim.truth.set_index("id")
             targets = truth.index[truth["target"]]
             for method in methods:
@@ -88,11 +87,11 @@ def run_accuracy(
                 for threshold in thresholds:
                     start = time.perf_counter()
                     inter = inter_all
-                    if calibrate and method == "4PL-B":
+                    if calibration_sd is not None and method == "4PL-B":
                         fixed = calibrate_receivers(
                             rays,
                             footprints,
-                            position_sd=sd,
+                            position_sd=calibration_sd[loc],
                             window=calibration_window,
                             init_threshold=threshold,
                             **opts,
@@ -128,10 +127,13 @@ def run_accuracy(
     return result
 
 
-def _site(sim, grid_dir):
+def site_tables(sim, grid_dir=None, positions="reported", position_sd=None):
     """The rays (receivers with ``e``, ``n``, ``z``, ``bearing``), footprints and intersections
     of a simulated site: the simulator's own in its local grid, or, with ``grid_dir``, the
-    pipeline's from the site written as files (British National Grid)."""
+    pipeline's from the site written as files (British National Grid). ``positions`` (one of
+    :data:`POSITIONS`) moves the rays' origins; with ``position_sd`` the intersections have
+    the ``height_sd`` that follows (see :func:`~gnss_citygml.pipeline.intersections`)."""
+    _check_positions(positions, grid_dir)
     if grid_dir is None:
         rays = sim.observations.assign(bearing=sim.observations["azimuth"])
         footprints = pd.DataFrame(
@@ -140,7 +142,11 @@ def _site(sim, grid_dir):
                 "geometry": [b.footprint for b in sim.scene.buildings],
             }
         )
-        return rays, footprints, sim.intersections
+        if positions != "reported":
+            rays = _oracle_rays(rays, positions)
+        if positions == "reported" and position_sd is None:
+            return rays, footprints, sim.intersections
+        return rays, footprints, _recast(rays, footprints, position_sd)
     from .buildings import read_footprints
     from .observations import read_observations
     from .pipeline import receivers
@@ -152,7 +158,14 @@ def _site(sim, grid_dir):
             read_observations(paths["observations"]), str(paths["dem"]), grid_dir=grid_dir
         )
         footprints = read_footprints(paths["footprints"])
-    return rays, footprints, _recast(rays, footprints)
+    return rays, footprints, _recast(rays, footprints, position_sd)
+
+
+def _check_positions(positions, grid_dir):
+    if positions not in POSITIONS:
+        raise ValueError(f"positions must be one of {', '.join(POSITIONS)}, not {positions!r}")
+    if positions != "reported" and grid_dir is not None:
+        raise ValueError("positions other than 'reported' need the simulator's intersections")
 
 
 def _oracle_rays(rays: pd.DataFrame, positions: str) -> pd.DataFrame:

@@ -162,7 +162,7 @@ def estimate(
     dem_crs=None,
     progress: Callable[[str], None] | None = None,
     position_sd: float | None = None,
-    calibrate: bool = False,
+    calibration_sd: float | None = None,
     calibration_window: float | None = None,
     **options,
 ) -> gpd.GeoDataFrame:
@@ -199,10 +199,10 @@ def estimate(
         hand on a map: the height fits then model each signal's resulting height error
         (``height_sd`` of :func:`intersections`) and the ranges carry the roof line's position
         uncertainty. Default: the positions are taken as exact, as in the paper.
-    calibrate, calibration_window
-        With ``calibrate`` (needs ``position_sd``, the prior), 4PL-B first estimates one
-        position offset per recording (or per ``calibration_window`` seconds of it) jointly
-        with the heights (:func:`~gnss_citygml.calibrate.calibrate_receivers`). Off by
+    calibration_sd, calibration_window
+        With ``calibration_sd`` (m per axis, the prior of the offsets), 4PL-B first estimates
+        one position offset per recording (or per ``calibration_window`` seconds of it)
+        jointly with the heights (:func:`~gnss_citygml.calibrate.calibrate_receivers`). Off by
         default: it costs a few extra casts and fits.
 
     Returns
@@ -213,11 +213,6 @@ def estimate(
         estimate did not converge, have empty heights and ``converged = False`` with the
         reason in ``status``: never a guess.
     """
-    if calibrate and position_sd is None:
-        raise InputError(
-            "self-calibration needs the receivers' position error as its prior",
-            fix="give position_sd (--position-sd), e.g. 1 m for points placed by hand",
-        )
     say = progress or (lambda stage: None)
     say(STAGES[0])
     obs = check_observations(observations)
@@ -244,11 +239,11 @@ def estimate(
     elif "ground" not in buildings.columns:
         raise InputError("building ground heights need a DEM", fix="give --dem")
     say(STAGES[3])
-    if calibrate and method == "4PL-B":
+    if calibration_sd is not None and method == "4PL-B":
         rx = calibrate_receivers(
             rx,
             buildings,
-            position_sd=position_sd,
+            position_sd=calibration_sd,
             window=calibration_window,
             init_threshold=init_threshold,
             max_range=max_range,

@@ -169,15 +169,3 @@ def test_height_errors_of_position_errors():
     np.testing.assert_allclose(out["height"], plain["height"])
     # tan 45 = 1; 1 / cos 60 = 2; grazing (cos 3 deg from the wall = 0.05) capped at 10
     np.testing.assert_allclose(out["height_sd"], [2.0, 4.0, 20.0])
-
-
-def test_calibration_needs_a_position_error(site):
-    sim, paths, grids = site
-    with pytest.raises(InputError, match="self-calibration needs"):
-        estimate(
-            read_observations(paths["observations"]),
-            read_footprints(paths["footprints"]),
-            str(paths["dem"]),
-            grid_dir=grids,
-            calibrate=True,
-        )

@@ -182,9 +182,10 @@ def fourplb(
         change the open probability by that much. (The paper's classifier, trained at one site
         and applied to others, still had a - d of about 0.4.)
     max_uncertainty
-        Widest height range (c, c + 3/b), in metres, of a converged estimate. The default, 10 m,
-        keeps the estimate within 5 m of both ends of its range: CityGML's accuracy class for
-        LOD1, the benchmark the paper measures itself against.
+        Widest height range (c, c + 3/b), with ``height_sd`` widened by the position margin,
+        in metres, of a converged estimate. The default, 10 m, keeps the estimate within 5 m
+        of both ends of its range: CityGML's accuracy class for LOD1, the benchmark the paper
+        measures itself against.
     bootstrap
         False runs a single pass (label by the initial classifier, fit, stop): the paper's 4PL,
         which, as in the paper, always returns the fitted height when the optimiser converged
@@ -367,7 +368,10 @@ def _judge(
         (a - d < min_separation, f"asymptotes closer than {min_separation} (a - d)"),
         # Relabelling by h > c presumes the map classifies below c as closed and above as open.
         ((d >= 0.5) | (a <= 0.5), "the roof line does not separate open from closed signals"),
-        (3.0 / b > max_uncertainty, f"height range (c, c + 3/b) wider than {max_uncertainty:g} m"),
+        (
+            3.0 / b + 2.0 * margin > max_uncertainty,
+            f"height range wider than {max_uncertainty:g} m",
+        ),
         (hidden, "roof line hidden: most signals below it are blocked by other buildings"),
         (
             np.minimum(n_below, n_rows - n_below) < min_signals,

@@ -109,6 +109,7 @@ def run_accuracy(
                                 "threshold": threshold,
                                 "building": bid,
                                 "height": r["height"],
+                                "c": r["c"],
                                 "lower": r["height_lower"],
                                 "upper": r["height_upper"],
                                 "truth": truth.loc[bid, "height"],

@@ -46,7 +46,7 @@ def main():
         help="the fits model position errors (manual 1 m, phone fixes 5 m per axis)",
     )
     args = parser.parse_args()
-    runs = []
+    runs, totals = [], dict.fromkeys(LOCATIONS, 0)
     header = "converged | RMSE | median abs. error | worst | RMSE of c | range covers truth |"
     print(f"| scene | layout | locations | {header}")
     print("|---|---|---|---|---|---|---|---|---|")
@@ -75,21 +75,22 @@ def main():
                 )
             err = pd.concat(errors)
             n_runs = len(truth) * len(THRESHOLDS)
-            runs.append(err.assign(locations=locations, runs=n_runs))
+            runs.append(err.assign(locations=locations))
+            totals[locations] += n_runs
             print(f"| {k} | {layout} | {locations} | {_cells(err, n_runs)} |", flush=True)
     every = pd.concat(runs)
     print("\nAll scenes, thresholds 20/30/40:\n")
     print(f"| locations | {header}")
     print("|---|---|---|---|---|---|---|")
-    totals = {
-        loc: sum(r["runs"].iloc[0] for r in runs if r["locations"].iloc[0] == loc)
-        for loc in LOCATIONS
-    }
-    for locations, err in every.groupby("locations", sort=False):
-        print(f"| {locations} | {_cells(err, totals[locations])} |")
+    for locations in LOCATIONS:
+        print(
+            f"| {locations} | {_cells(every[every['locations'] == locations], totals[locations])} |"
+        )
 
 
 def _cells(err: pd.DataFrame, n_runs: int) -> str:
+    if err.empty:
+        return f"0/{n_runs} | - | - | - | - | -"
     rmse = np.sqrt(np.mean(err["error"] ** 2))
     c_rmse = np.sqrt(np.mean(err["c_error"] ** 2))
     a = err["error"].abs()

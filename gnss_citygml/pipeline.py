@@ -213,6 +213,11 @@ def estimate(
         estimate did not converge, have empty heights and ``converged = False`` with the
         reason in ``status``: never a guess.
     """
+    if calibration_window is not None and calibration_sd is None:
+        raise InputError(
+            "a calibration window without self-calibration",
+            fix="give calibration_sd (--calibration-sd) too, e.g. 5 m for phone fixes",
+        )
     say = progress or (lambda stage: None)
     say(STAGES[0])
     obs = check_observations(observations)

@@ -41,8 +41,9 @@ from .options import QUIET, THRESHOLD, output_file, progress
     "--position-sd",
     type=click.FloatRange(min=0.0, min_open=True),
     help="How far the receiver positions may be off (m per axis; about 1 for points placed by "
-    "hand): the fits model the height errors that follow and the ranges widen. Default: "
-    "positions taken as exact, as in the paper.",
+    "hand): the fits model the height errors that follow and the ranges widen. Not for phone "
+    "fixes, whose errors drift: use --calibration-sd. Default: positions taken as exact, as "
+    "in the paper.",
 )
 @click.option(
     "--calibration-sd",

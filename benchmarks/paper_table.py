@@ -64,6 +64,13 @@ def main():
         "axis: manual 1 m, the paper's 'below 2 m'; phone fixes 5 m)",
     )
     parser.add_argument(
+        "--position-window",
+        type=float,
+        default=None,
+        help="with --position-sd: one position error per this many seconds of a recording "
+        "(walkers) instead of one per recording (points placed by hand)",
+    )
+    parser.add_argument(
         "--calibrate",
         action="store_true",
         help="self-calibrate one offset per recording with 4PL-B (prior sd: manual 1 m, the "
@@ -95,7 +102,7 @@ def main():
         thresholds = tuple(float(t) for t in args.thresholds.split(","))
     options = {} if args.weighting is None else {"weighting": args.weighting}
     if args.position_sd:
-        options["position_sd"] = POSITION_SD
+        options.update(position_sd=POSITION_SD, position_window=args.position_window)
     if args.calibrate:
         options.update(calibration_sd=POSITION_SD, calibration_window=args.window)
     if args.methods:

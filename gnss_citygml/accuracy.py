@@ -50,6 +50,7 @@ def run_accuracy(
     progress=None,
     pipeline_grids=None,
     position_sd=None,
+    position_window=None,
     calibration_sd=None,
     calibration_window=None,
     positions="reported",
@@ -60,7 +61,8 @@ def run_accuracy(
     ``options`` go to :func:`estimate_heights` for the 4PL methods (e.g. ``weighting``).
     ``position_sd`` (a mapping from locations to metres per axis, e.g. ``{"manual": 1,
     "gnss": 5}``) makes the 4PL fits model the height errors of position errors that size
-    (``height_sd`` of :func:`~gnss_citygml.pipeline.intersections`). ``calibration_sd`` (a
+    (``height_sd`` of :func:`~gnss_citygml.pipeline.intersections`), one error per recording
+    or, with ``position_window`` (s), per window of it. ``calibration_sd`` (a
     mapping alike) turns on the self-calibration of receiver offsets
     (:mod:`gnss_citygml.calibrate`) for 4PL-B with that prior, run for each initial threshold,
     with one offset per recording or, with ``calibration_window`` (s), per window of it; the
@@ -79,7 +81,9 @@ def run_accuracy(
         for loc in locations:
             sim = simulate(preset, locations=loc, seed=seed, interval=interval)
             sd = None if position_sd is None else position_sd[loc]
-            rays, footprints, inter_all = site_tables(sim, pipeline_grids, positions, sd)
+            rays, footprints, inter_all = site_tables(
+                sim, pipeline_grids, positions, sd, position_window
+            )
             truth = sim.truth.set_index("id")
             targets = truth.index[truth["target"]]
             for method in methods:
@@ -96,7 +100,7 @@ def run_accuracy(
                             init_threshold=threshold,
                             **opts,
                         )
-                        inter = _recast(fixed, footprints, sd)
+                        inter = _recast(fixed, footprints, sd, position_window)
                     out = estimate_heights(inter, method=method, init_threshold=threshold, **opts)
                     seconds = time.perf_counter() - start
                     out = out.set_index("id").reindex(targets)
@@ -128,12 +132,13 @@ def run_accuracy(
     return result
 
 
-def site_tables(sim, grid_dir=None, positions="reported", position_sd=None):
+def site_tables(sim, grid_dir=None, positions="reported", position_sd=None, position_window=None):
     """The rays (receivers with ``e``, ``n``, ``z``, ``bearing``), footprints and intersections
     of a simulated site: the simulator's own in its local grid, or, with ``grid_dir``, the
     pipeline's from the site written as files (British National Grid). ``positions`` (one of
-    :data:`POSITIONS`) moves the rays' origins; with ``position_sd`` the intersections have
-    the ``height_sd`` that follows (see :func:`~gnss_citygml.pipeline.intersections`)."""
+    :data:`POSITIONS`) moves the rays' origins; with ``position_sd`` (and ``position_window``)
+    the intersections have the ``height_sd`` (and ``recording``) of
+    :func:`~gnss_citygml.pipeline.intersections`."""
     _check_positions(positions, grid_dir)
     if grid_dir is None:
         rays = sim.observations.assign(bearing=sim.observations["azimuth"])
@@ -147,7 +152,7 @@ def site_tables(sim, grid_dir=None, positions="reported", position_sd=None):
             rays = _oracle_rays(rays, positions)
         if positions == "reported" and position_sd is None:
             return rays, footprints, sim.intersections
-        return rays, footprints, _recast(rays, footprints, position_sd)
+        return rays, footprints, _recast(rays, footprints, position_sd, position_window)
     from .buildings import read_footprints
     from .observations import read_observations
     from .pipeline import receivers
@@ -159,7 +164,7 @@ def site_tables(sim, grid_dir=None, positions="reported", position_sd=None):
             read_observations(paths["observations"]), str(paths["dem"]), grid_dir=grid_dir
         )
         footprints = read_footprints(paths["footprints"])
-    return rays, footprints, _recast(rays, footprints, position_sd)
+    return rays, footprints, _recast(rays, footprints, position_sd, position_window)
 
 
 def _check_positions(positions, grid_dir):
@@ -180,11 +185,11 @@ def _oracle_rays(rays: pd.DataFrame, positions: str) -> pd.DataFrame:
     return rays.assign(e=e, n=n)
 
 
-def _recast(rays: pd.DataFrame, footprints: pd.DataFrame, position_sd=None) -> pd.DataFrame:
+def _recast(rays, footprints, position_sd=None, position_window=None) -> pd.DataFrame:
     """The intersections table of rays cast from (corrected) positions."""
     from .pipeline import intersections  # the pipeline composes the stages: import it lazily
 
-    return intersections(rays, footprints, position_sd=position_sd)
+    return intersections(rays, footprints, position_sd=position_sd, position_window=position_window)
 
 
 def summarise(results: pd.DataFrame) -> pd.DataFrame:

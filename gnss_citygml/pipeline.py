@@ -99,6 +99,7 @@ def intersections(
     max_range: float = 500.0,
     earth_curvature: bool = False,
     position_sd: float | None = None,
+    position_window: float | None = None,
 ) -> pd.DataFrame:
     """The intersections table of DESIGN.md: every signal x building its ray enters.
 
@@ -111,7 +112,10 @@ def intersections(
     ``height_sd``: the standard deviation of each height that follows, ``position_sd *
     tan(elevation) / cos(incidence)`` (a position error across the entry wall lengthens or
     shortens the ray's way to it by itself over the cosine of the angle of incidence; along
-    the wall it changes nothing), with the cosine floored at :data:`MIN_INCIDENCE`.
+    the wall it changes nothing), with the cosine floored at :data:`MIN_INCIDENCE`. With
+    ``position_window`` (s; needs ``time_utc``), a column ``recording`` too: rows of one
+    receiver within one window of that many seconds share one position error (a walker's
+    traced path drifts; by default a whole recording shares one, as a point placed by hand).
     """
     ray, fp, dist, incidence = footprint_entries(
         receivers["e"].to_numpy(),
@@ -130,6 +134,8 @@ def intersections(
     if position_sd is not None:
         spread = np.tan(elevation) / np.maximum(incidence, MIN_INCIDENCE)
         extra["height_sd"] = position_sd * spread
+    if position_window is not None:
+        extra["recording"] = _error_windows(receivers, position_window)[ray]
     return pd.DataFrame(
         {
             "signal": receivers.index.to_numpy()[ray],
@@ -143,6 +149,20 @@ def intersections(
             **extra,
         }
     )
+
+
+def _error_windows(receivers: pd.DataFrame, window: float) -> np.ndarray:
+    """One integer per (receiver, window of ``window`` seconds) of each receiver row."""
+    if "time_utc" not in receivers.columns:
+        raise InputError(
+            "a position window needs the observations' time_utc",
+            fix="give every observation its time, or leave out the position window",
+        )
+    utc = pd.to_datetime(receivers["time_utc"], utc=True).dt.tz_convert(None)
+    ns = utc.to_numpy().astype("datetime64[ns]").astype(np.int64)
+    slot = (ns - ns.min()) // max(int(window * 1e9), 1)
+    receiver = pd.factorize(receivers["receiver"])[0].astype(np.int64)
+    return receiver * (int(slot.max()) + 1) + slot
 
 
 def estimate(
@@ -162,6 +182,7 @@ def estimate(
     dem_crs=None,
     progress: Callable[[str], None] | None = None,
     position_sd: float | None = None,
+    position_window: float | None = None,
     calibration_sd: float | None = None,
     calibration_window: float | None = None,
     **options,
@@ -199,6 +220,9 @@ def estimate(
         hand on a map: the height fits then model each signal's resulting height error
         (``height_sd`` of :func:`intersections`) and the ranges carry the roof line's position
         uncertainty. Default: the positions are taken as exact, as in the paper.
+    position_window
+        With ``position_sd``: how long (s) one position error lasts, e.g. 30 for a walker's
+        traced path; default: a whole recording (a point placed by hand).
     calibration_sd, calibration_window
         With ``calibration_sd`` (m per axis, the prior of the offsets), 4PL-B first estimates
         one position offset per recording (or per ``calibration_window`` seconds of it)
@@ -213,6 +237,11 @@ def estimate(
         estimate did not converge, have empty heights and ``converged = False`` with the
         reason in ``status``: never a guess.
     """
+    if position_window is not None and position_sd is None:
+        raise InputError(
+            "a position window without a position error",
+            fix="give position_sd (--position-sd) too, e.g. 1 m for points placed by hand",
+        )
     if calibration_window is not None and calibration_sd is None:
         raise InputError(
             "a calibration window without self-calibration",
@@ -260,6 +289,7 @@ def estimate(
         max_range=max_range,
         earth_curvature=earth_curvature,
         position_sd=position_sd,
+        position_window=position_window,
     )
     say(STAGES[4])
     heights = estimate_heights(inter, method=method, init_threshold=init_threshold, **options)

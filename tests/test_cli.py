@@ -147,6 +147,8 @@ def test_estimate_with_position_errors(shared_data, tmp_path, capsys):
     assert code == 2 and "--position-sd" in err
     code, _, err = run([*estimate_args(tmp_path, grids), "--calibration-window", "30"], capsys)
     assert code == 2 and "--calibration-sd" in err
+    code, _, err = run([*estimate_args(tmp_path, grids), "--position-window", "30"], capsys)
+    assert code == 2 and "--position-sd" in err
     code, _, err = run([*estimate_args(tmp_path, grids), "--position-sd", "1"], capsys)
     assert code == 0, err
     row = gpd.read_file(tmp_path / "heights.gpkg", layer="heights").set_index("id")

@@ -186,6 +186,17 @@ def test_position_errors_are_modelled_and_widen_the_range(rng):
     assert row["height_upper"] == pytest.approx(row["c"] + 3.0 / row["b"] + margin)
 
 
+def test_recordings_share_position_errors(rng):
+    # four recordings leave half the margin of one (their errors average); a `recording`
+    # column overrides `receiver`
+    table = _blurred_by_positions(rng)
+    four = estimate_heights(table).iloc[0]
+    one = estimate_heights(table.assign(recording=0)).iloc[0]
+    margin_four = four["c"] - four["height_lower"]
+    margin_one = one["c"] - one["height_lower"]
+    assert margin_one == pytest.approx(2.0 * margin_four, rel=0.1)
+
+
 def test_position_margin_counts_each_recording_once():
     from gnss_citygml.model.fourpl import FourPLFit
     from gnss_citygml.model.fourplb import position_margin

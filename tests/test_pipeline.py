@@ -169,3 +169,25 @@ def test_height_errors_of_position_errors():
     np.testing.assert_allclose(out["height"], plain["height"])
     # tan 45 = 1; 1 / cos 60 = 2; grazing (cos 3 deg from the wall = 0.05) capped at 10
     np.testing.assert_allclose(out["height_sd"], [2.0, 4.0, 20.0])
+
+
+def test_position_errors_shared_per_window():
+    wall = gpd.GeoDataFrame({"id": ["w"]}, geometry=[shapely.box(10, -50, 20, 50)])
+    start = pd.Timestamp("2020-02-11T10:00:00Z")
+    rx = pd.DataFrame(
+        {
+            "time_utc": start + pd.to_timedelta([0, 10, 40, 0], unit="s"),
+            "receiver": ["a", "a", "a", "b"],
+            "e": 0.0,
+            "n": 0.0,
+            "z": 1.0,
+            "bearing": 90.0,
+            "elevation": 30.0,
+            "cn0": 40.0,
+        }
+    )
+    out = intersections(rx, wall, position_sd=1.0, position_window=30.0)
+    rec = out["recording"].to_numpy()
+    assert rec[0] == rec[1] and len({rec[0], rec[2], rec[3]}) == 3
+    with pytest.raises(InputError, match="time_utc"):
+        intersections(rx.drop(columns="time_utc"), wall, position_sd=1.0, position_window=30.0)

@@ -46,6 +46,12 @@ from .options import QUIET, THRESHOLD, output_file, progress
     "in the paper.",
 )
 @click.option(
+    "--position-window",
+    type=click.FloatRange(min=0.0, min_open=True),
+    help="With --position-sd: one position error lasts this many seconds (e.g. 30 for a "
+    "walker's traced path). Default: a whole recording, as a point placed by hand.",
+)
+@click.option(
     "--calibration-sd",
     type=click.FloatRange(min=0.0, min_open=True),
     help="Self-calibrate one position offset per recording with this prior (m per axis; "
@@ -76,6 +82,7 @@ def estimate(
     method,
     max_range,
     position_sd,
+    position_window,
     calibration_sd,
     calibration_window,
     dem_crs,
@@ -123,6 +130,7 @@ def estimate(
             grid_dir=grid_dir,
             dem_crs=dem_crs,
             position_sd=position_sd,
+            position_window=position_window,
             calibration_sd=calibration_sd,
             calibration_window=calibration_window,
             progress=stage,

@@ -68,7 +68,7 @@ def estimate_heights(
         error, e.g. from :func:`gnss_citygml.pipeline.intersections` given ``position_sd``).
         With ``height_sd``, 4PL-B and 4PL model that error (the slope ``b`` is then the roof
         line's own) and widen the range by the roof line's position uncertainty, each
-        ``receiver`` (recording) counting as one shared error.
+        ``recording`` (default: each ``receiver``) counting as one shared error.
     method
         ``4PL-B`` (default), ``4PL`` (no bootstrapping), ``hinge`` (Weissman) or ``bayes``
         (Irish et al.).
@@ -210,10 +210,14 @@ def _columns(table: pd.DataFrame):
 
 
 def _recordings(table, height_sd) -> np.ndarray | None:
-    """Each row's recording, which the position-error margin needs (only with ``height_sd``)."""
-    if height_sd is None or "receiver" not in table.columns:
+    """Which position error each row shares (``recording``, else ``receiver``), which the
+    position-error margin needs (only with ``height_sd``)."""
+    if height_sd is None:
         return None
-    return table["receiver"].to_numpy()
+    for column in ("recording", "receiver"):
+        if column in table.columns:
+            return table[column].to_numpy()
+    return None
 
 
 def _height_sd(table) -> np.ndarray | None:

@@ -7,7 +7,7 @@ and estimated with the initial thresholds 20, 30 and 40 dB-Hz; one line per scen
 locations, then the totals. The constants of the estimator are the paper's and the physics';
 none was chosen on these scenes or on the presets.
 
-    python benchmarks/scenes.py [--scenes 8] [--position-sd]
+    python benchmarks/scenes.py [--scenes 8] [--position-sd [--position-window 30]]
 """
 
 from __future__ import annotations
@@ -45,6 +45,12 @@ def main():
         action="store_true",
         help="the fits model position errors (manual 1 m, phone fixes 5 m per axis)",
     )
+    parser.add_argument(
+        "--position-window",
+        type=float,
+        default=None,
+        help="with --position-sd: one position error per this many seconds of a walk",
+    )
     args = parser.parse_args()
     runs, totals = [], dict.fromkeys(LOCATIONS, 0)
     header = "converged | RMSE | median abs. error | worst | RMSE of c | range covers truth |"
@@ -55,7 +61,8 @@ def main():
         for locations in LOCATIONS:
             sim = simulate(scene, locations=locations, seed=k, start=start)
             sd = POSITION_SD[locations] if args.position_sd else None
-            intersections = site_tables(sim, position_sd=sd)[2]
+            window = args.position_window if args.position_sd else None
+            intersections = site_tables(sim, position_sd=sd, position_window=window)[2]
             truth = sim.truth.set_index("id")["height"]
             errors = []
             for threshold in THRESHOLDS:

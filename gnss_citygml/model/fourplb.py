@@ -209,7 +209,7 @@ def fourplb(
     s = np.asarray(cn0, dtype=float)[by_group]
     sd = None if height_sd is None else np.asarray(height_sd, dtype=float)[by_group]
     if receiver is not None:
-        receiver = pd.factorize(np.asarray(receiver, dtype=object)[by_group])[0]
+        receiver = pd.factorize(np.asarray(receiver)[by_group])[0]
     if signal is not None:
         sig = np.unique(np.asarray(signal)[by_group], return_inverse=True)[1]
     else:
@@ -337,8 +337,8 @@ def position_margin(fit, g, h, sd, recording, n_groups):
     key, pair = np.unique(np.column_stack([g, rec]), axis=0, return_inverse=True)
     n = np.bincount(pair, minlength=len(key)).astype(float)
     s2 = np.bincount(pair, sd**2, minlength=len(key)) / np.maximum(n, 1.0)
-    num = np.bincount(key[:, 0], n * n * s2, minlength=n_groups) if key.size else np.zeros(n_groups)
-    den = np.bincount(key[:, 0], n, minlength=n_groups) if key.size else np.zeros(n_groups)
+    num = np.bincount(key[:, 0], n * n * s2, minlength=n_groups)
+    den = np.bincount(key[:, 0], n, minlength=n_groups)
     return 2.0 * np.sqrt(num) / np.maximum(den, 1.0)
 
 

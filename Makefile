@@ -10,7 +10,7 @@ GRID_DIR ?= $(wildcard ../shared/data/geodesy)
 GRIDS := $(if $(GRID_DIR),--grid-dir $(GRID_DIR))
 DEMO := examples/city
 
-.PHONY: test demo lint bench clean
+.PHONY: test demo lint bench fuzz clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -31,6 +31,11 @@ demo: $(STAMP)
 		--dem $(DEMO)/dem.tif -o demo-out/heights.gpkg --overwrite $(GRIDS)
 	$(BIN)/gnss-citygml convert demo-out/heights.gpkg -o demo-out/city.city.json --overwrite
 	$(BIN)/gnss-citygml convert demo-out/heights.gpkg -o demo-out/city.gml --overwrite
+
+# Every reader fuzzed with at least 10,000 cases (tests/fuzz; `make test` runs a short profile).
+fuzz: $(STAMP)
+	$(BIN)/python -m pytest tests/fuzz -q -p no:cacheprovider --hypothesis-profile=fuzz \
+		--hypothesis-show-statistics
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/raycast.py

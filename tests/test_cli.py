@@ -210,3 +210,21 @@ def test_export_a_heights_table(shared_data, tmp_path, capsys):
     )
     code, _, err = run([*args, "--overwrite"], capsys)
     assert code == 2 and "1 height(s) for buildings not among the footprints: ghost" in err
+
+
+def test_a_crash_is_one_line_and_exit_2_never_a_verdict(tmp_path, capsys, monkeypatch):
+    """A bug that escapes a command (here: a reader that recurses too deep) is reported as one
+    line with exit code 2, not a traceback, and never as validate's 'invalid' (exit 1)."""
+    import gnss_citygml.validate as validate
+
+    def crash(*args, **kwargs):
+        raise RecursionError("maximum recursion depth exceeded")
+
+    monkeypatch.setattr(validate, "validate_file", crash)
+    code, out, err = run(["validate", str(tmp_path / "x.city.json")], capsys)
+    assert code == 2 and out == ""
+    assert err.startswith("error: internal error, RecursionError: maximum recursion depth")
+    assert len(err.strip().splitlines()) == 1
+    monkeypatch.setenv("GNSS_CITYGML_DEBUG", "1")
+    with pytest.raises(RecursionError):
+        main(["validate", str(tmp_path / "x.city.json")])

@@ -4,11 +4,14 @@ Subcommands only parse options and compose the library's stages; each module of 
 holds the commands of one part of the pipeline. Every
 :class:`~gnss_citygml.errors.GnssCityGMLError` becomes one line on stderr
 (``error: <what> (<where>): <how to fix>``) and exit code 2, never a traceback; warnings are
-printed as one ``warning:`` line each.
+printed as one ``warning:`` line each. Anything else that escapes a command is a bug of the
+toolkit, not a verdict on the user's data: it too ends as one ``error:`` line with exit code 2
+(``GNSS_CITYGML_DEBUG=1`` shows its traceback), so that no crash reads as "invalid" (exit 1).
 """
 
 from __future__ import annotations
 
+import os
 import sys
 import warnings
 
@@ -47,4 +50,14 @@ def main(argv=None):
     except click.ClickException as exc:
         exc.show()
         sys.exit(exc.exit_code)
+    except Exception as exc:
+        if os.environ.get("GNSS_CITYGML_DEBUG"):
+            raise
+        first = (str(exc).splitlines() or [""])[0][:200]
+        click.echo(
+            f"error: internal error, {type(exc).__name__}: {first}: please report it with the "
+            "command that caused it (GNSS_CITYGML_DEBUG=1 shows the traceback)",
+            err=True,
+        )
+        sys.exit(2)
     sys.exit(0)

@@ -14,6 +14,7 @@ import numpy as np
 import pandas as pd
 
 from .errors import InputError
+from .paths import input_file
 
 __all__ = ["atomic_path", "read_table", "write_layer", "write_table"]
 
@@ -56,10 +57,8 @@ def _umask() -> int:
 
 def read_table(path) -> pd.DataFrame:
     """Read a CSV or Parquet table, with a one-line error for a missing or unreadable file."""
-    path = Path(path)
+    path = input_file(path)
     suffix = _suffix(path)
-    if not path.is_file():
-        raise InputError("file not found", where=str(path), fix="check the path")
     try:
         return pd.read_csv(path) if suffix == ".csv" else pd.read_parquet(path)
     except (ValueError, OSError, pd.errors.ParserError) as exc:

@@ -228,3 +228,18 @@ def test_a_crash_is_one_line_and_exit_2_never_a_verdict(tmp_path, capsys, monkey
     monkeypatch.setenv("GNSS_CITYGML_DEBUG", "1")
     with pytest.raises(RecursionError):
         main(["validate", str(tmp_path / "x.city.json")])
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["validate", "{d}"],
+        ["heights", "{d}", "-o", "{d}/h.csv"],
+        ["observe", "{d}/log.txt", "--orbits", "{d}", "-o", "{d}/o.csv"],
+    ],
+)
+def test_a_folder_given_for_a_file_is_named_as_such(args, tmp_path, capsys):
+    (tmp_path / "log.txt").write_text("# Header\n")
+    code, _, err = run([a.format(d=tmp_path) for a in args], capsys)
+    assert code == 2 and "is a folder, not a file" in err, err
+    assert len(err.strip().splitlines()) == 1

@@ -55,6 +55,7 @@ from gnss_citygml.gnss.gpstime import (
     to_datetime64,
     utc_to_gps,
 )
+from gnss_citygml.paths import input_file
 
 __all__ = [
     "MAX_AGE",
@@ -115,9 +116,7 @@ def _garbled(path, line_no: int, text: str, why: str) -> InputError:
 
 def _read_lines(path: Path, first_only: bool = False):
     """The lines of a text file (gzip too), or only its first line."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputError("orbit file not found", where=str(path), fix="check the path")
+    path = input_file(path, "orbit file")
     if path.suffix == ".Z":
         raise InputError(
             "Unix-compressed (.Z) files are not read", where=str(path), fix="run `gzip -d` first"

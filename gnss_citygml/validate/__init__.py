@@ -19,9 +19,8 @@ validate.
 
 from __future__ import annotations
 
-from pathlib import Path
-
 from ..errors import InputError
+from ..paths import input_file
 from .citygml import validate_citygml
 from .cityjson import validate_cityjson
 from .geometry import PLANARITY_TOLERANCE, SNAP_TOLERANCE
@@ -84,9 +83,7 @@ def validate_file(path, *, schema_dir=None) -> Report:
     >>> report.errors[0].message
     'Solid (lod 1): vertex index 8 out of range (8 vertices)'
     """
-    path = Path(path)
-    if not path.is_file():
-        raise InputError("file not found", where=str(path), fix="check the path")
+    path = input_file(path)
     schema_dir = schema_folder(schema_dir)
     try:
         with open(path, "rb") as f:

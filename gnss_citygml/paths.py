@@ -1,16 +1,26 @@
-"""Checks on the files a user names, shared by every reader.
+"""The files a user names: checks on inputs and outputs, and atomic writing.
 
 A missing file, a folder where a file is meant, or a file that cannot be opened each get their
-own one-line error, named the same way everywhere."""
+own one-line error, named the same way everywhere. Outputs are checked before any work starts
+(:func:`check_output`) and written through :func:`atomic_path`: to a temporary file beside the
+output, renamed into place only when complete, so that a failed or killed run never leaves a
+half-written file under the output's name and never replaces what it must not.
+"""
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import os
+import re
+import secrets
+import shutil
+import socket
 from pathlib import Path
 
 from .errors import InputError
 
-__all__ = ["input_file"]
+__all__ = ["atomic_path", "check_output", "input_file", "stale_parts"]
 
 
 def input_file(path, what: str = "file") -> Path:
@@ -33,3 +43,187 @@ def input_file(path, what: str = "file") -> Path:
     if not os.access(path, os.R_OK):
         raise InputError(f"{what} is not readable", where=str(path), fix="check its permissions")
     return path
+
+
+def check_output(path, *, overwrite: bool, suffixes=None, exists_ok: bool = False) -> Path:
+    """Check that ``path`` can be written, before the work that makes it starts.
+
+    Parameters
+    ----------
+    path
+        The output file.
+    overwrite
+        An existing output may be replaced (the user said ``--overwrite``).
+    suffixes
+        The endings the writer understands (e.g. ``(".gpkg", ".fgb")``); None: any.
+    exists_ok
+        An existing file is no error even without ``overwrite`` (a GeoPackage that gets a new
+        layer; the caller checks the layer).
+
+    Raises
+    ------
+    InputError
+        An unknown suffix, a missing or read-only folder, a folder named as the output, an
+        existing output without ``overwrite``, or a read-only existing output.
+    """
+    path = Path(path)
+    name = path.name.lower()
+    if suffixes is not None and not name.endswith(tuple(suffixes)):
+        raise InputError(
+            f"unknown output format {path.suffix or '(no suffix)'!r}",
+            where=str(path),
+            fix="name the output " + ", ".join(suffixes),
+        )
+    folder = path.parent
+    if not folder.is_dir():
+        raise InputError("output folder does not exist", where=str(folder), fix="create it first")
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise InputError(
+            "cannot write to the output folder", where=str(folder), fix="check its permissions"
+        )
+    if path.is_dir():
+        raise InputError("output is a folder", where=str(path), fix="give a file name")
+    if path.exists():
+        if not (overwrite or exists_ok):
+            raise InputError(
+                "output exists", where=str(path), fix="choose another name or --overwrite"
+            )
+        if not os.access(path, os.W_OK) or not path.stat().st_mode & 0o222:  # root ignores bits
+            raise InputError(
+                "output is read-only",
+                where=str(path),
+                fix="make it writable (chmod u+w) if it may be replaced, or choose another name",
+            )
+    return path
+
+
+_HOST = re.sub(r"[^A-Za-z0-9-]", "-", socket.gethostname())[:32] or "host"
+
+
+def _part_prefix(path: Path) -> str:
+    return f".{path.name}.part-"
+
+
+def stale_parts(path) -> list[Path]:
+    """Temporary files of ``path`` left by killed runs of this machine whose process is gone.
+
+    A temporary file is named ``.NAME.part-HOST-PID-RANDOM.SUFFIX`` so that a later run can
+    tell whether its writer still runs: files of another host are never touched (the folder
+    may be shared), nor those of a live process."""
+    path = Path(path)
+    prefix = _part_prefix(path)
+    pattern = re.compile(re.escape(prefix) + re.escape(_HOST) + r"-(\d+)-[0-9a-f]+")
+    stale = []
+    with contextlib.suppress(OSError):
+        for entry in os.scandir(path.parent if str(path.parent) else "."):
+            match = pattern.match(entry.name)
+            if match and not _alive(int(match.group(1))):
+                stale.append(Path(entry.path))
+    return stale
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # e.g. another user's process: alive
+        return True
+    return True
+
+
+@contextlib.contextmanager
+def atomic_path(path, *, overwrite: bool = True, update: bool = False):
+    """Yield a temporary path beside ``path``; put it in place of ``path`` if the block succeeds.
+
+    Parameters
+    ----------
+    path
+        The output file.
+    overwrite
+        Replace an existing ``path``. Without it the result is put in place with a hard link,
+        which fails if ``path`` appeared meanwhile (another run wrote it): the check holds at
+        the moment of the rename, not only when writing starts.
+    update
+        Start from a copy of the existing ``path`` (a GeoPackage that gets a layer), and refuse
+        to put it in place if ``path`` changed while the block ran.
+
+    Notes
+    -----
+    The temporary file keeps the output's suffix (GDAL's drivers check it) and its name says
+    which host and process write it; temporary files of this output left by killed runs are
+    removed first (:func:`stale_parts`). A replaced file's permission bits are kept; a new one
+    gets the usual ``0o666`` less the umask.
+    """
+    path = check_output(path, overwrite=overwrite, exists_ok=update)
+    for stale in stale_parts(path):
+        with contextlib.suppress(OSError):
+            stale.unlink()
+    folder = path.parent
+    tmp = folder / f"{_part_prefix(path)}{_HOST}-{os.getpid()}-{secrets.token_hex(4)}{path.suffix}"
+    before = _identity(path) if update else None
+    try:
+        if before is not None:
+            shutil.copyfile(path, tmp)
+        else:
+            os.close(os.open(tmp, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o600))
+    except OSError as exc:
+        raise InputError(
+            "cannot write to the output folder",
+            where=str(folder),
+            fix=f"check its permissions and free space ({exc.strerror})",
+        ) from None
+    try:
+        yield tmp
+        current = _identity(path)
+        mode = current[3] if current is not None else 0o666 & ~_umask()
+        os.chmod(tmp, mode & 0o7777)
+        if before is not None and current != before:
+            raise InputError(
+                "output changed while this run was writing it",
+                where=str(path),
+                fix="run again once the other program has finished with it",
+            )
+        if overwrite or before is not None:
+            os.replace(tmp, path)
+        else:
+            _link_new(tmp, path)
+    finally:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+
+
+def _identity(path: Path):
+    """(device, inode, mtime, mode, size) of ``path``, or None if there is none."""
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        return None
+    return st.st_dev, st.st_ino, st.st_mtime_ns, st.st_mode, st.st_size
+
+
+def _link_new(tmp: Path, path: Path) -> None:
+    """Put ``tmp`` at ``path`` only if nothing is there, atomically where links exist."""
+    try:
+        os.link(tmp, path)
+    except FileExistsError:
+        raise InputError(
+            "output exists (another run wrote it meanwhile)",
+            where=str(path),
+            fix="choose another name or --overwrite",
+        ) from None
+    except OSError as exc:
+        if exc.errno not in (errno.EPERM, errno.EOPNOTSUPP, errno.ENOTSUP, errno.EMLINK):
+            raise
+        # a file system without hard links (FAT, some network shares): check, then rename
+        if path.exists():
+            raise InputError(
+                "output exists", where=str(path), fix="choose another name or --overwrite"
+            ) from None
+        os.replace(tmp, path)
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask

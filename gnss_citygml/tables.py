@@ -1,58 +1,32 @@
-"""Reading and writing the toolkit's tables (CSV or Parquet).
+"""Reading and writing the toolkit's tables (CSV or Parquet) and layers (GeoPackage,
+FlatGeobuf, GeoParquet).
 
-Outputs are written to a temporary file in the target folder and renamed into place only when
-complete, so a failed run never leaves a half-written file behind."""
+Outputs are written through :func:`gnss_citygml.paths.atomic_path`: to a temporary file in the
+target folder, renamed into place only when complete, so a failed run never leaves a
+half-written file behind. A layer written into an existing GeoPackage replaces that layer only:
+every other layer (and the styles table) of the file is kept."""
 
 from __future__ import annotations
 
-import contextlib
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from .errors import InputError
-from .paths import input_file
+from .paths import atomic_path, check_output, input_file
 
-__all__ = ["atomic_path", "read_table", "write_layer", "write_table"]
+__all__ = [
+    "LAYER_FORMATS",
+    "check_layer_output",
+    "check_table_output",
+    "read_table",
+    "write_layer",
+    "write_table",
+]
 
-
-@contextlib.contextmanager
-def atomic_path(path, *, overwrite: bool = True):
-    """Yield a temporary path beside ``path``; rename it to ``path`` if the block succeeds."""
-    path = Path(path)
-    if path.exists() and not overwrite:
-        raise InputError("output exists", where=str(path), fix="choose another name or --overwrite")
-    folder = path.parent if str(path.parent) else Path(".")
-    if not folder.is_dir():
-        raise InputError("output folder does not exist", where=str(folder), fix="create it first")
-    try:
-        # the temporary name keeps the suffix: drivers (GDAL's GeoPackage) check it
-        fd, tmp = tempfile.mkstemp(
-            prefix=f".{path.name}.", suffix=f".part{path.suffix}", dir=folder
-        )
-    except OSError as exc:
-        raise InputError(
-            "cannot write to the output folder",
-            where=str(folder),
-            fix=f"check its permissions ({exc.strerror})",
-        ) from None
-    os.close(fd)
-    try:
-        yield Path(tmp)
-        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes it private; a new file is not
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
+#: Layer formats by file suffix: the GDAL driver, or "GeoParquet" (written by geopandas).
+LAYER_FORMATS = {".gpkg": "GPKG", ".fgb": "FlatGeobuf", ".parquet": "GeoParquet"}
 
 
 def read_table(path) -> pd.DataFrame:
@@ -72,13 +46,19 @@ def read_table(path) -> pd.DataFrame:
 
 def _suffix(path: Path) -> str:
     suffix = path.suffix.lower()
-    if suffix not in (".csv", ".parquet"):
+    if suffix not in (".csv", ".parquet"):  # the table formats
         raise InputError(
             f"unknown table format {suffix or '(none)'!r}",
             where=str(path),
             fix="name the file .csv or .parquet",
         )
     return suffix
+
+
+def check_table_output(path, *, overwrite: bool) -> Path:
+    """Check, before the work starts, that a table can be written to ``path`` (CSV, Parquet)."""
+    _suffix(Path(path))
+    return check_output(path, overwrite=overwrite)
 
 
 def write_table(table: pd.DataFrame, path, *, overwrite: bool = True) -> None:
@@ -91,16 +71,67 @@ def write_table(table: pd.DataFrame, path, *, overwrite: bool = True) -> None:
             table.to_parquet(tmp, index=False)
 
 
-def write_layer(frame, path, layer: str, *, overwrite: bool = True) -> None:
-    """Write a GeoDataFrame as a new GeoPackage holding one ``layer``, atomically.
+def check_layer_output(path, layer: str, *, overwrite: bool) -> Path:
+    """Check, before the work starts, that ``layer`` can be written to ``path``.
 
-    List-valued attributes (OS MasterMap's ``descriptiveGroup``, read by GDAL as lists) are
-    written as text joined by ``|``, which every GIS reads."""
+    The suffix names the format (:data:`LAYER_FORMATS`); a Shapefile is refused, since it cuts
+    field names to 10 characters and is several files that cannot be replaced at once. An
+    existing GeoPackage takes a new layer without ``overwrite``; an existing layer of it, or an
+    existing file of another format, needs ``overwrite``.
+    """
+    path = Path(path)
+    if path.suffix.lower() == ".shp":
+        raise InputError(
+            "Shapefiles are not written (field names are cut to 10 characters, and the file's "
+            "parts cannot be replaced at once)",
+            where=str(path),
+            fix="write .gpkg, .fgb or .parquet (ogr2ogr converts them to a Shapefile)",
+        )
+    gpkg = path.suffix.lower() == ".gpkg"
+    check_output(path, overwrite=overwrite, suffixes=tuple(LAYER_FORMATS), exists_ok=gpkg)
+    if gpkg and path.exists() and not overwrite and layer in _layers(path):
+        raise InputError(
+            f"output exists and has a layer {layer!r}",
+            where=str(path),
+            fix="choose another name, or --overwrite to replace that layer (the file's other "
+            "layers are kept)",
+        )
+    return path
+
+
+def _layers(path: Path) -> list[str]:
+    import pyogrio
+
+    try:
+        return [str(name) for name in pyogrio.list_layers(path)[:, 0]]
+    except Exception as exc:  # GDAL raises its own errors for a file that is not a GeoPackage
+        first = (str(exc).splitlines() or [type(exc).__name__])[0]
+        raise InputError(
+            f"the output exists and is not a readable GeoPackage ({first})",
+            where=str(path),
+            fix="choose another name, or remove the file",
+        ) from None
+
+
+def write_layer(frame, path, layer: str, *, overwrite: bool = True) -> None:
+    """Write a GeoDataFrame as ``layer`` of ``path``, atomically, in the format its suffix names.
+
+    GeoPackage (``.gpkg``): an existing file keeps its other layers and styles and ``layer`` is
+    replaced (with ``overwrite``) or added. FlatGeobuf (``.fgb``) and GeoParquet
+    (``.parquet``) hold one layer: the file is replaced. List-valued attributes (OS
+    MasterMap's ``descriptiveGroup``, read by GDAL as lists) are written as text joined by
+    ``|``, which every GIS reads."""
+    path = check_layer_output(path, layer, overwrite=overwrite)
     out = frame.copy()
     for column in out.columns.drop(out.geometry.name):
         if out[column].map(lambda v: isinstance(v, list | tuple | np.ndarray)).any():
             out[column] = out[column].map(
                 lambda v: "|".join(map(str, v)) if isinstance(v, list | tuple | np.ndarray) else v
             )
-    with atomic_path(path, overwrite=overwrite) as tmp:
-        out.to_file(tmp, layer=layer, driver="GPKG")
+    driver = LAYER_FORMATS[path.suffix.lower()]
+    update = driver == "GPKG" and path.exists()
+    with atomic_path(path, overwrite=overwrite or update, update=update) as tmp:
+        if driver == "GeoParquet":
+            out.to_parquet(tmp, index=False)
+        else:
+            out.to_file(tmp, layer=layer, driver=driver)

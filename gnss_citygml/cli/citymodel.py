@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 
 from . import cli
-from .options import QUIET, output_file, progress
+from .options import OVERWRITE, QUIET, output_file, progress
 
 _SCHEMA_DIR = click.option(
     "--schema-dir",
@@ -20,7 +20,7 @@ _MODEL_OPTIONS = [
     output_file(
         "OUT.city.json (CityJSON 2.0), OUT.city.jsonl (CityJSONSeq) or OUT.gml (CityGML 2.0)."
     ),
-    click.option("--overwrite", is_flag=True, help="Replace an existing output."),
+    OVERWRITE,
     click.option("--strict", is_flag=True, help="Stop if a building has no usable height."),
     click.option("--no-validate", "no_validate", is_flag=True, help="Skip validating the output."),
     _SCHEMA_DIR,
@@ -42,19 +42,19 @@ def _footprints(path, layer, id_field, dem, dem_crs):
     return frame if dem is None else building_ground(frame, dem, assume_crs=dem_crs)
 
 
-def _write_model(frame, output, overwrite, strict, no_validate, schema_dir, quiet):
-    """Write the buildings in the format the output's name asks for; report skips."""
+def _model_writer(output, overwrite):
+    """The writer for the format the output's name asks for, checked before any work."""
     from ..export import write_citygml, write_cityjson, write_cityjsonseq
+    from ..paths import check_output
 
-    name = output.name.lower()
-    if name.endswith(".jsonl"):
-        writer = write_cityjsonseq
-    elif name.endswith(".json"):
-        writer = write_cityjson
-    elif name.endswith((".gml", ".xml")):
-        writer = write_citygml
-    else:
-        raise click.BadParameter("name it .city.json, .city.jsonl or .gml", param_hint="--output")
+    writers = {".jsonl": write_cityjsonseq, ".json": write_cityjson}
+    writers.update(dict.fromkeys((".gml", ".xml"), write_citygml))
+    check_output(output, overwrite=overwrite, suffixes=tuple(writers))
+    return writers[output.suffix.lower()]
+
+
+def _write_model(frame, writer, output, overwrite, strict, no_validate, schema_dir, quiet):
+    """Write the buildings with ``writer`` (from :func:`_model_writer`); report skips."""
     with progress(len(frame), "writing", quiet) as bar:
         result = writer(
             frame,
@@ -111,11 +111,12 @@ def convert(
 
     if ground_field is not None and dem is not None:
         raise click.UsageError("give the ground with --ground-field or --dem, not both")
+    writer = _model_writer(output, overwrite)
     frame = _footprints(input_, layer, id_field, dem, dem_crs)
     frame = buildings_with_heights(
         frame, height_field, relative=relative, ground_field=ground_field
     )
-    _write_model(frame, output, overwrite, strict, no_validate, schema_dir, quiet)
+    _write_model(frame, writer, output, overwrite, strict, no_validate, schema_dir, quiet)
 
 
 @cli.command()
@@ -149,10 +150,11 @@ def export(
     from ..export import footprints_with_heights
     from ..tables import read_table
 
+    writer = _model_writer(output, overwrite)
     table = read_table(heights)
     frame = _footprints(footprints, layer, id_field, dem, dem_crs)
     frame = footprints_with_heights(frame, table, where=str(heights))
-    _write_model(frame, output, overwrite, strict, no_validate, schema_dir, quiet)
+    _write_model(frame, writer, output, overwrite, strict, no_validate, schema_dir, quiet)
 
 
 @cli.command()

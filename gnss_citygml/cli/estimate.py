@@ -21,7 +21,10 @@ from .options import QUIET, THRESHOLD, output_file, progress
     required=True,
     help="DEM raster in EPSG:27700 (GeoTIFF, ASCII grid, zip://...!/tile.asc).",
 )
-@output_file("GeoPackage to write (layer 'heights').")
+@output_file(
+    "Output layer 'heights': a GeoPackage (.gpkg; other layers of an existing one are kept), "
+    "FlatGeobuf (.fgb) or GeoParquet (.parquet)."
+)
 @click.option("--layer", help="Footprint layer (default: the only polygon layer).")
 @click.option("--id-field", help="Footprint id column (default: toid, id or fid).")
 @click.option("--min-elevation", type=float, default=10.0, show_default=True, help="Degrees.")
@@ -65,7 +68,9 @@ from .options import QUIET, THRESHOLD, output_file, progress
 )
 @click.option("--dem-crs", help="CRS of a DEM that has none, e.g. EPSG:27700.")
 @GRID_DIR
-@click.option("--overwrite", is_flag=True, help="Replace an existing output file.")
+@click.option(
+    "--overwrite", is_flag=True, help="Replace an existing output (in a GeoPackage: the layer)."
+)
 @QUIET
 def estimate(
     observations,
@@ -98,16 +103,12 @@ def estimate(
     footprint with its estimate; buildings with too little data have empty heights.
     """
     from ..buildings import read_footprints
-    from ..errors import InputError
     from ..observations import read_observations
     from ..pipeline import STAGES
     from ..pipeline import estimate as run
-    from ..tables import write_layer
+    from ..tables import check_layer_output, write_layer
 
-    if output.exists() and not overwrite:
-        raise InputError(
-            "output exists", where=str(output), fix="choose another name or --overwrite"
-        )
+    check_layer_output(output, "heights", overwrite=overwrite)
     obs = read_observations(observations)
     fp = read_footprints(footprints, layer=layer, id_field=id_field)
     with progress(len(STAGES), "stages", quiet) as bar:

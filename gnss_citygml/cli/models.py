@@ -10,7 +10,7 @@ from ..model.estimate import METHODS
 from ..simulate.scenes import PRESETS
 from . import cli
 from .observe import GRID_DIR
-from .options import QUIET, SEED, THRESHOLD, floats, output_file, progress
+from .options import OVERWRITE, QUIET, SEED, THRESHOLD, floats, output_file, progress
 
 
 @cli.command()
@@ -83,16 +83,22 @@ def accuracy(presets, thresholds, interval, seed, quiet):
     "--format", "fmt", type=click.Choice(["csv", "parquet"]), default="csv", show_default=True
 )
 @GRID_DIR
-def simulate(preset, output_dir, locations, seed, interval, fmt, grid_dir):
+@OVERWRITE
+def simulate(preset, output_dir, locations, seed, interval, fmt, grid_dir, overwrite):
     """Simulate a site and write the files a user brings to `estimate`: observations,
     footprints.gpkg and dem.tif (EPSG:27700), plus the intersections and the true heights."""
+    from ..paths import check_output
     from ..simulate import simulate as run
-    from ..simulate.files import write_site
+    from ..simulate.files import site_paths, write_site
     from ..tables import write_table
 
+    intersections = output_dir / f"intersections.{fmt}"
+    if output_dir.is_dir():
+        for path in [*site_paths(output_dir, fmt).values(), intersections]:
+            check_output(path, overwrite=overwrite)
     sim = run(preset, locations=locations, seed=seed, interval=interval)
-    write_site(sim, output_dir, grid_dir=grid_dir, fmt=fmt)
-    write_table(sim.intersections, output_dir / f"intersections.{fmt}")
+    write_site(sim, output_dir, grid_dir=grid_dir, fmt=fmt, overwrite=overwrite)
+    write_table(sim.intersections, intersections, overwrite=overwrite)
     click.echo(
         f"{len(sim.observations)} signals, {len(sim.intersections)} intersections, "
         f"{len(sim.truth)} buildings -> {output_dir}"
@@ -115,15 +121,17 @@ def simulate(preset, output_dir, locations, seed, interval, fmt, grid_dir):
     default=None,
     help="Reweighting of the 4PL height fit (4PL-B and 4PL; default: none).",
 )
-def heights(intersections, output, method, init_threshold, weighting):
+@OVERWRITE
+def heights(intersections, output, method, init_threshold, weighting, overwrite):
     """Estimate building heights from an intersections table (CSV or Parquet)."""
     from ..model.estimate import estimate_heights
-    from ..tables import read_table, write_table
+    from ..tables import check_table_output, read_table, write_table
 
+    check_table_output(output, overwrite=overwrite)
     options = {} if weighting is None else {"weighting": weighting}
     out = estimate_heights(
         read_table(intersections), method=method, init_threshold=init_threshold, **options
     )
-    write_table(out, output)
+    write_table(out, output, overwrite=overwrite)
     ok = int(out["converged"].sum())
     click.echo(f"{ok} of {len(out)} buildings converged -> {output}")

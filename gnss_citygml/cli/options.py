@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-__all__ = ["QUIET", "SEED", "THRESHOLD", "floats", "output_file", "progress"]
+__all__ = ["OVERWRITE", "QUIET", "SEED", "THRESHOLD", "floats", "output_file", "progress"]
 
 SEED = click.option(
     "--seed",
@@ -16,6 +16,7 @@ SEED = click.option(
     show_default=True,
     help="Seed of the simulation's random choices.",
 )
+OVERWRITE = click.option("--overwrite", is_flag=True, help="Replace an existing output.")
 QUIET = click.option("--quiet", "-q", is_flag=True, help="No progress output.")
 THRESHOLD = click.option(
     "--init-threshold",

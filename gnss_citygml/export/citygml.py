@@ -31,6 +31,7 @@ vertex and gluing the texts in Python gave 18,000.
 from __future__ import annotations
 
 import re
+import warnings
 from xml.sax.saxutils import escape
 
 import geopandas as gpd
@@ -39,7 +40,7 @@ import pandas as pd
 from lxml import etree
 
 from ..errors import InputError
-from ..tables import atomic_path
+from ..paths import atomic_path
 from .lod1 import (
     CHECK_CHUNK,
     ExportResult,
@@ -81,7 +82,7 @@ _SCHEMA_LOCATION = " ".join(
 )
 _NCNAME = re.compile(r"^[A-Za-z_][A-Za-z0-9._-]*$")
 _NOT_NCNAME_CHAR = re.compile(r"[^A-Za-z0-9._-]")
-_NOT_XML_CHAR = re.compile("[\x00-\x08\x0b\x0c\x0e-\x1f\ufffe\uffff]")
+_NOT_XML_CHAR = re.compile("[\x00-\x08\x0b\x0c\x0e-\x1f\ud800-\udfff\ufffe\uffff]")
 _POLYGON_OPEN = "<gml:surfaceMember><gml:Polygon>"
 _POLYGON_CLOSE = "</gml:Polygon></gml:surfaceMember>"
 _SOLID_OPEN = "<gml:Solid><gml:exterior><gml:CompositeSurface>"
@@ -166,6 +167,7 @@ def write_citygml(
     plan = prepare_buildings(buildings, strict=strict)
     date = creation_date(date)
     _check_unique(plan)
+    replaced: list[str] = []
     with atomic_path(path, overwrite=overwrite) as tmp:
         with open(tmp, "wb") as raw:
             with etree.xmlfile(raw, encoding="utf-8") as xf:
@@ -175,6 +177,7 @@ def write_citygml(
                 with xf.element(root, location, nsmap=_NS):
                     _envelope(xf, plan.bounds_mm())
                     for rows in plan.chunks():
+                        replaced.extend(_unwritable(rows))
                         prisms = extrude(
                             rows.geometry, rows["ground"], rows["height"], numbering="all"
                         )
@@ -184,7 +187,33 @@ def write_citygml(
                             progress(len(rows))
         result = plan.result(path, None)  # raises if nothing was written
         result.report = validated_output(tmp, path, validate, schema_dir)
+    if replaced:
+        warnings.warn(
+            f"{len(replaced)} building(s) have text that XML cannot hold (control characters), "
+            f"written with U+FFFD in its place: {', '.join(map(repr, replaced[:10]))}"
+            + (f" and {len(replaced) - 10} more" if len(replaced) > 10 else "")
+            + " (CityJSON keeps such text as it is)",
+            stacklevel=2,
+        )
     return result
+
+
+def _unwritable(rows: gpd.GeoDataFrame) -> list[str]:
+    """Ids of the buildings whose id, attribute names or text attributes hold characters that
+    XML 1.0 cannot carry (written as U+FFFD)."""
+    texts = [
+        c
+        for c in rows.columns
+        if c != rows.geometry.name
+        and (pd.api.types.is_object_dtype(rows[c]) or pd.api.types.is_string_dtype(rows[c]))
+    ]
+    hit = np.zeros(len(rows), dtype=bool)
+    if any(_NOT_XML_CHAR.search(str(c)) for c in rows.columns):
+        hit[:] = True
+    for column in texts:
+        text = rows[column].map(lambda v: v if isinstance(v, str) else "").astype(object)
+        hit |= text.str.contains(_NOT_XML_CHAR.pattern, regex=True).to_numpy(dtype=bool)
+    return rows["id"][hit].tolist()
 
 
 def _check_unique(plan: Plan) -> None:

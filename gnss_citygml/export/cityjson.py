@@ -27,7 +27,7 @@ import geopandas as gpd
 import numpy as np
 import pandas as pd
 
-from ..tables import atomic_path
+from ..paths import atomic_path
 from .lod1 import (
     CHUNK,
     SCALE,

@@ -23,8 +23,11 @@ Rules
   coplanar walls they make are valid.
 - **Skipped buildings**: a building without a usable height is never written with a guessed
   one. No ground, no height, an estimate that did not converge, a roof not above the ground
-  (after rounding to mm) or a footprint that vanishes at 1 mm precision: the building is left
-  out and listed with its reason (or, with ``strict=True``, the export stops with an error).
+  (after rounding to mm), heights that no building in Great Britain has (a roof more than
+  :data:`MAX_HEIGHT_ABOVE_GROUND` above the ground, a ground outside :data:`GROUND_RANGE`), a
+  footprint outside the British National Grid (:data:`GRID_EXTENT`) or one that vanishes at
+  1 mm precision: the building is left out and listed with its reason (or, with
+  ``strict=True``, the export stops with an error).
 """
 
 from __future__ import annotations
@@ -44,6 +47,9 @@ from ..validate import Report, validate_file
 __all__ = [
     "CHECK_CHUNK",
     "CHUNK",
+    "GRID_EXTENT",
+    "GROUND_RANGE",
+    "MAX_HEIGHT_ABOVE_GROUND",
     "SCALE",
     "SURFACES",
     "ExportResult",
@@ -53,6 +59,7 @@ __all__ = [
     "Progress",
     "attribute_columns",
     "attribute_values",
+    "booleans",
     "buildings_with_heights",
     "chunks",
     "creation_date",
@@ -76,6 +83,26 @@ CHUNK = 2048
 CHECK_CHUNK = 8 * CHUNK
 #: Semantic surface kinds, in the order of :attr:`Prisms.face_kind`.
 SURFACES = ("GroundSurface", "RoofSurface", "WallSurface")
+
+#: Highest roof above the ground (m) that is written. The tallest structures in Great Britain
+#: stand about 330 m (Emley Moor mast; The Shard 310 m); a higher "building" is an error in the
+#: data (a height in millimetres or feet, a wrong field), not a building.
+MAX_HEIGHT_ABOVE_GROUND = 400.0
+#: Ground heights (m ODN) that exist in Great Britain, with a margin: Holme Fen is 2.75 m below
+#: sea level, Ben Nevis 1,345 m above it.
+GROUND_RANGE = (-10.0, 1400.0)
+#: Where British National Grid coordinates exist (m: min E, min N, max E, max N), with a margin.
+GRID_EXTENT = (-100_000.0, -100_000.0, 800_000.0, 1_400_000.0)
+_TOO_TALL = (
+    f"roof more than {MAX_HEIGHT_ABOVE_GROUND:.0f} m above the ground (no structure in Great "
+    "Britain is; a height in mm or feet, or the wrong field?)"
+)
+_GROUND_OUTSIDE = (
+    f"ground outside {GROUND_RANGE[0]:.0f}..{GROUND_RANGE[1]:.0f} m ODN (no ground in Great "
+    "Britain is; a height in mm or feet, or the wrong field?)"
+)
+_TRUE = {"true", "t", "yes", "y", "1", "1.0"}
+_FALSE = {"false", "f", "no", "n", "0", "0.0"}
 
 _SHOWN = 10
 
@@ -371,7 +398,16 @@ def footprints_with_heights(
     written by ``gnss-citygml heights``. Footprints without a row keep empty heights (the
     writers skip and list them); a ``ground`` already on the footprints (from a DEM) wins over
     the table's. Heights of ids that are not among the footprints are an error."""
+    if "id" not in heights.columns:
+        raise MissingColumnError(["id"], where=where, have=list(heights.columns))
     table = heights.assign(id=heights["id"].astype(str))
+    repeated = pd.unique(table["id"][table["id"].duplicated()])
+    if repeated.size:
+        raise InputError(
+            f"{repeated.size} building id(s) with more than one height: {_listing(repeated)}",
+            where=where,
+            fix="keep one row per building",
+        )
     if "ground" in footprints.columns:
         table = table.drop(columns=["ground"], errors="ignore")
     unknown = ~table["id"].isin(footprints["id"])
@@ -532,9 +568,10 @@ class Plan:
         """What was written; an error if nothing was."""
         if not self.written:
             raise InputError(
-                f"none of the {len(self.frame)} buildings can be modelled",
+                f"none of the {len(self.frame)} buildings can be modelled "
+                f"({_reason_counts(self.skipped)})",
                 where="buildings",
-                fix="check their footprints and heights (see the skipped reasons)",
+                fix="check their footprints and heights",
             )
         skipped = pd.DataFrame(self.skipped, columns=["id", "reason"], dtype=object)
         return ExportResult(str(path), self.written, skipped, report)
@@ -596,9 +633,10 @@ def prepare_buildings(buildings: gpd.GeoDataFrame, *, strict: bool = False) -> P
         )
     if not checks.usable.any():
         raise InputError(
-            f"none of the {len(buildings)} buildings has a usable height",
+            f"none of the {len(buildings)} buildings has a usable height "
+            f"({_reason_counts(skipped)})",
             where="buildings",
-            fix="check the height and ground columns (see the skipped reasons)",
+            fix="check the height and ground columns",
         )
     bounds = np.concatenate([checks.low, checks.high])
     return Plan(buildings, np.flatnonzero(checks.usable), skipped, strict, bounds)
@@ -683,15 +721,23 @@ class _Checks:
 def _reasons(frame: gpd.GeoDataFrame, ground: np.ndarray, height: np.ndarray) -> np.ndarray:
     """Why each building cannot be modelled, or None."""
     reason = np.full(len(frame), None, dtype=object)
-    rules = [
-        (np.rint(height * 1000) <= np.rint(ground * 1000), "roof not above the ground"),
-        (~np.isfinite(ground), "no ground height"),
-        (~np.isfinite(height), "no height"),
-    ]
+    with np.errstate(invalid="ignore", over="ignore"):
+        above = height - ground
+        rules = [
+            (above > MAX_HEIGHT_ABOVE_GROUND, _TOO_TALL),
+            (np.rint(height * 1000) <= np.rint(ground * 1000), "roof not above the ground"),
+            ((ground < GROUND_RANGE[0]) | (ground > GROUND_RANGE[1]), _GROUND_OUTSIDE),
+            (
+                _outside_grid(frame.geometry.to_numpy()),
+                "footprint outside the British National Grid",
+            ),
+            (~np.isfinite(ground), "no ground height"),
+            (~np.isfinite(height), "no height"),
+        ]
     for mask, text in rules:  # the last rule that applies wins: the most basic one
         reason[mask] = text
     if "converged" in frame.columns:
-        converged = frame["converged"].astype("boolean")  # missing: no estimate at all
+        converged = booleans(frame["converged"], "converged", frame)  # missing: no estimate
         failed = (~converged).fillna(False).to_numpy(dtype=bool)
         status = frame["status"].astype(str).to_numpy() if "status" in frame else None
         reason[failed] = [
@@ -699,6 +745,47 @@ def _reasons(frame: gpd.GeoDataFrame, ground: np.ndarray, height: np.ndarray) ->
             for i in np.flatnonzero(failed)
         ]
     return reason
+
+
+def _outside_grid(geoms: np.ndarray) -> np.ndarray:
+    e0, n0, e1, n1 = shapely.bounds(geoms).T
+    with np.errstate(invalid="ignore"):
+        return (
+            (e0 < GRID_EXTENT[0])
+            | (n0 < GRID_EXTENT[1])
+            | (e1 > GRID_EXTENT[2])
+            | (n1 > GRID_EXTENT[3])
+        )
+
+
+def booleans(column: pd.Series, name: str, frame: pd.DataFrame) -> pd.Series:
+    """A column of flags as pandas' nullable booleans: True/False, 1/0 or their spellings in
+    text (true/false, yes/no, t/f, y/n, any case); empty is missing. Anything else is an error
+    naming the buildings, never a guess.
+
+    Examples
+    --------
+    >>> frame = pd.DataFrame({"id": ["a", "b", "c"], "ok": ["Yes", "no", None]})
+    >>> booleans(frame["ok"], "ok", frame).tolist()
+    [True, False, <NA>]
+    """
+    if pd.api.types.is_bool_dtype(column):
+        return column.astype("boolean")
+    text = column.astype("string").str.strip().str.lower()
+    out = pd.Series(pd.NA, index=column.index, dtype="boolean")
+    out[text.isin(_TRUE).fillna(False)] = True
+    out[text.isin(_FALSE).fillna(False)] = False
+    bad = (out.isna() & text.notna() & (text != "")).to_numpy()
+    if bad.any():
+        ids = frame["id"][bad].astype(str) if "id" in frame.columns else frame.index[bad]
+        values = pd.unique(column[bad].astype(str))
+        raise InputError(
+            f"column {name!r} is not true/false: {_listing(map(repr, values))} "
+            f"(buildings {_listing(list(ids))})",
+            where="buildings",
+            fix="give true or false (yes/no, 1/0)",
+        )
+    return out
 
 
 def hash_texts(texts) -> np.ndarray:
@@ -721,6 +808,15 @@ def repeated_positions(hashes: np.ndarray) -> np.ndarray:
     twice[1:] = same
     twice[:-1] |= same
     return np.sort(order[twice])
+
+
+def _reason_counts(skipped) -> str:
+    """``"no height: 3 (a, b, c); ..."``: the skipped buildings by reason, most first."""
+    by_reason: dict[str, list] = {}
+    for building, reason in skipped:
+        by_reason.setdefault(reason, []).append(building)
+    ranked = sorted(by_reason.items(), key=lambda item: -len(item[1]))
+    return "; ".join(f"{r}: {len(ids)} ({_listing(ids[:3])})" for r, ids in ranked)
 
 
 def _listing(items) -> str:

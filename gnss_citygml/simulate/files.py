@@ -18,41 +18,54 @@ from rasterio.transform import from_origin
 
 from ..geodesy import to_osgb
 from ..observations import OBSERVATION_COLUMNS, write_observations
-from ..tables import atomic_path, write_layer, write_table
+from ..paths import atomic_path, check_output
+from ..tables import write_layer, write_table
 from . import Simulation, local_to_wgs84
 
-__all__ = ["DEM_CELL", "write_site"]
+__all__ = ["DEM_CELL", "site_paths", "write_site"]
 
 #: DEM cell size (m) and margin (m) around the site's buildings and receivers.
 DEM_CELL = 5.0
 DEM_MARGIN = 50.0
 
 
-def write_site(sim: Simulation, folder, *, grid_dir=None, fmt: str = "parquet") -> dict:
+def site_paths(folder, fmt: str = "parquet") -> dict[str, Path]:
+    """The files of a site written by :func:`write_site`, by name."""
+    folder = Path(folder)
+    return {
+        "observations": folder / f"observations.{fmt}",
+        "footprints": folder / "footprints.gpkg",
+        "dem": folder / "dem.tif",
+        "truth": folder / "truth.csv",
+    }
+
+
+def write_site(
+    sim: Simulation, folder, *, grid_dir=None, fmt: str = "parquet", overwrite: bool = True
+) -> dict:
     """Write ``observations.<fmt>``, ``footprints.gpkg``, ``dem.tif`` and ``truth.csv``.
 
     Returns the paths by name. The DEM is flat at the scene's ground height (ODN), in
-    EPSG:27700, covering the buildings and receivers with a margin.
+    EPSG:27700, covering the buildings and receivers with a margin. Without ``overwrite``,
+    any of the files already there is an error, raised before anything is written.
     """
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
+    paths = site_paths(folder, fmt)
+    for path in paths.values():
+        check_output(path, overwrite=overwrite)
     scene = sim.scene
     footprints = gpd.GeoDataFrame(
         {"id": [b.id for b in scene.buildings]},
         geometry=[_to_bng(b.footprint, scene, grid_dir) for b in scene.buildings],
         crs="EPSG:27700",
     )
-    paths = {
-        "observations": folder / f"observations.{fmt}",
-        "footprints": folder / "footprints.gpkg",
-        "dem": folder / "dem.tif",
-        "truth": folder / "truth.csv",
-    }
-    write_observations(sim.observations[OBSERVATION_COLUMNS], paths["observations"])
-    write_layer(footprints, paths["footprints"], "footprints")
+    observations = sim.observations[OBSERVATION_COLUMNS]
+    write_observations(observations, paths["observations"], overwrite=overwrite)
+    write_layer(footprints, paths["footprints"], "footprints", overwrite=overwrite)
     e, n, _ = to_osgb(sim.observations["lat"], sim.observations["lon"], 0.0, grid_dir=grid_dir)
-    _write_flat_dem(paths["dem"], footprints.total_bounds, e, n, scene.ground)
-    write_table(sim.truth, paths["truth"])
+    _write_flat_dem(paths["dem"], footprints.total_bounds, e, n, scene.ground, overwrite)
+    write_table(sim.truth, paths["truth"], overwrite=overwrite)
     return paths
 
 
@@ -65,7 +78,7 @@ def _to_bng(geometry, scene, grid_dir):
     return shapely.transform(geometry, convert)
 
 
-def _write_flat_dem(path, bounds, e, n, ground):
+def _write_flat_dem(path, bounds, e, n, ground, overwrite):
     x0 = np.floor((min(bounds[0], e.min()) - DEM_MARGIN) / DEM_CELL) * DEM_CELL
     y0 = np.floor((min(bounds[1], n.min()) - DEM_MARGIN) / DEM_CELL) * DEM_CELL
     x1 = np.ceil((max(bounds[2], e.max()) + DEM_MARGIN) / DEM_CELL) * DEM_CELL
@@ -82,5 +95,5 @@ def _write_flat_dem(path, bounds, e, n, ground):
         "nodata": -9999.0,
         "compress": "deflate",
     }
-    with atomic_path(path) as tmp, rasterio.open(tmp, "w", **profile) as ds:
+    with atomic_path(path, overwrite=overwrite) as tmp, rasterio.open(tmp, "w", **profile) as ds:
         ds.write(np.full((1, height, width), ground, dtype="float32"))

@@ -21,12 +21,15 @@ Rules
   source), never a silently dropped building. Z coordinates are dropped. Invalid polygons are
   repaired with ``shapely.make_valid`` keeping only their polygonal parts, with a warning that
   lists their ids; a polygon with no area left is dropped, with a warning.
-- **CRS**: footprints in another CRS are transformed to EPSG:27700 with pyproj, never with a
-  ballpark transformation (as in the geodesy). Footprints without a CRS, or whose coordinates
+- **CRS**: footprints in another CRS are transformed to EPSG:27700 by
+  :func:`gnss_citygml.geodesy.to_bng`, the toolkit's one path (OSTN15 + OSGM15 for ETRS89 and
+  WGS 84, a conversion for OSGB36); a CRS on any other datum, or missing grids, is an error,
+  never PROJ's 2 m Helmert transformation. Footprints without a CRS, or whose coordinates
   contradict their CRS (degrees in a projected CRS, metres in a geographic one), are an error.
-- **DEM**: it must be in EPSG:27700 (it is not resampled: reproject it with ``gdalwarp``); a
-  DEM without a CRS (an ESRI ASCII grid without ``.prj``) is taken as EPSG:27700 only when the
-  caller says so with ``assume_crs``. A building or receiver off the DEM, or over its nodata
+- **DEM**: it must be in EPSG:27700: it is not resampled here, as a DEM's heights would need
+  the geoid too; reproject it through the OSTN15 grid and keep ODN heights. A DEM without a
+  CRS (an ESRI ASCII grid without ``.prj``) is taken as EPSG:27700 only when the caller says
+  so with ``assume_crs``. A building or receiver off the DEM, or over its nodata
   cells, is a :class:`DemCoverageError` listing them.
 """
 
@@ -43,15 +46,15 @@ import geopandas as gpd
 import numpy as np
 import pandas as pd
 import pyogrio
-import pyproj
 import rasterio
 import rasterio.features
 import shapely
-from pyproj.exceptions import CRSError, ProjError
+from pyproj.exceptions import CRSError
 from rasterio.io import DatasetReader
 from rasterio.windows import Window
 
 from .errors import InputError, MissingColumnError
+from .geodesy import CrsError, OutsideExtentError, is_bng, to_bng
 
 __all__ = [
     "STATISTICS",
@@ -96,7 +99,7 @@ def _listing(items: Sequence) -> str:
 # --- footprints ---------------------------------------------------------------------------------
 
 
-def read_footprints(path, *, layer: str | None = None, id_field: str | None = None):
+def read_footprints(path, *, layer: str | None = None, id_field: str | None = None, grid_dir=None):
     """Read building footprints as the *buildings* table (without ``ground``).
 
     Parameters
@@ -111,6 +114,9 @@ def read_footprints(path, *, layer: str | None = None, id_field: str | None = No
         ``TopographicArea`` for MasterMap.
     id_field
         The column holding the building ids (default: see the module's rules).
+    grid_dir
+        Folder of the OSTN15/OSGM15 grids, for footprints in another CRS than EPSG:27700
+        (see :mod:`gnss_citygml.geodesy`; default ``$GNSS_CITYGML_GRID_DIR``, then PROJ's).
 
     Returns
     -------
@@ -122,7 +128,10 @@ def read_footprints(path, *, layer: str | None = None, id_field: str | None = No
     ------
     InputError
         An unreadable source, an empty layer, missing or duplicate ids, non-polygon features,
-        no CRS or coordinates that contradict it, or a failed transformation.
+        no CRS or coordinates that contradict it, a CRS with no exact path to EPSG:27700
+        (:class:`~gnss_citygml.geodesy.CrsError`) or footprints outside the grids.
+    GridError
+        Footprints in another CRS and the grids are missing.
     """
     where = os.fspath(path)
     local = not (where.startswith("/vsi") or "://" in where)
@@ -143,7 +152,7 @@ def read_footprints(path, *, layer: str | None = None, id_field: str | None = No
         raise InputError(what, where=where, fix="give a layer with building footprints")
     frame = _with_ids(frame, id_field, where)
     _check_polygonal(frame.geometry.to_numpy(), frame["id"].to_numpy(), where)
-    return _repaired(_to_bng(frame, where), where)
+    return _repaired(_to_bng(frame, where, grid_dir), where)
 
 
 def _sniff_gml(path: Path) -> str | None:
@@ -257,8 +266,8 @@ def _looks_like_degrees(bounds: np.ndarray) -> bool:
     return bool(-180 <= west and east <= 180 and -90 <= south and north <= 90)
 
 
-def _to_bng(frame: gpd.GeoDataFrame, where: str) -> gpd.GeoDataFrame:
-    """The footprints in EPSG:27700, transformed without a ballpark transformation."""
+def _to_bng(frame: gpd.GeoDataFrame, where: str, grid_dir) -> gpd.GeoDataFrame:
+    """The footprints in EPSG:27700, through :func:`~gnss_citygml.geodesy.to_bng` only."""
     crs, bounds = frame.crs, frame.total_bounds
     degrees = _looks_like_degrees(bounds)
     if crs is None:
@@ -281,35 +290,17 @@ def _to_bng(frame: gpd.GeoDataFrame, where: str) -> gpd.GeoDataFrame:
             where=where,
             fix="assign the right CRS, e.g. ogr2ogr -a_srs EPSG:27700 fixed.gpkg INPUT",
         )
-    if _is_bng(crs):
+    if is_bng(crs):
         return frame.set_crs(_BNG, allow_override=True)
+    geoms = frame.geometry.to_numpy()
+    xy, owner = shapely.get_coordinates(geoms, return_index=True)
+    labels = np.char.add("footprint ", frame["id"].to_numpy(dtype=str))[owner]
     try:
-        transformer = pyproj.Transformer.from_crs(crs, _BNG, always_xy=True, allow_ballpark=False)
-        geoms = shapely.transform(
-            frame.geometry.to_numpy(),
-            lambda xy: np.column_stack(transformer.transform(xy[:, 0], xy[:, 1], errcheck=False)),
-        )
-    except ProjError as exc:
-        raise InputError(
-            f"cannot transform the footprints from {crs.name} to EPSG:27700 ({exc})",
-            where=where,
-            fix="install the PROJ grids for this transformation or give footprints in EPSG:27700",
-        ) from None
-    failed = ~np.isfinite(shapely.bounds(geoms)).all(axis=1) & ~shapely.is_empty(geoms)
-    if failed.any():
-        raise InputError(
-            f"{failed.sum()} footprint(s) could not be transformed from {crs.name} to EPSG:27700"
-            f" without a ballpark transformation: {_listing(frame['id'][failed].tolist())}",
-            where=where,
-            fix="install the PROJ grids for this transformation or give footprints in EPSG:27700",
-        )
+        e, n = to_bng(xy[:, 0], xy[:, 1], crs, grid_dir=grid_dir, labels=labels)
+    except (CrsError, OutsideExtentError) as exc:  # name the file too
+        raise type(exc)(exc.what, where=f"{where}: {exc.where}", fix=exc.fix) from None
+    geoms = shapely.set_coordinates(geoms.copy(), np.column_stack([e, n]))
     return gpd.GeoDataFrame(frame.drop(columns=frame.geometry.name), geometry=geoms, crs=_BNG)
-
-
-def _is_bng(crs) -> bool:
-    """Whether a CRS is British National Grid (alone or with a vertical CRS)."""
-    crs = pyproj.CRS.from_user_input(crs)
-    return crs.to_2d().to_epsg(min_confidence=70) == 27700
 
 
 def _check_polygonal(geoms: np.ndarray, ids: np.ndarray, where: str) -> None:
@@ -392,7 +383,7 @@ def _check_dem(ds: DatasetReader, assume_crs, band: int) -> None:
             " say so with assume_crs='EPSG:27700' (--dem-crs EPSG:27700)",
         )
     try:
-        bng = _is_bng(crs.to_wkt() if hasattr(crs, "to_wkt") else crs)
+        bng = is_bng(crs.to_wkt() if hasattr(crs, "to_wkt") else crs)
     except CRSError as exc:
         raise InputError(
             f"unknown DEM CRS {crs!r} ({exc})", where=ds.name, fix="give an EPSG code"
@@ -401,7 +392,9 @@ def _check_dem(ds: DatasetReader, assume_crs, band: int) -> None:
         raise InputError(
             "the DEM is not in EPSG:27700 (British National Grid)",
             where=ds.name,
-            fix="reproject it, e.g. gdalwarp -t_srs EPSG:27700 dem.tif dem_bng.tif",
+            fix="reproject it with the OSTN15 grid, keeping ODN heights: gdalwarp -t_srs "
+            "EPSG:27700 dem.tif dem_bng.tif with the grids installed (gnss-citygml grids "
+            "--fetch; without them PROJ silently takes a 2 m Helmert transformation)",
         )
     if ds.transform.b or ds.transform.d:
         raise InputError(
@@ -599,7 +592,7 @@ def building_ground(
         )
     if "id" not in buildings.columns:
         raise MissingColumnError(["id"], where="buildings", have=list(buildings.columns))
-    if buildings.crs is None or not _is_bng(buildings.crs):
+    if buildings.crs is None or not is_bng(buildings.crs):
         raise InputError(
             f"the buildings are in {buildings.crs or 'no CRS'}, not EPSG:27700",
             where="buildings",

@@ -9,6 +9,14 @@ National Grid + ODN height), which PROJ carries out with two Ordnance Survey gri
 Smartphone WGS84 coordinates are taken as ETRS89 (PROJ's "ETRS89 to WGS 84 (1)" is a null
 transformation too).
 
+Coordinates in any other CRS (footprints) reach British National Grid only through this one
+path, by :func:`to_bng`: a CRS on ETRS89 or WGS 84 is converted to its own latitude and
+longitude and goes through :func:`to_osgb`; a CRS on OSGB36 is converted (no datum change).
+Any other datum is a :class:`CrsError`: PROJ has only Helmert or ballpark transformations from
+it (metres off, silently), so the user transforms the data with the transformation that made
+it. PROJ's own choice is never taken: without the grids on its search path it picks "OSGB36 to
+WGS 84 (6)", a Helmert transformation 2 m off, without a word.
+
 The grids are looked for, in order, in an explicit ``grid_dir`` (or ``$GNSS_CITYGML_GRID_DIR``),
 pyproj's user data directory and PROJ's data directories; with ``network=True`` missing grids
 are downloaded from PROJ's CDN into the user data directory first (:func:`fetch_grids`). A grid
@@ -22,7 +30,8 @@ Two PROJ behaviours are guarded against:
   here is checked to be the single OSTN15 + OSGM15 pipeline and to reproduce an OS test point;
 - PROJ returns ``inf`` without an error for a point outside the grids (or, with its network
   streaming on but unreachable, anywhere): any non-finite result is an
-  :class:`OutsideExtentError` naming the points.
+  :class:`OutsideExtentError` naming the points (by the labels the caller gives: an
+  observation's receiver and time, a footprint's id).
 
 PROJ's GeoTIFF block cache thrashes when points jump between distant parts of Great Britain
 (about 1,000 points/s instead of millions): widely spread points are transformed in a
@@ -54,13 +63,16 @@ __all__ = [
     "GRIDS",
     "GRID_DIR_ENV",
     "OSGB_ODN",
+    "CrsError",
     "GridError",
     "OutsideExtentError",
     "fetch_grids",
     "from_osgb",
     "grid_bearing",
     "grid_status",
+    "is_bng",
     "meridian_convergence",
+    "to_bng",
     "to_osgb",
 ]
 
@@ -89,6 +101,17 @@ _DIRECTIONS = {
     "to_osgb": (ETRS89, OSGB_ODN, _TP09_ETRS, _TP09_OSGB, (0.01, 0.01, 0.005)),
     "from_osgb": (OSGB_ODN, ETRS89, _TP09_OSGB, _TP09_ETRS, (1e-7, 1e-7, 0.005)),
 }
+#: Datums (by PROJ's name: the EPSG ensembles, and as ESRI WKT and PROJ strings name them)
+#: whose coordinates are taken as ETRS89, and OSGB36, the datum of British National Grid.
+_ETRS89_DATUMS = frozenset(
+    {
+        "European Terrestrial Reference System 1989 ensemble",
+        "European Terrestrial Reference System 1989",
+        "World Geodetic System 1984 ensemble",
+        "World Geodetic System 1984",
+    }
+)
+_OSGB36_DATUM = "Ordnance Survey of Great Britain 1936"
 #: Folders this module added to PROJ's search path: not searched for another grid_dir.
 _APPENDED: set[str] = set()
 #: Points listed by name in an error message.
@@ -103,6 +126,10 @@ class OutsideExtentError(InputError):
     """Points lie outside the OSTN15 / OSGM15 grids (or their coordinates are not numbers)."""
 
 
+class CrsError(InputError):
+    """A CRS from which no exact (grid-based or datum-preserving) path to BNG exists."""
+
+
 def to_osgb(
     lat: npt.ArrayLike,
     lon: npt.ArrayLike,
@@ -110,6 +137,7 @@ def to_osgb(
     *,
     grid_dir: str | os.PathLike | None = None,
     network: bool = False,
+    labels: npt.ArrayLike | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """ETRS89 latitude, longitude, ellipsoidal height to British National Grid + ODN height.
 
@@ -124,6 +152,10 @@ def to_osgb(
         A folder holding the grids, searched first (default ``$GNSS_CITYGML_GRID_DIR``).
     network
         Download missing grids from PROJ's CDN into pyproj's user data directory.
+    labels
+        How an error names each point, as the user knows it (e.g. ``"receiver A at
+        2020-06-01 10:00:00"``, ``"footprint osgb1000005430576"``), one per point of the
+        broadcast shape; default ``"point <i>"`` with ``i`` its flat index in the arrays given.
 
     Returns
     -------
@@ -139,7 +171,7 @@ def to_osgb(
         Some points are outside the grids or have non-finite coordinates (the message names
         them).
     """
-    return _run("to_osgb", lon, lat, h, grid_dir, network)
+    return _run("to_osgb", lon, lat, h, grid_dir, network, labels)
 
 
 def from_osgb(
@@ -149,6 +181,7 @@ def from_osgb(
     *,
     grid_dir: str | os.PathLike | None = None,
     network: bool = False,
+    labels: npt.ArrayLike | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """British National Grid + ODN height to ETRS89 latitude, longitude, ellipsoidal height.
 
@@ -160,7 +193,7 @@ def from_osgb(
         Easting and northing (m, EPSG:27700); array_like, broadcast together with ``odn``.
     odn
         ODN height (m); NaN where unknown gives NaN ellipsoidal height.
-    grid_dir, network
+    grid_dir, network, labels
         As for :func:`to_osgb`.
 
     Returns
@@ -168,8 +201,96 @@ def from_osgb(
     (lat, lon, h)
         ETRS89 latitude, longitude (deg) and ellipsoidal height (m).
     """
-    lon, lat, h = _run("from_osgb", e, n, odn, grid_dir, network)
+    lon, lat, h = _run("from_osgb", e, n, odn, grid_dir, network, labels)
     return lat, lon, h
+
+
+def to_bng(
+    x: npt.ArrayLike,
+    y: npt.ArrayLike,
+    crs,
+    *,
+    grid_dir: str | os.PathLike | None = None,
+    network: bool = False,
+    labels: npt.ArrayLike | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Horizontal coordinates in any CRS to British National Grid, by an exact path only.
+
+    - British National Grid itself (also with a vertical CRS): unchanged.
+    - A CRS on ETRS89 or WGS 84 (EPSG:4258, EPSG:4326, OGC:CRS84, UTM, Web Mercator...): its
+      own latitude and longitude (a conversion, no datum change), then :func:`to_osgb`, the
+      checked OSTN15 + OSGM15 transformation. WGS 84 is taken as ETRS89, as for the receivers.
+    - A CRS on OSGB36 (EPSG:4277, another projection): converted (no datum change).
+    - Anything else is a :class:`CrsError`: PROJ has only Helmert or ballpark
+      transformations from other datums (metres off in Great Britain).
+
+    A bound CRS (a PROJ string's ``+towgs84``, a WKT's ``TOWGS84``) is taken as its source CRS:
+    its Helmert parameters are never used.
+
+    Parameters
+    ----------
+    x, y
+        Coordinates in ``crs``, in its traditional GIS order (longitude, latitude for a
+        geographic CRS; easting, northing for a projected one), array_like.
+    crs
+        Anything :meth:`pyproj.crs.CRS.from_user_input` takes.
+    grid_dir, network, labels
+        As for :func:`to_osgb`.
+
+    Returns
+    -------
+    (e, n)
+        Easting and northing (m, EPSG:27700) as float arrays of the broadcast shape.
+
+    Raises
+    ------
+    CrsError
+        No exact path from ``crs`` (its datum is not ETRS89, WGS 84 or OSGB36).
+    GridError, OutsideExtentError
+        As for :func:`to_osgb`.
+    """
+    x, y = np.broadcast_arrays(np.asarray(x, dtype=float), np.asarray(y, dtype=float))
+    crs = pyproj.CRS.from_user_input(crs)
+    if is_bng(crs):
+        return x.copy(), y.copy()
+    crs = (crs.source_crs if crs.is_bound else crs).to_2d()
+    geodetic = crs.geodetic_crs
+    datum = geodetic.datum.name if geodetic is not None and geodetic.is_geographic else None
+    if datum in _ETRS89_DATUMS:
+        lon, lat = _conversion(crs, geodetic).transform(x, y)
+        e, n, _ = to_osgb(lat, lon, np.nan, grid_dir=grid_dir, network=network, labels=labels)
+        return e, n
+    if datum == _OSGB36_DATUM:
+        e, n = _conversion(crs, pyproj.CRS("EPSG:27700")).transform(x, y)
+        _check_finite(e.ravel(), n.ravel(), np.zeros(e.size), False, labels)
+        return e, n
+    raise CrsError(
+        f"no exact transformation from {crs.name} (datum {datum or 'unknown'}) to British "
+        "National Grid",
+        where=crs.to_string(),
+        fix="only coordinates on ETRS89 or WGS 84 (through OSTN15) and on OSGB36 are "
+        "transformed, never with a Helmert or ballpark transformation (metres off): transform "
+        "them to EPSG:4258, EPSG:4326 or EPSG:27700 with the transformation they were made "
+        "with",
+    )
+
+
+def is_bng(crs) -> bool:
+    """Whether a CRS is British National Grid (alone, with a vertical CRS, or bound to WGS 84).
+
+    Parameters
+    ----------
+    crs
+        Anything :meth:`pyproj.crs.CRS.from_user_input` takes.
+
+    Examples
+    --------
+    >>> is_bng("EPSG:7405"), is_bng("EPSG:4326")
+    (True, False)
+    """
+    crs = pyproj.CRS.from_user_input(crs)
+    crs = crs.source_crs if crs.is_bound else crs
+    return crs.to_2d().to_epsg(min_confidence=70) == 27700
 
 
 def meridian_convergence(lat: npt.ArrayLike, lon: npt.ArrayLike) -> np.ndarray:
@@ -292,13 +413,13 @@ def fetch_grids(
     return paths
 
 
-def _run(direction, x, y, z, grid_dir, network):
+def _run(direction, x, y, z, grid_dir, network, labels):
     """Validate, locate grids, transform (spatially sorted if spread out), check the result."""
     x, y, z = np.broadcast_arrays(*(np.asarray(a, dtype=float) for a in (x, y, z)))
     shape = x.shape
     x, y, z = x.ravel(), y.ravel(), z.ravel()
     geographic = direction == "to_osgb"
-    _check_finite(x, y, z, geographic)
+    _check_finite(x, y, z, geographic, labels)
     transformer = _transformer(direction, _grid_folders(grid_dir, network))
     no_z = np.isnan(z)
     z = np.where(no_z, 0.0, z)
@@ -314,7 +435,7 @@ def _run(direction, x, y, z, grid_dir, network):
     if bad.any():
         raise OutsideExtentError(
             f"{int(bad.sum())} point(s) outside the OSTN15/OSGM15 grids",
-            where=_name_points(bad, x, y, geographic),
+            where=_name_points(bad, x, y, geographic, labels),
             fix="the grids cover Great Britain and its islands (OSTN15 extent); check the "
             "coordinates, their order and their CRS",
         )
@@ -322,26 +443,33 @@ def _run(direction, x, y, z, grid_dir, network):
     return tuple(r.reshape(shape) for r in result)
 
 
-def _check_finite(x, y, z, geographic):
+def _check_finite(x, y, z, geographic, labels):
     """Non-finite horizontal coordinates and infinite heights are input errors."""
     bad = ~(np.isfinite(x) & np.isfinite(y)) | np.isinf(z)
     if bad.any():
         raise OutsideExtentError(
             f"{int(bad.sum())} point(s) with non-finite coordinates",
-            where=_name_points(bad, x, y, geographic),
+            where=_name_points(bad, x, y, geographic, labels),
             fix="drop or fill these points (a missing height may be NaN)",
         )
 
 
-def _name_points(bad, x, y, geographic) -> str:
-    """The first few bad points by index and coordinates."""
+def _name_points(bad, x, y, geographic, labels) -> str:
+    """The first few bad points by label (one point per label) and coordinates."""
     index = np.flatnonzero(bad)
-    if geographic:
-        names = [f"#{i} (lat {y[i]:.6f}, lon {x[i]:.6f})" for i in index[:_LIST_POINTS]]
+    if labels is None:
+        names = np.char.add("point ", index.astype(str))
     else:
-        names = [f"#{i} (E {x[i]:.3f}, N {y[i]:.3f})" for i in index[:_LIST_POINTS]]
+        names = np.asarray(labels, dtype=object).ravel()[index].astype(str)
+        _, first = np.unique(names, return_index=True)  # a footprint's vertices: one label
+        index, names = index[np.sort(first)], names[np.sort(first)]
+    if geographic:
+        coords = [f"lat {y[i]:.6f}, lon {x[i]:.6f}" for i in index[:_LIST_POINTS]]
+    else:
+        coords = [f"E {x[i]:.3f}, N {y[i]:.3f}" for i in index[:_LIST_POINTS]]
+    shown = [f"{name} ({c})" for name, c in zip(names[:_LIST_POINTS], coords, strict=False)]
     more = f" and {index.size - _LIST_POINTS} more" if index.size > _LIST_POINTS else ""
-    return "points " + ", ".join(names) + more
+    return ", ".join(shown) + more
 
 
 def _spatial_order(x, y, cell):
@@ -437,6 +565,12 @@ def _check_operation(transformer: Transformer, start, expected, tolerance) -> No
             where=transformer.definition,
             fix="the grid files are damaged or not PROJ-data's: " + _HOW_TO_GET,
         )
+
+
+@functools.cache
+def _conversion(src: pyproj.CRS, dst: pyproj.CRS) -> Transformer:
+    """PROJ's operation between two CRSs on one datum: a conversion, exact (no datum change)."""
+    return Transformer.from_crs(src, dst, always_xy=True, allow_ballpark=False)
 
 
 @functools.cache

@@ -76,7 +76,9 @@ def receivers(
             where=f"{int(np.isnan(h[where]).sum())} rows",
             fix="use --receiver-height dem (with a DEM), or give h for every row",
         )
-    e, n, odn = to_osgb(lat, lon, h, grid_dir=grid_dir)
+    first = observations.iloc[np.flatnonzero(starts)]  # each position named by its first row
+    labels = "receiver " + first["receiver"].astype(str) + " at " + first["time_utc"].astype(str)
+    e, n, odn = to_osgb(lat, lon, h, grid_dir=grid_dir, labels=labels.to_numpy())
     if receiver_height == "dem":
         if dem is None:
             raise InputError("receiver heights from the DEM need a DEM", fix="give --dem")

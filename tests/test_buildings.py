@@ -9,7 +9,6 @@ import time
 
 import geopandas as gpd
 import numpy as np
-import pyproj
 import pytest
 import rasterio
 import shapely
@@ -22,6 +21,7 @@ from gnss_citygml.buildings import (
     sample_ground,
 )
 from gnss_citygml.errors import InputError, MissingColumnError
+from gnss_citygml.geodesy import CrsError, OutsideExtentError, from_osgb
 
 BNG = "EPSG:27700"
 #: The synthetic DEM: 2 m cells, 500 x 400, west 500000, north 201000.
@@ -136,16 +136,56 @@ def test_id_rules(tmp_path):
         read_footprints(path, id_field="toid")
 
 
-def test_footprints_in_wgs84_are_transformed_to_bng(tmp_path):
-    to_wgs84 = pyproj.Transformer.from_crs(BNG, "EPSG:4326", always_xy=True, allow_ballpark=False)
+@pytest.fixture(scope="module")
+def grid_dir(shared_data):
+    return shared_data / "geodesy"
+
+
+def test_footprints_in_wgs84_are_transformed_with_ostn15(tmp_path, grid_dir):
+    """Made from BNG with OSTN15, back to within 1 mm (fresh interpreters, the commands and
+    ETRS89 / UTM: tests/test_geodesy.py)."""
     building = shapely.box(529540.0, 182290.0, 529560.0, 182305.0)  # by the London GNSS log
-    in_degrees = shapely.transform(building, lambda xy: np.column_stack(to_wgs84.transform(*xy.T)))
-    path = tmp_path / "wgs84.gpkg"
-    gpd.GeoDataFrame({"id": ["ucl"]}, geometry=[in_degrees], crs="EPSG:4326").to_file(path)
-    b = read_footprints(path)
-    assert b.crs == BNG
-    back = shapely.get_coordinates(b.geometry[0])
-    assert np.abs(back - shapely.get_coordinates(building)).max() < 1e-3
+    xy = shapely.get_coordinates(building)
+    lat, lon, _ = from_osgb(xy[:, 0], xy[:, 1], 0.0, grid_dir=grid_dir)
+    path = write_layer(
+        tmp_path / "wgs84.gpkg", [shapely.Polygon(np.column_stack([lon, lat]))],
+        crs="EPSG:4326", toid=["ucl"],
+    )  # fmt: skip
+    b = read_footprints(path, grid_dir=grid_dir)
+    assert b.crs == BNG and b["id"].tolist() == ["ucl"]
+    assert np.abs(shapely.get_coordinates(b.geometry[0]) - xy).max() < 1e-3
+
+
+def test_footprints_on_another_datum_are_refused(tmp_path, grid_dir):
+    """PROJ would move ED50 footprints by its 2 m Helmert transformation: an error instead."""
+    square = shapely.box(300000.0, 5700000.0, 300020.0, 5700020.0)
+    path = write_layer(tmp_path / "ed50.gpkg", [square], crs="EPSG:23030", toid=["a"])
+    with pytest.raises(CrsError, match=r"no exact transformation from ED50 / UTM zone 30N") as info:
+        read_footprints(path, grid_dir=grid_dir)
+    assert f"({path}, layer ed50: EPSG:23030)" in str(info.value)
+
+
+def test_footprints_outside_the_grids_are_named_by_id(tmp_path, grid_dir):
+    in_gb = shapely.box(-0.1342, 51.5246, -0.1340, 51.5248)
+    brest = shapely.box(-4.49, 48.39, -4.48, 48.40)
+    path = write_layer(
+        tmp_path / "far.gpkg", [in_gb, brest, in_gb], crs="EPSG:4326", toid=["ucl", "brest", "x"]
+    )
+    with pytest.raises(OutsideExtentError, match=r"^5 point\(s\) outside") as info:
+        read_footprints(path, grid_dir=grid_dir)
+    assert info.value.where == f"{path}, layer far: footprint brest (lat 48.390000, lon -4.480000)"
+
+
+def test_bng_bound_to_wgs84_is_bng(tmp_path):
+    """A PROJ string's +towgs84 (a Helmert to WGS 84) does not move BNG footprints."""
+    bound = (
+        "+proj=tmerc +lat_0=49 +lon_0=-2 +k=0.9996012717 +x_0=400000 +y_0=-100000 +ellps=airy "
+        "+towgs84=446.448,-125.157,542.06,0.15,0.247,0.842,-20.489 +units=m +no_defs"
+    )
+    path = write_layer(tmp_path / "bound.gpkg", [SQUARE], crs=bound, toid=["sq"])
+    assert gpd.read_file(path).crs.is_bound
+    b = read_footprints(path, grid_dir="/nonexistent")  # no grid is needed
+    assert b.crs == BNG and b.geometry[0].equals(SQUARE)
 
 
 def test_mastermap_tile(shared_data):

@@ -1,20 +1,31 @@
-"""ETRS89 <-> BNG + ODN against the 40 Ordnance Survey test points; grids; meridian convergence."""
+"""ETRS89 <-> BNG + ODN against the 40 Ordnance Survey test points; grids; meridian convergence;
+every transformation of the toolkit (footprints in another CRS through `read_footprints`,
+`estimate`, `convert`, `export`) on the one OSTN15/OSGM15 path, or the grid error."""
 
+import contextlib
 import hashlib
+import io
 import json
 import os
 import subprocess
 import sys
 import textwrap
+from pathlib import Path
 
+import geopandas as gpd
 import numpy as np
 import pandas as pd
+import pyproj
 import pytest
+import shapely
 from pyproj import Geod
 
+from gnss_citygml.buildings import read_footprints
+from gnss_citygml.cli import main
 from gnss_citygml.geodesy import (
     GRID_DIR_ENV,
     GRIDS,
+    CrsError,
     GridError,
     OutsideExtentError,
     fetch_grids,
@@ -22,10 +33,13 @@ from gnss_citygml.geodesy import (
     grid_bearing,
     grid_status,
     meridian_convergence,
+    to_bng,
     to_osgb,
 )
+from gnss_citygml.pipeline import receivers
 
 GRS80 = Geod(ellps="GRS80")
+CITY = Path(__file__).resolve().parents[1] / "examples" / "city"
 
 
 @pytest.fixture(scope="module")
@@ -102,9 +116,9 @@ def test_spread_points_are_sorted_and_put_back(grid_dir, os_points):
 @pytest.mark.parametrize(
     ("lat", "lon", "named"),
     [
-        ([51.5, 48.0], [-0.12, -3.0], "#1 (lat 48.000000, lon -3.000000)"),  # Brittany
-        ([52.52, 51.5], [13.40, -0.12], "#0 (lat 52.520000, lon 13.400000)"),  # Berlin
-        ([-0.12, 51.5], [51.5, -0.12], "#0 (lat -0.120000, lon 51.500000)"),  # lat/lon swapped
+        ([51.5, 48.0], [-0.12, -3.0], "(point 1 (lat 48.000000, lon -3.000000))"),  # Brittany
+        ([52.52, 51.5], [13.40, -0.12], "(point 0 (lat 52.520000, lon 13.400000))"),  # Berlin
+        ([-0.12, 51.5], [51.5, -0.12], "(point 0 (lat -0.120000, lon 51.500000))"),  # swapped
     ],
 )
 def test_outside_the_grids_is_an_error_naming_the_points(grid_dir, lat, lon, named):
@@ -116,7 +130,26 @@ def test_outside_the_grids_is_an_error_naming_the_points(grid_dir, lat, lon, nam
 def test_outside_the_grids_from_osgb(grid_dir):
     with pytest.raises(OutsideExtentError) as info:
         from_osgb([530000.0, -400000.0], [180000.0, 180000.0], [10.0, 10.0], grid_dir=grid_dir)
-    assert "#1 (E -400000.000, N 180000.000)" in str(info.value)
+    assert "(point 1 (E -400000.000, N 180000.000))" in str(info.value)
+
+
+def test_errors_name_points_by_the_callers_labels(grid_dir):
+    """A caller's labels (an observation's receiver and time, a footprint's id) name the
+    points, each label once however many of its points are bad, never an index "#0"."""
+    labels = ["footprint a", "footprint a", "footprint b", "footprint a", "footprint c"]
+    lat, lon = [48.0, 48.1, 48.2, 51.5, 52.0], [-3.0, -3.0, -3.0, -0.12, 13.4]
+    with pytest.raises(OutsideExtentError, match=r"^4 point\(s\) outside") as info:
+        to_osgb(lat, lon, np.nan, grid_dir=grid_dir, labels=labels)
+    assert info.value.where == (
+        "footprint a (lat 48.000000, lon -3.000000), footprint b (lat 48.200000, lon -3.000000), "
+        "footprint c (lat 52.000000, lon 13.400000)"
+    )
+    assert "#" not in str(info.value) and "point 0" not in str(info.value)
+    with pytest.raises(OutsideExtentError, match=r"non-finite.*\(receiver B at 10:00:02 \(E nan"):
+        from_osgb(
+            [530000.0, np.nan], [180000.0, 180000.0], 0.0,
+            grid_dir=grid_dir, labels=["receiver A at 10:00:00", "receiver B at 10:00:02"],
+        )  # fmt: skip
 
 
 def test_non_finite_coordinates_are_an_error(grid_dir):
@@ -124,24 +157,51 @@ def test_non_finite_coordinates_are_an_error(grid_dir):
         to_osgb(
             [51.5, np.nan, 51.5], [-0.12, -0.12, -0.12], [50.0, 50.0, np.inf], grid_dir=grid_dir
         )
-    assert "#1 (lat nan" in str(info.value) and "#2 (lat 51.5" in str(info.value)
+    assert "point 1 (lat nan" in str(info.value) and "point 2 (lat 51.5" in str(info.value)
 
 
-def _isolated(code, tmp_path, endpoint=None):
-    """Run ``code`` in a fresh interpreter whose PROJ user directory is ``tmp_path/user`` (so
-    grids fetched on this machine do not count) and, if given, with another CDN endpoint."""
+def _fresh_env(tmp_path, endpoint=None):
+    """The environment of a fresh interpreter whose PROJ user directory is ``tmp_path/user``
+    (so grids fetched on this machine do not count), without $GNSS_CITYGML_GRID_DIR and, if
+    given, with another CDN endpoint. No grid folder is on its PROJ search path at the start,
+    as for a user's run (in this process, earlier tests have added the shared one)."""
     env = dict(os.environ, PROJ_USER_WRITABLE_DIRECTORY=str(tmp_path / "user"))
     env.pop(GRID_DIR_ENV, None)
     if endpoint:
         env["PROJ_NETWORK_ENDPOINT"] = endpoint
+    return env
+
+
+def _isolated(code, tmp_path, endpoint=None):
+    """Run ``code`` in a fresh interpreter (:func:`_fresh_env`); its printed lines."""
     run = subprocess.run(
         [sys.executable, "-c", textwrap.dedent(code)],
-        env=env,
+        env=_fresh_env(tmp_path, endpoint),
         capture_output=True,
         text=True,
         check=True,
     )
     return run.stdout.splitlines()
+
+
+def _commands(runs, tmp_path):
+    """Several ``gnss-citygml`` runs (argument lists) in one fresh interpreter
+    (:func:`_fresh_env`): (exit code, stdout, stderr) of each."""
+    code = f"""
+        import contextlib, io, json
+        from gnss_citygml.cli import main
+        results = []
+        for args in {[[str(a) for a in args] for args in runs]!r}:
+            out, err = io.StringIO(), io.StringIO()
+            with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+                try:
+                    main(args)
+                except SystemExit as exit_:
+                    results.append((exit_.code, out.getvalue(), err.getvalue()))
+        print(json.dumps(results))
+    """
+    (line,) = _isolated(code, tmp_path)
+    return json.loads(line)
 
 
 def test_missing_grids_name_the_files_and_how_to_get_them(grid_dir, tmp_path):
@@ -261,3 +321,220 @@ def test_meridian_convergence_sign_with_a_point_due_north(grid_dir):
     assert 100.0 * np.radians(convergence) == pytest.approx(2.55, abs=0.05)
     # West of the central meridian the sign flips.
     assert meridian_convergence(51.5, -4.0) < 0.0
+
+
+# --- every transformation through the grids -----------------------------------------------------
+
+#: CRSs on WGS 84 / ETRS89 (taken as ETRS89), as EPSG codes, OGC, ESRI WKT and PROJ strings.
+ETRS89_LIKE = [
+    "EPSG:4326",
+    "EPSG:4258",
+    "OGC:CRS84",
+    "EPSG:4979",
+    "EPSG:32630",
+    "EPSG:25830",
+    "EPSG:3857",
+    pyproj.CRS("EPSG:32630").to_wkt("WKT1_ESRI"),
+    "+proj=longlat +datum=WGS84 +no_defs",
+]
+
+
+def in_crs(e, n, crs, grid_dir):
+    """BNG coordinates in a CRS on ETRS89 or WGS 84, made as a user's data would be: OSTN15 to
+    ETRS89 latitude and longitude, then the CRS's own projection (no datum change)."""
+    lat, lon, _ = from_osgb(e, n, 0.0, grid_dir=grid_dir)
+    crs = pyproj.CRS(crs)
+    return pyproj.Transformer.from_crs(crs.geodetic_crs, crs, always_xy=True).transform(lon, lat)
+
+
+@pytest.mark.parametrize("crs", ETRS89_LIKE, ids=lambda c: c.split("[")[0][:30])
+def test_to_bng_through_ostn15_within_a_millimetre(os_points, grid_dir, crs):
+    """All 40 OS test points, Scilly to Shetland, back from the CRS to within 1 mm."""
+    e, n = os_points["e"].to_numpy(), os_points["n"].to_numpy()
+    x, y = in_crs(e, n, crs, grid_dir)
+    e2, n2 = to_bng(x, y, crs, grid_dir=grid_dir)
+    assert np.hypot(e2 - e, n2 - n).max() < 1e-3
+
+
+def test_to_bng_from_osgb36_is_a_conversion(os_points):
+    """OSGB36 latitude and longitude, or BNG bound to WGS 84 by a PROJ string's +towgs84 (a
+    Helmert that must not be used), reach BNG without any grid."""
+    e, n = os_points["e"].to_numpy(), os_points["n"].to_numpy()
+    lon, lat = pyproj.Transformer.from_crs("EPSG:27700", "EPSG:4277", always_xy=True).transform(
+        e, n
+    )
+    e2, n2 = to_bng(lon, lat, "EPSG:4277", grid_dir="/nonexistent")  # never looked at
+    assert np.hypot(e2 - e, n2 - n).max() < 1e-6
+    bound = (
+        "+proj=tmerc +lat_0=49 +lon_0=-2 +k=0.9996012717 +x_0=400000 +y_0=-100000 +ellps=airy "
+        "+towgs84=446.448,-125.157,542.06,0.15,0.247,0.842,-20.489 +units=m +no_defs"
+    )
+    assert np.array_equal(to_bng(e, n, bound, grid_dir="/nonexistent"), (e, n))
+    assert np.array_equal(to_bng(e, n, "EPSG:7405"), (e, n))
+
+
+@pytest.mark.parametrize(
+    ("crs", "named"),
+    [
+        ("EPSG:23030", "ED50 / UTM zone 30N (datum European Datum 1950)"),
+        ("EPSG:29903", "TM75 / Irish Grid"),
+        ("EPSG:9057", "WGS 84 (G1762) (datum World Geodetic System 1984 (G1762))"),
+        ("+proj=longlat +ellps=WGS84 +no_defs", "datum Unknown based on WGS 84 ellipsoid"),
+    ],
+)
+def test_to_bng_refuses_a_datum_without_a_grid(grid_dir, crs, named):
+    """PROJ would take a Helmert (ED50: "OSGB36 to ED50 (1)", 2 m) or ballpark transformation."""
+    with pytest.raises(CrsError, match="no exact transformation from") as info:
+        to_bng([500000.0], [5700000.0], crs, grid_dir=grid_dir)
+    message = str(info.value)
+    assert named in message and "EPSG:4258, EPSG:4326 or EPSG:27700" in message
+
+
+def test_receivers_outside_the_grids_are_named_by_receiver_and_time(grid_dir):
+    obs = pd.DataFrame(
+        {
+            "time_utc": pd.to_datetime(["2020-06-01 10:00:00", "2020-06-01 10:00:01"]),
+            "receiver": ["phone1", "phone2"],
+            "lat": [51.5, 48.0],
+            "lon": [-0.12, -3.0],
+            "h": [60.0, 60.0],
+            "azimuth": [10.0, 20.0],
+        }
+    )
+    with pytest.raises(OutsideExtentError) as info:
+        receivers(obs, receiver_height="log", grid_dir=grid_dir)
+    assert (
+        info.value.where == "receiver phone2 at 2020-06-01 10:00:01 (lat 48.000000, lon -3.000000)"
+    )
+
+
+@pytest.fixture(scope="module")
+def city(tmp_path_factory, grid_dir):
+    """The bundled city's footprints in EPSG:27700 and, made from them with OSTN15, in
+    EPSG:4326, EPSG:4258 and EPSG:32630; its heights (`estimate` on the BNG footprints) as a
+    layer in each CRS and as a CSV table; its model by `convert` and by `export` from BNG."""
+    folder = tmp_path_factory.mktemp("city")
+    bng = read_footprints(CITY / "footprints.gpkg")
+    code, out, err = _run_main(
+        ["estimate", CITY / "observations.parquet", CITY / "footprints.gpkg", "--dem",
+         CITY / "dem.tif", "-o", folder / "heights.gpkg", "--grid-dir", grid_dir, "-q"]
+    )  # fmt: skip
+    assert code == 0, err
+    heights = gpd.read_file(folder / "heights.gpkg")
+    heights.drop(columns="geometry").to_csv(folder / "heights.csv", index=False)
+    xy = shapely.get_coordinates(bng.geometry.to_numpy())
+    for crs in ("EPSG:4326", "EPSG:4258", "EPSG:32630"):
+        name = crs.replace(":", "")
+        moved = np.column_stack(in_crs(xy[:, 0], xy[:, 1], crs, grid_dir))
+        geoms = shapely.set_coordinates(bng.geometry.to_numpy().copy(), moved)
+        bng.set_geometry(geoms, crs=crs).to_file(folder / f"footprints_{name}.gpkg")
+        heights.set_geometry(geoms, crs=crs).to_file(folder / f"heights_{name}.gpkg")
+    for args in (
+        ["convert", folder / "heights.gpkg", "-o", folder / "convert.city.json"],
+        ["export", folder / "heights.csv", "--footprints", CITY / "footprints.gpkg", "-o",
+         folder / "export.city.json"],
+    ):  # fmt: skip
+        assert _run_main([*args, "-q"])[0] == 0
+    return folder
+
+
+def _run_main(args):
+    """``gnss-citygml ARGS`` in this process: exit code, stdout, stderr."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        with pytest.raises(SystemExit) as exit_:
+            main([str(a) for a in args])
+    return exit_.value.code, out.getvalue(), err.getvalue()
+
+
+def test_read_footprints_in_other_crs_within_a_millimetre(city, grid_dir, tmp_path):
+    """In a fresh interpreter (no grid on PROJ's path yet, as for a user), and without the
+    grids the grid error, never PROJ's 2 m Helmert transformation (1.805 m before)."""
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    code = f"""
+        import numpy as np, shapely
+        from gnss_citygml.buildings import read_footprints
+        from gnss_citygml.geodesy import GridError
+        try:
+            read_footprints({str(city / "footprints_EPSG4326.gpkg")!r}, grid_dir={str(empty)!r})
+        except GridError as error:
+            print(error)
+        bng = read_footprints({str(CITY / "footprints.gpkg")!r})
+        for name in ("EPSG4326", "EPSG4258", "EPSG32630"):
+            path = {str(city)!r} + f"/footprints_{{name}}.gpkg"
+            got = read_footprints(path, grid_dir={str(grid_dir)!r})
+            assert got["id"].tolist() == bng["id"].tolist() and got.crs == bng.crs
+            d = shapely.get_coordinates(got.geometry) - shapely.get_coordinates(bng.geometry)
+            print(np.hypot(*d.T).max())
+    """
+    message, *moved = _isolated(code, tmp_path)
+    assert message.startswith("missing PROJ grid(s) uk_os_OSTN15_NTv2_OSGBtoETRS.tif")
+    assert str(empty) in message
+    assert len(moved) == 3 and max(map(float, moved)) < 1e-3
+
+
+def test_estimate_with_footprints_in_wgs84_gives_the_same_heights(city, grid_dir, tmp_path):
+    """25 buildings converge with either footprints (23 with the Helmert-moved ones before)."""
+    out = tmp_path / "heights.gpkg"
+    args = ["estimate", CITY / "observations.parquet", city / "footprints_EPSG4326.gpkg",
+            "--dem", CITY / "dem.tif", "-o", out, "--grid-dir", grid_dir, "-q"]  # fmt: skip
+    ((code, stdout, err),) = _commands([args], tmp_path)
+    assert code == 0, err
+    assert stdout.startswith("25 of 30 buildings have a height")
+    got, want = gpd.read_file(out), gpd.read_file(city / "heights.gpkg")
+    assert got["id"].tolist() == want["id"].tolist()
+    d = shapely.get_coordinates(got.geometry) - shapely.get_coordinates(want.geometry)
+    assert np.hypot(*d.T).max() < 1e-3
+    assert got["converged"].tolist() == want["converged"].tolist()
+    np.testing.assert_allclose(got["height"], want["height"], atol=1e-3)
+
+
+def _model(path):
+    """A CityJSON file's extent and its vertices in metres."""
+    model = json.loads(path.read_text())
+    scale, shift = np.array(model["transform"]["scale"]), np.array(model["transform"]["translate"])
+    vertices = np.array(model["vertices"]) * scale + shift
+    return np.array(model["metadata"]["geographicalExtent"]), vertices
+
+
+@pytest.mark.parametrize("crs", ["EPSG4326", "EPSG4258", "EPSG32630"])
+def test_convert_footprints_in_other_crs_within_a_millimetre(city, grid_dir, tmp_path, crs):
+    got = tmp_path / "got.city.json"
+    args = ["convert", city / f"heights_{crs}.gpkg", "-o", got, "--grid-dir", grid_dir, "-q"]
+    ((code, _, err),) = _commands([args], tmp_path)
+    assert code == 0, err
+    (extent, vertices), (extent0, vertices0) = _model(got), _model(city / "convert.city.json")
+    assert np.abs(extent - extent0).max() <= 1e-3 + 1e-9  # the files' millimetre
+    assert np.abs(vertices - vertices0).max() <= 1e-3 + 1e-9
+
+
+def test_export_with_footprints_in_wgs84_within_a_millimetre(city, grid_dir, tmp_path):
+    got, fp = tmp_path / "got.city.json", city / "footprints_EPSG4326.gpkg"
+    args = ["export", city / "heights.csv", "--footprints", fp, "-o", got, "--grid-dir", grid_dir]
+    ((code, _, err),) = _commands([[*args, "-q"]], tmp_path)
+    assert code == 0, err
+    (extent, vertices), (extent0, vertices0) = _model(got), _model(city / "export.city.json")
+    assert np.abs(extent - extent0).max() <= 1e-3 + 1e-9
+    assert np.abs(vertices - vertices0).max() <= 1e-3 + 1e-9
+
+
+def test_commands_without_the_grids_are_the_grid_error(city, tmp_path):
+    """No grid folder, or an empty one, and no PROJ user grids: one error line, no output."""
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    fp = city / "footprints_EPSG4326.gpkg"
+    outputs = [tmp_path / "convert.city.json", tmp_path / "export.city.json", tmp_path / "h.gpkg"]
+    runs = [
+        ["convert", city / "heights_EPSG4326.gpkg", "--grid-dir", empty],
+        ["export", city / "heights.csv", "--footprints", fp],
+        ["estimate", CITY / "observations.parquet", fp, "--dem", CITY / "dem.tif"],
+    ]
+    results = _commands(
+        [[*a, "-o", out, "-q"] for a, out in zip(runs, outputs, strict=True)], tmp_path
+    )
+    for (code, stdout, err), out in zip(results, outputs, strict=True):
+        assert code == 2 and stdout == "", out.name
+        assert err.startswith("error: missing PROJ grid(s) uk_os_OSTN15_NTv2_OSGBtoETRS.tif")
+        assert "gnss-citygml grids --fetch" in err and len(err.splitlines()) == 1
+        assert not out.exists()

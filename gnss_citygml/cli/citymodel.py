@@ -8,6 +8,7 @@ from pathlib import Path
 import click
 
 from . import cli
+from .observe import GRID_DIR
 from .options import OVERWRITE, QUIET, output_file, progress
 
 _SCHEMA_DIR = click.option(
@@ -34,11 +35,12 @@ def _model_options(func):
     return func
 
 
-def _footprints(path, layer, id_field, dem, dem_crs):
-    """The footprints, with their ground from the DEM when one is given."""
+def _footprints(path, layer, id_field, dem, dem_crs, grid_dir):
+    """The footprints in EPSG:27700 (through the OSTN15/OSGM15 grids in ``grid_dir`` when in
+    another CRS), with their ground from the DEM when one is given."""
     from ..buildings import building_ground, read_footprints
 
-    frame = read_footprints(path, layer=layer, id_field=id_field)
+    frame = read_footprints(path, layer=layer, id_field=id_field, grid_dir=grid_dir)
     return frame if dem is None else building_ground(frame, dem, assume_crs=dem_crs)
 
 
@@ -85,6 +87,7 @@ def _write_model(frame, writer, output, overwrite, strict, no_validate, schema_d
 @click.option("--ground-field", help="Field with the ground height (m ODN).")
 @click.option("--dem", help="DEM for the ground under each footprint (instead of --ground-field).")
 @click.option("--dem-crs", help="CRS of a DEM without one, e.g. EPSG:27700.")
+@GRID_DIR
 @_model_options
 def convert(
     input_,
@@ -95,6 +98,7 @@ def convert(
     ground_field,
     dem,
     dem_crs,
+    grid_dir,
     output,
     overwrite,
     strict,
@@ -112,7 +116,7 @@ def convert(
     if ground_field is not None and dem is not None:
         raise click.UsageError("give the ground with --ground-field or --dem, not both")
     writer = _model_writer(output, overwrite)
-    frame = _footprints(input_, layer, id_field, dem, dem_crs)
+    frame = _footprints(input_, layer, id_field, dem, dem_crs, grid_dir)
     frame = buildings_with_heights(
         frame, height_field, relative=relative, ground_field=ground_field
     )
@@ -131,6 +135,7 @@ def convert(
 @click.option("--id-field", help="Field of the footprints with the building ids.")
 @click.option("--dem", help="DEM for the ground, when the heights table has no ground column.")
 @click.option("--dem-crs", help="CRS of a DEM without one, e.g. EPSG:27700.")
+@GRID_DIR
 @_model_options
 def export(
     heights,
@@ -139,6 +144,7 @@ def export(
     id_field,
     dem,
     dem_crs,
+    grid_dir,
     output,
     overwrite,
     strict,
@@ -152,7 +158,7 @@ def export(
 
     writer = _model_writer(output, overwrite)
     table = read_table(heights)
-    frame = _footprints(footprints, layer, id_field, dem, dem_crs)
+    frame = _footprints(footprints, layer, id_field, dem, dem_crs, grid_dir)
     frame = footprints_with_heights(frame, table, where=str(heights))
     _write_model(frame, writer, output, overwrite, strict, no_validate, schema_dir, quiet)
 

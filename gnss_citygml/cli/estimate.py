@@ -110,7 +110,7 @@ def estimate(
 
     check_layer_output(output, "heights", overwrite=overwrite)
     obs = read_observations(observations)
-    fp = read_footprints(footprints, layer=layer, id_field=id_field)
+    fp = read_footprints(footprints, layer=layer, id_field=id_field, grid_dir=grid_dir)
     with progress(len(STAGES), "stages", quiet) as bar:
 
         def stage(name):

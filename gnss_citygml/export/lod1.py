@@ -617,7 +617,7 @@ def prepare_buildings(buildings: gpd.GeoDataFrame, *, strict: bool = False) -> P
         raise InputError(
             f"the buildings are in {buildings.crs or 'no CRS'}, not EPSG:27700",
             where="buildings",
-            fix="transform them with to_crs('EPSG:27700') (read_footprints does)",
+            fix="read them with read_footprints, which transforms them with OSTN15",
         )
     checks = _Checks(len(buildings))
     for part in chunks(len(buildings), CHECK_CHUNK):

@@ -39,6 +39,8 @@ import contextlib
 import gzip
 import os
 import warnings
+import xml.parsers.expat
+import zlib
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
@@ -49,12 +51,14 @@ import pyogrio
 import rasterio
 import rasterio.features
 import shapely
+from pandas.api.types import is_list_like
 from pyproj.exceptions import CRSError
 from rasterio.io import DatasetReader
 from rasterio.windows import Window
 
 from .errors import InputError, MissingColumnError
 from .geodesy import CrsError, OutsideExtentError, is_bng, to_bng
+from .paths import input_file
 
 __all__ = [
     "STATISTICS",
@@ -73,7 +77,9 @@ _MASTERMAP_NAMESPACES = (
     b"ordnancesurvey.co.uk/xml/namespaces/osgb",
     b"namespaces.os.uk/mastermap/topography",
 )
-_GML_NAMESPACE = b"http://www.opengis.net/gml"
+#: What makes GDAL read an XML file (starting with "<", after a UTF-8 byte order mark) with
+#: its GML driver, which writes a .gfs sidecar unless told not to (ogrgmldatasource.cpp).
+_GML_MARKERS = (b"opengis.net/gml", b"<csw:GetRecordsResponse")
 #: Ids or indices shown in one error or warning message.
 _SHOWN = 10
 #: Side (cells) of the DEM blocks read at once.
@@ -108,7 +114,8 @@ def read_footprints(path, *, layer: str | None = None, id_field: str | None = No
         A GeoPackage or any polygon source pyogrio reads, or an OS MasterMap Topography Layer
         GML file (``.gml`` or ``.gml.gz``; its TopographicArea features whose descriptiveGroup
         includes ``Building`` are read). GML is read with ``WRITE_GFS=NO``: no ``.gfs`` sidecar
-        is written next to it.
+        is written next to it. It is checked to be well-formed XML first: GDAL reads no
+        feature at all from a file cut short, without an error.
     layer
         The layer to read. By default: the only polygon layer of the source, or
         ``TopographicArea`` for MasterMap.
@@ -127,7 +134,8 @@ def read_footprints(path, *, layer: str | None = None, id_field: str | None = No
     Raises
     ------
     InputError
-        An unreadable source, an empty layer, missing or duplicate ids, non-polygon features,
+        An unreadable source (a damaged gzip file, GML that is not well-formed XML, naming
+        the line), an empty layer, missing or duplicate ids, non-polygon features,
         no CRS or coordinates that contradict it, a CRS with no exact path to EPSG:27700
         (:class:`~gnss_citygml.geodesy.CrsError`) or footprints outside the grids.
     GridError
@@ -135,9 +143,11 @@ def read_footprints(path, *, layer: str | None = None, id_field: str | None = No
     """
     where = os.fspath(path)
     local = not (where.startswith("/vsi") or "://" in where)
-    if local and not Path(where).exists():
-        raise InputError("footprint file not found", where=where, fix="check the path")
+    if local and not Path(where).is_dir():  # a folder may hold a Shapefile or a FileGDB
+        input_file(where, "footprint file")
     kind = _sniff_gml(Path(where)) if local else None
+    if kind:  # GDAL reads no feature at all from a GML file that is not well-formed
+        _check_xml(Path(where))
     options = {"WRITE_GFS": "NO"} if kind else {}
     if layer is None:
         layer = "TopographicArea" if kind == "mastermap" else _polygon_layer(where, kind)
@@ -156,17 +166,59 @@ def read_footprints(path, *, layer: str | None = None, id_field: str | None = No
 
 
 def _sniff_gml(path: Path) -> str | None:
-    """``"mastermap"``, ``"gml"`` or None from the first 64 kB of a (possibly gzipped) file."""
+    """``"mastermap"``, ``"gml"`` or None from the first 64 kB of a (possibly gzipped) file.
+
+    A file is GML when GDAL would read it with its GML driver, also when the file is damaged
+    (a mistyped namespace): the reader must then pass ``WRITE_GFS=NO``."""
     if not path.is_file():
         return None
     with open(path, "rb") as raw:
         head = raw.read(65536)
     if head[:2] == b"\x1f\x8b":
-        with gzip.open(path, "rb") as unzipped:
+        with _gunzipped(path) as unzipped:
             head = unzipped.read(65536)
-    if not head.lstrip().startswith(b"<") or _GML_NAMESPACE not in head:
+    head = head.removeprefix(b"\xef\xbb\xbf")
+    if not head.startswith(b"<") or not any(marker in head for marker in _GML_MARKERS):
         return None
     return "mastermap" if any(ns in head for ns in _MASTERMAP_NAMESPACES) else "gml"
+
+
+@contextlib.contextmanager
+def _gunzipped(path: Path) -> Iterator:
+    """A gzipped file opened for reading; a damaged one (while read too) is an InputError."""
+    try:
+        with gzip.open(path, "rb") as unzipped:
+            yield unzipped
+    except (OSError, EOFError, zlib.error) as exc:  # BadGzipFile is an OSError
+        raise InputError(
+            f"cannot read the footprints: a damaged gzip file ({exc})",
+            where=str(path),
+            fix="download or compress it again (gzip -t checks it)",
+        ) from None
+
+
+def _check_xml(path: Path) -> None:
+    """An :class:`InputError` naming the line where a (gzipped) GML file stops being
+    well-formed XML (a cut download, a bad hand edit): GDAL would read no feature from it and
+    say nothing. Expat expands no external entity and caps entity expansion."""
+    parser = xml.parsers.expat.ParserCreate()
+    with open(path, "rb") as raw:
+        gzipped = raw.read(2) == b"\x1f\x8b"
+    try:
+        with _gunzipped(path) if gzipped else open(path, "rb") as stream:
+            parser.ParseFile(stream)
+    except xml.parsers.expat.ExpatError as exc:
+        raise InputError(
+            f"the GML file is not well-formed XML: {xml.parsers.expat.errors.messages[exc.code]}",
+            where=f"{path}, line {exc.lineno}, column {exc.offset + 1}",
+            fix="download or export it again; a file cut short ends before its last element",
+        ) from None
+    except (LookupError, ValueError) as exc:  # an unknown or multi-byte declared encoding
+        raise InputError(
+            f"the GML file declares an encoding that cannot be read ({exc})",
+            where=str(path),
+            fix="save it as UTF-8, as OS MasterMap is delivered",
+        ) from None
 
 
 def _polygon_layer(path: str, kind: str | None) -> str | None:
@@ -198,21 +250,29 @@ def _unreadable(exc: Exception, where: str) -> InputError:
 
 
 def _read_layer(path, layer: str | None, where: str, options: dict) -> gpd.GeoDataFrame:
+    """The layer (None: the first), or an :class:`InputError` for an unreadable source, a
+    source without layers or a geometry GEOS cannot build (e.g. an unclosed ring)."""
     try:
         return pyogrio.read_dataframe(
-            path, layer=layer, force_2d=True, fid_as_index=True, **options
+            path, layer=0 if layer is None else layer, force_2d=True, fid_as_index=True, **options
         )
-    except (pyogrio.errors.DataSourceError, pyogrio.errors.DataLayerError) as exc:
+    except (
+        pyogrio.errors.DataSourceError,
+        pyogrio.errors.DataLayerError,
+        shapely.errors.GEOSException,
+    ) as exc:
         raise _unreadable(exc, where) from None
 
 
 def _has_building_group(groups: pd.Series) -> np.ndarray:
-    """Whether each MasterMap descriptiveGroup (one text or a list of texts) has "Building"."""
+    """Whether each MasterMap descriptiveGroup (one text, a list of texts, or missing: None or
+    NaN) has "Building"."""
     return np.array(
         [
-            g == "Building" if isinstance(g, str) else g is not None and "Building" in list(g)
+            g == "Building" if isinstance(g, str) else is_list_like(g) and "Building" in list(g)
             for g in groups.values
-        ]
+        ],
+        dtype=bool,
     )
 
 
@@ -317,7 +377,8 @@ def _check_polygonal(geoms: np.ndarray, ids: np.ndarray, where: str) -> None:
 
 
 def _repaired(frame: gpd.GeoDataFrame, where: str) -> gpd.GeoDataFrame:
-    """Repair the invalid footprints with a warning; drop (with a warning) those left empty."""
+    """Repair the invalid footprints with a warning; drop (with a warning) those left empty,
+    unless that is all of them: an error, not an empty table."""
     geoms = frame.geometry.to_numpy()
     invalid = ~shapely.is_valid(geoms)
     if not invalid.any():
@@ -326,6 +387,12 @@ def _repaired(frame: gpd.GeoDataFrame, where: str) -> gpd.GeoDataFrame:
     geoms = geoms.copy()
     geoms[invalid] = shapely.make_valid(geoms[invalid], method="structure", keep_collapsed=False)
     empty = shapely.is_empty(geoms)
+    if empty.all():
+        raise InputError(
+            f"none of the {empty.size} footprint(s) has an area: {_listing(ids)}",
+            where=where,
+            fix="give polygons with an area (not collapsed to lines or points)",
+        )
     repaired = invalid & ~empty  # one message per footprint: repaired, or dropped
     if repaired.any():
         warnings.warn(

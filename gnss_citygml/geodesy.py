@@ -267,7 +267,7 @@ def to_bng(
     raise CrsError(
         f"no exact transformation from {crs.name} (datum {datum or 'unknown'}) to British "
         "National Grid",
-        where=crs.to_string(),
+        where=":".join(crs.to_authority() or ()) or None,
         fix="only coordinates on ETRS89 or WGS 84 (through OSTN15) and on OSGB36 are "
         "transformed, never with a Helmert or ballpark transformation (metres off): transform "
         "them to EPSG:4258, EPSG:4326 or EPSG:27700 with the transformation they were made "
@@ -467,7 +467,7 @@ def _name_points(bad, x, y, geographic, labels) -> str:
         coords = [f"lat {y[i]:.6f}, lon {x[i]:.6f}" for i in index[:_LIST_POINTS]]
     else:
         coords = [f"E {x[i]:.3f}, N {y[i]:.3f}" for i in index[:_LIST_POINTS]]
-    shown = [f"{name} ({c})" for name, c in zip(names[:_LIST_POINTS], coords, strict=False)]
+    shown = [f"{name} ({c})" for name, c in zip(names[:_LIST_POINTS], coords, strict=True)]
     more = f" and {index.size - _LIST_POINTS} more" if index.size > _LIST_POINTS else ""
     return ", ".join(shown) + more
 

@@ -240,6 +240,106 @@ def test_gzipped_mastermap_with_repeated_descriptive_group(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["tile.gml.gz"]  # no .gfs
 
 
+# --- damaged MasterMap files (each found by tests/fuzz/test_fuzz_footprints.py) ------------------
+
+
+def test_a_damaged_gzip_file_is_one_error(tmp_path):
+    whole = gzip.compress(MASTERMAP_GZ.encode())
+    for name, data in [("cut.gml.gz", whole[:40]), ("header.gml.gz", whole[:2])]:
+        path = tmp_path / name
+        path.write_bytes(data)
+        with pytest.raises(InputError, match=r"a damaged gzip file \(Compressed file ended"):
+            read_footprints(path)
+    path.write_bytes(whole[:2] + b"\x07" + whole[3:])  # byte 2: the compression method
+    with pytest.raises(InputError, match=r"a damaged gzip file \(Unknown compression method"):
+        read_footprints(path)
+
+
+def test_a_gml_file_without_layers_is_one_error(tmp_path):
+    """No MasterMap namespace (mistyped), so no TopographicArea layer is asked for, and GDAL
+    finds no layer in it."""
+    path = tmp_path / "empty.gml"
+    head = MASTERMAP_GZ[: MASTERMAP_GZ.index("<osgb:topographicMember>")]
+    path.write_text(head.replace("ordnancesurvey", "ordnancesurvy") + "</osgb:FeatureCollection>")
+    with pytest.raises(InputError, match=r"cannot read the footprints: .*\(.*empty.gml\)"):
+        read_footprints(path)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["empty.gml"]
+
+
+def _big_tile(n: int) -> str:
+    """MASTERMAP_GZ with its building repeated ``n`` times (fids 1 to n)."""
+    start = MASTERMAP_GZ.index("  <osgb:topographicMember>")
+    end = MASTERMAP_GZ.index("  <osgb:topographicMember>", start + 1)
+    member = MASTERMAP_GZ[start:end]
+    members = "".join(member.replace("osgb1000000000001", f"osgb{k}") for k in range(1, n + 1))
+    return MASTERMAP_GZ[:start] + members + MASTERMAP_GZ[end:]
+
+
+def test_a_cut_gml_file_is_an_error_naming_the_line(tmp_path):
+    """GDAL reads no feature at all from it and says nothing ("no building features" before)."""
+    text = _big_tile(400)
+    assert len(read_footprints(_write(tmp_path / "whole.gml", text))) == 400
+    path = _write(tmp_path / "cut.gml", text[: len(text) // 2])
+    with pytest.raises(
+        InputError, match=r"not well-formed XML: no element found \(.*cut.gml, line"
+    ):
+        read_footprints(path)
+    data = gzip.compress(text.encode())
+    path = tmp_path / "cut.gml.gz"
+    path.write_bytes(data[: len(data) * 9 // 10])  # cut after the first 64 kB the sniffer reads
+    assert len(gzip.decompress(data)[:65536]) == 65536
+    with pytest.raises(InputError, match=r"damaged gzip file \(Compressed file ended"):
+        read_footprints(path)
+    bad = text.replace("<osgb:featureCode>", "<<osgb:featureCode>", 1)
+    line = bad[: bad.index("<<")].count("\n") + 1
+    with pytest.raises(InputError, match=rf"\(invalid token\) \(.*bad.gml, line {line}, column"):
+        read_footprints(_write(tmp_path / "bad.gml", bad))
+
+
+def test_a_gml_file_in_an_unknown_encoding_is_one_error(tmp_path):
+    path = _write(tmp_path / "tf8.gml", MASTERMAP_GZ.replace('encoding="UTF-8"', 'encoding="TF-8"'))
+    with pytest.raises(InputError, match=r"declares an encoding .*\(unknown encoding: TF-8\)"):
+        read_footprints(path)
+
+
+def _write(path, text):
+    path.write_text(text)
+    return path
+
+
+def test_an_unclosed_ring_is_one_error(tmp_path):
+    path = tmp_path / "unclosed.gml"
+    path.write_text(MASTERMAP_GZ.replace("500100,200330\n        500100,200300", "500100,200330"))
+    with (
+        pytest.raises(InputError, match=r"cannot read the footprints: .*closed linestring"),
+        pytest.warns(RuntimeWarning, match="Non closed ring detected"),  # GDAL's own
+    ):
+        read_footprints(path)
+
+
+def test_a_mastermap_area_without_descriptive_group_is_not_a_building(tmp_path):
+    path = tmp_path / "ungrouped.gml"
+    path.write_text(
+        MASTERMAP_GZ.replace("<osgb:descriptiveGroup>General Surface</osgb:descriptiveGroup>", "")
+    )
+    assert read_footprints(path)["id"].tolist() == ["osgb1000000000001"]
+
+
+@pytest.mark.parametrize(
+    "text",
+    [
+        "\ufeff" + MASTERMAP_GZ,  # a byte order mark, as some Windows tools write
+        MASTERMAP_GZ.replace("http://www.opengis.net/gml", "htttp://www.opengis.net/gml"),
+    ],
+    ids=["byte order mark", "mistyped namespace"],
+)
+def test_gml_that_gdal_reads_never_gets_a_gfs_sidecar(tmp_path, text):
+    path = tmp_path / "tile.gml"
+    path.write_text(text, encoding="utf-8")
+    assert read_footprints(path)["id"].tolist() == ["osgb1000000000001"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["tile.gml"]
+
+
 # --- bad footprints -----------------------------------------------------------------------------
 
 
@@ -306,6 +406,14 @@ def test_a_footprint_with_no_area_is_dropped_with_a_warning(tmp_path):
     with pytest.warns(UserWarning, match=r"dropped 1 footprint\(s\) with no area: flat"):
         b = read_footprints(path)
     assert b["id"].tolist() == ["sq"]
+
+
+def test_footprints_that_all_have_no_area_are_an_error(tmp_path):
+    """Not an empty table (found by tests/fuzz/test_fuzz_footprints.py)."""
+    flat = shapely.Polygon([(500100, 200300), (500120, 200300), (500140, 200300)])
+    path = write_layer(tmp_path / "flat.gpkg", [flat, flat], toid=["f1", "f2"])
+    with pytest.raises(InputError, match=r"none of the 2 footprint\(s\) has an area: f1, f2 \("):
+        read_footprints(path)
 
 
 def test_several_layers_need_a_choice(tmp_path):

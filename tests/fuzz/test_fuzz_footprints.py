@@ -120,7 +120,11 @@ def _write(folder: Path, name: str, data: bytes) -> Path:
 def _check(result) -> None:
     """A result is footprints as :func:`read_footprints` promises them (the statistics count
     the outcomes: footprints, or an error line)."""
-    event("error line" if result is None else f"{min(len(result), 3)}+ footprints")
+    event(
+        "error line"
+        if result is None
+        else f"{min(len(result), 3)}{'+' * (len(result) >= 3)} footprints"
+    )
     if result is not None:
         assert str(result.crs) == "EPSG:27700"
         assert list(result.columns[:1]) == ["id"] and result["id"].is_unique

@@ -6,7 +6,7 @@ import re
 
 import numpy as np
 
-from .geometry import Shell, Shells
+from .geometry import Shell, Shells, coordinate_problem
 from .report import Issue, Report
 
 __all__ = ["CityJSONRules"]
@@ -99,7 +99,8 @@ class CityJSONRules:
                 Issue(
                     None,
                     "transform",
-                    where + "transform needs scale and translate, 3 numbers each, scale non-zero",
+                    where + "transform needs scale and translate, 3 finite numbers each, "
+                    "scale non-zero",
                 )
             )
         elif self.transform is None and self.version in ("1.1", "2.0"):
@@ -156,8 +157,7 @@ class CityJSONRules:
         objects = doc.get("CityObjects")
         if not isinstance(objects, dict):
             return [Issue(None, "cityobjects", where + "CityObjects is not a JSON object")]
-        issues, vertices = self._vertices(doc.get("vertices"), where)
-        n_vertices = None if vertices is None else len(vertices)  # None: indices unchecked
+        issues, n_vertices, vertices = self._vertices(doc.get("vertices"), where)
         for key, obj in objects.items():
             if not isinstance(obj, dict):
                 issues.append(Issue(key, "cityobjects", where + "not a JSON object"))
@@ -168,19 +168,26 @@ class CityJSONRules:
         return issues
 
     def _vertices(self, vertices, where: str):
+        """Problems, the number of vertices (None: indices unchecked), their coordinates (None:
+        no geometry checked)."""
+        if vertices == []:
+            return [], 0, np.zeros((0, 3))
         try:
             array = np.array(vertices)
-        except ValueError:
+        except (ValueError, OverflowError):
             array = np.array([], dtype=object)
-        if vertices == []:
-            return [], np.zeros((0, 3))
         if array.ndim != 2 or array.shape[1] != 3 or array.dtype.kind not in "iuf":
-            return [Issue(None, "vertices", where + "vertices are not [x, y, z] numbers")], None
+            problem = "vertices are not [x, y, z] numbers"
+            return [Issue(None, "vertices", where + problem)], None, None
         if self.transform is not None and array.dtype.kind == "f":
-            return [
-                Issue(None, "vertices", where + "vertices must be integers with a transform")
-            ], None
-        return [], array * self.scale + self.translate
+            problem = "vertices must be integers with a transform"
+            return [Issue(None, "vertices", where + problem)], len(array), None
+        with np.errstate(over="ignore", invalid="ignore"):  # reported just below
+            coordinates = array * self.scale + self.translate
+        problem = coordinate_problem(coordinates, ", after the transform" if self.transform else "")
+        if problem:
+            return [Issue(None, "coordinate-range", where + problem)], len(array), None
+        return [], len(array), coordinates
 
     def _object(self, key: str, obj: dict, objects: dict, where: str) -> list[Issue]:
         issues = []
@@ -318,6 +325,7 @@ class CityJSONRules:
 
 
 def _is_transform(transform) -> bool:
+    """Whether ``transform`` has scale and translate, 3 finite numbers each, scale non-zero."""
     if not isinstance(transform, dict):
         return False
     parts = [transform.get("scale"), transform.get("translate")]
@@ -325,7 +333,11 @@ def _is_transform(transform) -> bool:
         return False
     if not all(isinstance(v, int | float) and not isinstance(v, bool) for p in parts for v in p):
         return False
-    return all(v != 0 for v in parts[0])
+    try:
+        values = np.array(parts, dtype=float)
+    except OverflowError:  # an integer beyond any float
+        return False
+    return bool(np.isfinite(values).all() and values[0].all())
 
 
 def _flatten(boundaries, depth: int):

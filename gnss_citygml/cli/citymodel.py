@@ -166,7 +166,11 @@ def export(
     help="Errors listed (all are counted).",
 )
 def validate(path, schema_dir, max_errors):
-    """Check a CityGML 2.0, CityJSON or CityJSONSeq file: exit 0 valid, 1 invalid, 2 error."""
+    """Check a CityGML 2.0, CityJSON or CityJSONSeq file: exit 0 valid, 1 invalid, 2 error.
+
+    One line per error: object id (- for the whole file), rule, message. A file cut short or
+    not well-formed is invalid (1); one that cannot be checked (missing, not a city model, a
+    CityGML with a <!DOCTYPE>, schemas missing) is an error (2)."""
     from ..validate import validate_file
 
     report = validate_file(path, schema_dir=schema_dir)

@@ -186,6 +186,13 @@ def test_structural_rules(tmp_path):
     assert broken(lambda d: d["transform"]["translate"].__setitem__(1, 10**400)) == {"transform"}
     assert broken(lambda d: d.update(version="3.0")) == {"version"}
     assert broken(lambda d: d["vertices"].__setitem__(0, [0.5, 0, 0])) == {"vertices"}
+    # JSON of the wrong type where the rules look: an error, never a crash (found by fuzzing)
+    assert broken(lambda d: d["CityObjects"]["c"].update(type={"a": 1})) == {"cityobject-type"}
+    assert broken(lambda d: d["CityObjects"]["c"].update(parents=[{}])) == {"parent-child"}
+    assert broken(lambda d: d["CityObjects"]["c"].update(geometry={})) == {"geometry-type"}
+    assert broken(lambda d: d["CityObjects"]["c"]["geometry"][0].update(material={"m": 3})) == {
+        "appearance"
+    }
     assert rules_of(tmp_path, cube()) == set()  # the changes touched copies
     semantics = {"surfaces": [{"type": "RoofSurface"}], "values": [[0, 0, 0, 0, 0, 1]]}
     assert broken(lambda d: d["CityObjects"]["c"]["geometry"][0].update(semantics=semantics)) == {
@@ -289,10 +296,20 @@ def changed(three, suffix, tmp_path, change):
             "not well-formed XML: Premature end of data in tag CityModel",
         ),
         (lambda d: d + b"<!-- a comment cut sh", "not well-formed XML: Comment not terminated"),
+        (
+            lambda d: d.replace(b">529520.000", b">\x8029520.000", 1),
+            "not well-formed XML: Invalid bytes in character encoding",
+        ),
     ],
-    ids=["1000 bytes", "in building b", "after the last building", "in a trailing comment"],
+    ids=[
+        "1000 bytes",
+        "in building b",
+        "after the last building",
+        "in a trailing comment",
+        "\\x80",
+    ],
 )
-def test_a_cut_citygml_is_invalid(three, tmp_path, capsys, cut, expected):
+def test_a_cut_or_broken_citygml_is_invalid(three, tmp_path, capsys, cut, expected):
     """libxml2, validating while it parses, does not report an early end: it passed as valid."""
     path = changed(three, ".gml", tmp_path, cut)
     code, out, err = run(["validate", str(path)], capsys)

@@ -192,7 +192,7 @@ def _syntax_errors(path: Path) -> list[Issue]:
             where=str(path),
             fix="remove it (CityGML uses none; entities are never expanded nor DTDs loaded here)",
         ) from None
-    except etree.XMLSyntaxError as exc:
+    except (etree.XMLSyntaxError, OSError) as exc:  # OSError: bytes not in the file's encoding
         fatal = exc
     issues = []
     for e in parser.error_log:
@@ -200,6 +200,8 @@ def _syntax_errors(path: Path) -> list[Issue]:
             issues.append(_syntax_issue(e.line, e.column, e.message))
             if e.level == etree.ErrorLevels.FATAL:
                 break  # what libxml2 says after it, on the same spot, follows from it
+    if isinstance(fatal, OSError) and not issues:
+        raise InputError(f"cannot read the file ({fatal})", where=str(path), fix="check it")
     if fatal is not None and not issues:  # not expected: libxml2 logs what it raises
         line, column = fatal.position or (0, 0)
         issues = [_syntax_issue(line, column, re.sub(r", line \d+, column \d+$", "", fatal.msg))]

@@ -77,7 +77,7 @@ def _validate_document(doc, report: Report, schema_dir: Path | None) -> None:
         report.notes.append("a lone CityJSONFeature: no header, vertices taken as they are")
         report.errors.extend(rules.feature(doc, ""))
     report.errors.extend(rules.objects(doc, "", shells))
-    report.n_objects = len(doc.get("CityObjects") or {})
+    report.n_objects = _n_objects(doc)
     schema = json_schema(schema_dir, rules.version, kind.lower(), report)
     if schema is not None:
         report.errors.extend(schema.errors(doc, ""))
@@ -127,6 +127,11 @@ def _load(data: bytes):
         raise _NotJson("json-syntax", f"not valid JSON: {str(exc).split(';')[0]}") from None
 
 
+def _n_objects(doc: dict) -> int:
+    objects = doc.get("CityObjects")
+    return len(objects) if isinstance(objects, dict) else 0
+
+
 def _not_a_number(name: str):
     raise ValueError(f"{name} is not a JSON number")
 
@@ -168,7 +173,7 @@ def _validate_seq(lines, report: Report, schema_dir: Path | None) -> Report:
                 continue
             errors.extend(rules.feature(doc, where))
             errors.extend(rules.objects(doc, where, shells))
-            report.n_objects += len(doc.get("CityObjects") or {})
+            report.n_objects += _n_objects(doc)
             if schema is not None:
                 errors.extend(schema.errors(doc, where))
         except RecursionError:  # a check going as deep as the JSON does

@@ -2,14 +2,16 @@
 
 import copy
 import json
+import time
 
 import geopandas as gpd
 import pytest
 import shapely
 from lxml import etree
 
+from gnss_citygml.cli import main
 from gnss_citygml.errors import InputError
-from gnss_citygml.export import write_citygml
+from gnss_citygml.export import write_citygml, write_cityjson, write_cityjsonseq
 from gnss_citygml.validate import SCHEMA_DIR_ENV, validate_file
 
 #: (sample, the rules of its errors): an empty set is a valid sample.
@@ -181,8 +183,16 @@ def test_structural_rules(tmp_path):
     assert broken(lambda d: d["CityObjects"]["c"].update(children=["gone"])) == {"parent-child"}
     assert broken(lambda d: d["CityObjects"]["c"].update(attributes={"+roof": 1})) == {"extension"}
     assert broken(lambda d: d.pop("transform")) == {"transform"}
+    assert broken(lambda d: d["transform"]["translate"].__setitem__(1, 10**400)) == {"transform"}
     assert broken(lambda d: d.update(version="3.0")) == {"version"}
     assert broken(lambda d: d["vertices"].__setitem__(0, [0.5, 0, 0])) == {"vertices"}
+    # JSON of the wrong type where the rules look: an error, never a crash (found by fuzzing)
+    assert broken(lambda d: d["CityObjects"]["c"].update(type={"a": 1})) == {"cityobject-type"}
+    assert broken(lambda d: d["CityObjects"]["c"].update(parents=[{}])) == {"parent-child"}
+    assert broken(lambda d: d["CityObjects"]["c"].update(geometry={})) == {"geometry-type"}
+    assert broken(lambda d: d["CityObjects"]["c"]["geometry"][0].update(material={"m": 3})) == {
+        "appearance"
+    }
     assert rules_of(tmp_path, cube()) == set()  # the changes touched copies
     semantics = {"surfaces": [{"type": "RoofSurface"}], "values": [[0, 0, 0, 0, 0, 1]]}
     assert broken(lambda d: d["CityObjects"]["c"]["geometry"][0].update(semantics=semantics)) == {
@@ -233,3 +243,232 @@ def test_orientable_surface(tmp_path, orientation, rules):
     tree.write(str(tmp_path / "o.gml"))
     report = validate_file(tmp_path / "o.gml")
     assert {e.rule for e in report.errors} == rules
+
+
+# --- bad input, from the user's side: `gnss-citygml validate FILE` --------------------------
+
+
+def run(args, capsys):
+    """``gnss-citygml ARGS``: the exit code, stdout and stderr."""
+    with pytest.raises(SystemExit) as exc:
+        main(args)
+    out = capsys.readouterr()
+    return exc.value.code, out.out, out.err
+
+
+@pytest.fixture(scope="module")
+def three(tmp_path_factory):
+    """Buildings a, b and c written by the project's writers: {suffix: path}."""
+    folder = tmp_path_factory.mktemp("three")
+    frame = gpd.GeoDataFrame(
+        {"id": ["a", "b", "c"], "ground": [20.0, 21.0, 22.0], "height": [32.5, 30.0, 31.0]},
+        geometry=[shapely.box(529500 + 20 * k, 182300, 529510 + 20 * k, 182308) for k in range(3)],
+        crs="EPSG:27700",
+    )
+    paths = {}
+    for suffix, writer in (
+        (".gml", write_citygml),
+        (".city.json", write_cityjson),
+        (".city.jsonl", write_cityjsonseq),
+    ):
+        paths[suffix] = folder / f"three{suffix}"
+        writer(frame, paths[suffix], date="2024-05-01")
+    return paths
+
+
+def changed(three, suffix, tmp_path, change):
+    """A copy of the three buildings in ``suffix``, its bytes changed by ``change``."""
+    path = tmp_path / f"changed{suffix}"
+    path.write_bytes(change(three[suffix].read_bytes()))
+    return path
+
+
+@pytest.mark.parametrize(
+    ("cut", "expected"),
+    [
+        (lambda d: d[:1000], "line 2, column 962: not well-formed XML: expected '>'"),
+        (
+            lambda d: d[: d.index(b"<gml:posList", d.index(b'gml:id="b"')) + 40],
+            "not well-formed XML: Premature end of data in tag posList",
+        ),
+        (
+            lambda d: d[: d.rindex(b"</core:CityModel>")],
+            "not well-formed XML: Premature end of data in tag CityModel",
+        ),
+        (lambda d: d + b"<!-- a comment cut sh", "not well-formed XML: Comment not terminated"),
+        (
+            lambda d: d.replace(b">529520.000", b">\x8029520.000", 1),
+            "not well-formed XML: Invalid bytes in character encoding",
+        ),
+    ],
+    ids=[
+        "1000 bytes",
+        "in building b",
+        "after the last building",
+        "in a trailing comment",
+        "\\x80",
+    ],
+)
+def test_a_cut_or_broken_citygml_is_invalid(three, tmp_path, capsys, cut, expected):
+    """libxml2, validating while it parses, does not report an early end: it passed as valid."""
+    path = changed(three, ".gml", tmp_path, cut)
+    code, out, err = run(["validate", str(path)], capsys)
+    assert code == 1 and err == ""
+    error, summary = out.splitlines()
+    assert error.startswith("-\txml-syntax\tline 2, column ") and expected in error
+    assert summary.endswith(
+        ": CityGML 2.0, 0 object(s): INVALID, 1 error(s) (checks: xml, xsd, geometry)"
+    )
+
+
+@pytest.mark.parametrize(
+    ("suffix", "cut", "expected"),
+    [
+        (".city.json", lambda d: d[: len(d) // 2], "-\tjson-syntax\tline 1, column "),
+        (".city.jsonl", lambda d: d[:-100], "-\tjson-syntax\tline 4, column "),  # the last line
+    ],
+)
+def test_a_cut_cityjson_is_invalid(three, tmp_path, capsys, suffix, cut, expected):
+    path = changed(three, suffix, tmp_path, cut)
+    code, out, _ = run(["validate", str(path)], capsys)
+    assert code == 1
+    error, summary = out.splitlines()
+    assert error.startswith(expected) and ": not valid JSON: " in error
+    assert "INVALID, 1 error(s)" in summary
+
+
+@pytest.mark.parametrize(
+    ("change", "rule", "message"),
+    [
+        (  # deeper than Python's JSON reader goes
+            lambda d: d.replace(b'"ground":', b'"deep":' + b"[" * 5000 + b"]" * 5000 + b',"g":', 1),
+            "json-nesting",
+            "arrays and objects nested too deep to read (deeper than about",
+        ),
+        (
+            lambda d: d.replace(b'"scale":[0.001,0.001,0.001]', b'"scale":[1e308,1e308,1e308]'),
+            "coordinate-range",
+            "coordinate value(s) non-finite or beyond ±1e+12 (the first: inf, after the transform)",
+        ),
+        (
+            lambda d: d.replace(b'"scale":[0.001,0.001,0.001]', b'"scale":[NaN,0.001,0.001]'),
+            "json-syntax",
+            "not valid JSON: NaN is not a JSON number",
+        ),
+        (lambda d: d.replace(b'"b"', b'"\xff"', 1), "json-syntax", "not UTF-8 text"),
+    ],
+    ids=["nested 5000 deep", "scale 1e308", "NaN", "not UTF-8"],
+)
+def test_unreadable_cityjson_is_invalid_not_a_crash(three, tmp_path, capsys, change, rule, message):
+    """A crash would read as a verdict (exit 1): these are reports naming the problem."""
+    path = changed(three, ".city.json", tmp_path, change)
+    code, out, err = run(["validate", str(path)], capsys)
+    assert code == 1
+    assert all(line.startswith("note: ") for line in err.splitlines())  # no warning, no traceback
+    error, summary = out.splitlines()
+    assert error.startswith(f"-\t{rule}\t") and message in error
+    assert "INVALID, 1 error(s)" in summary
+
+
+def test_non_finite_gml_coordinates(three, tmp_path, capsys):
+    """xs:double allows NaN and INF: the schema passes them, the geometry check names them."""
+    path = changed(
+        three,
+        ".gml",
+        tmp_path,
+        lambda d: d.replace(b"529520.000 182300.000 21.000", b"NaN INF 21", 1),
+    )
+    code, out, err = run(["validate", str(path)], capsys)
+    assert code == 1 and err == ""
+    error, summary = out.splitlines()
+    assert error.startswith("b\tcoordinate-range\tlod1Solid Solid (line 2): ")
+    assert "2 coordinate value(s) non-finite or beyond ±1e+12 (the first: nan)" in error
+
+
+def test_a_schema_error_names_its_building(three, tmp_path, capsys):
+    """The writer puts its GML on one line: the building is found by element, not by line."""
+
+    def inject(data):  # an element the schema does not allow, in building b (the 2nd of 3)
+        k = data.index(b"<bldg:measuredHeight", data.index(b'gml:id="b"'))
+        return data[:k] + b"<bldg:bogus/>" + data[k:]
+
+    code, out, _ = run(["validate", str(changed(three, ".gml", tmp_path, inject))], capsys)
+    assert code == 1
+    error, summary = out.splitlines()
+    assert error.startswith(
+        "b\txsd\tline 2: Element '{http://www.opengis.net/citygml/building/2.0}bogus'"
+    )
+    assert summary.endswith("3 object(s): INVALID, 1 error(s) (checks: xml, xsd, geometry)")
+
+
+#: Nine levels of ten: a billion "lol"s, used in an attribute (always expanded by XML parsers)
+#: and in the text of the first building.
+BILLION_LAUGHS = (
+    b'<!DOCTYPE core:CityModel [<!ENTITY lol0 "lol">'
+    + b"".join(b'<!ENTITY lol%d "%s">' % (k, b"&lol%d;" % (k - 1) * 10) for k in range(1, 10))
+    + b"]>\n"
+)
+
+
+@pytest.mark.parametrize(
+    ("doctype", "entity"),
+    [
+        (BILLION_LAUGHS, b"&lol9;"),
+        (b'<!DOCTYPE core:CityModel [<!ENTITY xxe SYSTEM "file:///etc/passwd">]>\n', b"&xxe;"),
+        (b'<!DOCTYPE core:CityModel SYSTEM "http://example.invalid/city.dtd">\n', b"&xxe;"),
+        (b"<!DOCTYPE core:CityModel>\n", b""),
+    ],
+    ids=["billion laughs", "external entity", "external DTD", "no DTD"],
+)
+def test_a_doctype_is_refused_once(three, tmp_path, capsys, doctype, entity):
+    """One line, nothing else, at once: the parser stops at the <!DOCTYPE>, before its DTD."""
+
+    def add(data):
+        declaration, rest = data.split(b"\n", 1)
+        rest = rest.replace(b'name="ground"', b'name="ground' + entity + b'"', 1)
+        return declaration + b"\n" + doctype + rest.replace(b"2024-05-01", entity, 1)
+
+    path = changed(three, ".gml", tmp_path, add)
+    start = time.perf_counter()
+    code, out, err = run(["validate", str(path)], capsys)
+    assert time.perf_counter() - start < 2  # expanded up to libxml2's limit: 7 s, 230 MB
+    assert code == 2 and out == ""
+    assert err == (
+        "error: XML entities and DTDs refused: the file has a <!DOCTYPE> declaration "
+        f"({path}): remove it (CityGML uses none; entities are never expanded nor DTDs loaded "
+        "here)\n"
+    )
+
+
+def test_an_undeclared_entity_is_one_syntax_error(three, tmp_path, capsys):
+    """Once, and without the schema compiler's warnings that libxml2 kept in its log."""
+    path = changed(three, ".gml", tmp_path, lambda d: d.replace(b"2024-05-01", b"&x;", 1))
+    code, out, _ = run(["validate", str(path)], capsys)
+    assert code == 1
+    error, _ = out.splitlines()
+    assert error.startswith("-\txml-syntax\tline 2, column ")
+    assert error.endswith(": not well-formed XML: Entity 'x' not defined")
+
+
+def test_every_error_is_one_line(three, tmp_path, capsys):
+    """Ids and quoted values can hold control characters: they are escaped."""
+
+    def rename(data):
+        data = data.replace(b'"b":{"type":"Building"', b'"b\\n\\t\\u0001":{"type":"Nope"')
+        return data.replace(b'"c":{"type":"Building"', b'"c":{"type":"Nope"')
+
+    path = changed(three, ".city.json", tmp_path, rename)
+    code, out, _ = run(["validate", str(path)], capsys)
+    assert code == 1
+    lines = out.splitlines()
+    assert lines == [
+        "b\\n\\t\\x01\tcityobject-type\tunknown CityObject type 'Nope'",
+        "c\tcityobject-type\tunknown CityObject type 'Nope'",
+        f"{path}: CityJSON 2.0, 3 object(s): INVALID, 2 error(s) "
+        "(checks: json, structure, geometry)",
+    ]
+    code, out, _ = run(["validate", str(path), "--max-errors", "1"], capsys)
+    assert code == 1
+    assert out.splitlines() == [lines[0], "... 1 more (cityobject-type 2)", lines[2]]
+    code, _, err = run(["validate", str(path), "--max-errors", "-1"], capsys)
+    assert code == 2 and "Invalid value for '--max-errors'" in err

@@ -167,15 +167,23 @@ def export(
 @click.argument("path", type=click.Path(path_type=Path))
 @_SCHEMA_DIR
 @click.option(
-    "--max-errors", type=int, default=50, show_default=True, help="Errors listed (all are counted)."
+    "--max-errors",
+    type=click.IntRange(min=0),
+    default=50,
+    show_default=True,
+    help="Errors listed (all are counted).",
 )
 def validate(path, schema_dir, max_errors):
-    """Check a CityGML 2.0, CityJSON or CityJSONSeq file: exit 0 valid, 1 invalid, 2 error."""
+    """Check a CityGML 2.0, CityJSON or CityJSONSeq file: exit 0 valid, 1 invalid, 2 error.
+
+    One line per error: object id (- for the whole file), rule, message. A file cut short or
+    not well-formed is invalid (1); one that cannot be checked (missing, not a city model, a
+    CityGML with a <!DOCTYPE>, schemas missing) is an error (2)."""
     from ..validate import validate_file
 
     report = validate_file(path, schema_dir=schema_dir)
     for issue in report.errors[:max_errors]:
-        click.echo(f"{issue.object_id or '-'}\t{issue.rule}\t{issue.message}")
+        click.echo(issue.line())
     if len(report.errors) > max_errors:
         counts = ", ".join(f"{rule} {n}" for rule, n in report.rule_counts().items())
         click.echo(f"... {len(report.errors) - max_errors} more ({counts})")

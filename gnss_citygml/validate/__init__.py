@@ -12,9 +12,16 @@ modules of this package:
 - :mod:`.schemas`: where the official schemas are found.
 
 A report is ``valid`` when it lists no error. A file that cannot be validated at all (missing,
-not CityGML or CityJSON, a CityGML version other than 2.0, schemas not found) raises an
-:class:`~gnss_citygml.errors.InputError` instead: exit code 0 valid, 1 invalid, 2 could not
-validate.
+not CityGML or CityJSON, a CityGML version other than 2.0, a CityGML with a ``<!DOCTYPE>``,
+schemas not found) raises an :class:`~gnss_citygml.errors.InputError` instead: exit code 0
+valid, 1 invalid, 2 could not validate.
+
+Bad bytes are never valid: a file cut short or otherwise not well-formed XML or JSON is invalid
+(rule ``xml-syntax`` or ``json-syntax``, with the line and column of the first fatal error), as
+is JSON nested deeper than the reader goes (``json-nesting``), and coordinates that are NaN,
+infinite or beyond ±1e12 (``coordinate-range``, also after a CityJSON transform). Only a
+CityJSONSeq cut exactly at the end of a line, which nothing tells from a shorter sequence,
+passes. No DTD is read, no XML entity expanded, nothing fetched from the network.
 """
 
 from __future__ import annotations
@@ -60,7 +67,8 @@ def validate_file(path, *, schema_dir=None) -> Report:
     ------
     InputError
         The file cannot be validated: missing, neither CityGML nor CityJSON, CityGML other than
-        2.0, or the schemas cannot be found or compiled.
+        2.0, a CityGML with a ``<!DOCTYPE>`` (refused: no DTD is read, no entity expanded), or
+        the schemas cannot be found or compiled.
 
     Examples
     --------

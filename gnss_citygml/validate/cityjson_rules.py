@@ -6,7 +6,7 @@ import re
 
 import numpy as np
 
-from .geometry import Shell, Shells
+from .geometry import Shell, Shells, coordinate_problem
 from .report import Issue, Report
 
 __all__ = ["CityJSONRules"]
@@ -65,18 +65,18 @@ class CityJSONRules:
             self.scale = np.array(transform["scale"], dtype=float)
             self.translate = np.array(transform["translate"], dtype=float)
         self.transform = transform
-        self.extensions = header.get("extensions") or {}
+        self.extensions = _object_or_empty(header.get("extensions"))
         self.report = report
         self._appearance(header)
-        templates = header.get("geometry-templates") or {}
-        self.n_templates = len(templates.get("templates") or [])
-        self.n_template_vertices = len(templates.get("vertices-templates") or [])
+        templates = _object_or_empty(header.get("geometry-templates"))
+        self.n_templates = len(_array_or_empty(templates.get("templates")))
+        self.n_template_vertices = len(_array_or_empty(templates.get("vertices-templates")))
 
     def _appearance(self, doc: dict) -> None:
-        appearance = doc.get("appearance") or {}
-        self.n_materials = len(appearance.get("materials") or [])
-        self.n_textures = len(appearance.get("textures") or [])
-        self.n_uv = len(appearance.get("vertices-texture") or [])
+        appearance = _object_or_empty(doc.get("appearance"))
+        self.n_materials = len(_array_or_empty(appearance.get("materials")))
+        self.n_textures = len(_array_or_empty(appearance.get("textures")))
+        self.n_uv = len(_array_or_empty(appearance.get("vertices-texture")))
 
     def header(self, doc: dict, where: str, *, sequence: bool = False) -> list[Issue]:
         """Rules of the CityJSON object: type, version, transform, extensions."""
@@ -99,7 +99,8 @@ class CityJSONRules:
                 Issue(
                     None,
                     "transform",
-                    where + "transform needs scale and translate, 3 numbers each, scale non-zero",
+                    where + "transform needs scale and translate, 3 finite numbers each, "
+                    "scale non-zero",
                 )
             )
         elif self.transform is None and self.version in ("1.1", "2.0"):
@@ -126,11 +127,11 @@ class CityJSONRules:
                     where + f"type is {doc.get('type')!r}, not 'CityJSONFeature'",
                 )
             )
-        objects = doc.get("CityObjects")
-        if not isinstance(objects, dict) or doc.get("id") not in objects:
+        objects, key = doc.get("CityObjects"), doc.get("id")
+        if not (isinstance(objects, dict) and isinstance(key, str) and key in objects):
             issues.append(
                 Issue(
-                    doc.get("id") if isinstance(doc.get("id"), str) else None,
+                    key if isinstance(key, str) else None,
                     "feature-id",
                     where + "the feature's id is not one of its CityObjects",
                 )
@@ -140,7 +141,7 @@ class CityJSONRules:
         return issues
 
     def _extension_names(self, mapping, object_id, where, what) -> list[Issue]:
-        plus = [k for k in (mapping or {}) if isinstance(k, str) and k.startswith("+")]
+        plus = [k for k in _object_or_empty(mapping) if k.startswith("+")]
         if plus and not self.extensions:
             return [
                 Issue(
@@ -156,36 +157,48 @@ class CityJSONRules:
         objects = doc.get("CityObjects")
         if not isinstance(objects, dict):
             return [Issue(None, "cityobjects", where + "CityObjects is not a JSON object")]
-        issues, vertices = self._vertices(doc.get("vertices"), where)
-        n_vertices = None if vertices is None else len(vertices)  # None: indices unchecked
+        issues, n_vertices, vertices = self._vertices(doc.get("vertices"), where)
         for key, obj in objects.items():
             if not isinstance(obj, dict):
                 issues.append(Issue(key, "cityobjects", where + "not a JSON object"))
                 continue
             issues += self._object(key, obj, objects, where)
-            for geometry in obj.get("geometry") or []:
+            geometries = obj.get("geometry", [])
+            if not isinstance(geometries, list):
+                issues.append(Issue(key, "geometry-type", where + "geometry is not an array"))
+                continue
+            for geometry in geometries:
                 issues += self._geometry(key, geometry, n_vertices, vertices, where, shells)
         return issues
 
     def _vertices(self, vertices, where: str):
+        """Problems, the number of vertices (None: indices unchecked), their coordinates (None:
+        no geometry checked)."""
+        if vertices == []:
+            return [], 0, np.zeros((0, 3))
         try:
             array = np.array(vertices)
-        except ValueError:
+        except (ValueError, OverflowError):
             array = np.array([], dtype=object)
-        if vertices == []:
-            return [], np.zeros((0, 3))
         if array.ndim != 2 or array.shape[1] != 3 or array.dtype.kind not in "iuf":
-            return [Issue(None, "vertices", where + "vertices are not [x, y, z] numbers")], None
+            problem = "vertices are not [x, y, z] numbers"
+            return [Issue(None, "vertices", where + problem)], None, None
         if self.transform is not None and array.dtype.kind == "f":
-            return [
-                Issue(None, "vertices", where + "vertices must be integers with a transform")
-            ], None
-        return [], array * self.scale + self.translate
+            problem = "vertices must be integers with a transform"
+            return [Issue(None, "vertices", where + problem)], len(array), None
+        with np.errstate(over="ignore", invalid="ignore"):  # reported just below
+            coordinates = array * self.scale + self.translate
+        problem = coordinate_problem(coordinates, ", after the transform" if self.transform else "")
+        if problem:
+            return [Issue(None, "coordinate-range", where + problem)], len(array), None
+        return [], len(array), coordinates
 
     def _object(self, key: str, obj: dict, objects: dict, where: str) -> list[Issue]:
         issues = []
         kind = obj.get("type")
-        if isinstance(kind, str) and kind.startswith("+"):
+        if not isinstance(kind, str):
+            kind = repr(kind)  # unknown, and a name in the message
+        if kind.startswith("+"):
             if kind[1:] and not self.extensions:
                 issues.append(
                     Issue(key, "extension", where + f"type {kind!r} needs a declared Extension")
@@ -197,13 +210,13 @@ class CityJSONRules:
         if kind in _SECOND_LEVEL and not obj.get("parents"):
             issues.append(Issue(key, "parent-child", where + f"a {kind} needs a parent"))
         for link, back in (("children", "parents"), ("parents", "children")):
-            for other in obj.get(link) or []:
-                target = objects.get(other)
+            for other in _array_or_empty(obj.get(link)):
+                target = objects.get(other) if isinstance(other, str) else None
                 if not isinstance(target, dict):
                     issues.append(
                         Issue(key, "parent-child", where + f"{link[:-1]} {other!r} does not exist")
                     )
-                elif key not in (target.get(back) or []):
+                elif key not in _array_or_empty(target.get(back)):
                     issues.append(
                         Issue(
                             key,
@@ -218,7 +231,7 @@ class CityJSONRules:
         if not isinstance(geometry, dict):
             return [Issue(key, "geometry-type", where + "a geometry is not a JSON object")]
         kind = geometry.get("type")
-        depth = _GEOMETRY_DEPTH.get(kind)
+        depth = _GEOMETRY_DEPTH.get(kind) if isinstance(kind, str) else None
         if depth is None:
             return [Issue(key, "geometry-type", where + f"unknown geometry type {kind!r}")]
         lod = geometry.get("lod")
@@ -286,38 +299,56 @@ class CityJSONRules:
         if problem:
             return [Issue(key, "semantics", where + f"{label}: semantic values {problem}")]
         for surface in surfaces:
-            for link in ("parent", *(surface.get("children") or [])):
+            if not isinstance(surface, dict):
+                return [Issue(key, "semantics", where + f"{label}: a surface is not a JSON object")]
+            for link in ("parent", *_array_or_empty(surface.get("children"))):
                 target = surface.get("parent") if link == "parent" else link
                 if target is not None and not (type(target) is int and 0 <= target < len(surfaces)):
                     return [Issue(key, "semantics", where + f"{label}: semantic link {target!r}")]
         return []
 
     def _appearances(self, key, geometry, boundaries, depth, label, where) -> list[Issue]:
+        themes = [
+            (kind, theme, value)
+            for kind in ("material", "texture")
+            for theme, value in _object_or_empty(geometry.get(kind)).items()
+        ]
+        if themes and depth < 3:
+            return [Issue(key, "appearance", where + f"{label}: appearances not allowed here")]
         issues = []
-        for theme, material in (geometry.get("material") or {}).items():
-            if "value" in material:
-                value = material["value"]
-                ok = type(value) is int and 0 <= value < self.n_materials
-                problem = None if ok else f"{value!r} refers to no material"
+        for kind, theme, value in themes:
+            if not isinstance(value, dict):
+                problem = "not a JSON object"
+            elif kind == "texture":
+                problem = _texture_match(value.get("values"), boundaries, depth - 1, self)
+            elif "value" in value:
+                index = value["value"]
+                ok = type(index) is int and 0 <= index < self.n_materials
+                problem = None if ok else f"{index!r} refers to no material"
             else:
                 problem = _values_match(
-                    material.get("values"), boundaries, depth - 2, self.n_materials
+                    value.get("values"), boundaries, depth - 2, self.n_materials
                 )
-            if problem:
-                text = (
-                    f"{label}: material {theme!r}: values {problem} ({self.n_materials} materials)"
-                )
-                issues.append(Issue(key, "appearance", where + text))
-        for theme, texture in (geometry.get("texture") or {}).items():
-            problem = _texture_match(texture.get("values"), boundaries, depth - 1, self)
+                problem = problem and f"values {problem} ({self.n_materials} materials)"
             if problem:
                 issues.append(
-                    Issue(key, "appearance", where + f"{label}: texture {theme!r}: {problem}")
+                    Issue(key, "appearance", where + f"{label}: {kind} {theme!r}: {problem}")
                 )
         return issues
 
 
+def _object_or_empty(value) -> dict:
+    """``value`` if it is a JSON object, else an empty one: a wrong type is the JSON Schema's."""
+    return value if isinstance(value, dict) else {}
+
+
+def _array_or_empty(value) -> list:
+    """``value`` if it is a JSON array, else an empty one: a wrong type is the JSON Schema's."""
+    return value if isinstance(value, list) else []
+
+
 def _is_transform(transform) -> bool:
+    """Whether ``transform`` has scale and translate, 3 finite numbers each, scale non-zero."""
     if not isinstance(transform, dict):
         return False
     parts = [transform.get("scale"), transform.get("translate")]
@@ -325,7 +356,11 @@ def _is_transform(transform) -> bool:
         return False
     if not all(isinstance(v, int | float) and not isinstance(v, bool) for p in parts for v in p):
         return False
-    return all(v != 0 for v in parts[0])
+    try:
+        values = np.array(parts, dtype=float)
+    except OverflowError:  # an integer beyond any float
+        return False
+    return bool(np.isfinite(values).all() and values[0].all())
 
 
 def _flatten(boundaries, depth: int):

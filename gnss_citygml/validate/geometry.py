@@ -23,7 +23,15 @@ from scipy.sparse.csgraph import connected_components
 
 from .report import Issue
 
-__all__ = ["BATCH", "PLANARITY_TOLERANCE", "SNAP_TOLERANCE", "Shell", "Shells"]
+__all__ = [
+    "BATCH",
+    "COORDINATE_LIMIT",
+    "PLANARITY_TOLERANCE",
+    "SNAP_TOLERANCE",
+    "Shell",
+    "Shells",
+    "coordinate_problem",
+]
 
 #: Largest distance (m) of a face's vertex from the face's plane.
 PLANARITY_TOLERANCE = 0.01
@@ -31,6 +39,22 @@ PLANARITY_TOLERANCE = 0.01
 SNAP_TOLERANCE = 0.001
 #: Shells gathered before their geometry is checked at once.
 BATCH = 20000
+#: Largest coordinate (absolute value) checked: no CRS comes near it, and beyond it the 1 mm
+#: snapping (int64) and the volumes would overflow. NaN and infinities are beyond it too.
+COORDINATE_LIMIT = 1e12
+
+
+def coordinate_problem(values: np.ndarray, note: str = "") -> str | None:
+    """What is wrong with coordinates not all finite and within :data:`COORDINATE_LIMIT`.
+
+    None when nothing is; ``note`` follows the first wrong value in the message."""
+    far = ~(np.abs(values) <= COORDINATE_LIMIT)  # NaN compares False
+    if not far.any():
+        return None
+    return (
+        f"{np.count_nonzero(far)} coordinate value(s) non-finite or beyond "
+        f"±{COORDINATE_LIMIT:g} (the first: {values[far].flat[0]:g}{note}): geometry not checked"
+    )
 
 
 @dataclass
@@ -69,10 +93,39 @@ class Shells:
             self.rings.extend(face)
 
     def check(self) -> list[Issue]:
-        """Every geometric error of the gathered shells."""
+        """Every geometric error of the gathered shells.
+
+        A shell with a coordinate out of range (:data:`COORDINATE_LIMIT`, NaN, infinite) gets
+        that one error, and is left out of the other checks."""
         if not self.rings:
             return []
-        return _Geometry(self).issues
+        sizes = np.array([len(r) for r in self.rings], dtype=np.int64)
+        points = np.concatenate([np.asarray(r, dtype=float).reshape(-1, 3) for r in self.rings])
+        far = ~(np.abs(points) <= COORDINATE_LIMIT).all(axis=1)
+        if not far.any():
+            return _Geometry(self, points, sizes).issues
+        ring_shell = np.array(self.face_shell, dtype=np.int64)[self.ring_face]
+        point_shell = np.repeat(ring_shell, sizes)
+        issues = []
+        for shell in np.unique(point_shell[far]):
+            meta = self.shells[shell]
+            problem = coordinate_problem(points[point_shell == shell])
+            issues.append(Issue(meta.object_id, "coordinate-range", f"{meta.label}: {problem}"))
+        return issues + self._without(set(point_shell[far].tolist())).check()
+
+    def _without(self, dropped: set[int]) -> Shells:
+        """These shells but ``dropped``: each kept shell added again with its faces."""
+        faces: list[list[np.ndarray]] = [[] for _ in self.face_shell]
+        for ring, face in zip(self.rings, self.ring_face, strict=True):
+            faces[face].append(ring)
+        per_shell: list[list[list[np.ndarray]]] = [[] for _ in self.shells]
+        for face, shell in enumerate(self.face_shell):
+            per_shell[shell].append(faces[face])
+        kept = Shells(self.closed)
+        for shell, meta in enumerate(self.shells):
+            if shell not in dropped:
+                kept.add(meta, per_shell[shell])
+        return kept
 
 
 def _group_ids(*keys: np.ndarray) -> np.ndarray:
@@ -93,12 +146,10 @@ _AXES = np.array([[1, 2], [2, 0], [0, 1]])  # the plane axes kept when dropping 
 class _Geometry:
     """The checks of :class:`Shells`, vectorised over all their points, rings and faces."""
 
-    def __init__(self, shells: Shells):
+    def __init__(self, shells: Shells, points: np.ndarray, sizes: np.ndarray):
         self.meta = shells.shells
         self.issues: list[Issue] = []
         n_shells = len(self.meta)
-        sizes = np.array([len(r) for r in shells.rings], dtype=np.int64)
-        points = np.concatenate([np.asarray(r, dtype=float).reshape(-1, 3) for r in shells.rings])
         ring_shell = np.array(shells.face_shell, dtype=np.int64)[shells.ring_face]
         broken = np.zeros(n_shells, dtype=bool)
         if shells.closed:

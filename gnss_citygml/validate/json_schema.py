@@ -59,7 +59,7 @@ class _JsonSchema:
         kind = obj.get("type") if isinstance(obj, dict) else None
         if isinstance(kind, str) and kind.startswith("+"):
             kind = "+"
-        entry = self.by_type.get(kind)
+        entry = self.by_type.get(kind) if isinstance(kind, str) else None
         geometries = obj.get("geometry") if isinstance(obj, dict) else None
         if entry is None or not isinstance(geometries, list):
             validator = entry[0] if entry else self.any_object
@@ -70,7 +70,7 @@ class _JsonSchema:
         yield from (("", e) for e in validator.iter_errors(rest))
         for i, geometry in enumerate(geometries):
             kind = geometry.get("type") if isinstance(geometry, dict) else None
-            checker = by_geometry.get(kind, any_geometry)
+            checker = by_geometry.get(kind, any_geometry) if isinstance(kind, str) else any_geometry
             yield from ((f"geometry/{i}", e) for e in checker.iter_errors(geometry))
 
 

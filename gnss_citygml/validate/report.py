@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -14,6 +15,22 @@ class Issue(NamedTuple):
     object_id: str | None
     rule: str
     message: str
+
+    def line(self) -> str:
+        """The issue as one line: object id (``-`` for the file), rule and message, tab-separated.
+
+        Control characters and lone surrogates (an id or a quoted value can hold them) are
+        escaped, so that an issue is always one printable line."""
+        fields = (self.object_id or "-", self.rule, self.message)
+        return "\t".join(map(_printable, fields))
+
+
+_UNPRINTABLE = re.compile(r"[\x00-\x1f\x7f-\x9f\ud800-\udfff]")
+
+
+def _printable(text: str) -> str:
+    """``text`` with its control characters and lone surrogates escaped (``\\n``, ``\\udc80``)."""
+    return _UNPRINTABLE.sub(lambda m: m.group().encode("unicode_escape").decode("ascii"), text)
 
 
 @dataclass
@@ -56,7 +73,7 @@ class Report:
     def summary(self) -> str:
         """One line: the file, its format, valid or how many errors, the checks run."""
         verdict = "valid" if self.valid else f"INVALID, {len(self.errors)} error(s)"
-        return (
+        return _printable(
             f"{self.path}: {self.format}, {self.n_objects} object(s): {verdict} "
             f"(checks: {', '.join(self.checks)})"
         )

@@ -3,24 +3,25 @@
 Each writer (``estimate``, ``convert``, ``export``, ``observe`` and ``simulate``, which writes
 a site of five files) first makes its output completely (the *previous* output). Then the same
 command with other options (so that its output differs) is run as a real process with
-``--overwrite`` and killed with SIGKILL after a delay drawn between 0 and the duration of a
-complete run. Afterwards every output file must be byte-identical to the previous one or a
-complete, valid new one (the same layers and features, objects or rows as a complete run of the
-new command), and the only other files allowed are the hidden temporary files of the killed
-run. ``benchmarks/kill9.py`` runs many kills with this same machinery and prints a table.
+``--overwrite`` and killed with SIGKILL: at the moment its output folder first changes (the
+start of writing, which a random delay seldom hits) and after a delay drawn between 0 and the
+duration of a complete run. Afterwards every output file must be byte-identical to the previous
+one or a complete, valid new one (the same layers and features, objects or rows as a complete
+run of the new command), and the only other files allowed are the hidden temporary files of
+the killed run. The rule holds per file: a site killed between two files is left mixed, some
+files previous and some new (``benchmarks/kill9.py``, which runs many kills with this same
+machinery, counts those).
 """
 
 from __future__ import annotations
 
 import contextlib
-import functools
 import io
 import os
 import signal
 import subprocess
 import sys
 import time
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -193,10 +194,14 @@ def content(path: Path):
     return list(table.columns), len(table)
 
 
+OK = ("previous", "new", "alike")  # the states an output may be left in
+
+
 @dataclass
 class Kill:
     """One killed run: its delay (s), whether it ended before the kill, what each output holds
-    afterwards (``previous``, ``new`` or ``broken: why``) and the other files left."""
+    afterwards (``previous``, ``new``, ``alike`` for the bytes of both, or ``broken: why``) and
+    the other files left."""
 
     delay: float
     ended: bool
@@ -205,10 +210,10 @@ class Kill:
 
     def verdict(self) -> str:
         """``previous``, ``new``, ``mixed`` (some files previous, some new) or ``broken``."""
-        states = {s if s in ("previous", "new") else "broken" for s in self.outputs.values()}
+        states = {s if s in OK else "broken" for s in self.outputs.values()} - {"alike"}
         if "broken" in states or self.strays():
             return "broken"
-        return states.pop() if len(states) == 1 else "mixed"
+        return states.pop() if len(states) == 1 else "mixed" if states else "previous"
 
     def temps(self) -> list[str]:
         """Files left that are the hidden temporary files of an output."""
@@ -225,42 +230,25 @@ def is_temp(name: str, outputs) -> bool:
     return any(name.startswith(f".{o}.") and ".part" in name for o in outputs)
 
 
-def timed_run(argv: list[str]) -> float:
-    """Run a command as its own process to the end; its duration (s)."""
-    start = time.perf_counter()
-    subprocess.run(argv, check=True, capture_output=True)
-    return time.perf_counter() - start
-
-
 class Trials:
-    """Kill runs of one writer in ``folder``: ``run/`` holds the previous output that every
-    killed run tries to replace, ``reference/`` a complete run of the new command, whose
-    duration is measured (the random kills' delays are drawn below it). The reference run
-    goes on in the background while the previous output is made, in this process, and while
-    a kill at the start of writing (:meth:`kill_when_writing`) needs no duration."""
+    """Kill runs of one writer in ``folder``: ``reference/`` holds a complete run of the new
+    command (its duration is measured: the random kills' delays are drawn below it), ``run/``
+    the previous output that every killed run tries to replace (made in this process)."""
 
     def __init__(self, writer: Writer, folder: Path, shared_data: Path, inputs: Path):
         self.writer = writer
         self.where = places(shared_data, inputs)
-        self.run, self.reference = folder / "run", folder / "reference"
+        self.run, reference = folder / "run", folder / "reference"
         self.run.mkdir(parents=True)
-        self.reference.mkdir(parents=True)
-        pool = ThreadPoolExecutor(1)
-        self._timed = pool.submit(timed_run, self.command("new", self.reference))
-        pool.shutdown(wait=False)
+        reference.mkdir(parents=True)
+        start = time.perf_counter()
+        subprocess.run(self.command("new", reference), check=True, capture_output=True)
+        self.duration = time.perf_counter() - start
+        self.expected = {name: content(reference / name) for name in writer.outputs}
         run_in_process(writer.argv("previous", self.run, self.where))
         self.previous = {name: (self.run / name).read_bytes() for name in writer.outputs}
-
-    @functools.cached_property
-    def duration(self) -> float:
-        """Seconds a complete run of the new command takes."""
-        return self._timed.result()
-
-    @functools.cached_property
-    def expected(self) -> dict:
-        """The :func:`content` of each output of a complete run of the new command."""
-        self._timed.result()
-        return {name: content(self.reference / name) for name in self.writer.outputs}
+        # files both variants write alike (simulate's footprints, DEM and truth of one scene)
+        self.alike = {n for n in writer.outputs if (reference / n).read_bytes() == self.previous[n]}
 
     def command(self, variant: str, out: Path) -> list[str]:
         return [sys.executable, "-m", "gnss_citygml", *self.writer.argv(variant, out, self.where)]
@@ -294,16 +282,19 @@ class Trials:
             ended = False
         return self.inspect(delay, ended)
 
-    def kill_when_writing(self, *, keep_temps: bool = False, tries: int = 3) -> Kill:
+    def kill_when_writing(
+        self, *, replaced: bool = False, keep_temps: bool = False, tries: int = 3
+    ) -> Kill:
         """Start the new command and SIGKILL it as soon as its folder changes: a new file
         appears (whatever its name) or an output's inode, size or time changes. This is the
-        moment that matters, which a random delay seldom hits: the writing itself. A run that
+        moment that matters, which a random delay seldom hits: the writing itself. With
+        ``replaced``, when the first output is replaced (its inode changes) instead. A run that
         ends before the change is seen (a busy machine) is tried again, up to ``tries`` runs."""
         for _ in range(tries):
             process = self.start(keep_temps=keep_temps)
             before = self.snapshot()
             started = time.perf_counter()
-            while process.poll() is None and self.snapshot() == before:
+            while process.poll() is None and not self.changed(before, replaced):
                 time.sleep(0.001)
             ended = process.poll() is not None
             process.send_signal(signal.SIGKILL)  # nothing if it has ended
@@ -311,6 +302,13 @@ class Trials:
             if not ended:
                 break
         return self.inspect(time.perf_counter() - started, ended)
+
+    def changed(self, before: dict, replaced: bool) -> bool:
+        """Whether the run folder changed since ``before``, or with ``replaced`` an output."""
+        now = self.snapshot()
+        if not replaced:
+            return now != before
+        return any(now.get(o, (None,))[0] != before[o][0] for o in self.writer.outputs)
 
     def snapshot(self) -> dict:
         """Every file of the run folder with its inode, size and modification time."""
@@ -338,7 +336,7 @@ class Trials:
         if not path.exists():
             return "broken: missing"
         if path.read_bytes() == self.previous[name]:
-            return "previous"
+            return "alike" if name in self.alike else "previous"
         try:
             found = content(path)
         except Exception as exc:  # anything unreadable is what this test is looking for
@@ -375,7 +373,7 @@ def check(kill: Kill, context: str) -> None:
     """Every output is the previous one or a complete new one, and nothing else is left under
     any name but a hidden temporary one of an output."""
     for output, state in kill.outputs.items():
-        assert state in ("previous", "new"), f"{context}: {output} is {state}"
+        assert state in OK, f"{context}: {output} is {state}"
     assert not kill.strays(), f"{context}: left {kill.strays()}"
 
 

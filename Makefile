@@ -32,10 +32,12 @@ demo: $(STAMP)
 	$(BIN)/gnss-citygml convert demo-out/heights.gpkg -o demo-out/city.city.json --overwrite
 	$(BIN)/gnss-citygml convert demo-out/heights.gpkg -o demo-out/city.gml --overwrite
 
-# Every reader fuzzed with at least 10,000 cases (tests/fuzz; `make test` runs a short profile).
+# Every reader fuzzed with at least 10,000 cases (tests/fuzz; `make test` runs a short profile),
+# and every writer killed with SIGKILL 50 times at random moments (tests/test_kill9.py: a few).
 fuzz: $(STAMP)
 	$(BIN)/python -m pytest tests/fuzz -q -p no:cacheprovider --hypothesis-profile=fuzz \
 		--hypothesis-show-statistics
+	$(BIN)/python benchmarks/kill9.py --kills 50
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/raycast.py

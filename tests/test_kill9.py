@@ -226,7 +226,7 @@ class Kill:
 
 def is_temp(name: str, outputs) -> bool:
     """Whether ``name`` is a hidden temporary file of one of ``outputs``: ``.NAME.….part…``
-    (``.NAME.RANDOM.part.SUFFIX`` or ``.NAME.part-HOST-PID-RANDOM.SUFFIX``), with the journal
+    (``.NAME.part-HOST-PID-RANDOM.SUFFIX``, see :mod:`gnss_citygml.paths`), with the journal
     file SQLite may leave beside a GeoPackage."""
     return any(name.startswith(f".{o}.") and ".part" in name for o in outputs)
 
@@ -389,23 +389,15 @@ def test_kill9_keeps_the_previous_output_or_writes_a_complete_one(name, trials_o
         check(trials.kill(delay), f"{name} killed after {delay:.2f} s of {trials.duration:.2f} s")
 
 
-# The fix (gnss_citygml.paths.stale_parts on main, 2412463) makes this test pass: drop the
-# marker once it is merged (strict: an unexpected pass fails the run, so it cannot be missed).
-@pytest.mark.xfail(
-    strict=True,
-    raises=AssertionError,
-    reason="issue 10: the hidden .part files of killed runs stay for good: no later run "
-    "removes them (gnss_citygml.tables.atomic_path)",
-)
 def test_a_later_run_removes_the_temporary_files_of_killed_runs(trials_of):
     """Two runs killed while writing, then a complete run of the same command."""
     trials = trials_of("export")
     first = trials.kill_when_writing()
     second = trials.kill_when_writing(keep_temps=True)
-    if first.ended or second.ended or not first.temps():  # not an AssertionError: no xfail
+    if first.ended or second.ended or not first.temps():
         pytest.fail(f"no run killed while writing: {first}, {second}")
-    # THE ASSERTIONS TO CHECK ONCE THE FIX LANDS: after a kill, at most the temporary files of
-    # that killed run remain; after a complete run of the same command, none remain.
+    # After a kill, at most the temporary files of that killed run remain (gnss_citygml.paths
+    # removes those of runs whose process is gone); after a complete run, none remain.
     assert not set(second.temps()) & set(first.temps()), "a killed run's files outlive the next"
     trials.complete_run()
     left = trials.inspect(0.0, True)

@@ -1,4 +1,5 @@
 import io
+import re
 import warnings
 from pathlib import Path
 
@@ -492,6 +493,57 @@ def test_columns_found_by_header_name_not_position(tmp_path, small_log_lines):
     swapped = read_gnsslogger(_write(tmp_path, lines))
     original = read_gnsslogger(_write(tmp_path, small_log_lines))
     pd.testing.assert_frame_equal(swapped.raw, original.raw)
+
+
+# --- found by fuzzing (tests/fuzz/test_fuzz_gnss.py) ----------------------------------------
+
+TIME_NANOS = 2
+
+
+@pytest.mark.parametrize(
+    ("record", "index", "value", "message"),
+    [
+        ("Raw,", CN0, "1e308", "Raw Cn0DbHz is '1e308', outside 0..100"),
+        ("Raw,", CN0, "Infinity", "Raw Cn0DbHz is 'Infinity', not a finite number"),
+        ("Raw,", 6, "1e300", "Raw BiasNanos is '1e300', outside -1e+15..1e+15"),
+        ("Raw,", TIME_NANOS, "9223372036854775808", "TimeNanos is '9223372036854775808', beyond"),
+        (
+            "Raw,",
+            TIME_NANOS,
+            "8000000000000000000",
+            "Raw GPS time 9.383e+18 ns after 1980-01-06 is after 2100-01-01",
+        ),
+        (
+            "Raw,",
+            FULL_BIAS,
+            "-1065446151445559028",
+            "Raw GPS time 2013-10-10T13:16:52.535 is before 2015-07-01",
+        ),
+        ("Fix,", 2, "91.5", "Fix LatitudeDegrees is '91.5', outside -90..90"),
+        ("Fix,", 3, "-inf", "Fix LongitudeDegrees is '-inf', not a finite number"),
+        ("Fix,", 8, "9223372036854775", "Fix UnixTimeMillis is '9223372036854775', outside"),
+    ],
+    ids=["cn0", "cn0-inf", "bias", "int64", "overflow", "2013", "lat", "lon", "fix-time"],
+)
+def test_values_outside_their_range_are_bad_lines(
+    tmp_path, small_log_lines, record, index, value, message
+):
+    lines = list(small_log_lines)
+    k = _first(lines, record) + 1
+    lines[k] = _set(lines[k], index, value)
+    path = _write(tmp_path, lines)
+    with pytest.raises(InputError, match=re.escape(message)) as err:
+        read_gnsslogger(path)
+    assert err.value.where == f"{path}, line {k + 1}"
+
+
+def test_a_log_of_headers_only(tmp_path, small_log_lines):
+    # cut inside its header, or a Raw header without the columns no row needs: no rows, no error
+    headers = [line for line in small_log_lines if line.startswith("#")]
+    log = read_gnsslogger(_write(tmp_path, headers))
+    assert log.raw.empty and log.dropped.empty and log.fixes.empty
+    without = [line.replace(",ConstellationType", "") for line in headers]
+    assert read_gnsslogger(_write(tmp_path, without)).raw.empty
 
 
 def test_clock_without_gps_time_or_before_2015(tmp_path, small_log_lines):

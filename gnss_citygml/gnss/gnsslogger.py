@@ -96,9 +96,18 @@ __all__ = [
     "surveyed_positions",
 ]
 
-#: Android's raw GNSS measurements began in 2016: an earlier epoch is a wrong clock field.
-_EARLIEST = "2015-07-01"
-_EARLIEST_GPS_NS = int((np.datetime64(_EARLIEST, "ns") - GPS_EPOCH) / np.timedelta64(1, "ns"))
+#: Android's raw GNSS measurements began in 2016: an epoch outside these dates is a wrong
+#: clock field.
+_EARLIEST, _LATEST = "2015-07-01", "2100-01-01"
+_EARLIEST_GPS_NS, _LATEST_GPS_NS = (
+    int((np.datetime64(day, "ns") - GPS_EPOCH) / np.timedelta64(1, "ns"))
+    for day in (_EARLIEST, _LATEST)
+)
+#: Unix times in ms that are still datetime64[ns] (before 2262).
+_MS = (0.0, np.iinfo(np.int64).max // 10**6)
+#: Larger clock biases (ns, 11.6 days) are no bias but a wrong field.
+_BIAS = (-1e15, 1e15)
+_CN0 = (0.0, 100.0)
 #: Android ``GnssStatus.CONSTELLATION_*`` (index) -> RINEX letter; "?" = unknown.
 _LETTERS = np.array(["?", "G", "S", "R", "J", "C", "E", "I"])
 _STATE_CODE_LOCK = 0x1
@@ -121,40 +130,42 @@ _FIX_HINT = "repair or delete the line, or read the log leniently (lenient=True,
 
 
 class _Column(NamedTuple):
-    """A column the reader needs: its possible header names and how to convert it."""
+    """A column the reader needs: its possible header names, how to convert it, and the range
+    of its values (numbers outside it, and infinite ones, make a bad line)."""
 
     names: tuple[str, ...]
     kind: str  # "int", "float" or "str"
     may_be_empty: bool = False
     required: bool = True
+    limits: tuple[float, float] = (-np.inf, np.inf)
 
 
 _RAW = {
     "time_nanos": _Column(("TimeNanos",), "int"),
     "full_bias": _Column(("FullBiasNanos",), "int", may_be_empty=True),
-    "bias": _Column(("BiasNanos",), "float", may_be_empty=True),
+    "bias": _Column(("BiasNanos",), "float", may_be_empty=True, limits=_BIAS),
     "svid": _Column(("Svid",), "int"),
     "constellation": _Column(("ConstellationType",), "int"),
-    "cn0": _Column(("Cn0DbHz",), "float"),
+    "cn0": _Column(("Cn0DbHz",), "float", limits=_CN0),
     "state": _Column(("State",), "int"),
     "frequency": _Column(("CarrierFrequencyHz",), "float", may_be_empty=True, required=False),
 }
 _FIX = {
     "provider": _Column(("Provider",), "str"),
-    "lat": _Column(("LatitudeDegrees", "Latitude"), "float"),
-    "lon": _Column(("LongitudeDegrees", "Longitude"), "float"),
+    "lat": _Column(("LatitudeDegrees", "Latitude"), "float", limits=(-90.0, 90.0)),
+    "lon": _Column(("LongitudeDegrees", "Longitude"), "float", limits=(-180.0, 180.0)),
     "altitude": _Column(("AltitudeMeters", "Altitude"), "float", may_be_empty=True),
     "accuracy": _Column(("AccuracyMeters", "Accuracy"), "float", may_be_empty=True),
-    "time_ms": _Column(("UnixTimeMillis", "(UTC)TimeInMs"), "int"),
+    "time_ms": _Column(("UnixTimeMillis", "(UTC)TimeInMs"), "int", limits=_MS),
 }
 _STATUS = {
-    "time_ms": _Column(("UnixTimeMillis",), "int", may_be_empty=True),
+    "time_ms": _Column(("UnixTimeMillis",), "int", may_be_empty=True, limits=_MS),
     "constellation": _Column(("ConstellationType",), "int"),
     "svid": _Column(("Svid",), "int"),
     "frequency": _Column(("CarrierFrequencyHz",), "float", may_be_empty=True, required=False),
-    "cn0": _Column(("Cn0DbHz",), "float"),
-    "azimuth": _Column(("AzimuthDegrees",), "float"),
-    "elevation": _Column(("ElevationDegrees",), "float"),
+    "cn0": _Column(("Cn0DbHz",), "float", limits=_CN0),
+    "azimuth": _Column(("AzimuthDegrees",), "float", limits=(0.0, 360.0)),
+    "elevation": _Column(("ElevationDegrees",), "float", limits=(-90.0, 90.0)),
 }
 _RECORDS = {"Raw": _RAW, "Fix": _FIX, "Status": _STATUS}
 
@@ -294,7 +305,7 @@ def read_gnsslogger(path: str | Path, *, lenient: bool = False) -> GnssLog:
         split.last_record,
     )
     incomplete = set().union(*by_line.values(), [trailing[0]] if trailing else [])
-    reason = signals["reason"].to_numpy(dtype=object)
+    reason = signals["reason"].to_numpy(dtype=object, copy=True)
     reason[good & np.isin(_ns(signals["time_utc"]), list(incomplete)) & (reason == "")] = (
         _INCOMPLETE
     )
@@ -727,15 +738,15 @@ def _parse_records(kind, header, numbers, lines, columns, path):
     bad = np.zeros(len(lines), dtype=bool)
     reasons = np.full(len(lines), "", dtype=object)
     for key, col in columns.items():
-        if key not in positions:
-            table[key] = np.full(len(lines), np.nan)
+        if key not in positions:  # an optional column, or no rows
+            table[key] = _convert(pd.Series([""] * len(lines), dtype=str), col)[0]
             continue
         values, wrong = _convert(text[positions[key]], col)
         table[key] = values
         name = names[positions[key] - 1]
         new = wrong & ~bad
         reasons[new] = [
-            f"{kind} {name} is {v!r}, not {'an integer' if col.kind == 'int' else 'a number'}"
+            f"{kind} {name} is {v!r}, {_why_bad(v, col)}"
             if v.strip()
             else f"{kind} {name} is empty"
             for v in text[positions[key]].to_numpy()[new]
@@ -757,28 +768,40 @@ def _convert(text: pd.Series, col: _Column) -> tuple[np.ndarray, np.ndarray]:
     else:
         values = pd.to_numeric(text, errors="coerce").to_numpy(dtype=float)
         empty = empty | text.str.lower().eq("nan").to_numpy()  # Java writes "NaN" for none
-        good = ~np.isnan(values)
+        good = np.isfinite(values)
+    lo, hi = col.limits
+    good = good & (values >= lo) & (values <= hi)
     return values, ~good & ~(empty & col.may_be_empty)
+
+
+def _why_bad(value: str, col: _Column) -> str:
+    """Why a value :func:`_convert` found bad is bad: not a number, or outside its range."""
+    number = pd.to_numeric(value.strip(), errors="coerce")
+    if col.kind == "int" and not re.fullmatch(_INT, value.strip()):
+        too_long = re.fullmatch(r"[+-]?\d+", value.strip())
+        return "beyond a 64-bit integer" if too_long else "not an integer"
+    if pd.isna(number):
+        return "not a number"
+    lo, hi = col.limits
+    return f"outside {lo:g}..{hi:g}" if np.isfinite(number) else "not a finite number"
 
 
 def _measurements(table: pd.DataFrame, numbers: np.ndarray):
     """Raw rows -> (signals with the ``reason`` to drop them, "" to keep; bad lines with
     impossible times)."""
-    full_bias = table["full_bias"].to_numpy()
+    time_nanos, full_bias = table["time_nanos"].to_numpy(), table["full_bias"].to_numpy()
     bias = np.nan_to_num(table["bias"].to_numpy())
-    gps_ns = table["time_nanos"].to_numpy() - full_bias - np.rint(bias).astype(np.int64)
+    # first in float, which cannot overflow: the exact int64 sum only for plausible times
+    approx = time_nanos.astype(float) - full_bias.astype(float) - bias
     has_time = full_bias != 0
-    too_early = has_time & (gps_ns < _EARLIEST_GPS_NS)
-    timed = has_time & ~too_early
-    utc_ns = np.full(gps_ns.shape, _NAT, dtype=np.int64)
-    utc_ns[timed] = gps_to_utc(gps_ns[timed]).astype(np.int64)
+    impossible = has_time & ~((approx >= _EARLIEST_GPS_NS) & (approx < _LATEST_GPS_NS))
+    timed = has_time & ~impossible
+    gps_ns = time_nanos[timed] - full_bias[timed] - np.rint(bias[timed]).astype(np.int64)
+    utc_ns = np.full(time_nanos.shape, _NAT, dtype=np.int64)
+    utc_ns[timed] = gps_to_utc(gps_ns).astype(np.int64)
     bad = [
-        (
-            n,
-            f"Raw GPS time {GPS_EPOCH + np.timedelta64(int(t), 'ns')} is before {_EARLIEST}: "
-            "TimeNanos or FullBiasNanos is wrong",
-        )
-        for n, t in zip(numbers[too_early].tolist(), gps_ns[too_early], strict=True)
+        (n, f"Raw GPS time {_gps_text(t)}: TimeNanos or FullBiasNanos is wrong")
+        for n, t in zip(numbers[impossible].tolist(), approx[impossible], strict=True)
     ]
     letter = _letters(table["constellation"].to_numpy())
     state = table["state"].to_numpy()
@@ -809,6 +832,18 @@ def _measurements(table: pd.DataFrame, numbers: np.ndarray):
         }
     )
     return signals.assign(reason=reason.astype(object)), bad
+
+
+def _gps_text(gps_ns: float) -> str:
+    """An impossible GPS time (ns since 1980-01-06), and why it is impossible."""
+    when = f"{gps_ns:.4g} ns after 1980-01-06"
+    if abs(gps_ns) < 9e18:  # within the range of datetime64[ns]
+        when = np.datetime_as_string(GPS_EPOCH + np.timedelta64(int(gps_ns), "ns"), unit="ms")
+    return (
+        f"{when} is before {_EARLIEST}"
+        if gps_ns < _EARLIEST_GPS_NS
+        else f"{when} is after {_LATEST}"
+    )
 
 
 def _incomplete_epochs(signals, table, numbers, good, suspects, lines, header, last_record):
@@ -890,7 +925,7 @@ def _own_epoch(text: str, names: list[str]) -> int | None:
         return None
     bias = pd.to_numeric(values["BiasNanos"], errors="coerce") if values["BiasNanos"] else 0.0
     gps_ns = int(values["TimeNanos"]) - int(values["FullBiasNanos"]) - round(np.nan_to_num(bias))
-    if not _EARLIEST_GPS_NS <= gps_ns < 2**62:
+    if not _EARLIEST_GPS_NS <= gps_ns < _LATEST_GPS_NS:
         return None
     return int(gps_to_utc(np.array([gps_ns]))[0].astype(np.int64))
 

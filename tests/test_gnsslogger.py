@@ -521,9 +521,10 @@ TIME_NANOS = 2
         ),
         ("Fix,", 2, "91.5", "Fix LatitudeDegrees is '91.5', outside -90..90"),
         ("Fix,", 3, "-inf", "Fix LongitudeDegrees is '-inf', not a finite number"),
+        ("Fix,", 4, "1e308", "Fix AltitudeMeters is '1e308', outside -100000..100000"),
         ("Fix,", 8, "9223372036854775", "Fix UnixTimeMillis is '9223372036854775', outside"),
     ],
-    ids=["cn0", "cn0-inf", "bias", "int64", "overflow", "2013", "lat", "lon", "fix-time"],
+    ids=["cn0", "cn0-inf", "bias", "int64", "overflow", "2013", "lat", "lon", "h", "fix-time"],
 )
 def test_values_outside_their_range_are_bad_lines(
     tmp_path, small_log_lines, record, index, value, message

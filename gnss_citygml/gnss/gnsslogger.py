@@ -108,6 +108,8 @@ _MS = (0.0, np.iinfo(np.int64).max // 10**6)
 #: Larger clock biases (ns, 11.6 days) are no bias but a wrong field.
 _BIAS = (-1e15, 1e15)
 _CN0 = (0.0, 100.0)
+#: Heights (m) above the ellipsoid a phone can be at: 100 km from the Earth's surface.
+_HEIGHT = (-1e5, 1e5)
 #: Android ``GnssStatus.CONSTELLATION_*`` (index) -> RINEX letter; "?" = unknown.
 _LETTERS = np.array(["?", "G", "S", "R", "J", "C", "E", "I"])
 _STATE_CODE_LOCK = 0x1
@@ -154,7 +156,7 @@ _FIX = {
     "provider": _Column(("Provider",), "str"),
     "lat": _Column(("LatitudeDegrees", "Latitude"), "float", limits=(-90.0, 90.0)),
     "lon": _Column(("LongitudeDegrees", "Longitude"), "float", limits=(-180.0, 180.0)),
-    "altitude": _Column(("AltitudeMeters", "Altitude"), "float", may_be_empty=True),
+    "altitude": _Column(("AltitudeMeters", "Altitude"), "float", may_be_empty=True, limits=_HEIGHT),
     "accuracy": _Column(("AccuracyMeters", "Accuracy"), "float", may_be_empty=True),
     "time_ms": _Column(("UnixTimeMillis", "(UTC)TimeInMs"), "int", limits=_MS),
 }

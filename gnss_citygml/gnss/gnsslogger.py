@@ -252,6 +252,11 @@ def read_gnsslogger(path: str | Path, *, lenient: bool = False) -> GnssLog:
         contains, an unknown version (unless lenient), or a bad line (unless lenient), naming
         the file and line.
 
+    Warns
+    -----
+    UserWarning
+        One line per cause: bad lines skipped (lenient), a cut-off last line, a log cut at a
+        line end inside its last epoch; each names the epochs dropped whole with it.
     """
     path = Path(path)
     try:

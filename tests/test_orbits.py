@@ -483,6 +483,7 @@ def test_gps_seconds_of_the_sp3_start(cod):
         ("*  2023  3 14  0  0       inf", "impossible epoch"),
         ("*  nan  3 14  0  0  0.00000000", "unreadable epoch"),
         ("*  1900  3 14  0  0  0.00000000", "impossible epoch"),
+        ("*  " + "1" * 30 + "  3 14  0  0  0.00000000", "unreadable epoch"),  # beyond a C long
     ],
 )
 def test_impossible_sp3_epoch_names_its_line(tmp_path, orbits_dir, epoch, why):

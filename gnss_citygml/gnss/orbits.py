@@ -157,7 +157,7 @@ def _epoch(text: str, path, line_no: int, line: str, two_digit_year: bool = Fals
         if two_digit_year:
             y += 2000 if y < 80 else 1900
         day = datetime.date(y, mo, d)
-    except (ValueError, IndexError):
+    except (ValueError, IndexError, OverflowError):
         raise _garbled(path, line_no, line, "unreadable epoch") from None
     if not (1980 <= y < 2100 and 0 <= h <= 24 and 0 <= mi < 60 and 0 <= sec < 61):
         raise _garbled(path, line_no, line, "impossible epoch")

@@ -196,9 +196,14 @@ _RANGE_FIX = {
 def _show(value) -> str:
     """A cell as the user wrote it: strings quoted, numbers plain, anything else (a list, a
     mapping from a nested Parquet column) as Python shows it; cut to 40 characters."""
+    if isinstance(value, pd.Timestamp):
+        value = value.asm8  # shown by numpy even beyond the years Python's datetime has
     if isinstance(value, np.generic | np.ndarray):
-        value = value.tolist()
-    text = repr(value) if isinstance(value, str) else str(value)
+        value = value if isinstance(value, np.datetime64) else value.tolist()
+    try:
+        text = repr(value) if isinstance(value, str) else str(value)
+    except ValueError:  # an int of more digits than Python converts
+        text = f"<{type(value).__name__}>"
     return text if len(text) <= 40 else text[:37] + "..."
 
 
@@ -247,10 +252,25 @@ def _to_numeric(column: pd.Series) -> pd.Series:
     """Numbers as float; NaN for what is not a number (text, a list, a date, a boolean)."""
     if column.dtype.kind in "bcmM" or isinstance(column.dtype, pd.DatetimeTZDtype):
         return pd.Series(np.nan, index=column.index)
-    numbers = pd.to_numeric(column, errors="coerce")
+    try:
+        numbers = pd.to_numeric(column, errors="coerce")
+    except OverflowError:  # a Python int beyond float: one value at a time
+        numbers = column.map(_float_or_nan)
     if column.dtype == object:  # True would be 1.0
         numbers = numbers.where(~column.map(lambda v: isinstance(v, bool | np.bool_)))
     return numbers.astype(float)
+
+
+def _float_or_nan(value) -> float:
+    """A number as float (infinite beyond the float range), NaN for anything else."""
+    if isinstance(value, bool | np.bool_):
+        return np.nan
+    try:
+        return float(value)
+    except OverflowError:
+        return np.inf if value > 0 else -np.inf
+    except (TypeError, ValueError):
+        return np.nan
 
 
 def _no_gaps(column: pd.Series, name: str, locate) -> None:

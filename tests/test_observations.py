@@ -133,3 +133,29 @@ def test_csv_errors_name_the_line_past_blank_lines_and_quoted_line_ends(tmp_path
         read_observations(path)
     assert err.value.where == f"{path}, line 9"
     assert path.read_text().splitlines()[8] == text[6].rstrip("\n")  # row 4
+
+
+def test_a_number_beyond_float_in_a_csv(tmp_path, observations):
+    # whole numbers in the column: pandas reads them as Python ints, beyond float here
+    table = observations.head(3).assign(lon=[0, int("1" * 400), 0])
+    path = tmp_path / "obs.csv"
+    table.to_csv(path, index=False)
+    with pytest.raises(InputError) as err:
+        read_observations(path)
+    assert err.value.what == f"lon {'1' * 37}... is not a finite number"
+    assert err.value.where == f"{path}, line 3"
+
+
+def test_a_time_beyond_datetime64_in_parquet(tmp_path, observations):
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    table = pa.Table.from_pandas(observations.head(3), preserve_index=False)
+    year_1 = pa.array(np.array(["0001-01-01"] * 3, "datetime64[ms]")).cast(
+        pa.timestamp("ms", tz="Europe/London")
+    )
+    table = table.set_column(0, "time_utc", year_1).replace_schema_metadata(None)
+    pq.write_table(table, tmp_path / "t.parquet")  # no pandas metadata: read as ms, not ns
+    with pytest.raises(InputError) as err:
+        read_observations(tmp_path / "t.parquet")
+    assert err.value.what == "time_utc 0001-01-01T00:00:00.000 is not a time"

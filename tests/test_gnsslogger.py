@@ -267,7 +267,7 @@ def small_log_lines(shared_data):
 
 
 # field numbers in the Raw rows of the Stanford log (0 is the record type)
-FULL_BIAS, SVID, STATE, CN0 = 5, 11, 13, 16
+TIME_NANOS, FULL_BIAS, SVID, STATE, CN0 = 2, 5, 11, 13, 16
 
 
 def _set(line, index, value):
@@ -360,11 +360,21 @@ def _epoch_times(path) -> list[str]:
         (10, lambda line: line[:80], [0]),  # a row cut short
         (10, lambda line: "12:00 ???", [0]),  # not a record
         (10, lambda line: _set(line, FULL_BIAS, "-1000000000"), [0]),  # impossible time
+        (10, lambda line: _set(_set(line, CN0, ""), TIME_NANOS, "1"), [0]),  # another clock
         (29, lambda line: _set(line, STATE, "16x31"), [0]),  # the last row of an epoch
         (30, lambda line: _set(line, SVID, ""), [1]),  # its clock says: the next epoch
         (30, lambda line: line[:20], [0, 1]),  # nothing says which: both
     ],
-    ids=["bad-float", "truncated", "not-a-record", "bad-time", "last-row", "next-first", "between"],
+    ids=[
+        "bad-float",
+        "truncated",
+        "not-a-record",
+        "bad-time",
+        "other-clock",
+        "last-row",
+        "next-first",
+        "between",
+    ],
 )
 def test_a_bad_row_drops_its_epoch_whole(tmp_path, three_epochs, row, edit, dropped):
     lines, firsts = three_epochs
@@ -496,8 +506,6 @@ def test_columns_found_by_header_name_not_position(tmp_path, small_log_lines):
 
 
 # --- found by fuzzing (tests/fuzz/test_fuzz_gnss.py) ----------------------------------------
-
-TIME_NANOS = 2
 
 
 @pytest.mark.parametrize(

@@ -57,8 +57,9 @@ whose ``Raw`` rows are not all there is dropped whole: its rows move to
 :attr:`GnssLog.dropped` (reason ``incomplete epoch ...``) and the warning names the log, the
 epoch and why. The rows of an epoch are written together and share their clock
 (``TimeNanos``, ``FullBiasNanos``), so a skipped line (the cut-off last line, or a bad line
-with ``lenient=True``) is placed by the clock fields it still has: the readable ones of a row
-with a bad value elsewhere, the complete ones and the start of the last one of a cut-off line.
+with ``lenient=True``) between two rows of one epoch is a row of that epoch; between two
+epochs, it is placed by the clock fields it still has: the readable ones of a row with a bad
+value elsewhere, the complete ones and the start of the last one of a cut-off line.
 Where they cannot tell (a garbled line, a line cut before its clock), it may be a row of the
 epoch before it or of the epoch after it, and both are dropped. A log cut exactly at a line end
 leaves no cut-off line; it is recognised when it ends with an epoch whose signals are the first
@@ -857,10 +858,11 @@ def _incomplete_epochs(signals, table, numbers, good, suspects, lines, header, l
     """The epochs whose rows may not all be there (see the module documentation).
 
     Returns ``(by_line, trailing)``: ``by_line[n]`` the set of epochs (int64 UTC ns) that the
-    damaged line ``n`` may belong to: those of the good Raw rows before and after it that it
-    cannot be told apart from; ``trailing`` ``(epoch, rows, rows before)`` when the log ends
-    with an epoch whose rows are the first ones of the epoch before (a log cut at a line end),
-    else None.
+    damaged line ``n`` may belong to: the epoch around it when the good Raw rows before and
+    after it share one (the rows of an epoch are written together), else those of these rows
+    that its clock fields cannot tell it apart from; ``trailing`` ``(epoch, rows, rows
+    before)`` when the log ends with an epoch whose rows are the first ones of the epoch before
+    (a log cut at a line end), else None.
     """
     rows = np.flatnonzero(good)
     if not len(rows):
@@ -872,12 +874,14 @@ def _incomplete_epochs(signals, table, numbers, good, suspects, lines, header, l
     by_line = {}
     for n, kind in suspects.items():
         k = int(np.searchsorted(good_numbers, n))
+        near = [j for j in (k - 1, k) if 0 <= j < len(rows) and utc[j] != _NAT]
+        if len(near) == 2 and utc[near[0]] == utc[near[1]]:  # inside an epoch: one of its rows
+            by_line[n] = {int(utc[near[0]])}
+            continue
         by_line[n] = {
             int(utc[j])
-            for j in (k - 1, k)
-            if 0 <= j < len(rows)
-            and utc[j] != _NAT
-            and _may_share_epoch(lines[n - 1], kind, lines[good_numbers[j] - 1], clock)
+            for j in near
+            if _may_share_epoch(lines[n - 1], kind, lines[good_numbers[j] - 1], clock)
         }
     trailing = None
     if good_numbers[-1] == last_record and utc[-1] != _NAT:

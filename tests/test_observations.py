@@ -159,3 +159,22 @@ def test_a_time_beyond_datetime64_in_parquet(tmp_path, observations):
     with pytest.raises(InputError) as err:
         read_observations(tmp_path / "t.parquet")
     assert err.value.what == "time_utc 0001-01-01T00:00:00.000 is not a time"
+
+
+def test_parquet_with_damaged_pandas_metadata(tmp_path, observations):
+    import json
+
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    table = pa.Table.from_pandas(observations.head(3), preserve_index=False)
+    meta = json.loads(table.schema.metadata[b"pandas"])
+    del meta["columns"][2]["numpy_type"]
+    table = table.replace_schema_metadata({b"pandas": json.dumps(meta).encode()})
+    pq.write_table(table, tmp_path / "m.parquet")
+    with pytest.raises(InputError) as err:
+        read_observations(tmp_path / "m.parquet")
+    assert err.value.one_line() == (
+        "cannot read the table: damaged pandas metadata (KeyError 'numpy_type') "
+        f"({tmp_path / 'm.parquet'}): give a well-formed CSV (with a header row) or Parquet file"
+    )

@@ -417,9 +417,10 @@ def test_times_outside_the_orbits_name_both_spans(orbits_dir, name, orbit_span):
     assert info.value.where == name
 
 
-def test_garbled_sp3_line_names_file_and_line(tmp_path, orbits_dir):
+@pytest.mark.parametrize("edit", ["x", "nan", "inf"])
+def test_garbled_sp3_line_names_file_and_line(tmp_path, orbits_dir, edit):
     lines = (orbits_dir / COD_2023).read_text().splitlines(keepends=True)
-    lines[30] = lines[30][:10] + "x" + lines[30][11:]
+    lines[30] = lines[30][:10] + edit + lines[30][10 + len(edit) :]
     path = tmp_path / "garbled.sp3"
     path.write_text("".join(lines))
     with pytest.raises(InputError) as info:
@@ -498,14 +499,14 @@ def test_impossible_sp3_epoch_names_its_line(tmp_path, orbits_dir, epoch, why):
 
 
 @pytest.mark.parametrize(
-    ("line", "old", "new", "why"),
+    ("line", "old", "new", "why", "named"),
     [
-        (27, "2023 03 14", "2023 13 14", "unreadable epoch"),
-        (30, "1.728000000000e+05", "nan".rjust(18), r"time of ephemeris nan s"),
-        (30, "1.728000000000e+05", "1.000e+99".rjust(18), r"time of ephemeris 1e\+99 s"),
+        (27, "2023 03 14", "2023 13 14", "unreadable epoch", 27),
+        (30, "1.728000000000e+05", "nan".rjust(18), "unreadable number: 'nan'", 30),
+        (30, "1.728000000000e+05", "1.000e+99".rjust(18), r"time of ephemeris 1e\+99 s", 27),
     ],
 )
-def test_impossible_nav_epoch_or_ephemeris_time(tmp_path, orbits_dir, line, old, new, why):
+def test_impossible_nav_epoch_or_ephemeris_time(tmp_path, orbits_dir, line, old, new, why, named):
     lines = (orbits_dir / BRDM_2023).read_text().splitlines(keepends=True)
     assert old in lines[line - 1]
     lines[line - 1] = lines[line - 1].replace(old, new, 1)
@@ -513,7 +514,7 @@ def test_impossible_nav_epoch_or_ephemeris_time(tmp_path, orbits_dir, line, old,
     path.write_text("".join(lines))
     with pytest.raises(InputError, match=why) as info:
         read_nav(path)
-    assert info.value.where == f"{path}, line 27"
+    assert info.value.where == f"{path}, line {named}"  # the line, or the record's first
 
 
 def test_positions_no_gnss_orbit_has_are_no_data(tmp_path, orbits_dir):

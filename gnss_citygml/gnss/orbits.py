@@ -135,14 +135,18 @@ def _read_lines(path: Path, first_only: bool = False):
 
 
 def _float(text: str, path, line_no: int) -> float:
-    """A Fortran number (``D`` or ``E`` exponent); blank is NaN."""
+    """A Fortran number (``D`` or ``E`` exponent); blank is NaN. No file writes "nan" or
+    "inf": they are garbled numbers, as any other word."""
     text = text.strip()
     if not text:
         return np.nan
     try:
-        return float(text.replace("D", "E").replace("d", "e"))
+        value = float(text.replace("D", "E").replace("d", "e"))
     except ValueError:
-        raise _garbled(path, line_no, text, "unreadable number") from None
+        value = np.nan
+    if not np.isfinite(value):
+        raise _garbled(path, line_no, text, "unreadable number")
+    return value
 
 
 def _epoch(text: str, path, line_no: int, line: str, two_digit_year: bool = False):

@@ -142,11 +142,11 @@ def check_observations(
     ...
     gnss_citygml.errors.InputError: elevation 95 outside -90..90 (observations, row 0): ...
     """
-    names = [str(c) for c in table.columns]
+    names = [_name(c) for c in table.columns]
     twice = sorted({c for c in names if names.count(c) > 1})
     if twice:
         raise InputError(
-            "column(s) " + ", ".join(map(repr, twice)) + " more than once",
+            "column(s) " + ", ".join(f"'{c}'" for c in twice) + " more than once",
             where=where,
             fix="keep one column of each name",
         )
@@ -213,6 +213,12 @@ def _show(value) -> str:
         text = repr(value) if isinstance(value, str) else str(value)
     except ValueError:  # an int of more digits than Python converts
         text = f"<{type(value).__name__}>"
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def _name(column) -> str:
+    """A column name for a one-line message: control characters escaped, cut to 40."""
+    text = repr(str(column))[1:-1]
     return text if len(text) <= 40 else text[:37] + "..."
 
 

@@ -178,3 +178,12 @@ def test_parquet_with_damaged_pandas_metadata(tmp_path, observations):
         "cannot read the table: damaged pandas metadata (KeyError 'numpy_type') "
         f"({tmp_path / 'm.parquet'}): give a well-formed CSV (with a header row) or Parquet file"
     )
+
+
+def test_a_column_name_with_a_line_end_stays_on_one_line(tmp_path, observations):
+    path = tmp_path / "obs.csv"
+    observations.head(3).rename(columns={"time_utc": "time\nutc"}).to_csv(path, index=False)
+    with pytest.raises(MissingColumnError) as err:
+        read_observations(path)
+    assert "\n" not in err.value.one_line()
+    assert "the table has: time\\nutc, receiver," in err.value.fix

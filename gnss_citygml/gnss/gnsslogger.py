@@ -730,7 +730,8 @@ def _parse_records(kind, header, numbers, lines, columns, path):
         col.names[0] for key, col in columns.items() if col.required and key not in positions
     ]
     if missing and lines:
-        raise MissingColumnError(missing, where=f"{path}, line {header_line}", have=names)
+        shown = [repr(name)[1:-1] for name in names]  # control characters escaped
+        raise MissingColumnError(missing, where=f"{path}, line {header_line}", have=shown)
     if lines:
         text = pd.read_csv(
             io.StringIO("\n".join(lines)),

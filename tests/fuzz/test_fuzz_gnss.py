@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import event, given
 from hypothesis import strategies as st
 
 from gnss_citygml.gnss.gnsslogger import read_gnsslogger
@@ -164,6 +164,12 @@ def _one_line_warnings(record) -> None:
         assert "\n" not in str(warning.message), f"not one line: {warning.message!r}"
 
 
+def _outcome(result, what: str = ""):
+    """``result``, counted in hypothesis' statistics as a result or a one-line error."""
+    event(f"{what}{'result' if result is not None else 'one-line error'}")
+    return result
+
+
 # --- GnssLogger -------------------------------------------------------------------------------
 
 
@@ -188,7 +194,7 @@ def test_gnsslogger(data, log_seeds, clean):
     lenient = data.draw(st.booleans(), label="lenient")
     with warnings.catch_warnings(record=True) as record:
         warnings.simplefilter("always")
-        _check_log(clean(_read_log, raw, lenient=lenient))
+        _check_log(_outcome(clean(_read_log, raw, lenient=lenient)))
     _one_line_warnings(record)
 
 
@@ -198,7 +204,9 @@ def test_gnsslogger(data, log_seeds, clean):
 @given(data=st.data())
 def test_sp3(data, sp3_seeds, clean):
     seed = data.draw(st.sampled_from(sp3_seeds), label="sp3")
-    table = clean(_read_file, read_sp3, data.draw(mutated(seed), label="bytes"), "orbit.sp3")
+    table = _outcome(
+        clean(_read_file, read_sp3, data.draw(mutated(seed), label="bytes"), "orbit.sp3")
+    )
     if table is not None:
         assert not table["time_gps"].isna().any()
         xyz = table[["x", "y", "z"]].to_numpy()
@@ -209,7 +217,9 @@ def test_sp3(data, sp3_seeds, clean):
 def test_sp3_orbit_source(data, sp3_source_seed, clean):
     with warnings.catch_warnings(record=True) as record:
         warnings.simplefilter("always")
-        sky = clean(_read_file, _orbits_in_use, data.draw(mutated(sp3_source_seed)), "orbit.sp3")
+        sky = _outcome(
+            clean(_read_file, _orbits_in_use, data.draw(mutated(sp3_source_seed)), "orbit.sp3")
+        )
     _one_line_warnings(record)
     if sky is not None:
         assert np.isfinite(sky[["x", "y", "z"]].to_numpy()).all()
@@ -225,8 +235,9 @@ def test_rinex_nav(data, nav_seeds, clean):
     name = list(NAV)[k]
     with warnings.catch_warnings(record=True) as record:
         warnings.simplefilter("always")
-        table = clean(_read_file, read_nav, raw, name)
-        sky = None if table is None else clean(_read_file, _orbits_in_use, raw, name)
+        sky = None
+        if _outcome(clean(_read_file, read_nav, raw, name), "read: ") is not None:
+            sky = _outcome(clean(_read_file, _orbits_in_use, raw, name), "sky: ")
     _one_line_warnings(record)
     if sky is not None:
         assert np.isfinite(sky[["x", "y", "z"]].to_numpy()).all()

@@ -10,6 +10,10 @@ says exactly which row is wrong and why.
 
 from __future__ import annotations
 
+import csv
+from collections.abc import Callable
+from pathlib import Path
+
 import numpy as np
 import pandas as pd
 
@@ -42,6 +46,8 @@ OBSERVATION_COLUMNS = [
 CONSTELLATIONS = ("G", "R", "E", "C", "J", "S", "I")
 
 _REQUIRED = [c for c in OBSERVATION_COLUMNS if c != "h"]
+#: RINEX numbers have two digits; larger ones are no satellite (and would overflow int64).
+_MAX_SVID = 999
 _RANGES = {
     "lat": (-90.0, 90.0),
     "lon": (-180.0, 180.0),
@@ -56,9 +62,41 @@ def read_observations(path) -> pd.DataFrame:
 
     Errors name the file and, for bad values, the line of the CSV file (or the Parquet row).
     """
-    table = read_table(path)
-    line_offset = 2 if str(path).lower().endswith(".csv") else 0  # header line, 1-based lines
-    return check_observations(table, where=str(path), line_offset=line_offset)
+    try:
+        table = read_table(path)
+    except (KeyError, TypeError, IndexError, AttributeError) as exc:
+        # pyarrow rebuilding the pandas columns from a Parquet file's damaged pandas metadata;
+        # belongs in tables.read_table, which catches only ValueError and OSError today
+        raise InputError(
+            f"cannot read the table: damaged pandas metadata ({type(exc).__name__} {exc})",
+            where=str(path),
+            fix="give a well-formed CSV (with a header row) or Parquet file",
+        ) from None
+    is_csv = Path(path).suffix.lower() == ".csv"
+    line_of = (lambda row: _csv_line(path, row)) if is_csv else None
+    return check_observations(table, where=str(path), line_of=line_of)
+
+
+def _csv_line(path, row: int) -> int | None:
+    """The line of a CSV file where data row ``row`` (0-based, as pandas reads it) starts.
+
+    Found only when an error needs it: records are counted as pandas counts them (blank and
+    whitespace-only lines skipped, a quoted field may span lines). None if the file cannot be
+    followed that far (a field beyond the csv module's size limit)."""
+    with open(path, encoding="utf-8", errors="replace", newline="") as file:
+        reader = csv.reader(file)
+        end, data_row = 0, -1  # lines read; the header is row -1
+        try:
+            for record in reader:
+                start, end = end + 1, reader.line_num
+                if not record or (len(record) == 1 and not record[0].strip()):
+                    continue
+                if data_row == row:
+                    return start
+                data_row += 1
+        except csv.Error:
+            return None
+    return None
 
 
 def write_observations(table: pd.DataFrame, path, *, overwrite: bool = True) -> None:
@@ -67,7 +105,10 @@ def write_observations(table: pd.DataFrame, path, *, overwrite: bool = True) -> 
 
 
 def check_observations(
-    table: pd.DataFrame, *, where: str = "observations", line_offset: int = 0
+    table: pd.DataFrame,
+    *,
+    where: str = "observations",
+    line_of: Callable[[int], int | None] | None = None,
 ) -> pd.DataFrame:
     """The table in the observations schema, or an :class:`InputError` naming the first bad row.
 
@@ -77,9 +118,9 @@ def check_observations(
         A table with at least the columns of :data:`OBSERVATION_COLUMNS` except ``h``.
     where
         What to call the table in error messages (a file name).
-    line_offset
-        Added to the 0-based row number to name a line (2 for a CSV file with a header);
-        0 names rows instead.
+    line_of
+        The file line of a 0-based row (of a CSV file), to name lines in errors; None (or a
+        None line) names the row instead.
 
     Returns
     -------
@@ -101,15 +142,24 @@ def check_observations(
     ...
     gnss_citygml.errors.InputError: elevation 95 outside -90..90 (observations, row 0): ...
     """
+    names = [_name(c) for c in table.columns]
+    twice = sorted({c for c in names if names.count(c) > 1})
+    if twice:
+        raise InputError(
+            "column(s) " + ", ".join(f"'{c}'" for c in twice) + " more than once",
+            where=where,
+            fix="keep one column of each name",
+        )
     missing = [c for c in _REQUIRED if c not in table.columns]
     if missing:
-        raise MissingColumnError(missing, where=where, have=list(table.columns))
+        raise MissingColumnError(missing, where=where, have=names)
     out = table.copy()
     if "h" not in out.columns:
         out["h"] = np.nan
 
     def locate(row: int) -> str:
-        return f"{where}, line {row + line_offset}" if line_offset else f"{where}, row {row}"
+        line = None if line_of is None else line_of(row)
+        return f"{where}, row {row}" if line is None else f"{where}, line {line}"
 
     out["time_utc"] = _times(out["time_utc"], locate)
     for column in ("lat", "lon", "h", "azimuth", "elevation", "cn0"):
@@ -153,8 +203,23 @@ _RANGE_FIX = {
 
 
 def _show(value) -> str:
-    """A cell as the user wrote it: strings quoted, numbers plain."""
-    return repr(value) if isinstance(value, str) else f"{getattr(value, 'item', lambda: value)()}"
+    """A cell as the user wrote it: strings quoted, numbers plain, anything else (a list, a
+    mapping from a nested Parquet column) as Python shows it; cut to 40 characters."""
+    if isinstance(value, pd.Timestamp):
+        value = value.asm8  # shown by numpy even beyond the years Python's datetime has
+    if isinstance(value, np.generic | np.ndarray):
+        value = value if isinstance(value, np.datetime64) else value.tolist()
+    try:
+        text = repr(value) if isinstance(value, str) else str(value)
+    except ValueError:  # an int of more digits than Python converts
+        text = f"<{type(value).__name__}>"
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def _name(column) -> str:
+    """A column name for a one-line message: control characters escaped, cut to 40."""
+    text = repr(str(column))[1:-1]
+    return text if len(text) <= 40 else text[:37] + "..."
 
 
 def _first_bad(bad: np.ndarray) -> int:
@@ -162,8 +227,16 @@ def _first_bad(bad: np.ndarray) -> int:
 
 
 def _times(column: pd.Series, locate) -> pd.Series:
-    times = pd.to_datetime(column, utc=True, errors="coerce", format="mixed")
-    times = times.astype("datetime64[ns, UTC]")
+    """UTC times from text or datetimes. Numbers are no times: read as nanoseconds since 1970
+    they would be silently wrong (seconds or milliseconds since 1970 are as likely)."""
+    if column.dtype.kind in "biufc":
+        times = pd.Series(pd.NaT, index=column.index, dtype="datetime64[ns, UTC]")
+    else:
+        times = pd.to_datetime(column, utc=True, errors="coerce", format="mixed")
+    within = (times >= pd.Timestamp.min.tz_localize("UTC")) & (
+        times <= pd.Timestamp.max.tz_localize("UTC")
+    )
+    times = times.where(within).astype("datetime64[ns, UTC]")
     bad = times.isna().to_numpy()
     if bad.any():
         row = _first_bad(bad)
@@ -176,16 +249,43 @@ def _times(column: pd.Series, locate) -> pd.Series:
 
 
 def _numbers(column: pd.Series, name: str, locate) -> pd.Series:
-    numbers = pd.to_numeric(column, errors="coerce").astype(float)
-    bad = (numbers.isna() & column.notna()).to_numpy()
+    """Finite numbers, or NaN where the cell is empty."""
+    numbers = _to_numeric(column)
+    bad = ((numbers.isna() & column.notna()) | np.isinf(numbers)).to_numpy()
     if bad.any():
         row = _first_bad(bad)
         raise InputError(
-            f"{name} {_show(column.iloc[row])} is not a number",
+            f"{name} {_show(column.iloc[row])} is not a "
+            + ("finite number" if np.isinf(numbers.iloc[row]) else "number"),
             where=locate(row),
             fix=f"give {name} as a number" + (" or leave it empty" if name in ("h", "cn0") else ""),
         )
     return numbers
+
+
+def _to_numeric(column: pd.Series) -> pd.Series:
+    """Numbers as float; NaN for what is not a number (text, a list, a date, a boolean)."""
+    if column.dtype.kind in "bcmM" or isinstance(column.dtype, pd.DatetimeTZDtype):
+        return pd.Series(np.nan, index=column.index)
+    try:
+        numbers = pd.to_numeric(column, errors="coerce")
+    except OverflowError:  # a Python int beyond float: one value at a time
+        numbers = column.map(_float_or_nan)
+    if column.dtype == object:  # True would be 1.0
+        numbers = numbers.where(~column.map(lambda v: isinstance(v, bool | np.bool_)))
+    return numbers.astype(float)
+
+
+def _float_or_nan(value) -> float:
+    """A number as float (infinite beyond the float range), NaN for anything else."""
+    if isinstance(value, bool | np.bool_):
+        return np.nan
+    try:
+        return float(value)
+    except OverflowError:
+        return np.inf if value > 0 else -np.inf
+    except (TypeError, ValueError):
+        return np.nan
 
 
 def _no_gaps(column: pd.Series, name: str, locate) -> None:
@@ -195,8 +295,8 @@ def _no_gaps(column: pd.Series, name: str, locate) -> None:
 
 
 def _svids(column: pd.Series, locate) -> pd.Series:
-    numbers = pd.to_numeric(column, errors="coerce")
-    bad = (numbers.isna() | (numbers % 1 != 0) | (numbers < 0)).to_numpy()
+    numbers = _to_numeric(column)
+    bad = (numbers.isna() | (numbers % 1 != 0) | (numbers < 0) | (numbers > _MAX_SVID)).to_numpy()
     if bad.any():
         row = _first_bad(bad)
         raise InputError(

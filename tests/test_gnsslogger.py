@@ -1,4 +1,5 @@
 import io
+import re
 import warnings
 from pathlib import Path
 
@@ -22,11 +23,13 @@ PIXEL4 = "gsdc2021_mtv_2020-05-14_Pixel4_GnssLog_excerpt.txt"
 PIXEL7PRO = "gsdc2023_2023-09-07_Pixel7Pro_gnss_log_excerpt.txt"
 STANFORD = "stanford_2023-11-07_Pixel7_gnss_log.txt"
 NO_LOCK = "no code lock (State)"
+INCOMPLETE = "incomplete epoch (a row of it is bad, cut off or missing)"
 FCN = "GLONASS slot unknown (Svid is a frequency channel)"
 
 # Figures from ../shared/data/gnss/README.md (Raw rows per constellation before any filtering,
 # epochs, satellites, Fix rows per provider, first and last epoch in UTC), and the rows this
-# reader keeps and drops. London: the README's BeiDou 2239 includes the cut-off last line.
+# reader keeps and drops. London: the README's BeiDou 2239 includes the cut-off last line, and
+# the 19 locked rows of the epoch that line belongs to are dropped with it.
 EXPECTED = {
     DEMO_JUNE: dict(
         version="1.4.0.0",
@@ -75,8 +78,8 @@ EXPECTED = {
         satellites=35,
         fixes={"gps": 280},
         span=("2020-02-11 08:49:28", "2020-02-11 08:54:07"),
-        kept=6051,
-        dropped={NO_LOCK: 3739},
+        kept=6032,
+        dropped={NO_LOCK: 3739, INCOMPLETE: 19},
     ),
     STANFORD: dict(
         version="3.0.6.4",
@@ -177,7 +180,8 @@ def test_state_rule_matches_the_receivers_time_uncertainty(gnss_dir):
     for name in (LONDON, STANFORD, PIXEL7PRO):
         table = _raw_table(gnss_dir / name)
         known = table["ReceivedSvTimeUncertaintyNanos"] < 1e9
-        assert known.sum() == len(_read(gnss_dir / name).raw)
+        log = _read(gnss_dir / name)
+        assert known.sum() == len(log.raw) + (log.dropped["reason"] == INCOMPLETE).sum()
         assert table.loc[known, "ReceivedSvTimeUncertaintyNanos"].max() < 1000
 
 
@@ -236,9 +240,16 @@ def test_corrupted_altitude_names_file_and_line(gnss_dir):
 
 
 def test_cut_off_last_line_of_the_london_log_is_skipped_with_a_warning(gnss_dir):
-    with pytest.warns(UserWarning, match=r"last line \(10082\) is cut off"):
+    # the cut line is a BeiDou row of the last epoch: that epoch is dropped whole
+    with pytest.warns(
+        UserWarning,
+        match=r"last line \(10082\) is cut off .*dropped the 1 epoch\(s\) it may belong to, "
+        r"whose rows are not all there: 2020-02-11T08:54:06.999Z$",
+    ):
         log = read_gnsslogger(gnss_dir / LONDON)
     assert log.skipped_lines == 1
+    last = log.dropped[log.dropped["reason"] == INCOMPLETE]["time_utc"]
+    assert last.nunique() == 1 and last.iloc[0] > log.epochs[-1]
     assert log.receiver == "london_ucl_2020-02-11_SM-G973F_gnss_log"
 
 
@@ -256,7 +267,7 @@ def small_log_lines(shared_data):
 
 
 # field numbers in the Raw rows of the Stanford log (0 is the record type)
-FULL_BIAS, SVID, STATE, CN0 = 5, 11, 13, 16
+TIME_NANOS, FULL_BIAS, SVID, STATE, CN0 = 2, 5, 11, 13, 16
 
 
 def _set(line, index, value):
@@ -319,6 +330,137 @@ def test_unterminated_cut_last_line_warns_in_strict_mode(tmp_path, small_log_lin
         read_gnsslogger(_write(tmp_path, lines))
 
 
+@pytest.fixture(scope="module")
+def three_epochs(shared_data):
+    """Header, the 90 Raw rows of the first three epochs (30 each) of the Stanford log, and the
+    line numbers of each epoch's first row."""
+    lines = (shared_data / "gnss" / STANFORD).read_text().splitlines()
+    header = [line for line in lines if line.startswith("#")]
+    raw = [line for line in lines if line.startswith("Raw,")][:90]
+    firsts = [len(header) + 1 + 30 * k for k in range(3)]
+    return header + raw, firsts
+
+
+def _named(rows: pd.DataFrame) -> list[str]:
+    """The sorted epochs of some rows as warnings name them (ISO 8601, to the millisecond)."""
+    times = pd.DatetimeIndex(rows["time_utc"].unique()).sort_values()
+    return [t.strftime("%Y-%m-%dT%H:%M:%S.%f")[:23] + "Z" for t in times]
+
+
+def _epoch_times(path) -> list[str]:
+    """The epochs of a clean log."""
+    log = read_gnsslogger(path)
+    return _named(pd.concat([log.raw, log.dropped]))
+
+
+@pytest.mark.parametrize(
+    ("row", "edit", "dropped"),
+    [
+        (10, lambda line: _set(line, CN0, "3O.5"), [0]),  # inside an epoch
+        (10, lambda line: line[:80], [0]),  # a row cut short
+        (10, lambda line: "12:00 ???", [0]),  # not a record
+        (10, lambda line: _set(line, FULL_BIAS, "-1000000000"), [0]),  # impossible time
+        (10, lambda line: _set(_set(line, CN0, ""), TIME_NANOS, "1"), [0]),  # another clock
+        (29, lambda line: _set(line, STATE, "16x31"), [0]),  # the last row of an epoch
+        (30, lambda line: _set(line, SVID, ""), [1]),  # its clock says: the next epoch
+        (30, lambda line: line[:20], [0, 1]),  # nothing says which: both
+    ],
+    ids=[
+        "bad-float",
+        "truncated",
+        "not-a-record",
+        "bad-time",
+        "other-clock",
+        "last-row",
+        "next-first",
+        "between",
+    ],
+)
+def test_a_bad_row_drops_its_epoch_whole(tmp_path, three_epochs, row, edit, dropped):
+    lines, firsts = three_epochs
+    clean = _write(tmp_path, lines)
+    times = _epoch_times(clean)
+    k = firsts[0] - 1 + row
+    lines = list(lines)
+    lines[k] = edit(lines[k])
+    path = tmp_path / "bad_log.txt"
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(InputError, match=f"line {k + 1}"):
+        read_gnsslogger(path)
+    shown = ", ".join(times[i] for i in dropped)
+    with pytest.warns(UserWarning) as record:
+        log = read_gnsslogger(path, lenient=True)
+    assert [str(w.message) for w in record] == [
+        f"{path}: skipped 1 bad line(s); the first, line {k + 1}: "
+        + str(record[0].message).split(f"line {k + 1}: ")[1].split(";")[0]
+        + f"; dropped the {len(dropped)} epoch(s) they may belong to, whose rows are not all "
+        f"there: {shown}"
+    ]
+    assert _named(log.raw) == [t for i, t in enumerate(times) if i not in dropped]
+    assert _named(log.dropped[log.dropped["reason"] == INCOMPLETE]) == [times[i] for i in dropped]
+    assert len(log.raw) + len(log.dropped) == 89
+
+
+@pytest.mark.parametrize(
+    ("keep", "message", "dropped"),
+    [
+        (100, "dropped the 1 epoch(s) it may belong to, whose rows are not all there: {2}", [2]),
+        (60, "it begins epoch {2}, of which no other row was written", []),
+        (25, "it begins a new epoch, of which no other row was written", []),
+        (2, "dropped the 1 epoch(s) it may belong to, whose rows are not all there: {1}", [1]),
+    ],
+    ids=["inside", "first-row-with-clock", "first-row-without-bias", "first-row-no-clock"],
+)
+def test_a_cut_off_last_line_drops_the_epoch_it_may_belong_to(
+    tmp_path, three_epochs, keep, message, dropped
+):
+    lines, firsts = three_epochs
+    times = _epoch_times(_write(tmp_path, lines))
+    row = 10 if keep == 100 else 0  # a row inside the last epoch, or its first
+    cut = lines[: firsts[2] - 1 + row] + [lines[firsts[2] - 1 + row][:keep]]
+    path = _write(tmp_path, cut, end="")
+    with pytest.warns(UserWarning) as record:
+        log = read_gnsslogger(path)  # strict: a cut-off last line is no error
+    assert [str(w.message) for w in record] == [
+        f"{path}: the last line ({len(cut)}) is cut off (no line end: the log was closed while "
+        f"being written); skipped it"
+        + ("; " if dropped else " (")
+        + message.format(*times)
+        + ("" if dropped else ")")
+    ]
+    assert _named(log.raw) == [t for i, t in enumerate(times[:2]) if i not in dropped]
+
+
+def test_a_log_cut_at_a_line_end_inside_its_last_epoch(tmp_path, three_epochs):
+    lines, firsts = three_epochs
+    times = _epoch_times(_write(tmp_path, lines))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a log that ends with a whole epoch: no warning
+        assert len(read_gnsslogger(_write(tmp_path, lines)).epochs) == 3
+    path = _write(tmp_path, lines[: firsts[2] - 1 + 12])
+    with pytest.warns(UserWarning) as record:
+        log = read_gnsslogger(path)
+    assert [str(w.message) for w in record] == [
+        f"{path}: the log ends inside epoch {times[2]}: its 12 rows are the first of the 30 of "
+        "the epoch before, in the same order (the log was cut at a line end); dropped it"
+    ]
+    assert len(log.epochs) == 2
+    assert (log.dropped["reason"] == INCOMPLETE).sum() == 12
+
+
+def test_a_log_cut_inside_its_last_field_is_a_cut_off_line(tmp_path, shared_data):
+    # a 1.4 log ends its rows with ConstellationType: cut just before it, the row has all its
+    # fields, one of them empty
+    text = (shared_data / "gnss" / DEMO_JUNE).read_text()
+    end = text.index("\n", text.index("\nRaw,") + 1000)
+    path = tmp_path / "june.txt"
+    path.write_text(text[: end - 1])
+    assert text[end - 2 : end] == ",1"
+    with pytest.warns(UserWarning, match=r"is cut off .*dropped the 1 epoch\(s\)"):
+        log = read_gnsslogger(path)
+    assert log.skipped_lines == 1
+
+
 def test_unknown_version(tmp_path, small_log_lines):
     lines = [
         line.replace("v3.0.6.4", "v9.1") if "Version:" in line else line for line in small_log_lines
@@ -361,6 +503,56 @@ def test_columns_found_by_header_name_not_position(tmp_path, small_log_lines):
     swapped = read_gnsslogger(_write(tmp_path, lines))
     original = read_gnsslogger(_write(tmp_path, small_log_lines))
     pd.testing.assert_frame_equal(swapped.raw, original.raw)
+
+
+# --- found by fuzzing (tests/fuzz/test_fuzz_gnss.py) ----------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("record", "index", "value", "message"),
+    [
+        ("Raw,", CN0, "1e308", "Raw Cn0DbHz is '1e308', outside 0..100"),
+        ("Raw,", CN0, "Infinity", "Raw Cn0DbHz is 'Infinity', not a finite number"),
+        ("Raw,", 6, "1e300", "Raw BiasNanos is '1e300', outside -1e+15..1e+15"),
+        ("Raw,", TIME_NANOS, "9223372036854775808", "TimeNanos is '9223372036854775808', beyond"),
+        (
+            "Raw,",
+            TIME_NANOS,
+            "8000000000000000000",
+            "Raw GPS time 9.383e+18 ns after 1980-01-06 is after 2100-01-01",
+        ),
+        (
+            "Raw,",
+            FULL_BIAS,
+            "-1065446151445559028",
+            "Raw GPS time 2013-10-10T13:16:52.535 is before 2015-07-01",
+        ),
+        ("Fix,", 2, "91.5", "Fix LatitudeDegrees is '91.5', outside -90..90"),
+        ("Fix,", 3, "-inf", "Fix LongitudeDegrees is '-inf', not a finite number"),
+        ("Fix,", 4, "1e308", "Fix AltitudeMeters is '1e308', outside -100000..100000"),
+        ("Fix,", 8, "9223372036854775", "Fix UnixTimeMillis is '9223372036854775', outside"),
+    ],
+    ids=["cn0", "cn0-inf", "bias", "int64", "overflow", "2013", "lat", "lon", "h", "fix-time"],
+)
+def test_values_outside_their_range_are_bad_lines(
+    tmp_path, small_log_lines, record, index, value, message
+):
+    lines = list(small_log_lines)
+    k = _first(lines, record) + 1
+    lines[k] = _set(lines[k], index, value)
+    path = _write(tmp_path, lines)
+    with pytest.raises(InputError, match=re.escape(message)) as err:
+        read_gnsslogger(path)
+    assert err.value.where == f"{path}, line {k + 1}"
+
+
+def test_a_log_of_headers_only(tmp_path, small_log_lines):
+    # cut inside its header, or a Raw header without the columns no row needs: no rows, no error
+    headers = [line for line in small_log_lines if line.startswith("#")]
+    log = read_gnsslogger(_write(tmp_path, headers))
+    assert log.raw.empty and log.dropped.empty and log.fixes.empty
+    without = [line.replace(",ConstellationType", "") for line in headers]
+    assert read_gnsslogger(_write(tmp_path, without)).raw.empty
 
 
 def test_clock_without_gps_time_or_before_2015(tmp_path, small_log_lines):
@@ -407,13 +599,13 @@ def test_random_corruption_is_an_input_error_or_a_clean_read(tmp_path, small_log
 def test_london_positions_from_gps_fixes(gnss_dir):
     log = _read(gnss_dir / LONDON)
     pos = positions(log)
-    assert len(pos) == 280
+    assert len(pos) == 279  # the last of the 280 epochs lost a row: dropped
     assert pos["time_utc"].is_monotonic_increasing
     # the README's range 51.52467-51.52472 N, 0.13440-0.13414 W, to its 5 decimals
     assert pos["lat"].between(51.524665, 51.524725).all()
     assert pos["lon"].between(-0.134405, -0.134135).all()
     # each epoch is 0.6 ms after its fix: nearest and interpolated are the fix itself
-    fixes = log.fixes.sort_values("time_utc")
+    fixes = log.fixes.sort_values("time_utc")[:279]
     np.testing.assert_array_equal(pos["lat"], fixes["lat"])
     np.testing.assert_array_equal(pos["h"], fixes["altitude"])
     inter = positions(log, method="interpolate")
@@ -485,7 +677,7 @@ def test_surveyed_positions_per_receiver_and_span(gnss_dir, tmp_path):
     assert str(surveyed["start_utc"].dtype) == "datetime64[ns, UTC]"
     # 09:51+01:00 is 08:51 UTC: where the spans touch the later one wins
     pos = surveyed_positions(surveyed, log.receiver, log.epochs)
-    assert len(pos) == 280
+    assert len(pos) == 279
     first = pos["time_utc"] <= pd.Timestamp("2020-02-11 08:51", tz="UTC")
     assert first.sum() == 93  # 08:49:28 .. 08:51:00
     assert (pos.loc[first, "lat"] == 51.5247).all() and pos.loc[first, "h"].isna().all()
@@ -494,7 +686,7 @@ def test_surveyed_positions_per_receiver_and_span(gnss_dir, tmp_path):
     assert touching["lat"].tolist() == [51.5248]
     with pytest.raises(InputError, match="receiver 'phone' has no surveyed position.*other"):
         surveyed_positions(surveyed, "phone", log.epochs)
-    with pytest.raises(InputError, match="280 of 280 epochs of receiver 'other'") as err:
+    with pytest.raises(InputError, match="279 of 279 epochs of receiver 'other'") as err:
         surveyed_positions(surveyed, "other", log.epochs + pd.Timedelta("1h"))
     assert str(path) in err.value.where
 

@@ -83,3 +83,107 @@ def test_other_columns_are_kept(observations):
     out = check_observations(observations.assign(note="x"))
     assert (out["note"] == "x").all()
     assert isinstance(out, pd.DataFrame)
+
+
+# --- found by fuzzing (tests/fuzz/test_fuzz_observations.py) ---------------------------------
+
+
+def _parquet(tmp_path, table: pd.DataFrame):
+    path = tmp_path / "obs.parquet"
+    table.to_parquet(path, index=False)
+    return path
+
+
+@pytest.mark.parametrize(
+    ("column", "values", "message"),
+    [
+        ("time_utc", ["-5"], "time_utc '-5' is not a time"),  # year -5: beyond datetime64[ns]
+        ("time_utc", [1581415200], "time_utc 1581415200 is not a time"),  # seconds? ns? ms?
+        ("lat", [True], "lat True is not a number"),
+        ("h", [np.inf], "h inf is not a finite number"),
+        ("svid", [1e20], "svid 1e+20 is not a satellite number"),
+        ("cn0", [[30.5, 31.0]], "cn0 [30.5, 31.0] is not a number"),
+        ("receiver", [None], "receiver is empty"),
+    ],
+)
+def test_values_no_observation_can_have(tmp_path, observations, column, values, message):
+    table = observations.head(3).copy()
+    table[column] = pd.Series(values * 3, dtype=object if column != "h" else float)
+    with pytest.raises(InputError) as err:
+        read_observations(_parquet(tmp_path, table))
+    assert err.value.what == message
+    assert err.value.where == f"{tmp_path / 'obs.parquet'}, row 0"
+
+
+def test_duplicate_columns_are_named(observations):
+    table = pd.concat([observations.head(3), observations.head(3)[["cn0"]]], axis=1)
+    with pytest.raises(InputError, match=r"column\(s\) 'cn0' more than once"):
+        check_observations(table)
+
+
+def test_csv_errors_name_the_line_past_blank_lines_and_quoted_line_ends(tmp_path, observations):
+    table = observations.head(6).copy()
+    table["note"] = ["a", "two\nlines", "b", "c", "d", "e"]
+    table.loc[4, "elevation"] = 95.0
+    text = table.to_csv(index=False).splitlines(keepends=True)
+    # the header, row 0, a blank line, row 1 over two lines, a line of spaces, rows 2 to 5
+    path = tmp_path / "obs.csv"
+    path.write_text("".join(text[:2] + ["\n"] + text[2:4] + ["   \n"] + text[4:]))
+    with pytest.raises(InputError, match="elevation 95 outside") as err:
+        read_observations(path)
+    assert err.value.where == f"{path}, line 9"
+    assert path.read_text().splitlines()[8] == text[6].rstrip("\n")  # row 4
+
+
+def test_a_number_beyond_float_in_a_csv(tmp_path, observations):
+    # whole numbers in the column: pandas reads them as Python ints, beyond float here
+    table = observations.head(3).assign(lon=[0, int("1" * 400), 0])
+    path = tmp_path / "obs.csv"
+    table.to_csv(path, index=False)
+    with pytest.raises(InputError) as err:
+        read_observations(path)
+    assert err.value.what == f"lon {'1' * 37}... is not a finite number"
+    assert err.value.where == f"{path}, line 3"
+
+
+def test_a_time_beyond_datetime64_in_parquet(tmp_path, observations):
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    table = pa.Table.from_pandas(observations.head(3), preserve_index=False)
+    year_1 = pa.array(np.array(["0001-01-01"] * 3, "datetime64[ms]")).cast(
+        pa.timestamp("ms", tz="Europe/London")
+    )
+    table = table.set_column(0, "time_utc", year_1).replace_schema_metadata(None)
+    pq.write_table(table, tmp_path / "t.parquet")  # no pandas metadata: read as ms, not ns
+    with pytest.raises(InputError) as err:
+        read_observations(tmp_path / "t.parquet")
+    assert err.value.what == "time_utc 0001-01-01T00:00:00.000 is not a time"
+
+
+def test_parquet_with_damaged_pandas_metadata(tmp_path, observations):
+    import json
+
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    table = pa.Table.from_pandas(observations.head(3), preserve_index=False)
+    meta = json.loads(table.schema.metadata[b"pandas"])
+    del meta["columns"][2]["numpy_type"]
+    table = table.replace_schema_metadata({b"pandas": json.dumps(meta).encode()})
+    pq.write_table(table, tmp_path / "m.parquet")
+    with pytest.raises(InputError) as err:
+        read_observations(tmp_path / "m.parquet")
+    assert err.value.one_line() == (
+        "cannot read the table: damaged pandas metadata (KeyError 'numpy_type') "
+        f"({tmp_path / 'm.parquet'}): give a well-formed CSV (with a header row) or Parquet file"
+    )
+
+
+def test_a_column_name_with_a_line_end_stays_on_one_line(tmp_path, observations):
+    path = tmp_path / "obs.csv"
+    observations.head(3).rename(columns={"time_utc": "time\nutc"}).to_csv(path, index=False)
+    with pytest.raises(MissingColumnError) as err:
+        read_observations(path)
+    assert "\n" not in err.value.one_line()
+    assert "the table has: time\\nutc, receiver," in err.value.fix

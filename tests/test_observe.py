@@ -1,9 +1,13 @@
 """Logs + orbits -> observations, checked against Google's satellite positions and the phone."""
 
+import re
+
 import numpy as np
 import pandas as pd
 import pytest
+from test_cli import run
 
+from gnss_citygml.cli import main
 from gnss_citygml.errors import InputError
 from gnss_citygml.gnss.gnsslogger import read_gnsslogger
 from gnss_citygml.gnss.gpstime import gps_to_utc
@@ -119,3 +123,114 @@ def test_empty_mask_is_an_error(shared_data):
             min_elevation=50.0,
             max_elevation=40.0,
         )
+
+
+# --- from the user's side: a log cut anywhere, outputs never replaced silently (issue 10) -----
+
+DEMO_JUNE = "google_demo_pseudoranges_log_2016_06_30_21_26_07.txt"
+ISO_TIME = re.compile(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\.\d{3}Z")
+
+
+def _observe(args, capsys):
+    """``gnss-citygml observe ARGS -q``: (exit code, stdout, the ``warning:`` lines, stderr)."""
+    code, out, err = run(["observe", *map(str, args), "-q"], capsys)
+    return code, out, [line for line in err.splitlines() if line.startswith("warning:")], err
+
+
+@pytest.fixture(scope="module")
+def june(shared_data, tmp_path_factory):
+    """The June 2016 demo log, its observations through the command, and where its last epoch
+    starts (with the TimeNanos of the epoch before)."""
+    folder = tmp_path_factory.mktemp("june")
+    log = shared_data / "gnss" / DEMO_JUNE
+    nav = shared_data / "orbits" / "hour1820.16n"
+    with pytest.raises(SystemExit) as exc:
+        main(["observe", str(log), "--orbits", str(nav), "-o", str(folder / "full.parquet"), "-q"])
+    assert exc.value.code == 0
+    data = log.read_bytes()
+    # (offset, TimeNanos) of every Raw row: the clock its epoch's rows share
+    rows = [(m.start(), m.group(1)) for m in re.finditer(rb"^Raw,[^,]*,([^,]*),", data, re.M)]
+    start = min(offset for offset, clock in rows if clock == rows[-1][1])
+    before = next(clock for offset, clock in reversed(rows) if offset < start)
+    full = pd.read_parquet(folder / "full.parquet")
+    return dict(data=data, nav=nav, full=full, start=start, clock_before=before)
+
+
+def _cut_offsets(june) -> list[int]:
+    """Byte offsets inside the last epoch: every 4th of its first row's clock fields, at and
+    just after the line end of every row but the last, and a few spread over the rest."""
+    data, start = june["data"], june["start"]
+    ends = [start + k for k, byte in enumerate(data[start:]) if byte == ord("\n")][:-2]
+    spread = np.random.default_rng(10).integers(start, ends[-1], 6)
+    return sorted({*range(start + 1, start + 60, 4), *ends, *(e + 1 for e in ends), *spread})
+
+
+def test_a_log_cut_inside_its_last_epoch_reports_no_invented_blocked_signal(june, tmp_path, capsys):
+    full = june["full"]
+    epochs = sorted(full["time_utc"].unique())
+    last, before = (pd.Timestamp(t) for t in epochs[-1:-3:-1])
+    cut_log = tmp_path / DEMO_JUNE  # the same name: the same receiver
+    for offset in _cut_offsets(june):
+        cut_log.write_bytes(june["data"][:offset])
+        out = tmp_path / f"cut_{offset}.parquet"
+        code, _, warned, err = _observe([cut_log, "--orbits", june["nav"], "-o", out], capsys)
+        assert code == 0, err
+        table = pd.read_parquet(out)
+        kept = full[full["time_utc"].isin(table["time_utc"].unique())].reset_index(drop=True)
+        pd.testing.assert_frame_equal(table, kept)  # no received signal turned blocked
+        missing = set(epochs) - set(table["time_utc"])
+        assert len(warned) == 1 and str(cut_log) in warned[0], (offset, err)
+        named = {pd.Timestamp(t) for t in ISO_TIME.findall(warned[0])}
+        # a cut in the last epoch's first row: Raw,ElapsedRealtimeMillis,TimeNanos,LeapSecond,
+        # TimeUncertaintyNanos,FullBiasNanos,...
+        fields = june["data"][june["start"] : offset].split(b",")
+        if "\n" in june["data"][june["start"] : offset].decode():
+            assert missing == {last} and named == {last.floor("ms")}, (offset, warned)
+        elif len(fields) < 3 or (len(fields) == 3 and june["clock_before"].startswith(fields[2])):
+            # too little of its clock to tell it from the epoch before: both dropped
+            assert missing == {last, before} and named == {before.floor("ms")}, (offset, warned)
+            assert "may belong to" in warned[0]
+        elif len(fields) < 7:  # a new epoch, but its FullBiasNanos is not there
+            assert missing == {last} and not named and "begins a new epoch" in warned[0]
+        else:
+            assert missing == {last} and named == {last.floor("ms")}, (offset, warned)
+
+
+def test_observe_refuses_an_existing_output_without_overwrite(june, tmp_path, capsys):
+    out = tmp_path / "obs.csv"
+    out.write_text("mine\n")
+    missing_log = tmp_path / "no_such_log.txt"  # read after the output check, so not reached
+    code, _, _, err = _observe([missing_log, "--orbits", june["nav"], "-o", out], capsys)
+    assert code == 2
+    assert err.strip() == f"error: output exists ({out}): choose another name or --overwrite"
+    assert out.read_text() == "mine\n"
+    log = tmp_path / DEMO_JUNE
+    log.write_bytes(june["data"])
+    code, stdout, _, err = _observe(
+        [log, "--orbits", june["nav"], "-o", out, "--overwrite"], capsys
+    )
+    assert code == 0, err
+    assert "1338 signals" in stdout
+    assert len(pd.read_csv(out)) == 1338
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([DEMO_JUNE, "obs.csv"])
+
+
+@pytest.mark.parametrize(
+    ("name", "message"),
+    [
+        ("obs.xlsx", "error: unknown table format '.xlsx'"),
+        ("nowhere/obs.csv", "error: output folder does not exist"),
+    ],
+)
+def test_observe_checks_the_output_before_reading_the_logs(june, tmp_path, capsys, name, message):
+    missing_log = tmp_path / "no_such_log.txt"
+    out = tmp_path / name
+    code, _, _, err = _observe([missing_log, "--orbits", june["nav"], "-o", out], capsys)
+    assert code == 2 and err.startswith(message), err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_observe_help_offers_overwrite(capsys):
+    code, out, _ = run(["observe", "--help"], capsys)
+    assert code == 0
+    assert "--overwrite" in out and "Replace an existing output." in out

@@ -417,9 +417,10 @@ def test_times_outside_the_orbits_name_both_spans(orbits_dir, name, orbit_span):
     assert info.value.where == name
 
 
-def test_garbled_sp3_line_names_file_and_line(tmp_path, orbits_dir):
+@pytest.mark.parametrize("edit", ["x", "nan", "inf"])
+def test_garbled_sp3_line_names_file_and_line(tmp_path, orbits_dir, edit):
     lines = (orbits_dir / COD_2023).read_text().splitlines(keepends=True)
-    lines[30] = lines[30][:10] + "x" + lines[30][11:]
+    lines[30] = lines[30][:10] + edit + lines[30][10 + len(edit) :]
     path = tmp_path / "garbled.sp3"
     path.write_text("".join(lines))
     with pytest.raises(InputError) as info:
@@ -470,3 +471,65 @@ def test_not_an_orbit_file(shared_data):
 def test_gps_seconds_of_the_sp3_start(cod):
     # 2021-04-28 18:00 GPST = week 2155, 3 d 18 h.
     assert gps_seconds(cod["time_gps"].iloc[:1])[0] == 2155 * 604800 + 3 * 86400 + 18 * 3600
+
+
+# --- found by fuzzing (tests/fuzz/test_fuzz_gnss.py) ------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("epoch", "why"),
+    [
+        ("*  2023  0 14  0  0  0.00000000", "unreadable epoch"),  # month 0
+        ("*  2023  2 30  0  0  0.00000000", "unreadable epoch"),  # 30 February
+        ("*  2023  3 14  0  0       inf", "impossible epoch"),
+        ("*  nan  3 14  0  0  0.00000000", "unreadable epoch"),
+        ("*  1900  3 14  0  0  0.00000000", "impossible epoch"),
+        ("*  " + "1" * 30 + "  3 14  0  0  0.00000000", "unreadable epoch"),  # beyond a C long
+    ],
+)
+def test_impossible_sp3_epoch_names_its_line(tmp_path, orbits_dir, epoch, why):
+    lines = (orbits_dir / COD_2023).read_text().splitlines(keepends=True)
+    k = next(i for i, line in enumerate(lines) if line.startswith("*"))
+    lines[k] = epoch + "\n"
+    path = tmp_path / "epoch.sp3"
+    path.write_text("".join(lines))
+    with pytest.raises(InputError, match=why) as info:
+        read_sp3(path)
+    assert info.value.where == f"{path}, line {k + 1}"
+
+
+@pytest.mark.parametrize(
+    ("line", "old", "new", "why", "named"),
+    [
+        (27, "2023 03 14", "2023 13 14", "unreadable epoch", 27),
+        (30, "1.728000000000e+05", "nan".rjust(18), "unreadable number: 'nan'", 30),
+        (30, "1.728000000000e+05", "1.000e+99".rjust(18), r"time of ephemeris 1e\+99 s", 27),
+    ],
+)
+def test_impossible_nav_epoch_or_ephemeris_time(tmp_path, orbits_dir, line, old, new, why, named):
+    lines = (orbits_dir / BRDM_2023).read_text().splitlines(keepends=True)
+    assert old in lines[line - 1]
+    lines[line - 1] = lines[line - 1].replace(old, new, 1)
+    path = tmp_path / "garbled.rnx"
+    path.write_text("".join(lines))
+    with pytest.raises(InputError, match=why) as info:
+        read_nav(path)
+    assert info.value.where == f"{path}, line {named}"  # the line, or the record's first
+
+
+def test_positions_no_gnss_orbit_has_are_no_data(tmp_path, orbits_dir):
+    # G06 with sqrt(a) a thousand times too large: 1.7e10 km from the Earth, no GNSS orbit
+    lines = (orbits_dir / "brdc1190.21n").read_text().splitlines(keepends=True)
+    body = next(k for k, line in enumerate(lines) if "END OF HEADER" in line) + 1
+    for k in range(body, len(lines), 8):
+        if lines[k].startswith(" 6 "):
+            lines[k + 2] = lines[k + 2][:-5] + "D+07\n"
+    path = tmp_path / "far.21n"
+    path.write_text("".join(lines))
+    orbits = load_orbits(path)
+    t = orbits.span[0] + pd.Timedelta("2h")
+    assert ("G", 6) in orbits.satellites
+    assert np.isnan(orbits.positions([t], "G", 6)).all()
+    sky = orbits.positions_all([t])
+    assert 6 not in set(sky["svid"]) and len(sky) > 20
+    assert np.isfinite(orbits.positions([t], "G", 7)).all()

@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from . import cli
-from .options import QUIET, output_file, progress
+from .options import OVERWRITE, QUIET, output_file, progress
 
 GRID_DIR = click.option(
     "--grid-dir",
@@ -48,6 +48,7 @@ GRID_DIR = click.option(
 @click.option("--band", default="L1", show_default=True, help="Signal band kept (L1 or L5).")
 @click.option("--lenient", is_flag=True, help="Skip bad log lines (counted) instead of failing.")
 @output_file("Observations table (.parquet or .csv).")
+@OVERWRITE
 @QUIET
 def observe(
     logs,
@@ -60,6 +61,7 @@ def observe(
     band,
     lenient,
     output,
+    overwrite,
     quiet,
 ):
     """Turn GnssLogger LOGS and satellite orbits into an observations table.
@@ -69,7 +71,9 @@ def observe(
     """
     from ..gnss.observe import observe as run
     from ..observations import write_observations
+    from ..tables import check_table_output
 
+    check_table_output(output, overwrite=overwrite)  # before reading anything
     with progress(len(logs), "logs", quiet) as bar:
         table = run(
             logs,
@@ -83,7 +87,7 @@ def observe(
             lenient=lenient,
             progress=lambda _: bar.update(1),
         )
-    write_observations(table, output)
+    write_observations(table, output, overwrite=overwrite)
     received = int(table["cn0"].notna().sum())
     click.echo(
         f"{len(table)} signals ({received} received, {len(table) - received} blocked) "

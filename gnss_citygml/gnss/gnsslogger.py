@@ -45,11 +45,27 @@ a field count different from their header, an empty required field or a value th
 number is a bad line; so is any line that is not a record (a first field that is not a word).
 A bad line raises :class:`~gnss_citygml.errors.InputError` naming the file and line; with
 ``lenient=True`` bad lines are skipped, counted in :attr:`GnssLog.skipped_lines` and reported
-with a warning. The last line of a file that has no line end and fewer fields than its header
-is a log cut off while being written (the London log of 2020 ends so): it is skipped with a
-warning in both modes. A missing ``# Version:`` line or ``# <Type>,...`` header raises in both
-modes; an unknown version raises, or warns with ``lenient=True`` (columns are read from the
-header anyway).
+with a warning. The last line of a file that has no line end and is incomplete (fewer fields
+than its header, a bad value, or only the start of a record name such as ``Ra``) is a log cut
+off while being written (the London log of 2020 ends so): it is skipped with a warning in both
+modes. A missing ``# Version:`` line or ``# <Type>,...`` header raises in both modes; an
+unknown version raises, or warns with ``lenient=True`` (columns are read from the header
+anyway).
+
+**Incomplete epochs.** A satellite missing from an epoch reads as a blocked signal, so an epoch
+whose ``Raw`` rows are not all there is dropped whole: its rows move to
+:attr:`GnssLog.dropped` (reason ``incomplete epoch ...``) and the warning names the log, the
+epoch and why. The rows of an epoch are written together and share their clock
+(``TimeNanos``, ``FullBiasNanos``), so a skipped line (the cut-off last line, or a bad line
+with ``lenient=True``) between two rows of one epoch is a row of that epoch; between two
+epochs, it is placed by the clock fields it still has: the readable ones of a row with a bad
+value elsewhere, the complete ones and the start of the last one of a cut-off line.
+Where they cannot tell (a garbled line, a line cut before its clock), it may be a row of the
+epoch before it or of the epoch after it, and both are dropped. A log cut exactly at a line end
+leaves no cut-off line; it is recognised when it ends with an epoch whose signals are the first
+ones of the epoch before, in the same order, and fewer (consecutive epochs of the staged logs
+list their signals in one order): that last epoch is dropped. A complete last epoch that lost
+the satellites at the end of the list is dropped with it: one epoch, with a warning.
 
 **Receiver positions.** :func:`positions` takes them from the ``Fix`` rows of one provider
 (nearest in time or interpolated); :func:`read_surveyed_positions` and
@@ -81,9 +97,20 @@ __all__ = [
     "surveyed_positions",
 ]
 
-#: Android's raw GNSS measurements began in 2016: an earlier epoch is a wrong clock field.
-_EARLIEST = "2015-07-01"
-_EARLIEST_GPS_NS = int((np.datetime64(_EARLIEST, "ns") - GPS_EPOCH) / np.timedelta64(1, "ns"))
+#: Android's raw GNSS measurements began in 2016: an epoch outside these dates is a wrong
+#: clock field.
+_EARLIEST, _LATEST = "2015-07-01", "2100-01-01"
+_EARLIEST_GPS_NS, _LATEST_GPS_NS = (
+    int((np.datetime64(day, "ns") - GPS_EPOCH) / np.timedelta64(1, "ns"))
+    for day in (_EARLIEST, _LATEST)
+)
+#: Unix times in ms that are still datetime64[ns] (before 2262).
+_MS = (0.0, np.iinfo(np.int64).max // 10**6)
+#: Larger clock biases (ns, 11.6 days) are no bias but a wrong field.
+_BIAS = (-1e15, 1e15)
+_CN0 = (0.0, 100.0)
+#: Heights (m) above the ellipsoid a phone can be at: 100 km from the Earth's surface.
+_HEIGHT = (-1e5, 1e5)
 #: Android ``GnssStatus.CONSTELLATION_*`` (index) -> RINEX letter; "?" = unknown.
 _LETTERS = np.array(["?", "G", "S", "R", "J", "C", "E", "I"])
 _STATE_CODE_LOCK = 0x1
@@ -101,44 +128,47 @@ _VERSION = re.compile(r"v?(\d+)(\.\d+)+")
 _RECORD_TYPE = re.compile(r"[A-Za-z]+")
 _INT = r"[+-]?(\d{1,18}|[1-8]\d{18})"  # fits int64
 _NAT = np.iinfo(np.int64).min  # numpy's NaT
+_INCOMPLETE = "incomplete epoch (a row of it is bad, cut off or missing)"
 _FIX_HINT = "repair or delete the line, or read the log leniently (lenient=True, --lenient)"
 
 
 class _Column(NamedTuple):
-    """A column the reader needs: its possible header names and how to convert it."""
+    """A column the reader needs: its possible header names, how to convert it, and the range
+    of its values (numbers outside it, and infinite ones, make a bad line)."""
 
     names: tuple[str, ...]
     kind: str  # "int", "float" or "str"
     may_be_empty: bool = False
     required: bool = True
+    limits: tuple[float, float] = (-np.inf, np.inf)
 
 
 _RAW = {
     "time_nanos": _Column(("TimeNanos",), "int"),
     "full_bias": _Column(("FullBiasNanos",), "int", may_be_empty=True),
-    "bias": _Column(("BiasNanos",), "float", may_be_empty=True),
+    "bias": _Column(("BiasNanos",), "float", may_be_empty=True, limits=_BIAS),
     "svid": _Column(("Svid",), "int"),
     "constellation": _Column(("ConstellationType",), "int"),
-    "cn0": _Column(("Cn0DbHz",), "float"),
+    "cn0": _Column(("Cn0DbHz",), "float", limits=_CN0),
     "state": _Column(("State",), "int"),
     "frequency": _Column(("CarrierFrequencyHz",), "float", may_be_empty=True, required=False),
 }
 _FIX = {
     "provider": _Column(("Provider",), "str"),
-    "lat": _Column(("LatitudeDegrees", "Latitude"), "float"),
-    "lon": _Column(("LongitudeDegrees", "Longitude"), "float"),
-    "altitude": _Column(("AltitudeMeters", "Altitude"), "float", may_be_empty=True),
+    "lat": _Column(("LatitudeDegrees", "Latitude"), "float", limits=(-90.0, 90.0)),
+    "lon": _Column(("LongitudeDegrees", "Longitude"), "float", limits=(-180.0, 180.0)),
+    "altitude": _Column(("AltitudeMeters", "Altitude"), "float", may_be_empty=True, limits=_HEIGHT),
     "accuracy": _Column(("AccuracyMeters", "Accuracy"), "float", may_be_empty=True),
-    "time_ms": _Column(("UnixTimeMillis", "(UTC)TimeInMs"), "int"),
+    "time_ms": _Column(("UnixTimeMillis", "(UTC)TimeInMs"), "int", limits=_MS),
 }
 _STATUS = {
-    "time_ms": _Column(("UnixTimeMillis",), "int", may_be_empty=True),
+    "time_ms": _Column(("UnixTimeMillis",), "int", may_be_empty=True, limits=_MS),
     "constellation": _Column(("ConstellationType",), "int"),
     "svid": _Column(("Svid",), "int"),
     "frequency": _Column(("CarrierFrequencyHz",), "float", may_be_empty=True, required=False),
-    "cn0": _Column(("Cn0DbHz",), "float"),
-    "azimuth": _Column(("AzimuthDegrees",), "float"),
-    "elevation": _Column(("ElevationDegrees",), "float"),
+    "cn0": _Column(("Cn0DbHz",), "float", limits=_CN0),
+    "azimuth": _Column(("AzimuthDegrees",), "float", limits=(0.0, 360.0)),
+    "elevation": _Column(("ElevationDegrees",), "float", limits=(-90.0, 90.0)),
 }
 _RECORDS = {"Raw": _RAW, "Fix": _FIX, "Status": _STATUS}
 
@@ -223,51 +253,80 @@ def read_gnsslogger(path: str | Path, *, lenient: bool = False) -> GnssLog:
         contains, an unknown version (unless lenient), or a bad line (unless lenient), naming
         the file and line.
 
+    Warns
+    -----
+    UserWarning
+        One line per cause: bad lines skipped (lenient), a cut-off last line, a log cut at a
+        line end inside its last epoch; each names the epochs dropped whole with it.
     """
     path = Path(path)
     try:
         text = path.read_bytes().decode("utf-8", errors="replace")
     except OSError as exc:
         raise InputError(f"cannot read the log: {exc.strerror or exc}", where=str(path)) from exc
-    version, headers, records, bad, cut_line = _split_lines(text, path, lenient)
+    split = _split_lines(text, path, lenient)
+    bad = list(split.bad)
+    suspects = dict.fromkeys(split.garbled, "garbled")  # damaged lines that may be Raw rows
+    value_bad = set()
     tables = {}
     for kind, columns in _RECORDS.items():
-        numbers, lines = records[kind]
-        if numbers and kind not in headers:
+        numbers, lines = split.records[kind]
+        if numbers and kind not in split.headers:
             raise InputError(
                 f"{kind} records but no '# {kind},...' header line",
                 where=f"{path}, line {numbers[0]}",
                 fix=f"restore the log's header (its '# {kind},' line names the columns)",
             )
-        table, bad_rows = _parse_records(kind, headers.get(kind), numbers, lines, columns, path)
+        header = split.headers.get(kind)
+        table, bad_rows = _parse_records(kind, header, numbers, lines, columns, path)
         bad += bad_rows
+        value_bad.update(n for n, _ in bad_rows)
+        if kind == "Raw":
+            suspects.update(dict.fromkeys((n for n, _ in bad_rows), "row"))
         tables[kind] = (table, np.asarray(numbers, dtype=np.int64))
-    raw, dropped, bad_time = _measurements(*tables["Raw"])
+    raw_table, raw_numbers = tables["Raw"]
+    signals, bad_time = _measurements(raw_table, raw_numbers)
     bad += bad_time
-    if bad:
+    value_bad.update(n for n, _ in bad_time)
+    suspects.update(dict.fromkeys((n for n, _ in bad_time), "garbled"))
+    cut, cut_raw = split.cut, split.cut_raw
+    if cut is None and split.open_last in value_bad:  # cut inside its last field
+        cut, cut_raw = split.open_last, split.open_last in split.records["Raw"][0]
+    if cut is not None:
+        bad = [(n, reason) for n, reason in bad if n != cut]
+        suspects.pop(cut, None)
+        if cut_raw:
+            suspects[cut] = "cut"
+    if bad and not lenient:
         line, reason = min(bad)
-        if not lenient:
-            raise InputError(f"bad line: {reason}", where=f"{path}, line {line}", fix=_FIX_HINT)
-        warnings.warn(
-            f"{path}: skipped {len(bad)} bad line(s); the first, line {line}: {reason}",
-            stacklevel=2,
-        )
-    if cut_line is not None:
-        warnings.warn(
-            f"{path}: the last line ({cut_line}) is cut off (fewer fields than its header and "
-            "no line end: the log was closed while being written); skipped",
-            stacklevel=2,
-        )
-    bad_lines = np.array([line for line, _ in bad], dtype=np.int64)
-    raw_numbers = tables["Raw"][1]
+        raise InputError(f"bad line: {reason}", where=f"{path}, line {line}", fix=_FIX_HINT)
+    bad_lines = np.array([line for line, _ in bad] + [cut or 0], dtype=np.int64)
+    good = ~np.isin(raw_numbers, bad_lines)
+    by_line, trailing = _incomplete_epochs(
+        signals,
+        raw_table,
+        raw_numbers,
+        good,
+        suspects,
+        split.lines,
+        split.headers.get("Raw"),
+        split.last_record,
+    )
+    incomplete = set().union(*by_line.values(), [trailing[0]] if trailing else [])
+    reason = signals["reason"].to_numpy(dtype=object, copy=True)
+    reason[good & np.isin(_ns(signals["time_utc"]), list(incomplete)) & (reason == "")] = (
+        _INCOMPLETE
+    )
+    _warn_skipped(path, bad, cut, by_line, split, trailing)
+    kept = good & (reason == "")
     return GnssLog(
         path=path,
-        version=version,
-        raw=_without(raw, raw_numbers, bad_lines),
-        dropped=_without(dropped, raw_numbers, bad_lines),
+        version=split.version,
+        raw=signals[kept].drop(columns="reason").reset_index(drop=True),
+        dropped=signals[good & ~kept].assign(reason=reason[good & ~kept]).reset_index(drop=True),
         fixes=_fixes(_without(*tables["Fix"], bad_lines)),
         status=_status(_without(*tables["Status"], bad_lines)),
-        skipped_lines=len(bad) + (cut_line is not None),
+        skipped_lines=len(bad) + (cut is not None),
     )
 
 
@@ -532,20 +591,37 @@ def _number(text: str, name: str, where: str, limit: float = np.inf) -> float:
     return value
 
 
-def _split_lines(text: str, path: Path, lenient: bool):
+class _Lines(NamedTuple):
+    """What one pass over the lines of a log finds (:func:`_split_lines`)."""
+
+    version: str
+    headers: dict[str, tuple[int, list[str]]]  # kind -> (line, column names)
+    records: dict[str, tuple[list[int], list[str]]]  # kind -> (line numbers, lines)
+    bad: list[tuple[int, str]]  # (line, reason)
+    garbled: list[int]  # bad lines that may be damaged Raw rows, fields unplaceable
+    cut: int | None  # a cut-off last line
+    cut_raw: bool  # ... that may be a Raw row
+    open_last: int | None  # the last line, when the file does not end with a line end
+    last_record: int  # the last line that is a record (not a comment or blank)
+    lines: list[str]
+
+
+def _split_lines(text: str, path: Path, lenient: bool) -> _Lines:
     """One pass over the lines: the version, the headers, the records this reader uses.
 
-    Returns ``(version, headers, records, bad, cut_line)``: ``headers[kind] = (line, names)``;
-    ``records[kind] = (line numbers, lines)``, only lines with the field count of their
-    header; ``bad`` a list of ``(line, reason)``; ``cut_line`` the number of a cut-off last
-    line (or None).
+    ``records`` holds only lines with the field count of their header; the others are ``bad``,
+    except a last line without line end that has fewer fields, or is the start of a record
+    type's name ("Ra"): that is ``cut``, a log closed while being written.
     """
     version = version_line = None
     headers: dict[str, tuple[int, list[str]]] = {}
     records: dict[str, tuple[list[int], list[str]]] = {kind: ([], []) for kind in _RECORDS}
     raw_numbers, raw_lines = records["Raw"]
     bad: list[tuple[int, str]] = []
+    garbled: list[int] = []
     lines = text.split("\n")
+    open_last = len(lines) if lines[-1].strip(" ,\t\r") else None
+    cut, cut_raw, last_record = None, False, 0
     for n, line in enumerate(lines, 1):
         line = line.rstrip("\r")
         if line.startswith("Raw,"):  # the bulk of a log: keep this path short
@@ -568,12 +644,17 @@ def _split_lines(text: str, path: Path, lenient: bool):
             continue
         if not line.strip(" ,\t"):
             continue  # blank lines, and the lone "," lines some versions write
+        last_record = n
         kind = line.split(",", 1)[0]
         if kind in records:
             records[kind][0].append(n)
             records[kind][1].append(line)
+        elif n == open_last and (prefix := [k for k in records if k.startswith(line)]):
+            cut, cut_raw = n, prefix[0] == "Raw"
         elif not _RECORD_TYPE.fullmatch(kind):
             bad.append((n, f"not a GnssLogger record: {line[:40]!r}"))
+            garbled.append(n)
+    last_record = max(last_record, raw_numbers[-1] if raw_numbers else 0)
     if version is None:
         raise InputError(
             "not a GnssLogger log: no '# Version:' header line",
@@ -581,7 +662,6 @@ def _split_lines(text: str, path: Path, lenient: bool):
             fix="give a log written by Android GnssLogger, with its header",
         )
     version = _check_version(version, path, version_line, lenient)
-    cut_line = None
     for kind, (numbers, texts) in records.items():
         if kind not in headers or not numbers:
             continue
@@ -590,8 +670,8 @@ def _split_lines(text: str, path: Path, lenient: bool):
         # a lone CR inside a line would split it in two for the CSV parser
         carriage = np.fromiter(("\r" in t for t in texts), dtype=bool, count=len(texts))
         wrong = np.flatnonzero((commas != len(names)) | carriage)
-        if len(wrong) and numbers[wrong[-1]] == len(lines) and commas[wrong[-1]] < len(names):
-            cut_line = numbers[wrong[-1]]  # the last line of the file, without a line end
+        if len(wrong) and numbers[wrong[-1]] == open_last and commas[wrong[-1]] < len(names):
+            cut, cut_raw = open_last, kind == "Raw"
             wrong = wrong[:-1]
         bad += [
             (
@@ -601,15 +681,18 @@ def _split_lines(text: str, path: Path, lenient: bool):
             )
             for i in wrong
         ]
+        if kind == "Raw":
+            garbled += [numbers[i] for i in wrong]
         keep = np.ones(len(numbers), dtype=bool)
         keep[wrong] = False
-        if cut_line is not None and numbers[-1] == cut_line:
-            keep[-1] = False
+        keep[np.asarray(numbers) == cut] = False
         records[kind] = (
             [n for n, k in zip(numbers, keep, strict=True) if k],
             [t for t, k in zip(texts, keep, strict=True) if k],
         )
-    return version, headers, records, bad, cut_line
+    return _Lines(
+        version, headers, records, bad, garbled, cut, cut_raw, open_last, last_record, lines
+    )
 
 
 def _check_version(text: str, path: Path, line: int, lenient: bool) -> str:
@@ -647,7 +730,8 @@ def _parse_records(kind, header, numbers, lines, columns, path):
         col.names[0] for key, col in columns.items() if col.required and key not in positions
     ]
     if missing and lines:
-        raise MissingColumnError(missing, where=f"{path}, line {header_line}", have=names)
+        shown = [repr(name)[1:-1] for name in names]  # control characters escaped
+        raise MissingColumnError(missing, where=f"{path}, line {header_line}", have=shown)
     if lines:
         text = pd.read_csv(
             io.StringIO("\n".join(lines)),
@@ -663,15 +747,15 @@ def _parse_records(kind, header, numbers, lines, columns, path):
     bad = np.zeros(len(lines), dtype=bool)
     reasons = np.full(len(lines), "", dtype=object)
     for key, col in columns.items():
-        if key not in positions:
-            table[key] = np.full(len(lines), np.nan)
+        if key not in positions:  # an optional column, or no rows
+            table[key] = _convert(pd.Series([""] * len(lines), dtype=str), col)[0]
             continue
         values, wrong = _convert(text[positions[key]], col)
         table[key] = values
         name = names[positions[key] - 1]
         new = wrong & ~bad
         reasons[new] = [
-            f"{kind} {name} is {v!r}, not {'an integer' if col.kind == 'int' else 'a number'}"
+            f"{kind} {name} is {v!r}, {_why_bad(v, col)}"
             if v.strip()
             else f"{kind} {name} is empty"
             for v in text[positions[key]].to_numpy()[new]
@@ -693,27 +777,40 @@ def _convert(text: pd.Series, col: _Column) -> tuple[np.ndarray, np.ndarray]:
     else:
         values = pd.to_numeric(text, errors="coerce").to_numpy(dtype=float)
         empty = empty | text.str.lower().eq("nan").to_numpy()  # Java writes "NaN" for none
-        good = ~np.isnan(values)
+        good = np.isfinite(values)
+    lo, hi = col.limits
+    good = good & (values >= lo) & (values <= hi)
     return values, ~good & ~(empty & col.may_be_empty)
 
 
+def _why_bad(value: str, col: _Column) -> str:
+    """Why a value :func:`_convert` found bad is bad: not a number, or outside its range."""
+    number = pd.to_numeric(value.strip(), errors="coerce")
+    if col.kind == "int" and not re.fullmatch(_INT, value.strip()):
+        too_long = re.fullmatch(r"[+-]?\d+", value.strip())
+        return "beyond a 64-bit integer" if too_long else "not an integer"
+    if pd.isna(number):
+        return "not a number"
+    lo, hi = col.limits
+    return f"outside {lo:g}..{hi:g}" if np.isfinite(number) else "not a finite number"
+
+
 def _measurements(table: pd.DataFrame, numbers: np.ndarray):
-    """Raw rows -> (kept, dropped with ``reason``, bad lines with impossible times)."""
-    full_bias = table["full_bias"].to_numpy()
+    """Raw rows -> (signals with the ``reason`` to drop them, "" to keep; bad lines with
+    impossible times)."""
+    time_nanos, full_bias = table["time_nanos"].to_numpy(), table["full_bias"].to_numpy()
     bias = np.nan_to_num(table["bias"].to_numpy())
-    gps_ns = table["time_nanos"].to_numpy() - full_bias - np.rint(bias).astype(np.int64)
+    # first in float, which cannot overflow: the exact int64 sum only for plausible times
+    approx = time_nanos.astype(float) - full_bias.astype(float) - bias
     has_time = full_bias != 0
-    too_early = has_time & (gps_ns < _EARLIEST_GPS_NS)
-    timed = has_time & ~too_early
-    utc_ns = np.full(gps_ns.shape, _NAT, dtype=np.int64)
-    utc_ns[timed] = gps_to_utc(gps_ns[timed]).astype(np.int64)
+    impossible = has_time & ~((approx >= _EARLIEST_GPS_NS) & (approx < _LATEST_GPS_NS))
+    timed = has_time & ~impossible
+    gps_ns = time_nanos[timed] - full_bias[timed] - np.rint(bias[timed]).astype(np.int64)
+    utc_ns = np.full(time_nanos.shape, _NAT, dtype=np.int64)
+    utc_ns[timed] = gps_to_utc(gps_ns).astype(np.int64)
     bad = [
-        (
-            n,
-            f"Raw GPS time {GPS_EPOCH + np.timedelta64(int(t), 'ns')} is before {_EARLIEST}: "
-            "TimeNanos or FullBiasNanos is wrong",
-        )
-        for n, t in zip(numbers[too_early].tolist(), gps_ns[too_early], strict=True)
+        (n, f"Raw GPS time {_gps_text(t)}: TimeNanos or FullBiasNanos is wrong")
+        for n, t in zip(numbers[impossible].tolist(), approx[impossible], strict=True)
     ]
     letter = _letters(table["constellation"].to_numpy())
     state = table["state"].to_numpy()
@@ -743,8 +840,157 @@ def _measurements(table: pd.DataFrame, numbers: np.ndarray):
             "state": state,
         }
     )
-    kept = reason == ""
-    return signals[kept], signals[~kept].assign(reason=reason[~kept]), bad
+    return signals.assign(reason=reason.astype(object)), bad
+
+
+def _gps_text(gps_ns: float) -> str:
+    """An impossible GPS time (ns since 1980-01-06), and why it is impossible."""
+    when = f"{gps_ns:.4g} ns after 1980-01-06"
+    if abs(gps_ns) < 9e18:  # within the range of datetime64[ns]
+        when = np.datetime_as_string(GPS_EPOCH + np.timedelta64(int(gps_ns), "ns"), unit="ms")
+    return (
+        f"{when} is before {_EARLIEST}"
+        if gps_ns < _EARLIEST_GPS_NS
+        else f"{when} is after {_LATEST}"
+    )
+
+
+def _incomplete_epochs(signals, table, numbers, good, suspects, lines, header, last_record):
+    """The epochs whose rows may not all be there (see the module documentation).
+
+    Returns ``(by_line, trailing)``: ``by_line[n]`` the set of epochs (int64 UTC ns) that the
+    damaged line ``n`` may belong to: the epoch around it when the good Raw rows before and
+    after it share one (the rows of an epoch are written together), else those of these rows
+    that its clock fields cannot tell it apart from; ``trailing`` ``(epoch, rows, rows
+    before)`` when the log ends with an epoch whose rows are the first ones of the epoch before
+    (a log cut at a line end), else None.
+    """
+    rows = np.flatnonzero(good)
+    if not len(rows):
+        return {}, None
+    utc = _ns(signals["time_utc"])[rows]
+    good_numbers = numbers[rows]
+    names = header[1]
+    clock = [names.index(name) + 1 for name in ("TimeNanos", "FullBiasNanos")]
+    by_line = {}
+    for n, kind in suspects.items():
+        k = int(np.searchsorted(good_numbers, n))
+        near = [j for j in (k - 1, k) if 0 <= j < len(rows) and utc[j] != _NAT]
+        if len(near) == 2 and utc[near[0]] == utc[near[1]]:  # inside an epoch: one of its rows
+            by_line[n] = {int(utc[near[0]])}
+            continue
+        by_line[n] = {
+            int(utc[j])
+            for j in near
+            if _may_share_epoch(lines[n - 1], kind, lines[good_numbers[j] - 1], clock)
+        }
+    trailing = None
+    if good_numbers[-1] == last_record and utc[-1] != _NAT:
+        time_nanos, full_bias = (table[key].to_numpy()[rows] for key in ("time_nanos", "full_bias"))
+        starts = np.flatnonzero((np.diff(time_nanos) != 0) | (np.diff(full_bias) != 0)) + 1
+        signal = np.column_stack(
+            [
+                table["constellation"].to_numpy()[rows],
+                table["svid"].to_numpy()[rows],
+                np.nan_to_num(table["frequency"].to_numpy()[rows], nan=-1.0),
+            ]
+        )
+        if len(starts):
+            before = signal[(starts[-2] if len(starts) > 1 else 0) : starts[-1]]
+            last = signal[starts[-1] :]
+            if len(last) < len(before) and (before[: len(last)] == last).all():
+                trailing = (int(utc[-1]), len(last), len(before))
+    return by_line, trailing
+
+
+def _may_share_epoch(text: str, kind: str, other: str, clock: list[int]) -> bool:
+    """Whether the damaged line ``text`` may be a row of the epoch of the good Raw row ``other``.
+
+    The rows of an epoch share their clock fields (``clock``: TimeNanos, FullBiasNanos), so a
+    line whose clock differs belongs to another epoch. Only trusted fields count: none of a
+    ``"garbled"`` line (its fields may have moved), the readable ones of a ``"row"`` with a
+    bad value elsewhere, and of a ``"cut"`` line its complete fields and the start of the last.
+    """
+    if kind == "garbled":
+        return True
+    mine, theirs = text.rstrip("\r").split(","), other.rstrip("\r").split(",")
+    for k in clock:
+        if k >= len(mine):
+            continue  # cut before this field
+        a, b = mine[k].strip(), theirs[k].strip()
+        if kind == "cut" and k == len(mine) - 1:
+            if not b.startswith(a):
+                return False
+        elif (a == "" or re.fullmatch(_INT, a)) and (int(a) if a else 0) != (int(b) if b else 0):
+            return False
+    return True
+
+
+def _own_epoch(text: str, names: list[str]) -> int | None:
+    """The epoch (int64 UTC ns) of a cut-off Raw line, when its clock fields are complete."""
+    fields = text.rstrip("\r").split(",")[:-1]  # the last field may be cut short
+    values = {}
+    for name in ("TimeNanos", "FullBiasNanos", "BiasNanos"):
+        k = names.index(name) + 1 if name in names else len(fields)
+        values[name] = fields[k].strip() if k < len(fields) else ""
+    if not all(re.fullmatch(_INT, values[name]) for name in ("TimeNanos", "FullBiasNanos")):
+        return None
+    bias = pd.to_numeric(values["BiasNanos"], errors="coerce") if values["BiasNanos"] else 0.0
+    gps_ns = int(values["TimeNanos"]) - int(values["FullBiasNanos"]) - round(np.nan_to_num(bias))
+    if not _EARLIEST_GPS_NS <= gps_ns < _LATEST_GPS_NS:
+        return None
+    return int(gps_to_utc(np.array([gps_ns]))[0].astype(np.int64))
+
+
+def _warn_skipped(path, bad, cut, by_line, split, trailing) -> None:
+    """One warning per cause (bad lines skipped, a cut-off last line, a log cut at a line
+    end), each naming the epochs dropped with it."""
+    if bad:
+        line, reason = min(bad)
+        lost = set().union(*(by_line.get(n, ()) for n, _ in bad))
+        warnings.warn(
+            f"{path}: skipped {len(bad)} bad line(s); the first, line {line}: {reason}"
+            + _dropping(lost, "they"),
+            stacklevel=3,
+        )
+    if cut is not None:
+        lost = by_line.get(cut, set())
+        text = (
+            f"{path}: the last line ({cut}) is cut off (no line end: the log was closed while "
+            "being written); skipped it" + _dropping(lost, "it")
+        )
+        if not lost and cut in by_line and "Raw" in split.headers:
+            own = _own_epoch(split.lines[cut - 1], split.headers["Raw"][1])
+            epoch = "a new epoch" if own is None else f"epoch {_time_text(own)}"
+            text += f" (it begins {epoch}, of which no other row was written)"
+        warnings.warn(text, stacklevel=3)
+    if trailing is not None:
+        epoch, rows, before = trailing
+        warnings.warn(
+            f"{path}: the log ends inside epoch {_time_text(epoch)}: its {rows} rows are the "
+            f"first of the {before} of the epoch before, in the same order (the log was cut at a "
+            "line end); dropped it",
+            stacklevel=3,
+        )
+
+
+def _dropping(epochs: set[int], subject: str) -> str:
+    """ "; dropped the epoch(s) ..." naming up to three epochs, or "" for none."""
+    if not epochs:
+        return ""
+    times = sorted(epochs)
+    shown = ", ".join(_time_text(t) for t in times[:3])
+    if len(times) > 3:
+        shown += f" and {len(times) - 3} more"
+    return (
+        f"; dropped the {len(times)} epoch(s) {subject} may belong to, whose rows are not all "
+        f"there: {shown}"
+    )
+
+
+def _time_text(ns: int) -> str:
+    """int64 UTC ns -> ISO 8601 to the millisecond."""
+    return np.datetime_as_string(np.datetime64(ns, "ns"), unit="ms") + "Z"
 
 
 def _utc(ns: np.ndarray) -> pd.DatetimeIndex:

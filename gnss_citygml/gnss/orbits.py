@@ -31,13 +31,15 @@ broadcast orbits the antenna phase centre (1-2 m apart for GPS). Where a signal'
 matters, ask for that time and rotate for the travel time yourself; for azimuth and elevation
 the 0.07 s travel time changes the direction by less than 0.001 deg.
 
-Satellites the source does not have, or has no usable data for at a time, give NaN rows in
+Satellites the source does not have, or has no usable data for at a time (a position no GNSS
+orbit has, 20,000 to 50,000 km from the Earth's centre, counts as none), give NaN rows in
 :meth:`Orbits.positions` and no rows in :meth:`Orbits.positions_all`. Times outside the span of
 the source raise :class:`OrbitSpanError`, which names both spans: nothing is extrapolated.
 """
 
 from __future__ import annotations
 
+import datetime
 import gzip
 from abc import ABC, abstractmethod
 from collections.abc import Iterable
@@ -74,6 +76,9 @@ MAX_AGE = {"G": 4 * 3600.0, "J": 2 * 3600.0, "E": 4 * 3600.0, "C": 2 * 3600.0, "
 _WEEK = 604800.0
 _NS = 1_000_000_000
 _LAGRANGE_POINTS = 10
+#: Distance (m) from the Earth's centre of every GNSS satellite, with a margin: GLONASS at
+#: 25,500 km to QZSS's inclined geosynchronous orbits at up to 45,300 km.
+_ORBIT_RADIUS = (2.0e7, 5.0e7)
 #: Missing epochs a Lagrange window may bridge.
 _MAX_MISSING_EPOCHS = 1
 #: GM (m^3/s^2) and Earth rotation rate (rad/s) of each Keplerian system's ICD.
@@ -130,29 +135,37 @@ def _read_lines(path: Path, first_only: bool = False):
 
 
 def _float(text: str, path, line_no: int) -> float:
-    """A Fortran number (``D`` or ``E`` exponent); blank is NaN."""
+    """A Fortran number (``D`` or ``E`` exponent); blank is NaN. No file writes "nan" or
+    "inf": they are garbled numbers, as any other word."""
     text = text.strip()
     if not text:
         return np.nan
     try:
-        return float(text.replace("D", "E").replace("d", "e"))
+        value = float(text.replace("D", "E").replace("d", "e"))
     except ValueError:
-        raise _garbled(path, line_no, text, "unreadable number") from None
+        value = np.nan
+    if not np.isfinite(value):
+        raise _garbled(path, line_no, text, "unreadable number")
+    return value
 
 
-def _epoch_numbers(text: str, count: int, path, line_no: int, line: str) -> list[float]:
+def _epoch(text: str, path, line_no: int, line: str, two_digit_year: bool = False):
+    """The epoch of a record (year, month, day, hour, minute as integers, then seconds), as
+    ``datetime64[ns]``; a date that does not exist or lies outside 1980-2099 is garbled."""
     parts = text.split()
-    if len(parts) != count:
-        raise _garbled(path, line_no, line, "unreadable epoch")
     try:
-        return [float(p) for p in parts]
-    except ValueError:
+        y, mo, d, h, mi = (int(p) for p in parts[:5])
+        sec = float(parts[5])
+        if len(parts) != 6:
+            raise ValueError
+        if two_digit_year:
+            y += 2000 if y < 80 else 1900
+        day = datetime.date(y, mo, d)
+    except (ValueError, IndexError, OverflowError):
         raise _garbled(path, line_no, line, "unreadable epoch") from None
-
-
-def _datetime(y: float, mo: float, d: float, h: float, mi: float, s: float) -> np.datetime64:
-    day = np.datetime64(f"{int(y):04d}-{int(mo):02d}-{int(d):02d}", "ns")
-    return day + np.timedelta64(round((h * 3600 + mi * 60 + s) * _NS), "ns")
+    if not (1980 <= y < 2100 and 0 <= h <= 24 and 0 <= mi < 60 and 0 <= sec < 61):
+        raise _garbled(path, line_no, line, "impossible epoch")
+    return np.datetime64(day, "ns") + np.timedelta64(round((h * 3600 + mi * 60 + sec) * _NS), "ns")
 
 
 # --------------------------------------------------------------------------------------- SP3
@@ -205,7 +218,7 @@ def read_sp3(path) -> pd.DataFrame:
     for no, line in enumerate(lines, start=1):
         tag = line[:1]
         if tag == "*":
-            epoch = _datetime(*_epoch_numbers(line[1:], 6, path, no, line))
+            epoch = _epoch(line[1:], path, no, line)
         elif tag == "P":
             if epoch is None:
                 raise _garbled(path, no, line, "position record before the first epoch line")
@@ -280,8 +293,11 @@ def read_nav(path) -> pd.DataFrame:
     version, header_end = _nav_header(lines, path)
     records = _rinex2_records if version < 3 else _rinex3_records
     rows, skipped = [], {}
-    for system, svid, epoch, values in records(lines, header_end, path, version):
+    for no, system, svid, epoch, values in records(lines, header_end, path, version):
         if system in _KEPLER_CONSTANTS:
+            toe_sow = values[3 + _KEPLER_FIELDS.index("toe_sow")]
+            if not 0.0 <= toe_sow <= _WEEK:  # NaN too
+                raise _garbled(path, no, lines[no - 1], f"time of ephemeris {toe_sow:g} s")
             rows.append(_kepler_row(system, svid, epoch, values))
         elif system == "R":
             rows.append(_glonass_row(svid, epoch, values))
@@ -344,9 +360,8 @@ def _rinex2_records(lines, header_end, path, version):
             svid = int(line[:2])
         except ValueError:
             raise _garbled(path, no, line, "unreadable satellite number") from None
-        y, mo, d, h, mi, s = _epoch_numbers(line[2:22], 6, path, no, line)
-        epoch = _datetime(y + (2000 if y < 80 else 1900), mo, d, h, mi, s)
-        yield "G", svid, epoch, _record_values(group, 22, 3, path)
+        epoch = _epoch(line[2:22], path, no, line, two_digit_year=True)
+        yield no, "G", svid, epoch, _record_values(group, 22, 3, path)
 
 
 def _rinex3_records(lines, header_end, path, version):
@@ -371,8 +386,8 @@ def _rinex3_records(lines, header_end, path, version):
             svid = int(line[1:3])
         except ValueError:
             raise _garbled(path, no + 1, line, "unreadable satellite number") from None
-        epoch = _datetime(*_epoch_numbers(line[4:23], 6, path, no + 1, line))
-        yield system, svid, epoch, _record_values(group, 23, 4, path)
+        epoch = _epoch(line[4:23], path, no + 1, line)
+        yield no + 1, system, svid, epoch, _record_values(group, 23, 4, path)
         no += sizes[system]
 
 
@@ -592,7 +607,7 @@ class Orbits(ABC):
             sat = (chr(key // 1000), int(key % 1000))
             if sat in known:
                 rows = order[bounds[k] : bounds[k + 1]]
-                out[rows] = self._sat_positions(sat, t[rows], healthy_only=False)
+                out[rows] = self._plausible_positions(sat, t[rows], healthy_only=False)
         return out
 
     def positions_all(
@@ -627,7 +642,7 @@ class Orbits(ABC):
         sats = [s for s in self.satellites if constellations is None or s[0] in constellations]
         xyz = np.full((t.size, len(sats), 3), np.nan)
         for k, sat in enumerate(sats):
-            xyz[:, k] = self._sat_positions(sat, t, healthy_only)
+            xyz[:, k] = self._plausible_positions(sat, t, healthy_only)
         table = pd.DataFrame(
             {
                 "time_utc": pd.DatetimeIndex(np.repeat(times, len(sats))).tz_localize("UTC"),
@@ -659,6 +674,15 @@ class Orbits(ABC):
                 fix="give orbit files (SP3 or RINEX navigation) that cover the requested times",
             )
         return t
+
+    def _plausible_positions(self, sat: tuple[str, int], t: np.ndarray, healthy_only: bool):
+        """:meth:`_sat_positions`, NaN where no GNSS orbit goes (from a garbled ephemeris or
+        SP3 record): the arithmetic on such numbers may overflow, quietly."""
+        with np.errstate(all="ignore"):
+            xyz = self._sat_positions(sat, t, healthy_only)
+            radius = np.sqrt((xyz**2).sum(axis=1))
+        xyz[~((radius >= _ORBIT_RADIUS[0]) & (radius <= _ORBIT_RADIUS[1]))] = np.nan
+        return xyz
 
     @abstractmethod
     def _satellites(self) -> Iterable[tuple[str, int]]:

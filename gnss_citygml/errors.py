@@ -7,12 +7,23 @@ can print it as one line (``error: <what> (<where>): <how to fix>``) without a t
 
 from __future__ import annotations
 
+import re
+
 __all__ = [
     "GnssCityGMLError",
     "InputError",
     "MissingColumnError",
     "ModelError",
+    "escape_controls",
 ]
+
+
+_CONTROL = re.compile("[\x00-\x1f\x7f-\x9f\u2028\u2029]")
+
+
+def escape_controls(text: str) -> str:
+    """``text`` with its control characters (line ends too) escaped as ``repr`` does: one line."""
+    return _CONTROL.sub(lambda m: repr(m.group())[1:-1], text)
 
 
 class GnssCityGMLError(Exception):
@@ -37,13 +48,18 @@ class GnssCityGMLError(Exception):
         super().__init__(self.one_line())
 
     def one_line(self) -> str:
-        """The message as the CLI prints it: ``what (where): fix``."""
+        r"""The message as the CLI prints it: ``what (where): fix``, on one line whatever the
+        data quoted in it holds (control characters are escaped, as ``repr`` does).
+
+        >>> InputError("bad id " + chr(10), where="f.csv").one_line()
+        'bad id \\n (f.csv)'
+        """
         text = self.what
         if self.where:
             text += f" ({self.where})"
         if self.fix:
             text += f": {self.fix}"
-        return text
+        return escape_controls(text)
 
 
 class InputError(GnssCityGMLError):

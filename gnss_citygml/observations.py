@@ -62,16 +62,7 @@ def read_observations(path) -> pd.DataFrame:
 
     Errors name the file and, for bad values, the line of the CSV file (or the Parquet row).
     """
-    try:
-        table = read_table(path)
-    except (KeyError, TypeError, IndexError, AttributeError) as exc:
-        # pyarrow rebuilding the pandas columns from a Parquet file's damaged pandas metadata;
-        # belongs in tables.read_table, which catches only ValueError and OSError today
-        raise InputError(
-            f"cannot read the table: damaged pandas metadata ({type(exc).__name__} {exc})",
-            where=str(path),
-            fix="give a well-formed CSV (with a header row) or Parquet file",
-        ) from None
+    table = read_table(path)
     is_csv = Path(path).suffix.lower() == ".csv"
     line_of = (lambda row: _csv_line(path, row)) if is_csv else None
     return check_observations(table, where=str(path), line_of=line_of)

@@ -42,6 +42,13 @@ def read_table(path) -> pd.DataFrame:
             where=str(path),
             fix="give a well-formed CSV (with a header row) or Parquet file",
         ) from None
+    except (KeyError, TypeError, IndexError, AttributeError) as exc:
+        # pyarrow rebuilding the pandas columns from a Parquet file's damaged pandas metadata
+        raise InputError(
+            f"cannot read the table: damaged pandas metadata ({type(exc).__name__} {exc})",
+            where=str(path),
+            fix="give a well-formed CSV (with a header row) or Parquet file",
+        ) from None
 
 
 def _suffix(path: Path) -> str:

@@ -18,7 +18,7 @@ import warnings
 import click
 
 from .. import __version__
-from ..errors import GnssCityGMLError
+from ..errors import GnssCityGMLError, escape_controls
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
@@ -33,7 +33,7 @@ __all__ = ["cli", "citymodel", "estimate", "main", "models", "observe"]
 
 
 def _one_line_warning(message, category, filename, lineno, file=None, line=None):
-    click.echo(f"warning: {message}", err=True)
+    click.echo(f"warning: {escape_controls(str(message))}", err=True)
 
 
 def main(argv=None):
@@ -53,7 +53,7 @@ def main(argv=None):
     except Exception as exc:
         if os.environ.get("GNSS_CITYGML_DEBUG"):
             raise
-        first = (str(exc).splitlines() or [""])[0][:200]
+        first = escape_controls(str(exc))[:200]
         click.echo(
             f"error: internal error, {type(exc).__name__}: {first}: please report it with the "
             "command that caused it (GNSS_CITYGML_DEBUG=1 shows the traceback)",

@@ -38,6 +38,7 @@ from __future__ import annotations
 import contextlib
 import gzip
 import os
+import tempfile
 import warnings
 import xml.parsers.expat
 import zlib
@@ -149,10 +150,11 @@ def read_footprints(path, *, layer: str | None = None, id_field: str | None = No
     if kind:  # GDAL reads no feature at all from a GML file that is not well-formed
         _check_xml(Path(where))
     options = {"WRITE_GFS": "NO"} if kind else {}
-    if layer is None:
-        layer = "TopographicArea" if kind == "mastermap" else _polygon_layer(where, kind)
-    where = f"{where}, layer {layer}" if layer is not None else where
-    frame = _read_layer(path, layer, where, options)
+    with _nothing_written_beside(where):
+        if layer is None:
+            layer = "TopographicArea" if kind == "mastermap" else _polygon_layer(where, kind)
+        where = f"{where}, layer {layer}" if layer is not None else where
+        frame = _read_layer(path, layer, where, options)
     if kind == "mastermap" and "descriptiveGroup" in frame.columns:
         frame = frame[_has_building_group(frame["descriptiveGroup"])]
         if id_field is None:
@@ -219,6 +221,21 @@ def _check_xml(path: Path) -> None:
             where=str(path),
             fix="save it as UTF-8, as OS MasterMap is delivered",
         ) from None
+
+
+@contextlib.contextmanager
+def _nothing_written_beside(path: str) -> Iterator:
+    """Reading must not write beside the input. GDAL's VFK driver (Czech cadastre; it claims
+    any file starting with ``&H``) puts an SQLite database beside the file it opens: point it
+    at a temporary folder instead (found by fuzzing). GML's ``.gfs`` is kept off by
+    ``WRITE_GFS=NO``."""
+    previous = pyogrio.get_gdal_config_option("OGR_VFK_DB_NAME")
+    with tempfile.TemporaryDirectory(prefix="gnss-citygml-vfk-") as folder:
+        pyogrio.set_gdal_config_options({"OGR_VFK_DB_NAME": os.path.join(folder, "vfk.db")})
+        try:
+            yield
+        finally:
+            pyogrio.set_gdal_config_options({"OGR_VFK_DB_NAME": previous})
 
 
 def _polygon_layer(path: str, kind: str | None) -> str | None:

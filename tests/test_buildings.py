@@ -579,3 +579,13 @@ def test_other_bad_arguments(dem):
         building_ground(b, dem)
     with pytest.raises(InputError, match=r"in EPSG:4326, not EPSG:27700"):
         building_ground(b.set_crs("EPSG:4326", allow_override=True), dem)
+
+
+def test_reading_writes_nothing_beside_the_input(tmp_path):
+    """Found by fuzzing: GDAL's VFK driver claims a file starting with ``&H`` and used to
+    leave an SQLite database beside it. Reading must never write beside the user's files."""
+    path = tmp_path / "tile.gml"
+    path.write_bytes(b"&H")
+    with pytest.raises(InputError, match="cannot read the footprints"):
+        read_footprints(path)
+    assert [p.name for p in tmp_path.iterdir()] == ["tile.gml"]

@@ -169,6 +169,15 @@ def test_one_broken_rule(tmp_path, faces, vertices, rule):
     assert rule in rules_of(tmp_path, cube(faces, vertices))
 
 
+def test_shells_fuzzing_broke(tmp_path):
+    """Found by `make fuzz`: a face without a ring, and a shell of one two-point face, are
+    errors of the file, not crashes of the validator."""
+    document = cube()
+    document["CityObjects"]["c"]["geometry"][0]["boundaries"][0][5] = []
+    assert {"face-empty", "shell-not-closed"} <= rules_of(tmp_path, document)
+    assert "ring-too-few-points" in rules_of(tmp_path, cube([[5, 1]]))
+
+
 def test_structural_rules(tmp_path):
     def broken(change):
         document = cube()

@@ -79,6 +79,7 @@ class Shells:
         self.ring_face: list[int] = []
         self.face_shell: list[int] = []
         self.shells: list[Shell] = []
+        self.empty_faces: list[Issue] = []  # faces without a ring: reported, left out
 
     def __len__(self) -> int:
         return len(self.shells)
@@ -87,7 +88,11 @@ class Shells:
         """Add a shell: faces, each a list of rings (exterior first), each (k, 3) points."""
         index = len(self.shells)
         self.shells.append(shell)
-        for face in faces:
+        empty = sum(1 for face in faces if not len(face))
+        if empty:
+            text = f"{shell.label}: {empty} face(s) without a ring: a face needs an exterior ring"
+            self.empty_faces.append(Issue(shell.object_id, "face-empty", text))
+        for face in filter(len, faces):
             self.ring_face.extend([len(self.face_shell)] * len(face))
             self.face_shell.append(index)
             self.rings.extend(face)
@@ -98,12 +103,12 @@ class Shells:
         A shell with a coordinate out of range (:data:`COORDINATE_LIMIT`, NaN, infinite) gets
         that one error, and is left out of the other checks."""
         if not self.rings:
-            return []
+            return list(self.empty_faces)
         sizes = np.array([len(r) for r in self.rings], dtype=np.int64)
         points = np.concatenate([np.asarray(r, dtype=float).reshape(-1, 3) for r in self.rings])
         far = ~(np.abs(points) <= COORDINATE_LIMIT).all(axis=1)
         if not far.any():
-            return _Geometry(self, points, sizes).issues
+            return self.empty_faces + _Geometry(self, points, sizes).issues
         ring_shell = np.array(self.face_shell, dtype=np.int64)[self.ring_face]
         point_shell = np.repeat(ring_shell, sizes)
         issues = []
@@ -111,7 +116,7 @@ class Shells:
             meta = self.shells[shell]
             problem = coordinate_problem(points[point_shell == shell])
             issues.append(Issue(meta.object_id, "coordinate-range", f"{meta.label}: {problem}"))
-        return issues + self._without(set(point_shell[far].tolist())).check()
+        return self.empty_faces + issues + self._without(set(point_shell[far].tolist())).check()
 
     def _without(self, dropped: set[int]) -> Shells:
         """These shells but ``dropped``: each kept shell added again with its faces."""
@@ -372,8 +377,8 @@ class _Geometry:
         i = i[fan]
         apex = q[self.start[self.point_ring[i]]]
         triple = np.einsum("ij,ij->i", apex, np.cross(q[i], q[i + 1]))
-        self.volume = np.bincount(self.point_shell[i], weights=triple, minlength=len(self.meta))
-        self.volume /= 6
+        volume = np.bincount(self.point_shell[i], weights=triple, minlength=len(self.meta))
+        self.volume = volume.astype(float) / 6  # bincount of nothing counts in integers
         for s in np.flatnonzero(closed):
             sign = self.meta[s].sign
             if self.volume[s] * sign <= 0:

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import click
 
+from ..errors import escape_controls
 from . import cli
 from .observe import GRID_DIR
 from .options import OVERWRITE, QUIET, output_file, progress
@@ -188,6 +189,6 @@ def validate(path, schema_dir, max_errors):
         counts = ", ".join(f"{rule} {n}" for rule, n in report.rule_counts().items())
         click.echo(f"... {len(report.errors) - max_errors} more ({counts})")
     for note in report.notes:
-        click.echo(f"note: {note}", err=True)
+        click.echo(f"note: {escape_controls(note)}", err=True)
     click.echo(report.summary())
     sys.exit(report.exit_code)

@@ -371,7 +371,11 @@ def _to_bng(frame: gpd.GeoDataFrame, where: str, grid_dir) -> gpd.GeoDataFrame:
         return frame.set_crs(_BNG, allow_override=True)
     geoms = frame.geometry.to_numpy()
     xy, owner = shapely.get_coordinates(geoms, return_index=True)
-    labels = np.char.add("footprint ", frame["id"].to_numpy(dtype=str))[owner]
+    ids = frame["id"].to_numpy(dtype=object)
+
+    def labels(index):  # made only for the vertices an error names
+        return [f"footprint {i}" for i in ids[owner[index]]]
+
     try:
         e, n = to_bng(xy[:, 0], xy[:, 1], crs, grid_dir=grid_dir, labels=labels)
     except (CrsError, OutsideExtentError) as exc:  # name the file too

@@ -45,6 +45,7 @@ import hashlib
 import json
 import os
 import urllib.request
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -137,7 +138,7 @@ def to_osgb(
     *,
     grid_dir: str | os.PathLike | None = None,
     network: bool = False,
-    labels: npt.ArrayLike | None = None,
+    labels: npt.ArrayLike | Callable | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """ETRS89 latitude, longitude, ellipsoidal height to British National Grid + ODN height.
 
@@ -155,7 +156,9 @@ def to_osgb(
     labels
         How an error names each point, as the user knows it (e.g. ``"receiver A at
         2020-06-01 10:00:00"``, ``"footprint osgb1000005430576"``), one per point of the
-        broadcast shape; default ``"point <i>"`` with ``i`` its flat index in the arrays given.
+        broadcast shape, or a function from flat indices to those names (called only for the
+        points an error names, so that no text is made for the millions that are fine);
+        default ``"point <i>"`` with ``i`` its flat index in the arrays given.
 
     Returns
     -------
@@ -181,7 +184,7 @@ def from_osgb(
     *,
     grid_dir: str | os.PathLike | None = None,
     network: bool = False,
-    labels: npt.ArrayLike | None = None,
+    labels: npt.ArrayLike | Callable | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """British National Grid + ODN height to ETRS89 latitude, longitude, ellipsoidal height.
 
@@ -212,7 +215,7 @@ def to_bng(
     *,
     grid_dir: str | os.PathLike | None = None,
     network: bool = False,
-    labels: npt.ArrayLike | None = None,
+    labels: npt.ArrayLike | Callable | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Horizontal coordinates in any CRS to British National Grid, by an exact path only.
 
@@ -460,7 +463,8 @@ def _name_points(bad, x, y, geographic, labels) -> str:
     if labels is None:
         names = np.char.add("point ", index.astype(str))
     else:
-        names = np.asarray(labels, dtype=object).ravel()[index].astype(str)
+        names = labels(index) if callable(labels) else np.asarray(labels, dtype=object).ravel()
+        names = np.asarray(names if callable(labels) else names[index], dtype=object).astype(str)
         _, first = np.unique(names, return_index=True)  # a footprint's vertices: one label
         index, names = index[np.sort(first)], names[np.sort(first)]
     if geographic:

@@ -77,8 +77,14 @@ def receivers(
             fix="use --receiver-height dem (with a DEM), or give h for every row",
         )
     first = observations.iloc[np.flatnonzero(starts)]  # each position named by its first row
-    labels = "receiver " + first["receiver"].astype(str) + " at " + first["time_utc"].astype(str)
-    e, n, odn = to_osgb(lat, lon, h, grid_dir=grid_dir, labels=labels.to_numpy())
+
+    def labels(index):  # made only for the positions an error names
+        rows = first.iloc[index]
+        return (
+            "receiver " + rows["receiver"].astype(str) + " at " + rows["time_utc"].astype(str)
+        ).to_numpy()
+
+    e, n, odn = to_osgb(lat, lon, h, grid_dir=grid_dir, labels=labels)
     if receiver_height == "dem":
         if dem is None:
             raise InputError("receiver heights from the DEM need a DEM", fix="give --dem")

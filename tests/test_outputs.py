@@ -15,7 +15,9 @@ import pytest
 import shapely
 from test_cli import run
 
+from gnss_citygml.errors import InputError
 from gnss_citygml.paths import _HOST, atomic_path, stale_parts
+from gnss_citygml.simulate.files import check_site
 from gnss_citygml.validate import validate_file
 
 CITY = Path(__file__).resolve().parents[1] / "examples" / "city"
@@ -288,3 +290,16 @@ def test_library_writers_warn_too(tmp_path):
         warnings.simplefilter("always")
         write_citygml(buildings(id=["a\x01", "b", "c"]), tmp_path / "c.gml")
     assert any("XML cannot hold" in str(w.message) for w in caught)
+
+
+def test_simulate_into_a_file_or_over_a_site(tmp_path, capsys):
+    (tmp_path / "site").write_text("mine")
+    code, _, err = run(["simulate", "ucl", "-o", str(tmp_path / "site")], capsys)
+    assert code == 2 and "is a file" in err  # click's check of the folder option
+    with pytest.raises(InputError, match="the site folder is a file"):
+        check_site(tmp_path / "site", overwrite=True)
+    (tmp_path / "old").mkdir()
+    (tmp_path / "old" / "intersections.csv").write_text("mine")
+    code, _, err = run(["simulate", "ucl", "-o", str(tmp_path / "old")], capsys)
+    assert code == 2 and "output exists" in err and "intersections.csv" in err
+    assert [p.name for p in (tmp_path / "old").iterdir()] == ["intersections.csv"]

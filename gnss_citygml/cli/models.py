@@ -87,15 +87,12 @@ def accuracy(presets, thresholds, interval, seed, quiet):
 def simulate(preset, output_dir, locations, seed, interval, fmt, grid_dir, overwrite):
     """Simulate a site and write the files a user brings to `estimate`: observations,
     footprints.gpkg and dem.tif (EPSG:27700), plus the intersections and the true heights."""
-    from ..paths import check_output
     from ..simulate import simulate as run
-    from ..simulate.files import site_paths, write_site
+    from ..simulate.files import check_site, write_site
     from ..tables import write_table
 
     intersections = output_dir / f"intersections.{fmt}"
-    if output_dir.is_dir():
-        for path in [*site_paths(output_dir, fmt).values(), intersections]:
-            check_output(path, overwrite=overwrite)
+    check_site(output_dir, fmt, overwrite=overwrite, also=[intersections])
     sim = run(preset, locations=locations, seed=seed, interval=interval)
     write_site(sim, output_dir, grid_dir=grid_dir, fmt=fmt, overwrite=overwrite)
     write_table(sim.intersections, intersections, overwrite=overwrite)

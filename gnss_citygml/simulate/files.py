@@ -16,13 +16,14 @@ import rasterio
 import shapely
 from rasterio.transform import from_origin
 
+from ..errors import InputError
 from ..geodesy import to_osgb
 from ..observations import OBSERVATION_COLUMNS, write_observations
 from ..paths import atomic_path, check_output
 from ..tables import write_layer, write_table
 from . import Simulation, local_to_wgs84
 
-__all__ = ["DEM_CELL", "site_paths", "write_site"]
+__all__ = ["DEM_CELL", "check_site", "site_paths", "write_site"]
 
 #: DEM cell size (m) and margin (m) around the site's buildings and receivers.
 DEM_CELL = 5.0
@@ -40,6 +41,18 @@ def site_paths(folder, fmt: str = "parquet") -> dict[str, Path]:
     }
 
 
+def check_site(folder, fmt: str = "parquet", *, overwrite: bool, also=()) -> dict[str, Path]:
+    """The site's paths (:func:`site_paths`), checked before any work: without ``overwrite``
+    none of them, nor of ``also`` (other files the caller writes there), may exist."""
+    paths = site_paths(folder, fmt)
+    if Path(folder).exists() and not Path(folder).is_dir():
+        raise InputError("the site folder is a file", where=str(folder), fix="give a folder")
+    if Path(folder).is_dir():
+        for path in [*paths.values(), *also]:
+            check_output(path, overwrite=overwrite)
+    return paths
+
+
 def write_site(
     sim: Simulation, folder, *, grid_dir=None, fmt: str = "parquet", overwrite: bool = True
 ) -> dict:
@@ -49,11 +62,8 @@ def write_site(
     EPSG:27700, covering the buildings and receivers with a margin. Without ``overwrite``,
     any of the files already there is an error, raised before anything is written.
     """
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    paths = site_paths(folder, fmt)
-    for path in paths.values():
-        check_output(path, overwrite=overwrite)
+    paths = check_site(folder, fmt, overwrite=overwrite)
+    Path(folder).mkdir(parents=True, exist_ok=True)
     scene = sim.scene
     footprints = gpd.GeoDataFrame(
         {"id": [b.id for b in scene.buildings]},

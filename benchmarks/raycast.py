@@ -45,10 +45,11 @@ def prepare(folder: Path, signals: int, blocks: int, grid_dir) -> None:
 
 
 def run(folder: Path, grid_dir) -> None:
-    from gnss_citygml.buildings import building_ground, read_footprints
+    from gnss_citygml.footprints import read_footprints
     from gnss_citygml.model.estimate import estimate_heights
     from gnss_citygml.observations import read_observations
     from gnss_citygml.pipeline import intersections, receivers
+    from gnss_citygml.terrain import building_ground
 
     times = {}
 

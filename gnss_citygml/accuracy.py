@@ -153,7 +153,7 @@ def site_tables(sim, grid_dir=None, positions="reported", position_sd=None, posi
         if positions == "reported" and position_sd is None:
             return rays, footprints, sim.intersections
         return rays, footprints, _recast(rays, footprints, position_sd, position_window)
-    from .buildings import read_footprints
+    from .footprints import read_footprints
     from .observations import read_observations
     from .pipeline import receivers
     from .simulate.files import write_site

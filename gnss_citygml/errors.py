@@ -3,11 +3,14 @@
 Every error a user can cause is a :class:`GnssCityGMLError`. Its message says *what* went
 wrong, *where* (file, line, column, feature id) and *how to fix it*, so that the command line
 can print it as one line (``error: <what> (<where>): <how to fix>``) without a traceback.
+:func:`listing` (the first items and how many more) and :func:`escape_controls` (one line
+whatever the data holds) shape the messages, the same way in every module.
 """
 
 from __future__ import annotations
 
 import re
+from collections.abc import Iterable
 
 __all__ = [
     "GnssCityGMLError",
@@ -15,6 +18,7 @@ __all__ = [
     "MissingColumnError",
     "ModelError",
     "escape_controls",
+    "listing",
 ]
 
 
@@ -24,6 +28,19 @@ _CONTROL = re.compile("[\x00-\x1f\x7f-\x9f\u2028\u2029]")
 def escape_controls(text: str) -> str:
     """``text`` with its control characters (line ends too) escaped as ``repr`` does: one line."""
     return _CONTROL.sub(lambda m: repr(m.group())[1:-1], text)
+
+
+def listing(items: Iterable, shown: int = 10) -> str:
+    """The items for a message, comma-separated; past the first ``shown``, how many more.
+
+    >>> listing(range(3))
+    '0, 1, 2'
+    >>> listing(range(14))
+    '0, 1, 2, 3, 4, 5, 6, 7, 8, 9 and 4 more'
+    """
+    items = list(items)
+    text = ", ".join(str(item) for item in items[:shown])
+    return text + (f" and {len(items) - shown} more" if len(items) > shown else "")
 
 
 class GnssCityGMLError(Exception):

@@ -16,13 +16,13 @@ import numpy as np
 import pandas as pd
 import shapely
 
-from .buildings import building_ground, sample_ground
 from .calibrate import calibrate_receivers
 from .errors import InputError
 from .geodesy import grid_bearing, to_osgb
 from .model.estimate import HEIGHTS_COLUMNS, estimate_heights
 from .observations import check_observations
 from .raycast import footprint_entries
+from .terrain import building_ground, sample_ground
 
 __all__ = ["RECEIVER_HEIGHTS", "STAGES", "estimate", "intersections", "receivers"]
 
@@ -205,7 +205,7 @@ def estimate(
         :func:`~gnss_citygml.gnss.observe.observe`.
     footprints
         The buildings table (``id``, ``geometry`` in EPSG:27700), e.g. from
-        :func:`~gnss_citygml.buildings.read_footprints`.
+        :func:`~gnss_citygml.footprints.read_footprints`.
     dem
         A DEM rasterio opens, in EPSG:27700 (a path or an open dataset): each building's
         ``ground`` and, with ``receiver_height="dem"``, the receivers' heights.

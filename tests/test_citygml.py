@@ -176,8 +176,8 @@ def test_escaped_text_and_no_validation(tmp_path):
 
 
 def test_real_mastermap_footprints(tmp_path, shared_data):
-    from gnss_citygml.buildings import read_footprints
     from gnss_citygml.export import buildings_with_heights
+    from gnss_citygml.footprints import read_footprints
 
     footprints = read_footprints(shared_data / "footprints" / "mastermap-topo_3473984_0.gml")
     footprints["ground"] = 25.0

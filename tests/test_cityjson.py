@@ -15,7 +15,6 @@ import shapely
 from rasterio.io import MemoryFile
 from rasterio.transform import from_origin
 
-from gnss_citygml.buildings import building_ground, read_footprints
 from gnss_citygml.errors import InputError, MissingColumnError
 from gnss_citygml.export import (
     buildings_with_heights,
@@ -24,6 +23,8 @@ from gnss_citygml.export import (
     write_cityjson,
     write_cityjsonseq,
 )
+from gnss_citygml.footprints import read_footprints
+from gnss_citygml.terrain import building_ground
 from gnss_citygml.validate import validate_file
 
 E, N = 529500.0, 182300.0

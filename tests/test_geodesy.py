@@ -20,8 +20,8 @@ import pytest
 import shapely
 from pyproj import Geod
 
-from gnss_citygml.buildings import read_footprints
 from gnss_citygml.cli import main
+from gnss_citygml.footprints import read_footprints
 from gnss_citygml.geodesy import (
     GRID_DIR_ENV,
     GRIDS,
@@ -454,7 +454,7 @@ def test_read_footprints_in_other_crs_within_a_millimetre(city, grid_dir, tmp_pa
     empty.mkdir()
     code = f"""
         import numpy as np, shapely
-        from gnss_citygml.buildings import read_footprints
+        from gnss_citygml.footprints import read_footprints
         from gnss_citygml.geodesy import GridError
         try:
             read_footprints({str(city / "footprints_EPSG4326.gpkg")!r}, grid_dir={str(empty)!r})

@@ -8,8 +8,8 @@ import pandas as pd
 import pytest
 import shapely
 
-from gnss_citygml.buildings import read_footprints
 from gnss_citygml.errors import InputError
+from gnss_citygml.footprints import read_footprints
 from gnss_citygml.geodesy import from_osgb
 from gnss_citygml.observations import read_observations
 from gnss_citygml.pipeline import STAGES, estimate, intersections, receivers

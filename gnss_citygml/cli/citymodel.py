@@ -39,7 +39,8 @@ def _model_options(func):
 def _footprints(path, layer, id_field, dem, dem_crs, grid_dir):
     """The footprints in EPSG:27700 (through the OSTN15/OSGM15 grids in ``grid_dir`` when in
     another CRS), with their ground from the DEM when one is given."""
-    from ..buildings import building_ground, read_footprints
+    from ..footprints import read_footprints
+    from ..terrain import building_ground
 
     frame = read_footprints(path, layer=layer, id_field=id_field, grid_dir=grid_dir)
     return frame if dem is None else building_ground(frame, dem, assume_crs=dem_crs)

@@ -102,7 +102,7 @@ def estimate(
     GeoPackage or any polygon layer, or OS MasterMap Topography GML. The output holds each
     footprint with its estimate; buildings with too little data have empty heights.
     """
-    from ..buildings import read_footprints
+    from ..footprints import read_footprints
     from ..observations import read_observations
     from ..pipeline import STAGES
     from ..pipeline import estimate as run

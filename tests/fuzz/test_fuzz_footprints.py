@@ -26,7 +26,7 @@ import shapely
 from hypothesis import event, given, settings
 from hypothesis import strategies as st
 
-from gnss_citygml.buildings import read_footprints
+from gnss_citygml.footprints import read_footprints
 
 from .conftest import TOKENS, mutated
 

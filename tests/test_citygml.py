@@ -15,7 +15,7 @@ from test_cityjson import FOOTPRINTS, GROUND, NOT_CONVERGED, ROOF, heights_table
 
 from gnss_citygml.errors import InputError
 from gnss_citygml.export import gml_ids, write_citygml
-from gnss_citygml.export.lod1 import InvalidOutputError, validated_output
+from gnss_citygml.export.output import InvalidOutputError, validated_output
 from gnss_citygml.validate import validate_file
 
 NS = {

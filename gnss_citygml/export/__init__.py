@@ -8,16 +8,9 @@ renames it into place.
 
 from .citygml import gml_ids, write_citygml
 from .cityjson import write_cityjson, write_cityjsonseq
-from .lod1 import (
-    ExportResult,
-    InvalidOutputError,
-    Prisms,
-    buildings_with_heights,
-    extrude,
-    footprints_with_heights,
-    prepare_buildings,
-    snap_footprints,
-)
+from .output import ExportResult, InvalidOutputError
+from .plan import buildings_with_heights, footprints_with_heights, prepare_buildings
+from .prisms import Prisms, extrude, snap_footprints
 
 __all__ = [
     "ExportResult",

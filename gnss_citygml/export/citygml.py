@@ -39,26 +39,12 @@ import numpy as np
 import pandas as pd
 from lxml import etree
 
-from ..errors import InputError
+from ..errors import InputError, listing
 from ..paths import atomic_path
-from .lod1 import (
-    CHECK_CHUNK,
-    ExportResult,
-    Plan,
-    Prisms,
-    Progress,
-    attribute_columns,
-    attribute_values,
-    chunks,
-    creation_date,
-    extrude,
-    hash_texts,
-    measured_heights,
-    part_ids,
-    prepare_buildings,
-    repeated_positions,
-    validated_output,
-)
+from .attributes import attribute_columns, attribute_values, creation_date, measured_heights
+from .output import ExportResult, Progress, validated_output
+from .plan import CHECK_CHUNK, Plan, chunks, hash_texts, prepare_buildings, repeated_positions
+from .prisms import Prisms, extrude, part_ids
 
 __all__ = ["SRS_NAME", "gml_ids", "write_citygml"]
 
@@ -135,7 +121,7 @@ def write_citygml(
     validate
         Validate the file (XML Schema and geometry, :func:`gnss_citygml.validate.validate_file`)
         before it is renamed into place; an invalid file raises
-        :class:`~gnss_citygml.export.lod1.InvalidOutputError` and is not kept.
+        :class:`~gnss_citygml.export.output.InvalidOutputError` and is not kept.
     schema_dir
         A folder with a ``schemas.opengis.net`` tree to validate against instead of the schemas
         bundled in ``citysmith``.
@@ -190,9 +176,8 @@ def write_citygml(
     if replaced:
         warnings.warn(
             f"{len(replaced)} building(s) have text that XML cannot hold (control characters), "
-            f"written with U+FFFD in its place: {', '.join(map(repr, replaced[:10]))}"
-            + (f" and {len(replaced) - 10} more" if len(replaced) > 10 else "")
-            + " (CityJSON keeps such text as it is)",
+            f"written with U+FFFD in its place: {listing(map(repr, replaced))}"
+            " (CityJSON keeps such text as it is)",
             stacklevel=2,
         )
     return result

@@ -28,24 +28,10 @@ import numpy as np
 import pandas as pd
 
 from ..paths import atomic_path
-from .lod1 import (
-    CHUNK,
-    SCALE,
-    SURFACES,
-    ExportResult,
-    Prisms,
-    Progress,
-    attribute_columns,
-    attribute_values,
-    chunks,
-    creation_date,
-    extrude,
-    measured_heights,
-    nested_text,
-    part_ids,
-    prepare_buildings,
-    validated_output,
-)
+from .attributes import attribute_columns, attribute_values, creation_date, measured_heights
+from .output import ExportResult, Progress, validated_output
+from .plan import CHUNK, chunks, prepare_buildings
+from .prisms import SCALE, SURFACES, Prisms, extrude, part_ids
 
 __all__ = ["CRS_URL", "VERSION", "write_cityjson", "write_cityjsonseq"]
 
@@ -76,13 +62,14 @@ def write_cityjson(
     ----------
     buildings
         The buildings table with heights (see
-        :func:`~gnss_citygml.export.lod1.prepare_buildings`): ``id``, ``geometry``, ``ground``,
+        :func:`~gnss_citygml.export.plan.prepare_buildings`): ``id``, ``geometry``, ``ground``,
         ``height`` (absolute roof, m ODN) and any attributes.
     path
         The output file (``.city.json``).
     validate
         Validate the file (:func:`gnss_citygml.validate.validate_file`) before it is renamed
-        into place; an invalid file raises :class:`InvalidOutputError` and is not kept.
+        into place; an invalid file raises
+        :class:`~gnss_citygml.export.output.InvalidOutputError` and is not kept.
     schema_dir
         Folder of the official CityJSON JSON schemas, for the validation (default:
         ``$GNSS_CITYGML_SCHEMA_DIR``; without it the JSON Schema check is left out).
@@ -183,7 +170,7 @@ def write_cityjsonseq(
             for rows in plan.chunks():
                 prisms = extrude(rows.geometry, rows["ground"], rows["height"])
                 objects = _objects(rows, prisms, part_ids(rows["id"], rows.geometry), date)
-                vertices = nested_text(
+                vertices = _nested_text(
                     _vertex_texts(prisms.vertices - translate),
                     [(prisms.vertex_start, "[", "]", ",")],
                 )
@@ -250,7 +237,7 @@ def _objects(rows: gpd.GeoDataFrame, prisms: Prisms, parts, date: str) -> list[s
 
 def _solids(prisms: Prisms) -> list[str]:
     """Each solid as a CityJSON Solid geometry (lod 1, with semantic surfaces)."""
-    boundaries = nested_text(
+    boundaries = _nested_text(
         map(str, prisms.ring_vertices.tolist()),
         [
             (prisms.ring_start, "[", "]", ","),
@@ -258,12 +245,72 @@ def _solids(prisms: Prisms) -> list[str]:
             (prisms.solid_start, "[[", "]]", ","),
         ],
     )
-    values = nested_text(prisms.face_kind.astype(str), [(prisms.solid_start, "[[", "]]", ",")])
+    values = _nested_text(prisms.face_kind.astype(str), [(prisms.solid_start, "[[", "]]", ",")])
     return [
         f'{{"type":"Solid","lod":"1","boundaries":{b},'
         f'"semantics":{{"surfaces":{_SURFACES_JSON},"values":{v}}}}}'
         for b, v in zip(boundaries, values, strict=True)
     ]
+
+
+def _nested_text(tokens, levels) -> list[str]:
+    """Serialise ragged nested groups of text tokens: one text per outermost group.
+
+    Parameters
+    ----------
+    tokens
+        The leaves (texts), in order.
+    levels
+        From the innermost level out, one ``(start, open, close, separator)`` each: ``start``
+        says where each group's children (tokens, or the groups of the level inside) start,
+        with a final end entry; ``open`` and ``close`` are written before and after each group,
+        ``separator`` between two children of a group.
+
+    Returns
+    -------
+    list of str
+
+    Notes
+    -----
+    Before a token come the ``open`` texts of the levels whose groups start at it; after it the
+    ``close`` texts of the levels whose groups end at it, then the separator of the next level
+    up. Both are counted with numpy, so Python only glues three texts per token.
+
+    Examples
+    --------
+    >>> levels = [([0, 2, 3, 4], "[", "]", ","), ([0, 2, 3], "[", "]", ",")]
+    >>> _nested_text(["1", "2", "3", "4"], levels)
+    ['[[1,2],[3]]', '[[4]]']
+    """
+    tokens = list(tokens)
+    n = len(tokens)
+    first = last = np.arange(n)
+    opened = np.zeros(n, dtype=np.int64)  # levels whose groups start at each token
+    closed = np.zeros(n, dtype=np.int64)  # levels whose groups end at each token
+    starts = np.ones(n, dtype=bool)
+    ends = np.ones(n, dtype=bool)
+    for start, *_ in levels:
+        start = np.asarray(start)
+        first, last = first[start[:-1]], last[start[1:] - 1]
+        at_start = np.zeros(n, dtype=bool)
+        at_start[first] = True
+        at_end = np.zeros(n, dtype=bool)
+        at_end[last] = True
+        starts &= at_start
+        ends &= at_end
+        opened += starts
+        closed += ends
+    before, after, closings = [""], [], ""
+    for _, opening, closing, separator in levels:  # texts by number of levels opened/closed
+        before.append(opening + before[-1])
+        after.append(closings + separator)
+        closings += closing
+    after.append(closings)
+    parts = [
+        before[i] + t + after[j]
+        for i, t, j in zip(opened.tolist(), tokens, closed.tolist(), strict=True)
+    ]
+    return ["".join(parts[a : b + 1]) for a, b in zip(first.tolist(), last.tolist(), strict=True)]
 
 
 def _vertex_texts(vertices: np.ndarray) -> list[str]:

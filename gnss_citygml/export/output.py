@@ -1,0 +1,68 @@
+"""What a writer hands back: the result of an export and the check of the file written.
+
+Each writer writes a temporary file beside the output, validates it
+(:func:`validated_output`, with :func:`gnss_citygml.validate.validate_file`) and only then
+renames it into place; a file that fails its own validation is a bug
+(:class:`InvalidOutputError`) and is not kept. The :class:`ExportResult` says what was written,
+what was skipped and why (from :meth:`gnss_citygml.export.plan.Plan.result`), and the report;
+a writer tells the caller's :data:`Progress` callback as it goes.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import pandas as pd
+
+from ..errors import GnssCityGMLError
+from ..validate import Report, validate_file
+
+__all__ = ["ExportResult", "InvalidOutputError", "Progress", "validated_output"]
+
+
+class InvalidOutputError(GnssCityGMLError):
+    """A file the toolkit wrote failed its own validation (a bug: the file is not kept)."""
+
+
+@dataclass
+class ExportResult:
+    """What a writer did.
+
+    Attributes
+    ----------
+    path
+        The file written.
+    written
+        Number of buildings written.
+    skipped
+        The buildings left out: ``id`` and ``reason``.
+    report
+        The validation report of the file (None with ``validate=False``).
+    """
+
+    path: str
+    written: int
+    skipped: pd.DataFrame
+    report: Report | None = None
+
+
+def validated_output(tmp, path, validate: bool, schema_dir) -> Report | None:
+    """The validation report of a file just written to ``tmp``; raise if it is invalid."""
+    if not validate:
+        return None
+    report = validate_file(tmp, schema_dir=schema_dir)
+    if not report.valid:
+        first = report.errors[0]
+        raise InvalidOutputError(
+            f"the file written is not valid: {len(report.errors)} error(s), the first "
+            f"{first.rule} ({first.object_id}): {first.message}",
+            where=str(path),
+            fix="please report this bug with the input; the file was not kept",
+        )
+    report.path = str(path)
+    return report
+
+
+#: A callback told how many more buildings were written.
+Progress = Callable[[int], None]

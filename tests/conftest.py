@@ -7,6 +7,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from gnss_citygml.gnss.gpstime import gps_to_utc
+from gnss_citygml.gnss.sp3 import read_sp3
 from gnss_citygml.model.fourpl import logistic4
 
 
@@ -71,3 +73,46 @@ def occluded_pair(rng, n=6000, front=30.0, back=20.0, alone=0.4):
     cn0 = np.array([strength[s] for s in sig])
     cn0[cn0 < 12.0] = np.nan
     return pd.DataFrame({"signal": sig, "building": bld, "height": h, "order": order, "cn0": cn0})
+
+
+# --- orbit files, and the helpers of test_sp3, test_propagation and test_orbits -----------------
+
+COD_2021 = "COD0MGXFIN_20211180000_01D_05M_ORB.SP3"
+GRG_2021 = "grg21553.sp3"
+GFZ_2025 = "GFZ0MGXRAP_20253200000_01D_05M_ORB.SP3"
+COD_2023 = "COD0OPSRAP_20230730000_01D_05M_ORB.SP3"
+BRDM_2023 = "BRDM00DLR_S_20230730000_01D_MN.rnx"
+XYZ = ["x", "y", "z"]
+
+
+@pytest.fixture(scope="session")
+def orbits_dir(shared_data) -> Path:
+    return shared_data / "orbits"
+
+
+@pytest.fixture(scope="session")
+def cod(orbits_dir) -> pd.DataFrame:
+    """CODE's final multi-GNSS orbits of 2021-04-28, 18:00 to 24:00 (SP3-d)."""
+    return read_sp3(orbits_dir / COD_2021)
+
+
+@pytest.fixture(scope="session")
+def gfz(orbits_dir) -> pd.DataFrame:
+    """GFZ's rapid multi-GNSS orbits of the whole of 2025-11-16 (SP3-d)."""
+    return read_sp3(orbits_dir / GFZ_2025)
+
+
+def sp3_times_utc(table: pd.DataFrame) -> np.ndarray:
+    """The UTC times of the rows of an SP3 table."""
+    return gps_to_utc(table["time_gps"].to_numpy())
+
+
+def distance(a, b) -> np.ndarray:
+    """The distance between two sets of positions, row by row."""
+    return np.linalg.norm(np.asarray(a) - np.asarray(b), axis=1)
+
+
+def compare(precise: pd.DataFrame, broadcast: pd.DataFrame) -> np.ndarray:
+    """The distances between two ``positions_all`` tables at the rows they share."""
+    both = precise.merge(broadcast, on=["time_utc", "constellation", "svid"])
+    return distance(both[["x_x", "y_x", "z_x"]], both[["x_y", "y_y", "z_y"]])

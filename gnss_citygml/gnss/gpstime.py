@@ -23,12 +23,16 @@ __all__ = [
     "BDT_MINUS_GPS",
     "GPS_EPOCH",
     "LEAP_SECONDS",
+    "NS_PER_S",
     "gps_minus_utc",
     "gps_seconds",
     "gps_to_utc",
     "to_datetime64",
     "utc_to_gps",
 ]
+
+#: Nanoseconds per second: the unit of the ``datetime64[ns]`` times.
+NS_PER_S = 1_000_000_000
 
 #: Start of GPS time (GPST = UTC at that instant).
 GPS_EPOCH = np.datetime64("1980-01-06T00:00:00", "ns")
@@ -63,7 +67,6 @@ _STARTS_UTC = np.array([d for d, _ in LEAP_SECONDS], dtype="datetime64[ns]")
 _OFFSETS = np.array([s for _, s in LEAP_SECONDS], dtype=np.int64)
 #: The same instants in GPS time (a step happens at UTC midnight + the new offset).
 _STARTS_GPS = _STARTS_UTC + _OFFSETS.astype("timedelta64[s]")
-_NS = 1_000_000_000
 
 
 def to_datetime64(times) -> np.ndarray:
@@ -122,7 +125,7 @@ def utc_to_gps(times_utc) -> np.ndarray:
     array(['2021-04-29T22:35:44.000000000'], dtype='datetime64[ns]')
     """
     times = to_datetime64(times_utc)
-    return times + (gps_minus_utc(times) * _NS).astype("timedelta64[ns]")
+    return times + (gps_minus_utc(times) * NS_PER_S).astype("timedelta64[ns]")
 
 
 def gps_to_utc(times_gps) -> np.ndarray:
@@ -143,7 +146,7 @@ def gps_to_utc(times_gps) -> np.ndarray:
     else:
         times = to_datetime64(times_gps)
     offsets = _OFFSETS[_table_index(times, _STARTS_GPS, "GPS")]
-    return times - (offsets * _NS).astype("timedelta64[ns]")
+    return times - (offsets * NS_PER_S).astype("timedelta64[ns]")
 
 
 def gps_seconds(times_gps) -> np.ndarray:
@@ -157,4 +160,4 @@ def gps_seconds(times_gps) -> np.ndarray:
     array([604801.5])
     """
     times = to_datetime64(times_gps)
-    return (times - GPS_EPOCH).astype(np.int64) / _NS
+    return (times - GPS_EPOCH).astype(np.int64) / NS_PER_S

@@ -20,7 +20,9 @@ from hypothesis import event, given
 from hypothesis import strategies as st
 
 from gnss_citygml.gnss.gnsslogger import read_gnsslogger
-from gnss_citygml.gnss.orbits import load_orbits, read_nav, read_sp3
+from gnss_citygml.gnss.navigation import read_nav
+from gnss_citygml.gnss.orbits import load_orbits
+from gnss_citygml.gnss.sp3 import read_sp3
 
 from .conftest import mutated
 

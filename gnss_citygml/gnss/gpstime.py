@@ -23,11 +23,13 @@ __all__ = [
     "BDT_MINUS_GPS",
     "GPS_EPOCH",
     "LEAP_SECONDS",
+    "NAT_NS",
     "NS_PER_S",
     "gps_minus_utc",
     "gps_seconds",
     "gps_to_utc",
     "to_datetime64",
+    "utc_ns",
     "utc_to_gps",
 ]
 
@@ -91,6 +93,23 @@ def to_datetime64(times) -> np.ndarray:
     if index.tz is not None:
         index = index.tz_convert("UTC").tz_localize(None)
     return index.as_unit("ns").to_numpy()
+
+
+#: What :func:`utc_ns` gives for a missing time (NaT): the smallest int64.
+NAT_NS = np.iinfo(np.int64).min
+
+
+def utc_ns(times) -> np.ndarray:
+    """UTC times -> int64 ns since 1970 (:data:`NAT_NS` for NaT).
+
+    The log reader and the receiver positions compare and search times as these integers.
+
+    Examples
+    --------
+    >>> utc_ns(pd.to_datetime(["1970-01-01 00:00:01", None], utc=True)).tolist()
+    [1000000000, -9223372036854775808]
+    """
+    return pd.DatetimeIndex(times).as_unit("ns").asi8
 
 
 def _table_index(times: np.ndarray, starts: np.ndarray, scale: str) -> np.ndarray:

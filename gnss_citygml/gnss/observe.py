@@ -21,14 +21,9 @@ import pandas as pd
 
 from ..errors import InputError
 from ..observations import OBSERVATION_COLUMNS
-from .gnsslogger import (
-    GnssLog,
-    positions,
-    read_gnsslogger,
-    read_surveyed_positions,
-    surveyed_positions,
-)
+from .gnsslogger import GnssLog, read_gnsslogger
 from .orbits import Orbits, load_orbits
+from .positions import positions, read_surveyed_positions, surveyed_positions
 from .sky import azimuth_elevation
 
 __all__ = ["observe", "observe_log"]
@@ -53,7 +48,7 @@ def observe_log(
         Satellite orbits covering the log (:func:`~gnss_citygml.gnss.orbits.load_orbits`).
     receiver_positions
         ``time_utc``, ``lat``, ``lon``, ``h`` for every epoch of the log (e.g. from
-        :func:`~gnss_citygml.gnss.gnsslogger.positions`); ``h`` may be NaN (the DEM gives
+        :func:`~gnss_citygml.gnss.positions.positions`); ``h`` may be NaN (the DEM gives
         the receiver height later; the sky is then seen from the ellipsoid, which moves no
         satellite by a measurable angle).
     min_elevation, max_elevation
@@ -148,7 +143,7 @@ def observe(
         Paths of GnssLogger logs and of SP3 / RINEX navigation files covering them.
     surveyed
         Optional path of a manually surveyed positions file (see
-        :func:`~gnss_citygml.gnss.gnsslogger.read_surveyed_positions`); without it the
+        :func:`~gnss_citygml.gnss.positions.read_surveyed_positions`); without it the
         positions come from each log's ``Fix`` rows of ``provider`` (``method`` ``nearest``
         or ``interpolate``).
     min_elevation, max_elevation, band

@@ -1,0 +1,292 @@
+"""Receiver positions: where the phone was at each epoch of a GnssLogger log.
+
+The sky stage needs a position per epoch. It comes either from the log itself or from a
+survey:
+
+* :func:`positions` takes it from the ``Fix`` rows of one provider (``gps``, ``flp``, ...) of a
+  log read by :func:`~gnss_citygml.gnss.gnsslogger.read_gnsslogger`: the fix nearest in time,
+  or interpolated between the fixes around the epoch;
+* :func:`read_surveyed_positions` reads a CSV file of manually surveyed positions, one per
+  receiver and time span, and :func:`surveyed_positions` gives a receiver's position at given
+  times from it.
+
+Both return the same table: ``time_utc``, ``lat``, ``lon`` (deg, WGS84 / ETRS89) and ``h``
+(m above the ellipsoid; NaN where unknown, for the terrain model to fill in).
+"""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from gnss_citygml.errors import InputError, MissingColumnError
+from gnss_citygml.gnss.gnsslogger import GnssLog
+from gnss_citygml.gnss.gpstime import utc_ns
+
+__all__ = ["positions", "read_surveyed_positions", "surveyed_positions"]
+
+
+def positions(
+    log: GnssLog, *, provider: str = "gps", method: str = "nearest", max_gap: float = 2.0
+) -> pd.DataFrame:
+    """The receiver position at each epoch of ``log``, from its ``Fix`` rows.
+
+    Parameters
+    ----------
+    log
+        A log from :func:`~gnss_citygml.gnss.gnsslogger.read_gnsslogger`.
+    provider
+        Fix provider (case-insensitive): ``gps`` (the chipset), ``flp`` (fused), ``nlp``
+        (network), ...
+    method
+        ``"nearest"``: the fix nearest in time; ``"interpolate"``: linear in time between the
+        fixes just before and just after the epoch (the end fix before the first or after the
+        last fix).
+    max_gap
+        Largest time (s) between an epoch and its nearest fix: epochs further from every fix
+        have no position.
+
+    Returns
+    -------
+    pd.DataFrame
+        ``time_utc``, ``lat``, ``lon`` (deg, WGS84), ``h`` (m above the WGS84 ellipsoid; NaN
+        where the fix had no altitude), one row per epoch in
+        :attr:`~gnss_citygml.gnss.gnsslogger.GnssLog.epochs`.
+
+    Raises
+    ------
+    InputError
+        Unknown method or provider, or epochs without a usable fix (with their count and
+        the first of them).
+    """
+    if method not in ("nearest", "interpolate"):
+        raise InputError(
+            f"unknown position method {method!r}", fix="use 'nearest' or 'interpolate'"
+        )
+    fixes = log.fixes[log.fixes["provider"] == provider.lower()]
+    if fixes.empty:
+        have = sorted(log.fixes["provider"].unique())
+        raise InputError(
+            f"no Fix rows from provider {provider!r}",
+            where=str(log.path),
+            fix=f"choose one of {have}" if have else "give surveyed positions instead",
+        )
+    fixes = fixes.sort_values("time_utc").drop_duplicates("time_utc", keep="last")
+    epochs = log.epochs
+    fix_ns, t = utc_ns(fixes["time_utc"]), utc_ns(epochs)
+    gap = round(max_gap * 1e9)
+    # the fixes at or just before and at or just after each epoch (clipped to the ends)
+    before = np.searchsorted(fix_ns, t, side="right").clip(1, len(fix_ns)) - 1
+    after = np.searchsorted(fix_ns, t, side="left").clip(0, len(fix_ns) - 1)
+    d_before, d_after = t - fix_ns[before], fix_ns[after] - t
+    nearest = np.where(np.abs(d_after) < np.abs(d_before), after, before)
+    ok = np.abs(t - fix_ns[nearest]) <= gap
+    if method == "nearest":
+        lo = hi = nearest
+        weight = np.zeros(len(t))
+    else:  # before the first or after the last fix: lo == hi, the end fix
+        lo, hi = before, after
+        span = (fix_ns[hi] - fix_ns[lo]).astype(float)
+        weight = np.divide(d_before, span, out=np.zeros(len(t)), where=span > 0)
+    if not ok.all():
+        raise InputError(
+            f"{np.count_nonzero(~ok)} of {len(t)} epochs have no {provider!r} fix within "
+            f"{max_gap:g} s ({method})",
+            where=f"{log.path}, first at {epochs[~ok][0]}",
+            fix="raise max_gap, choose another provider or method, or give surveyed positions",
+        )
+    lat, h = fixes["lat"].to_numpy(), fixes["altitude"].to_numpy()
+    lon = np.degrees(np.unwrap(np.radians(fixes["lon"].to_numpy())))  # no jump at 180 deg
+    lon = lon[lo] + weight * (lon[hi] - lon[lo])
+    return pd.DataFrame(
+        {
+            "time_utc": epochs,
+            "lat": lat[lo] + weight * (lat[hi] - lat[lo]),
+            "lon": (lon + 180.0) % 360.0 - 180.0,
+            "h": h[lo] + weight * (h[hi] - h[lo]),
+        }
+    )
+
+
+def read_surveyed_positions(path: str | Path) -> pd.DataFrame:
+    """Read a CSV file of manually surveyed receiver positions.
+
+    The file has a header line and one row per receiver and time span::
+
+        receiver,start_utc,end_utc,lat,lon,h
+        london_ucl_2020-02-11_SM-G973F_gnss_log,2020-02-11T08:49:00Z,2020-02-11T08:55:00Z,51.524700,-0.134140,
+        # lines starting with '#' and blank lines are ignored
+
+    ``receiver`` names a log (its file name without suffix,
+    :attr:`~gnss_citygml.gnss.gnsslogger.GnssLog.receiver`).
+    ``start_utc`` and ``end_utc`` are ISO 8601 times, UTC unless they carry an offset; the
+    span includes both ends (where one span ends as the next one starts, the later span
+    wins). ``lat``, ``lon`` are WGS84 / ETRS89 degrees and ``h`` the ellipsoidal height in
+    metres, empty when the height should come from the terrain model. Spans of one receiver
+    must not overlap.
+
+    Parameters
+    ----------
+    path
+        The CSV file.
+
+    Returns
+    -------
+    pd.DataFrame
+        ``receiver``, ``start_utc``, ``end_utc`` (datetime64[ns, UTC]), ``lat``, ``lon``,
+        ``h``, sorted by receiver and start; the file name is in ``attrs["path"]``.
+
+    Raises
+    ------
+    InputError
+        Missing columns, a value that cannot be read, a position out of range, a span that
+        ends before it starts or overlapping spans, naming the file and line.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"cannot read the positions file: {exc}", where=str(path)) from exc
+    lines = [
+        (n, line)
+        for n, line in enumerate(text.splitlines(), 1)
+        if line.strip() and not line.lstrip().startswith("#")
+    ]
+    wanted = ["receiver", "start_utc", "end_utc", "lat", "lon", "h"]
+    if not lines:
+        raise MissingColumnError(wanted, where=str(path), have=[])
+    header = [name.strip() for name in next(csv.reader([lines[0][1]]))]
+    missing = [name for name in wanted if name not in header]
+    if missing:
+        raise MissingColumnError(missing, where=f"{path}, line {lines[0][0]}", have=header)
+    rows = []
+    for n, line in lines[1:]:
+        fields = next(csv.reader([line]))
+        where = f"{path}, line {n}"
+        if len(fields) != len(header):
+            raise InputError(f"{len(fields)} fields, the header has {len(header)}", where=where)
+        rows.append(_surveyed_row(dict(zip(header, fields, strict=True)), where) + (n,))
+    table = pd.DataFrame(rows, columns=[*wanted, "line"]).astype(
+        {"receiver": str, "lat": float, "lon": float, "h": float}
+    )
+    table["start_utc"] = pd.to_datetime(table["start_utc"], utc=True).astype("datetime64[ns, UTC]")
+    table["end_utc"] = pd.to_datetime(table["end_utc"], utc=True).astype("datetime64[ns, UTC]")
+    table = table.sort_values(["receiver", "start_utc"], kind="stable").reset_index(drop=True)
+    same = table["receiver"].eq(table["receiver"].shift())
+    overlap = same & (table["start_utc"] < table["end_utc"].shift())
+    if overlap.any():
+        k = int(np.flatnonzero(overlap)[0])
+        raise InputError(
+            f"the span of receiver {table['receiver'][k]!r} overlaps the span on line "
+            f"{table['line'][k - 1]}",
+            where=f"{path}, line {table['line'][k]}",
+            fix="make the spans of one receiver disjoint",
+        )
+    table = table.drop(columns="line")
+    table.attrs["path"] = str(path)
+    return table
+
+
+def surveyed_positions(surveyed: pd.DataFrame, receiver: str, times) -> pd.DataFrame:
+    """The surveyed position of ``receiver`` at each of ``times``.
+
+    Parameters
+    ----------
+    surveyed
+        A table from :func:`read_surveyed_positions`.
+    receiver
+        The receiver name (e.g. :attr:`~gnss_citygml.gnss.gnsslogger.GnssLog.receiver`).
+    times
+        Times (datetime64 UTC, e.g. :attr:`~gnss_citygml.gnss.gnsslogger.GnssLog.epochs`).
+
+    Returns
+    -------
+    pd.DataFrame
+        ``time_utc``, ``lat``, ``lon``, ``h`` (NaN where the file left it empty), one row per
+        time, in the given order.
+
+    Raises
+    ------
+    InputError
+        The receiver is not in the table, or some times are in none of its spans.
+
+    Examples
+    --------
+    >>> surveyed = pd.DataFrame({
+    ...     "receiver": ["phone"],
+    ...     "start_utc": [pd.Timestamp("2020-02-11 08:49", tz="UTC")],
+    ...     "end_utc": [pd.Timestamp("2020-02-11 08:55", tz="UTC")],
+    ...     "lat": [51.5247], "lon": [-0.1341], "h": [np.nan]})
+    >>> surveyed_positions(surveyed, "phone", [pd.Timestamp("2020-02-11 08:50", tz="UTC")])
+                       time_utc      lat     lon   h
+    0 2020-02-11 08:50:00+00:00  51.5247 -0.1341 NaN
+    """
+    where = surveyed.attrs.get("path", "surveyed positions")
+    spans = surveyed[surveyed["receiver"] == receiver].sort_values("start_utc")
+    if spans.empty:
+        have = sorted(surveyed["receiver"].unique())
+        raise InputError(
+            f"receiver {receiver!r} has no surveyed position",
+            where=where,
+            fix=f"add rows for it (the file has: {', '.join(have) or 'no rows'})",
+        )
+    times = pd.DatetimeIndex(pd.to_datetime(times, utc=True)).as_unit("ns")
+    t, start, end = utc_ns(times), utc_ns(spans["start_utc"]), utc_ns(spans["end_utc"])
+    k = np.searchsorted(start, t, side="right") - 1
+    ok = (k >= 0) & (t <= end[k.clip(0)])
+    if not ok.all():
+        raise InputError(
+            f"{np.count_nonzero(~ok)} of {len(t)} epochs of receiver {receiver!r} are in none "
+            "of its surveyed spans",
+            where=f"{where}, first at {times[~ok][0]}",
+            fix="add or widen a span for these times",
+        )
+    return pd.DataFrame(
+        {
+            "time_utc": times,
+            "lat": spans["lat"].to_numpy()[k],
+            "lon": spans["lon"].to_numpy()[k],
+            "h": spans["h"].to_numpy()[k],
+        }
+    )
+
+
+def _surveyed_row(row: dict[str, str], where: str) -> tuple:
+    """One row of a surveyed positions file, checked: (receiver, start, end, lat, lon, h)."""
+    receiver = row["receiver"].strip()
+    if not receiver:
+        raise InputError("empty receiver name", where=where)
+    start, end = (_utc_time(row[name], name, where) for name in ("start_utc", "end_utc"))
+    if end < start:
+        raise InputError("the span ends before it starts", where=where)
+    lat, lon = (
+        _number(row[name], name, where, limit) for name, limit in (("lat", 90), ("lon", 180))
+    )
+    h = _number(row["h"], "h", where) if row["h"].strip() else np.nan
+    return receiver, start, end, lat, lon, h
+
+
+def _utc_time(text: str, name: str, where: str) -> pd.Timestamp:
+    """An ISO 8601 time, UTC unless it has an offset."""
+    try:
+        stamp = pd.Timestamp(text.strip())
+    except ValueError:
+        stamp = pd.NaT
+    if pd.isna(stamp):
+        raise InputError(f"{name} {text!r} is not a time", where=where, fix="use ISO 8601 times")
+    return stamp.tz_localize("UTC") if stamp.tz is None else stamp.tz_convert("UTC")
+
+
+def _number(text: str, name: str, where: str, limit: float = np.inf) -> float:
+    """A finite number within +-limit."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = np.nan
+    if not abs(value) <= limit or not np.isfinite(value):
+        within = f" within +-{limit:g}" if np.isfinite(limit) else ""
+        raise InputError(f"{name} {text!r} is not a number{within}", where=where)
+    return value

@@ -22,16 +22,16 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from shared_data import GRIDS
-
-from gnss_citygml import estimate_heights
-from gnss_citygml.accuracy import (
+from accuracy import (
     PAPER_THRESHOLDS,
     POSITIONS,
     markdown_table,
     run_accuracy,
     summarise,
 )
+from shared_data import GRIDS
+
+from gnss_citygml import estimate_heights
 from gnss_citygml.model.fourpl import logistic4
 from gnss_citygml.simulate import simulate
 

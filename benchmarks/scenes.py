@@ -16,9 +16,9 @@ import argparse
 
 import numpy as np
 import pandas as pd
+from accuracy import site_tables
 
 from gnss_citygml import estimate_heights
-from gnss_citygml.accuracy import site_tables
 from gnss_citygml.simulate import EPOCH, LOCATIONS, simulate
 from gnss_citygml.simulate.scenes import city_scene
 

@@ -1,8 +1,13 @@
-"""The accuracy runs behind the paper's table and its floors (rays from true positions)."""
+"""The accuracy runs behind the paper's table and its floors (rays from true positions):
+``benchmarks/accuracy.py``, research code outside the installed package."""
+
+import sys
+from pathlib import Path
 
 import pytest
 
-from gnss_citygml.accuracy import markdown_table, run_accuracy, summarise
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+from accuracy import markdown_table, run_accuracy, summarise  # noqa: E402
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,4 @@
-"""Subcommands around the height model: accuracy on simulated sites, simulation, heights."""
+"""Subcommands around the height model: a simulated site, heights from intersections."""
 
 from __future__ import annotations
 
@@ -10,53 +10,7 @@ from ..model.estimate import METHODS
 from ..simulate.scenes import PRESETS
 from . import cli
 from .observe import GRID_DIR
-from .options import OVERWRITE, QUIET, SEED, THRESHOLD, floats, output_file, progress
-
-
-@cli.command()
-@click.option(
-    "--preset",
-    "presets",
-    multiple=True,
-    type=click.Choice(list(PRESETS)),
-    help="Sites to run (default: all four).",
-)
-@click.option(
-    "--thresholds",
-    default="20,25,30,35,40",
-    show_default=True,
-    help="Initial C/N0 thresholds, comma-separated (dB-Hz).",
-)
-@click.option(
-    "--interval",
-    type=float,
-    default=5.0,
-    show_default=True,
-    help="Seconds between simulated epochs (1 = the paper's 1 Hz).",
-)
-@SEED
-@QUIET
-def accuracy(presets, thresholds, interval, seed, quiet):
-    """Accuracy of 4PL-B and the paper's baselines on the simulated sites.
-
-    Simulates the paper's three sites and a small city with manual and GNSS receiver
-    positions, estimates the heights with every method and initial threshold, and prints the
-    RMSE table of the paper ("Root Mean Square Error of mapping algorithms").
-    """
-    from ..accuracy import markdown_table, run_accuracy, summarise
-
-    values = floats(thresholds, "--thresholds")
-    presets = presets or tuple(PRESETS)
-    n_runs = len(presets) * 2 * len(METHODS) * len(values)
-    with progress(n_runs, "fitting", quiet) as bar:
-        results = run_accuracy(
-            presets,
-            thresholds=values,
-            seed=seed,
-            interval=interval,
-            progress=lambda _: bar.update(1),
-        )
-    click.echo(markdown_table(summarise(results)))
+from .options import OVERWRITE, SEED, THRESHOLD, output_file
 
 
 @cli.command()

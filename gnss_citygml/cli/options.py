@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-__all__ = ["OVERWRITE", "QUIET", "SEED", "THRESHOLD", "floats", "output_file", "progress"]
+__all__ = ["OVERWRITE", "QUIET", "SEED", "THRESHOLD", "output_file", "progress"]
 
 SEED = click.option(
     "--seed",
@@ -36,16 +36,6 @@ def output_file(help_text):
         required=True,
         help=help_text,
     )
-
-
-def floats(text, option):
-    """A comma-separated list of numbers, or a usage error naming ``option``."""
-    try:
-        return [float(v) for v in text.split(",") if v.strip()]
-    except ValueError:
-        raise click.BadParameter(
-            f"{text!r} is not a comma-separated list of numbers", param_hint=option
-        ) from None
 
 
 def progress(total, label, quiet):

@@ -1,5 +1,8 @@
 """Accuracy of the height estimators on simulated sites, as in the paper's results table.
 
+Research code, not part of the installed package: ``paper_table.py`` and ``scenes.py`` run it
+(tests/test_accuracy.py checks it).
+
 For each preset site and each source of receiver positions, every method is run once per
 initial C/N0 threshold; the RMSE against the true heights is taken over all runs and target
 buildings that converged (the paper excludes non-converged 4PL-B runs the same way) and the
@@ -14,9 +17,13 @@ import time
 import numpy as np
 import pandas as pd
 
-from .calibrate import calibrate_receivers
-from .model.estimate import METHODS, estimate_heights
-from .simulate import simulate
+from gnss_citygml.calibrate import calibrate_receivers
+from gnss_citygml.footprints import read_footprints
+from gnss_citygml.model.estimate import METHODS, estimate_heights
+from gnss_citygml.observations import read_observations
+from gnss_citygml.pipeline import intersections, receivers
+from gnss_citygml.simulate import simulate
+from gnss_citygml.simulate.files import write_site
 
 __all__ = [
     "PAPER_THRESHOLDS",
@@ -153,11 +160,6 @@ def site_tables(sim, grid_dir=None, positions="reported", position_sd=None, posi
         if positions == "reported" and position_sd is None:
             return rays, footprints, sim.intersections
         return rays, footprints, _recast(rays, footprints, position_sd, position_window)
-    from .footprints import read_footprints
-    from .observations import read_observations
-    from .pipeline import receivers
-    from .simulate.files import write_site
-
     with tempfile.TemporaryDirectory() as folder:
         paths = write_site(sim, folder, grid_dir=grid_dir)
         rays = receivers(
@@ -187,8 +189,6 @@ def _oracle_rays(rays: pd.DataFrame, positions: str) -> pd.DataFrame:
 
 def _recast(rays, footprints, position_sd=None, position_window=None) -> pd.DataFrame:
     """The intersections table of rays cast from (corrected) positions."""
-    from .pipeline import intersections  # the pipeline composes the stages: import it lazily
-
     return intersections(rays, footprints, position_sd=position_sd, position_window=position_window)
 
 

@@ -19,7 +19,8 @@ import pandas as pd
 
 from gnss_citygml.calibrate import calibrate_receivers
 from gnss_citygml.footprints import read_footprints
-from gnss_citygml.model.estimate import METHODS, estimate_heights
+from gnss_citygml.model import METHODS
+from gnss_citygml.model.estimate import estimate_heights
 from gnss_citygml.observations import read_observations
 from gnss_citygml.pipeline import intersections, receivers
 from gnss_citygml.simulate import simulate

@@ -65,7 +65,8 @@ class Writer:
         fill = {**places, "out": out, "variant": variant}
         args = [a.format(**fill) for a in self.args]
         extra = self.previous if variant == "previous" else self.new
-        has_overwrite = any(p.name == "overwrite" for p in cli.commands[self.args[0]].params)
+        command = cli.get_command(None, self.args[0])
+        has_overwrite = any(p.name == "overwrite" for p in command.params)
         overwrite = ["--overwrite"] if variant == "new" and has_overwrite else []
         return [*args, *extra, *overwrite]
 

@@ -1,7 +1,10 @@
 """The ``gnss-citygml`` command: one click group, one thin subcommand per job.
 
 Subcommands only parse options and compose the library's stages; each module of this package
-holds the commands of one part of the pipeline. Every
+holds the commands of one part of the pipeline. The group loads a subcommand's module only when
+that subcommand is invoked (as cjio's and rio's groups do): ``--version`` and ``--help`` list
+the commands from :data:`COMMANDS` and import no stage, so that they answer at once instead of
+loading pandas, scipy, GDAL and PROJ first. Every
 :class:`~gnss_citygml.errors.GnssCityGMLError` becomes one line on stderr
 (``error: <what> (<where>): <how to fix>``) and exit code 2, never a traceback; warnings are
 printed as one ``warning:`` line each. Anything else that escapes a command is a bug of the
@@ -14,22 +17,75 @@ from __future__ import annotations
 import os
 import sys
 import warnings
+from importlib import import_module
 
 import click
 
-from .. import __version__
 from ..errors import GnssCityGMLError, escape_controls
 
+__all__ = ["COMMANDS", "LazyGroup", "cli", "main"]
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
-@click.version_option(__version__, prog_name="gnss-citygml")
+#: Every subcommand: the module of this package that defines it (as a function of the same
+#: name) and the first sentence of its help, which the group's ``--help`` shows without
+#: importing the module (tests/test_package.py checks both against the commands themselves).
+COMMANDS = {
+    "convert": (
+        "citymodel",
+        "Turn footprints with a height attribute into CityJSON, CityJSONSeq or CityGML LOD1.",
+    ),
+    "estimate": ("estimate", "Estimate the height of every footprint from GNSS OBSERVATIONS."),
+    "export": (
+        "citymodel",
+        "Write the city model of a heights table (CSV or Parquet, from `heights`).",
+    ),
+    "grids": ("observe", "Show where the OSTN15 / OSGM15 grids are (and fetch them with --fetch)."),
+    "heights": (
+        "models",
+        "Estimate building heights from an intersections table (CSV or Parquet).",
+    ),
+    "observe": (
+        "observe",
+        "Turn GnssLogger LOGS and satellite orbits into an observations table.",
+    ),
+    "simulate": (
+        "models",
+        "Simulate a site and write the files a user brings to `estimate`: observations, "
+        "footprints.gpkg and dem.tif (EPSG:27700), plus the intersections and the true heights.",
+    ),
+    "validate": (
+        "citymodel",
+        "Check a CityGML 2.0, CityJSON or CityJSONSeq file: exit 0 valid, 1 invalid, 2 error.",
+    ),
+}
+
+
+class LazyGroup(click.Group):
+    """A click group whose subcommands (:data:`COMMANDS`) are imported when first asked for."""
+
+    def list_commands(self, ctx: click.Context | None) -> list[str]:
+        return sorted(COMMANDS)
+
+    def get_command(self, ctx: click.Context | None, cmd_name: str) -> click.Command | None:
+        if cmd_name not in COMMANDS:
+            return None
+        module = import_module(f".{COMMANDS[cmd_name][0]}", __name__)
+        return getattr(module, cmd_name)
+
+    def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+        """The list of commands with their short help, as click writes it, from the table."""
+        limit = formatter.width - 6 - max(map(len, COMMANDS))
+        rows = [
+            (name, click.Command(name, help=COMMANDS[name][1]).get_short_help_str(limit))
+            for name in sorted(COMMANDS)
+        ]
+        with formatter.section("Commands"):
+            formatter.write_dl(rows)
+
+
+@click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(package_name="gnss-citygml", prog_name="gnss-citygml")
 def cli():
     """3D city maps (CityGML LOD1 / CityJSON) from crowdsourced smartphone GNSS data."""
-
-
-from . import citymodel, estimate, models, observe  # noqa: E402  (subcommands register on cli)
-
-__all__ = ["cli", "citymodel", "estimate", "main", "models", "observe"]
 
 
 def _one_line_warning(message, category, filename, lineno, file=None, line=None):

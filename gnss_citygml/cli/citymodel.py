@@ -8,7 +8,6 @@ from pathlib import Path
 import click
 
 from ..errors import escape_controls
-from . import cli
 from .observe import GRID_DIR
 from .options import OVERWRITE, QUIET, output_file, progress
 
@@ -75,7 +74,7 @@ def _write_model(frame, writer, output, overwrite, strict, no_validate, schema_d
     click.echo(f"{result.written} buildings, {len(result.skipped)} skipped -> {output}{checked}")
 
 
-@cli.command()
+@click.command()
 @click.argument("input_", metavar="INPUT", type=click.Path(path_type=Path))
 @click.option("--layer", help="Layer of INPUT (default: its only polygon layer).")
 @click.option("--id-field", help="Field with the building ids (default: toid, id or fid).")
@@ -125,7 +124,7 @@ def convert(
     _write_model(frame, writer, output, overwrite, strict, no_validate, schema_dir, quiet)
 
 
-@cli.command()
+@click.command()
 @click.argument("heights", type=click.Path(path_type=Path))
 @click.option(
     "--footprints",
@@ -165,7 +164,7 @@ def export(
     _write_model(frame, writer, output, overwrite, strict, no_validate, schema_dir, quiet)
 
 
-@cli.command()
+@click.command()
 @click.argument("path", type=click.Path(path_type=Path))
 @_SCHEMA_DIR
 @click.option(

@@ -6,13 +6,12 @@ from pathlib import Path
 
 import click
 
-from ..model.estimate import METHODS
-from . import cli
+from ..model import METHODS
 from .observe import GRID_DIR
 from .options import QUIET, THRESHOLD, output_file, progress
 
 
-@cli.command()
+@click.command()
 @click.argument("observations", type=click.Path(dir_okay=False, path_type=Path))
 @click.argument("footprints", type=click.Path(path_type=Path))
 @click.option(

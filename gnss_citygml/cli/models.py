@@ -6,14 +6,13 @@ from pathlib import Path
 
 import click
 
-from ..model.estimate import METHODS
+from ..model import METHODS
 from ..simulate.scenes import PRESETS
-from . import cli
 from .observe import GRID_DIR
 from .options import OVERWRITE, SEED, THRESHOLD, output_file
 
 
-@cli.command()
+@click.command()
 @click.argument("preset", type=click.Choice(list(PRESETS)))
 @click.option(
     "--output-dir",
@@ -56,7 +55,7 @@ def simulate(preset, output_dir, locations, seed, interval, fmt, grid_dir, overw
     )
 
 
-@cli.command()
+@click.command()
 @click.argument("intersections", type=click.Path(path_type=Path))
 @output_file("Heights table (.csv or .parquet).")
 @click.option(

@@ -6,7 +6,6 @@ from pathlib import Path
 
 import click
 
-from . import cli
 from .options import OVERWRITE, QUIET, output_file, progress
 
 GRID_DIR = click.option(
@@ -17,7 +16,7 @@ GRID_DIR = click.option(
 )
 
 
-@cli.command()
+@click.command()
 @click.argument("logs", nargs=-1, required=True, type=click.Path(path_type=Path))
 @click.option(
     "--orbits",
@@ -95,7 +94,7 @@ def observe(
     )
 
 
-@cli.command()
+@click.command()
 @GRID_DIR
 @click.option("--fetch", is_flag=True, help="Download missing grids from PROJ's CDN.")
 def grids(grid_dir, fetch):

@@ -9,13 +9,11 @@ import numpy as np
 import pandas as pd
 
 from ..errors import InputError, MissingColumnError, ModelError
+from . import METHODS
 from .baselines import bayes_heights, hinge_heights
 from .fourplb import WEIGHTINGS, fourplb
 
-__all__ = ["METHODS", "HEIGHTS_COLUMNS", "estimate_heights"]
-
-#: The estimators, by the names the paper uses.
-METHODS = ("4PL-B", "4PL", "hinge", "bayes")
+__all__ = ["HEIGHTS_COLUMNS", "estimate_heights"]
 
 #: Columns of the heights table, in order (see DESIGN.md; ``status`` says why a building did
 #: not converge, or ``ok``).

@@ -1,53 +1,137 @@
 """gnss-citygml: 3D city maps (CityGML LOD1 / CityJSON) from crowdsourced smartphone GNSS data.
 
-The public API is re-exported here; see DESIGN.md for the tables that pass between stages.
-Stages with heavy dependencies (GDAL, PROJ) are imported on first use, so that
-``import gnss_citygml`` and the command line start fast.
+The public API is the job, with GeoDataFrames in and out; see DESIGN.md for the tables that
+pass between the stages. Every name but the errors is imported from its module when first
+asked for (:data:`_LAZY`), so that ``import gnss_citygml`` and the command line start without
+loading numpy, pandas, scipy, GDAL or PROJ.
+
+- :func:`read_observations` and :func:`read_footprints` read the inputs (footprints leave in
+  EPSG:27700, converted with OSTN15 from ETRS89 or WGS 84);
+- :func:`estimate` runs the pipeline: observations + footprints + DEM -> one row per footprint
+  with its height (:func:`estimate_heights` is the height model alone, on intersections);
+- :func:`write_cityjson`, :func:`write_cityjsonseq` and :func:`write_citygml` write that
+  GeoDataFrame as an LOD1 city model, validated before it is renamed into place;
+- :func:`validate_file` checks a CityGML or CityJSON file.
+
+>>> import gnss_citygml
+>>> gnss_citygml.METHODS
+('4PL-B', '4PL', 'hinge', 'bayes')
+>>> str(gnss_citygml.InputError("no DEM", where="estimate", fix="give one"))
+'no DEM (estimate): give one'
 """
 
+from __future__ import annotations
+
 from importlib import import_module
+from typing import TYPE_CHECKING
 
 from .errors import GnssCityGMLError, InputError, MissingColumnError, ModelError
-from .model import HEIGHTS_COLUMNS, METHODS, SignalClassifier, estimate_heights
 
-__version__ = "0.1.0"
-
-#: Public names defined in submodules that are imported when first asked for.
+#: Public names defined in submodules, imported from them when first asked for.
 _LAZY = {
-    "check_observations": "observations",
+    # the job
+    "estimate": "pipeline",
+    "estimate_heights": "model.estimate",
     "read_observations": "observations",
+    "read_footprints": "footprints",
+    "write_cityjson": "export.cityjson",
+    "write_cityjsonseq": "export.cityjson",
+    "write_citygml": "export.citygml",
+    "validate_file": "validate",
+    # the stages and tables
+    "HEIGHTS_COLUMNS": "model.estimate",
+    "METHODS": "model",
+    "SignalClassifier": "model.classifier",
+    "check_observations": "observations",
     "write_observations": "observations",
     "to_osgb": "geodesy",
     "from_osgb": "geodesy",
     "grid_bearing": "geodesy",
     "meridian_convergence": "geodesy",
-    "GridError": "geodesy",
-    "OutsideExtentError": "geodesy",
-    "read_footprints": "footprints",
     "building_ground": "terrain",
     "sample_ground": "terrain",
     "observe": "gnss.observe",
     "read_gnsslogger": "gnss.gnsslogger",
     "load_orbits": "gnss.orbits",
+    # the errors of the geodesy
+    "GridError": "geodesy",
+    "OutsideExtentError": "geodesy",
 }
 
+if TYPE_CHECKING:  # the same names, for type checkers (tests/test_package.py compares them)
+    from .export.citygml import write_citygml
+    from .export.cityjson import write_cityjson, write_cityjsonseq
+    from .footprints import read_footprints
+    from .geodesy import (
+        GridError,
+        OutsideExtentError,
+        from_osgb,
+        grid_bearing,
+        meridian_convergence,
+        to_osgb,
+    )
+    from .gnss.gnsslogger import read_gnsslogger
+    from .gnss.observe import observe
+    from .gnss.orbits import load_orbits
+    from .model import METHODS
+    from .model.classifier import SignalClassifier
+    from .model.estimate import HEIGHTS_COLUMNS, estimate_heights
+    from .observations import check_observations, read_observations, write_observations
+    from .pipeline import estimate
+    from .terrain import building_ground, sample_ground
+    from .validate import validate_file
+
+    __version__: str
+
 __all__ = [
+    # the job
+    "estimate",
+    "estimate_heights",
+    "read_observations",
+    "read_footprints",
+    "write_cityjson",
+    "write_cityjsonseq",
+    "write_citygml",
+    "validate_file",
+    # the stages and tables
     "HEIGHTS_COLUMNS",
     "METHODS",
+    "SignalClassifier",
+    "check_observations",
+    "write_observations",
+    "to_osgb",
+    "from_osgb",
+    "grid_bearing",
+    "meridian_convergence",
+    "building_ground",
+    "sample_ground",
+    "observe",
+    "read_gnsslogger",
+    "load_orbits",
+    # the errors
     "GnssCityGMLError",
     "InputError",
     "MissingColumnError",
     "ModelError",
-    "SignalClassifier",
+    "GridError",
+    "OutsideExtentError",
     "__version__",
-    "estimate_heights",
-    *_LAZY,
 ]
 
 
-def __getattr__(name):
-    if name in _LAZY:
+def __getattr__(name: str):
+    """The lazily imported names of :data:`_LAZY`, and ``__version__`` from the metadata."""
+    if name == "__version__":
+        from importlib.metadata import version
+
+        value = version("gnss-citygml")
+    elif name in _LAZY:
         value = getattr(import_module(f".{_LAZY[name]}", __name__), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    else:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

@@ -18,7 +18,7 @@ import shapely
 
 from .calibrate import calibrate_receivers
 from .errors import InputError
-from .geodesy import grid_bearing, to_osgb
+from .geodesy import grid_bearing, is_bng, to_osgb
 from .model.estimate import HEIGHTS_COLUMNS, estimate_heights
 from .observations import check_observations
 from .raycast import footprint_entries
@@ -244,7 +244,14 @@ def estimate(
         columns and ``relative_height`` (height - ground). Buildings no ray enters, or whose
         estimate did not converge, have empty heights and ``converged = False`` with the
         reason in ``status``: never a guess.
+
+    Raises
+    ------
+    InputError
+        Footprints that are not a GeoDataFrame in EPSG:27700 (before any work), and any
+        stage's error.
     """
+    _check_footprints(footprints)
     if position_window is not None and position_sd is None:
         raise InputError(
             "a position window without a position error",
@@ -303,6 +310,35 @@ def estimate(
     heights = estimate_heights(inter, method=method, init_threshold=init_threshold, **options)
     say(STAGES[5])
     return _join(buildings, heights, method)
+
+
+def _check_footprints(footprints) -> None:
+    """Refuse footprints that are not a GeoDataFrame in British National Grid, naming the CRS
+    found: the rays are cast in EPSG:27700, where footprints in another CRS lie far away."""
+    if not isinstance(footprints, gpd.GeoDataFrame):
+        raise InputError(
+            f"the footprints must be a GeoDataFrame, not {type(footprints).__name__}",
+            where="footprints",
+            fix="read them with read_footprints(path)",
+        )
+    crs = footprints.crs
+    if crs is None:
+        raise InputError(
+            "the footprints have no CRS",
+            where="footprints",
+            fix="read the file with read_footprints(path), or set the CRS of the coordinates, "
+            "e.g. gdf.set_crs('EPSG:27700') for British National Grid",
+        )
+    if not is_bng(crs):
+        authority = crs.to_authority()
+        found = crs.name + (f" ({':'.join(authority)})" if authority else "")
+        raise InputError(
+            f"the footprints are in {found}, not EPSG:27700 (British National Grid)",
+            where="footprints",
+            fix="read the file with read_footprints(path), which converts them with OSTN15 "
+            "(gdf.to_file('footprints.gpkg') first for a GeoDataFrame); not gdf.to_crs, which "
+            "may take PROJ's 2 m Helmert transformation",
+        )
 
 
 def _check_near(rx: pd.DataFrame, footprints: gpd.GeoDataFrame, max_range: float) -> None:

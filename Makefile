@@ -45,6 +45,7 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/export.py
 	$(BIN)/python benchmarks/geodesy.py $(GRIDS)
 	$(BIN)/python benchmarks/paper_table.py
+	$(BIN)/python benchmarks/startup.py
 
 clean:
 	rm -rf $(VENV) demo-out .pytest_cache .ruff_cache build *.egg-info

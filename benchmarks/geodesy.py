@@ -4,7 +4,7 @@ Prints points per second of ``to_osgb`` and ``from_osgb`` for points in one city
 for points spread over Great Britain in random order (the case PROJ's grid cache handles
 badly unless the points are sorted, which the module does).
 
-    python benchmarks/geodesy.py                      # grids from $GNSS_CITYGML_GRID_DIR etc.
+    python benchmarks/geodesy.py                      # grids found as always (bundled last)
     python benchmarks/geodesy.py --grid-dir ../shared/data/geodesy -n 2000000
 """
 

@@ -17,11 +17,15 @@ it (metres off, silently), so the user transforms the data with the transformati
 it. PROJ's own choice is never taken: without the grids on its search path it picks "OSGB36 to
 WGS 84 (6)", a Helmert transformation 2 m off, without a word.
 
-The grids are looked for, in order, in an explicit ``grid_dir`` (or ``$GNSS_CITYGML_GRID_DIR``),
-pyproj's user data directory and PROJ's data directories; with ``network=True`` missing grids
-are downloaded from PROJ's CDN into the user data directory first (:func:`fetch_grids`). A grid
-that cannot be found is a :class:`GridError`, never a fallback. The folders are added to PROJ's
-search path with :func:`pyproj.datadir.append_data_dir` (``PROJ_DATA`` is never touched).
+The package ships both grids (:data:`BUNDLED_GRID_DIR`, with Ordnance Survey's 2-clause BSD
+notice beside them), so that it works offline with nothing else installed. They are looked for,
+in order, in an explicit ``grid_dir`` (or ``$GNSS_CITYGML_GRID_DIR``), pyproj's user data
+directory, PROJ's data directories and last the bundled copy: a copy the user or PROJ keeps wins.
+Only if even the bundled copy is gone (a damaged install) are missing grids downloaded from
+PROJ's CDN into the user data directory with ``network=True`` (:func:`fetch_grids`); a grid that
+cannot be found is a :class:`GridError`, never a fallback to another transformation. The folders
+are added to PROJ's search path with :func:`pyproj.datadir.append_data_dir` (``PROJ_DATA`` is
+never touched).
 
 Two PROJ behaviours are guarded against:
 
@@ -60,6 +64,7 @@ from pyproj.sync import get_proj_endpoint
 from .errors import GnssCityGMLError, InputError
 
 __all__ = [
+    "BUNDLED_GRID_DIR",
     "ETRS89",
     "GRIDS",
     "GRID_DIR_ENV",
@@ -88,9 +93,15 @@ GRIDS = {
     "uk_os_OSTN15_NTv2_OSGBtoETRS.tif": "OSTN15 horizontal shifts (OSGB36 to ETRS89 (2))",
     "uk_os_OSGM15_GB.tif": "OSGM15 geoid (ETRS89 to ODN height (2))",
 }
+#: The copy of the grids shipped inside the package (a real folder: PROJ opens grids by path),
+#: searched last; its README names their source and checksums, its LICENSE their terms.
+BUNDLED_GRID_DIR = Path(__file__).resolve().parent / "data" / "grids"
+#: How messages name the bundled copy (``source`` in :func:`grid_status`).
+_BUNDLED = "bundled with gnss-citygml"
 
 _HOW_TO_GET = (
-    "run `gnss-citygml grids --fetch` (downloads them into pyproj's user data directory), or "
+    "reinstall gnss-citygml (it ships them), run `gnss-citygml grids --fetch` (downloads "
+    "them into pyproj's user data directory), or "
     + " and ".join(f"`projsync --file {name}`" for name in GRIDS)
     + f", or put them in a folder given by --grid-dir or ${GRID_DIR_ENV}"
 )
@@ -150,9 +161,11 @@ def to_osgb(
         Ellipsoidal height (m). NaN where unknown: the point still gets its easting and
         northing, and its ODN height is NaN.
     grid_dir
-        A folder holding the grids, searched first (default ``$GNSS_CITYGML_GRID_DIR``).
+        A folder holding the grids, searched first (default ``$GNSS_CITYGML_GRID_DIR``); then
+        PROJ's folders, then the copy bundled with the package.
     network
-        Download missing grids from PROJ's CDN into pyproj's user data directory.
+        Download grids found nowhere, not even in the bundled copy, from PROJ's CDN into
+        pyproj's user data directory.
     labels
         How an error names each point, as the user knows it (e.g. ``"receiver A at
         2020-06-01 10:00:00"``, ``"footprint osgb1000005430576"``), one per point of the
@@ -358,7 +371,9 @@ def grid_status(grid_dir: str | os.PathLike | None = None) -> pd.DataFrame:
     -------
     pandas.DataFrame
         One row per grid: ``grid`` (file name), ``purpose``, ``found`` (bool), ``source``
-        (which search location, or ``"missing"``) and ``path`` (the file, or ``""``).
+        (which search location: ``"grid_dir"``, ``"$GNSS_CITYGML_GRID_DIR"``, ``"pyproj user
+        data directory"``, ``"PROJ data directory"``, ``"bundled with gnss-citygml"``, or
+        ``"missing"``) and ``path`` (the file, or ``""``).
     """
     rows = []
     for name, purpose in GRIDS.items():
@@ -502,6 +517,7 @@ def _search_dirs(grid_dir) -> list[tuple[str, Path]]:
     for folder in get_data_dir().split(os.pathsep):
         if folder not in _APPENDED:
             dirs.append(("PROJ data directory", Path(folder)))
+    dirs.append((_BUNDLED, BUNDLED_GRID_DIR))
     return dirs
 
 

@@ -87,14 +87,6 @@ def test_observe_with_orbits_of_another_day_writes_nothing(shared_data, tmp_path
     assert not list(tmp_path.iterdir())
 
 
-def test_grids_status(shared_data, tmp_path, capsys, monkeypatch):
-    code, out, _ = run(["grids", "--grid-dir", str(shared_data / "geodesy")], capsys)
-    assert code == 0 and out.count("uk_os_") == 4
-    monkeypatch.setenv("PROJ_USER_WRITABLE_DIRECTORY", str(tmp_path / "user"))  # an empty one
-    code, out, err = run(["grids", "--grid-dir", str(tmp_path)], capsys)
-    assert code == 1 and out.count("MISSING") == 2 and "grids --fetch" in err
-
-
 def simulated_site(folder, grids, capsys, interval="30"):
     """A simulated Hermitage Rd written as a user's files in ``folder``."""
     args = ["simulate", "hermitage", "-o", str(folder), "--interval", interval, "--grid-dir", grids]

@@ -7,6 +7,7 @@ import hashlib
 import io
 import json
 import os
+import shutil
 import subprocess
 import sys
 import textwrap
@@ -20,9 +21,11 @@ import pytest
 import shapely
 from pyproj import Geod
 
+import gnss_citygml
 from gnss_citygml.cli import main
 from gnss_citygml.footprints import read_footprints
 from gnss_citygml.geodesy import (
+    BUNDLED_GRID_DIR,
     GRID_DIR_ENV,
     GRIDS,
     CrsError,
@@ -43,13 +46,16 @@ CITY = Path(__file__).resolve().parents[1] / "examples" / "city"
 
 
 @pytest.fixture(scope="module")
-def grid_dir(shared_data):
-    return shared_data / "geodesy"
+def grid_dir():
+    """The grids' folder given explicitly: the copy bundled with the package (byte for byte the
+    reference data's, see test_the_bundled_grids_are_the_reference_files)."""
+    return BUNDLED_GRID_DIR
 
 
 @pytest.fixture(scope="module")
-def os_points(grid_dir):
+def os_points(shared_data):
     """The OS test inputs and expected outputs of both directions, one row per point."""
+    grid_dir = shared_data / "geodesy"
     etrs = pd.read_csv(grid_dir / "OSTN15_OSGM15_TestInput_ETRStoOSGB.txt")
     etrs.columns = ["point", "lat", "lon", "h"]
     osgb = pd.read_csv(grid_dir / "OSTN15_OSGM15_TestOutput_ETRStoOSGB.txt").iloc[:, :5]
@@ -160,31 +166,64 @@ def test_non_finite_coordinates_are_an_error(grid_dir):
     assert "point 1 (lat nan" in str(info.value) and "point 2 (lat 51.5" in str(info.value)
 
 
-def _fresh_env(tmp_path, endpoint=None):
-    """The environment of a fresh interpreter whose PROJ user directory is ``tmp_path/user``
-    (so grids fetched on this machine do not count), without $GNSS_CITYGML_GRID_DIR and, if
-    given, with another CDN endpoint. No grid folder is on its PROJ search path at the start,
-    as for a user's run (in this process, earlier tests have added the shared one)."""
-    env = dict(os.environ, PROJ_USER_WRITABLE_DIRECTORY=str(tmp_path / "user"))
-    env.pop(GRID_DIR_ENV, None)
+@pytest.fixture(scope="module")
+def unbundled(tmp_path_factory):
+    """A folder holding the package without its bundled grids (an install that lost them), for
+    a fresh interpreter's PYTHONPATH: only then is a grid found nowhere."""
+    site = tmp_path_factory.mktemp("unbundled")
+    package = Path(gnss_citygml.__file__).parent
+    shutil.copytree(
+        package,
+        site / "gnss_citygml",
+        ignore=lambda folder, names: (
+            ["grids"] if Path(folder) == BUNDLED_GRID_DIR.parent else ["__pycache__"]
+        ),
+    )
+    return site
+
+
+def _fresh_env(tmp_path, endpoint=None, package=None):
+    """The environment of a fresh interpreter whose home is the empty ``tmp_path/home`` and PROJ
+    user directory the empty ``tmp_path/user`` (so grids fetched on this machine do not count),
+    without $GNSS_CITYGML_GRID_DIR and, if given, with another CDN endpoint and the package
+    imported from the folder ``package`` (:func:`unbundled`). No grid folder is on its PROJ
+    search path at the start, as for a user's run (in this process, earlier tests added some)."""
+    (tmp_path / "home").mkdir(parents=True, exist_ok=True)
+    env = dict(
+        os.environ,
+        HOME=str(tmp_path / "home"),
+        PROJ_USER_WRITABLE_DIRECTORY=str(tmp_path / "user"),
+    )
+    for name in (GRID_DIR_ENV, "XDG_DATA_HOME", "PYTHONPATH"):
+        env.pop(name, None)
     if endpoint:
         env["PROJ_NETWORK_ENDPOINT"] = endpoint
+    if package:
+        env["PYTHONPATH"] = str(package)
     return env
 
 
-def _isolated(code, tmp_path, endpoint=None):
-    """Run ``code`` in a fresh interpreter (:func:`_fresh_env`); its printed lines."""
+def _isolated(code, tmp_path, endpoint=None, package=None):
+    """Run ``code`` in a fresh interpreter (:func:`_fresh_env`); its printed lines. With
+    ``package``, the first line is checked to be the package's folder and left out."""
+    code = textwrap.dedent(code)
+    if package:
+        code = "import gnss_citygml; print(gnss_citygml.__file__)\n" + code
     run = subprocess.run(
-        [sys.executable, "-c", textwrap.dedent(code)],
-        env=_fresh_env(tmp_path, endpoint),
+        [sys.executable, "-c", code],
+        env=_fresh_env(tmp_path, endpoint, package),
         capture_output=True,
         text=True,
         check=True,
+        cwd=tmp_path,
     )
-    return run.stdout.splitlines()
+    lines = run.stdout.splitlines()
+    if package:
+        assert Path(lines.pop(0)).is_relative_to(package)
+    return lines
 
 
-def _commands(runs, tmp_path):
+def _commands(runs, tmp_path, package=None):
     """Several ``gnss-citygml`` runs (argument lists) in one fresh interpreter
     (:func:`_fresh_env`): (exit code, stdout, stderr) of each."""
     code = f"""
@@ -200,13 +239,76 @@ def _commands(runs, tmp_path):
                     results.append((exit_.code, out.getvalue(), err.getvalue()))
         print(json.dumps(results))
     """
-    (line,) = _isolated(code, tmp_path)
+    (line,) = _isolated(code, tmp_path, package=package)
     return json.loads(line)
 
 
-def test_missing_grids_name_the_files_and_how_to_get_them(grid_dir, tmp_path):
-    """A run with the real grids first (so their folder is on PROJ's search path), then an
-    empty grid folder must still fail, naming both files, instead of reusing the first."""
+def test_the_bundled_grids_are_the_reference_files(shared_data):
+    """PROJ-data's files, unchanged: the size and checksum their README gives, byte for byte
+    the reference data's; with Ordnance Survey's notice beside them."""
+    readme = (BUNDLED_GRID_DIR / "README.md").read_text()
+    for name in GRIDS:
+        data = (BUNDLED_GRID_DIR / name).read_bytes()
+        assert f"`{name}` | {len(data)} | `{hashlib.sha256(data).hexdigest()}`" in readme
+        assert data == (shared_data / "geodesy" / name).read_bytes()
+    notice = (BUNDLED_GRID_DIR / "LICENSE").read_text()
+    assert "Ordnance Survey Limited 2016" in notice and "2. Redistributions in binary" in notice
+
+
+def test_a_user_without_grids_gets_the_bundled_copy(os_points, tmp_path):
+    """An empty home, no grid folder, nothing in PROJ's user folder (fresh interpreter): the
+    bundled grids are used, and match all 40 OS test points."""
+    points = [os_points[c].tolist() for c in ("lat", "lon", "h")]
+    code = f"""
+        import json
+        from gnss_citygml.geodesy import grid_status, to_osgb
+        print(grid_status().to_json(orient="records"))
+        print(json.dumps([a.tolist() for a in to_osgb(*{points!r})]))
+    """
+    status, result = _isolated(code, tmp_path)
+    status = json.loads(status)
+    assert [row["source"] for row in status] == ["bundled with gnss-citygml"] * 2
+    assert [row["path"] for row in status] == [str(BUNDLED_GRID_DIR / name) for name in GRIDS]
+    e, n, odn = map(np.array, json.loads(result))
+    assert np.hypot(e - os_points["e"], n - os_points["n"]).max() < 0.008  # as with grid_dir
+    assert np.abs(odn - os_points["odn"]).max() < 0.002
+
+
+def test_an_explicit_grid_dir_wins_over_the_bundled_copy(shared_data, tmp_path):
+    """grid_dir's copy is the one PROJ uses: a good copy there is reported and gives TP09; a
+    wrong geoid there (Malin Head's, under the GB geoid's name) is refused by the TP09 check,
+    never quietly replaced by the bundled copy."""
+    good, wrong = tmp_path / "good", tmp_path / "wrong"
+    for folder in (good, wrong):
+        folder.mkdir()
+        shutil.copy(BUNDLED_GRID_DIR / "uk_os_OSTN15_NTv2_OSGBtoETRS.tif", folder)
+    shutil.copy(BUNDLED_GRID_DIR / "uk_os_OSGM15_GB.tif", good)
+    shutil.copy(shared_data / "geodesy" / "uk_os_OSGM15_Malin.tif", wrong / "uk_os_OSGM15_GB.tif")
+    tp09 = "51.48936564950, -0.11992557180, 66.057"
+    code = f"""
+        from gnss_citygml.geodesy import GridError, grid_status, to_osgb
+        print(grid_status({str(good)!r}).to_json(orient="records"))
+        print(to_osgb({tp09}, grid_dir={str(good)!r})[2])
+    """
+    status, odn = _isolated(code, tmp_path / "1")
+    assert [row["path"] for row in json.loads(status)] == [str(good / name) for name in GRIDS]
+    assert {row["source"] for row in json.loads(status)} == {"grid_dir"}
+    assert float(odn) == pytest.approx(20.544, abs=2e-3)
+    code = f"""
+        from gnss_citygml.geodesy import GridError, to_osgb
+        try:
+            print(to_osgb({tp09}, grid_dir={str(wrong)!r})[2])
+        except GridError as error:
+            print(error)
+    """
+    (message,) = _isolated(code, tmp_path / "2")
+    assert message.startswith("the grids do not reproduce Ordnance Survey test point TP09")
+
+
+def test_missing_grids_name_the_files_and_how_to_get_them(grid_dir, unbundled, tmp_path):
+    """An install that lost its bundled grids: a run with the real grids first (so their
+    folder is on PROJ's search path), then an empty grid folder must still fail, naming both
+    files, instead of reusing the first."""
     empty = tmp_path / "empty"
     empty.mkdir()
     code = f"""
@@ -218,28 +320,42 @@ def test_missing_grids_name_the_files_and_how_to_get_them(grid_dir, tmp_path):
         except GridError as error:
             print(error)
     """
-    first, status, message = _isolated(code, tmp_path)
+    first, status, message = _isolated(code, tmp_path, package=unbundled)
     assert 14.0 < float(first) < 15.0  # ODN = 60 m - ~45.5 m of geoid in London
     assert [row["found"] for row in json.loads(status)] == [False, False]
     assert "missing PROJ grid(s) uk_os_OSTN15_NTv2_OSGBtoETRS.tif, uk_os_OSGM15_GB.tif" in message
     assert str(empty) in message and str(tmp_path / "user") in message
-    assert "gnss-citygml grids --fetch" in message
+    assert f"{unbundled / 'gnss_citygml' / 'data' / 'grids'} (bundled with gnss-citygml)" in message
+    assert "reinstall gnss-citygml" in message and "gnss-citygml grids --fetch" in message
     assert "projsync --file uk_os_OSGM15_GB.tif" in message
 
 
-def test_network_fetches_missing_grids_into_the_user_directory(grid_dir, tmp_path):
+def test_network_fetches_missing_grids_into_the_user_directory(grid_dir, unbundled, tmp_path):
     code = """
         from gnss_citygml.geodesy import grid_status, to_osgb
         print(to_osgb(51.48936564950, -0.11992557180, 66.057, network=True)[2])
         print(grid_status().to_json(orient="records"))
     """
-    odn, status = _isolated(code, tmp_path, endpoint=_fake_cdn(tmp_path, grid_dir))
+    odn, status = _isolated(
+        code, tmp_path, endpoint=_fake_cdn(tmp_path, grid_dir), package=unbundled
+    )
     assert float(odn) == pytest.approx(20.544, abs=2e-3)
     assert {row["source"] for row in json.loads(status)} == {"pyproj user data directory"}
     assert sorted(p.name for p in (tmp_path / "user").iterdir()) == sorted(GRIDS)
 
 
-def test_network_unreachable_is_a_clear_error(tmp_path):
+def test_network_is_not_used_while_the_bundled_grids_are_there(tmp_path):
+    """network=True with the CDN unreachable: the bundled grids, no download, no error."""
+    code = """
+        from gnss_citygml.geodesy import to_osgb
+        print(to_osgb(51.48936564950, -0.11992557180, 66.057, network=True)[2])
+    """
+    (odn,) = _isolated(code, tmp_path, endpoint=(tmp_path / "offline").as_uri())
+    assert float(odn) == pytest.approx(20.544, abs=2e-3)
+    assert not (tmp_path / "user").exists() or not list((tmp_path / "user").iterdir())
+
+
+def test_network_unreachable_is_a_clear_error(unbundled, tmp_path):
     code = """
         from gnss_citygml.geodesy import GridError, to_osgb
         try:
@@ -247,7 +363,9 @@ def test_network_unreachable_is_a_clear_error(tmp_path):
         except GridError as error:
             print(error)
     """
-    (message,) = _isolated(code, tmp_path, endpoint=(tmp_path / "offline").as_uri())
+    (message,) = _isolated(
+        code, tmp_path, endpoint=(tmp_path / "offline").as_uri(), package=unbundled
+    )
     assert message.startswith("cannot read PROJ's grid catalogue")
     assert "--grid-dir" in message
 
@@ -447,9 +565,10 @@ def _run_main(args):
     return exit_.value.code, out.getvalue(), err.getvalue()
 
 
-def test_read_footprints_in_other_crs_within_a_millimetre(city, grid_dir, tmp_path):
+def test_read_footprints_in_other_crs_within_a_millimetre(city, grid_dir, unbundled, tmp_path):
     """In a fresh interpreter (no grid on PROJ's path yet, as for a user), and without the
-    grids the grid error, never PROJ's 2 m Helmert transformation (1.805 m before)."""
+    grids (an install without its bundled copy) the grid error, never PROJ's 2 m Helmert
+    transformation (1.805 m before)."""
     empty = tmp_path / "empty"
     empty.mkdir()
     code = f"""
@@ -468,7 +587,7 @@ def test_read_footprints_in_other_crs_within_a_millimetre(city, grid_dir, tmp_pa
             d = shapely.get_coordinates(got.geometry) - shapely.get_coordinates(bng.geometry)
             print(np.hypot(*d.T).max())
     """
-    message, *moved = _isolated(code, tmp_path)
+    message, *moved = _isolated(code, tmp_path, package=unbundled)
     assert message.startswith("missing PROJ grid(s) uk_os_OSTN15_NTv2_OSGBtoETRS.tif")
     assert str(empty) in message
     assert len(moved) == 3 and max(map(float, moved)) < 1e-3
@@ -518,8 +637,9 @@ def test_convert_and_export_footprints_in_other_crs_within_a_millimetre(city, gr
         assert np.abs(vertices - vertices0).max() <= 1e-3 + 1e-9, got.name
 
 
-def test_commands_without_the_grids_are_the_grid_error(city, tmp_path):
-    """No grid folder, or an empty one, and no PROJ user grids: one error line, no output."""
+def test_commands_without_the_grids_are_the_grid_error(city, unbundled, tmp_path):
+    """No grid folder, or an empty one, no PROJ user grids and an install without its bundled
+    copy: one error line, no output."""
     empty = tmp_path / "empty"
     empty.mkdir()
     fp = city / "footprints_EPSG4326.gpkg"
@@ -530,10 +650,29 @@ def test_commands_without_the_grids_are_the_grid_error(city, tmp_path):
         ["estimate", CITY / "observations.parquet", fp, "--dem", CITY / "dem.tif"],
     ]
     results = _commands(
-        [[*a, "-o", out, "-q"] for a, out in zip(runs, outputs, strict=True)], tmp_path
+        [[*a, "-o", out, "-q"] for a, out in zip(runs, outputs, strict=True)],
+        tmp_path,
+        package=unbundled,
     )
     for (code, stdout, err), out in zip(results, outputs, strict=True):
         assert code == 2 and stdout == "", out.name
         assert err.startswith("error: missing PROJ grid(s) uk_os_OSTN15_NTv2_OSGBtoETRS.tif")
         assert "gnss-citygml grids --fetch" in err and len(err.splitlines()) == 1
         assert not out.exists()
+
+
+def test_grids_says_which_copy_is_used(unbundled, tmp_path):
+    """`gnss-citygml grids` for a user without grids (the bundled copy), with --grid-dir (that
+    folder's copy), and in an install without its bundled copy (exit 1, both missing)."""
+    copy, empty = tmp_path / "copy", tmp_path / "empty"
+    shutil.copytree(BUNDLED_GRID_DIR, copy)
+    empty.mkdir()
+    bundled, given = _commands([["grids"], ["grids", "--grid-dir", copy]], tmp_path / "1")
+    assert bundled[0] == given[0] == 0
+    for name, purpose in GRIDS.items():
+        line = f"{name}  {purpose}: {BUNDLED_GRID_DIR / name} (bundled with gnss-citygml)"
+        assert line in bundled[1].splitlines()
+        assert f"{name}  {purpose}: {copy / name} (grid_dir)" in given[1].splitlines()
+    ((code, out, err),) = _commands([["grids", "--grid-dir", empty]], tmp_path / "2", unbundled)
+    assert code == 1 and out.count("MISSING") == 2
+    assert "reinstall gnss-citygml" in err and "grids --fetch" in err

@@ -12,7 +12,8 @@ GRID_DIR = click.option(
     "--grid-dir",
     type=click.Path(file_okay=False, path_type=Path),
     envvar="GNSS_CITYGML_GRID_DIR",
-    help="Folder holding the OSTN15/OSGM15 grids (default: PROJ's user data folder).",
+    help="Folder holding the OSTN15/OSGM15 grids, searched first (default: PROJ's folders, "
+    "then the copy bundled with gnss-citygml).",
 )
 
 
@@ -96,9 +97,18 @@ def observe(
 
 @click.command()
 @GRID_DIR
-@click.option("--fetch", is_flag=True, help="Download missing grids from PROJ's CDN.")
+@click.option(
+    "--fetch",
+    is_flag=True,
+    help="Download the grids from PROJ's CDN into PROJ's user data folder (used from then on "
+    "instead of the bundled copy).",
+)
 def grids(grid_dir, fetch):
-    """Show where the OSTN15 / OSGM15 grids are (and fetch them with --fetch)."""
+    """Show which copy of the OSTN15 / OSGM15 grids is used, and where it comes from.
+
+    Searched in order: --grid-dir (or $GNSS_CITYGML_GRID_DIR), PROJ's user data folder, PROJ's
+    data folders, and last the copy bundled with gnss-citygml, so that nothing needs fetching.
+    Exit code 1 if a grid is found nowhere (a damaged install)."""
     from ..geodesy import fetch_grids, grid_status
 
     if fetch:
@@ -106,12 +116,12 @@ def grids(grid_dir, fetch):
             click.echo(f"fetched {path}")
     status = grid_status(grid_dir)
     for row in status.itertuples(index=False):
-        where = row.path if row.found else "MISSING"
+        where = f"{row.path} ({row.source})" if row.found else "MISSING"
         click.echo(f"{row.grid}  {row.purpose}: {where}")
     if not status["found"].all():
         click.echo(
-            "some grids are missing: run `gnss-citygml grids --fetch`, or give the folder "
-            "that holds them with --grid-dir",
+            "some grids are missing: reinstall gnss-citygml (it ships them), run "
+            "`gnss-citygml grids --fetch`, or give the folder that holds them with --grid-dir",
             err=True,
         )
         raise SystemExit(1)

@@ -4,12 +4,6 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-# The OSTN15/OSGM15 grids: the shared reference data when it is there, else PROJ's user folder
-# (`gnss-citygml grids --fetch` puts them there).
-GRID_DIR ?= $(wildcard ../shared/data/geodesy)
-GRIDS := $(if $(GRID_DIR),--grid-dir $(GRID_DIR))
-DEMO := examples/city
-
 .PHONY: test demo lint bench fuzz clean
 
 $(STAMP): pyproject.toml
@@ -25,12 +19,11 @@ lint: $(STAMP)
 test: lint
 	$(BIN)/python -m pytest
 
+# The main job on the sample city bundled with the package (gnss_citygml/data/city, linked as
+# examples/city) and grids (unless `gnss-citygml grids` names another copy): heights, CityJSON,
+# CityGML and a table per building.
 demo: $(STAMP)
-	mkdir -p demo-out
-	$(BIN)/gnss-citygml estimate $(DEMO)/observations.parquet $(DEMO)/footprints.gpkg \
-		--dem $(DEMO)/dem.tif -o demo-out/heights.gpkg --overwrite $(GRIDS)
-	$(BIN)/gnss-citygml convert demo-out/heights.gpkg -o demo-out/city.city.json --overwrite
-	$(BIN)/gnss-citygml convert demo-out/heights.gpkg -o demo-out/city.gml --overwrite
+	$(BIN)/gnss-citygml demo -o demo-out --overwrite
 
 # Every reader fuzzed with at least 10,000 cases (tests/fuzz; `make test` runs a short profile),
 # and every writer killed with SIGKILL 50 times at random moments (tests/test_kill9.py: a few).
@@ -43,7 +36,7 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/raycast.py
 	$(BIN)/python benchmarks/observe.py
 	$(BIN)/python benchmarks/export.py
-	$(BIN)/python benchmarks/geodesy.py $(GRIDS)
+	$(BIN)/python benchmarks/geodesy.py
 	$(BIN)/python benchmarks/paper_table.py
 	$(BIN)/python benchmarks/startup.py
 

@@ -33,12 +33,16 @@ COMMANDS = {
         "citymodel",
         "Turn footprints with a height attribute into CityJSON, CityJSONSeq or CityGML LOD1.",
     ),
+    "demo": ("demo", "Run the main job on the bundled sample city and compare it with the truth."),
     "estimate": ("estimate", "Estimate the height of every footprint from GNSS OBSERVATIONS."),
     "export": (
         "citymodel",
         "Write the city model of a heights table (CSV or Parquet, from `heights`).",
     ),
-    "grids": ("observe", "Show where the OSTN15 / OSGM15 grids are (and fetch them with --fetch)."),
+    "grids": (
+        "observe",
+        "Show which copy of the OSTN15 / OSGM15 grids is used, and where it comes from.",
+    ),
     "heights": (
         "models",
         "Estimate building heights from an intersections table (CSV or Parquet).",

@@ -1,0 +1,130 @@
+"""The ``demo`` subcommand: the main job on the sample city shipped with the package.
+
+``gnss-citygml demo -o DIR`` needs no file of the user's and no network: the sample city
+(``gnss_citygml/data/city``, made by the simulator: observations, footprints, a DEM and the true
+heights) and the OSTN15/OSGM15 grids are package data. It runs the commands a user runs, with
+their defaults (``estimate``, then ``convert`` to CityJSON and to CityGML, each validated), so
+what it shows is what they do, and then compares every estimate with the simulator's truth.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from .options import OVERWRITE, QUIET
+
+#: The sample city: ``examples/city`` in the repository is a link to it.
+CITY = Path(__file__).resolve().parents[1] / "data" / "city"
+#: The files the demo writes into its folder.
+OUTPUTS = ("heights.gpkg", "city.city.json", "city.gml")
+
+
+@click.command()
+@click.option(
+    "--output-dir",
+    "-o",
+    type=click.Path(path_type=Path),
+    required=True,
+    help="Folder for heights.gpkg, city.city.json and city.gml (created if needed).",
+)
+@OVERWRITE
+@QUIET
+@click.pass_context
+def demo(ctx, output_dir, overwrite, quiet):
+    """Run the main job on the bundled sample city and compare it with the truth.
+
+    Estimates the heights of the 30 buildings of the simulated city (as `estimate` does, with
+    the grids found as always: the copy bundled with gnss-citygml unless another is there),
+    writes them to DIR/heights.gpkg and converts them to DIR/city.city.json and DIR/city.gml
+    (both validated). Ends with one row per building (estimate, range, the simulator's true
+    height, error, status; heights above the ground in metres) and a summary line.
+    """
+    from .citymodel import convert
+    from .estimate import estimate
+
+    heights, cityjson, citygml = _outputs(output_dir, overwrite)
+    ctx.invoke(
+        estimate,
+        observations=CITY / "observations.parquet",
+        footprints=CITY / "footprints.gpkg",
+        dem=str(CITY / "dem.tif"),
+        output=heights,
+        overwrite=overwrite,
+        quiet=quiet,
+    )
+    for model in (cityjson, citygml):
+        ctx.invoke(convert, input_=heights, output=model, overwrite=overwrite, quiet=quiet)
+    for line in _comparison(heights, CITY / "truth.csv"):
+        click.echo(line)
+
+
+def _outputs(folder: Path, overwrite: bool) -> list[Path]:
+    """The demo's output files in ``folder``, checked before any work (made if it is new)."""
+    from ..errors import InputError
+    from ..paths import check_output
+
+    if folder.exists() and not folder.is_dir():
+        raise InputError("the output folder is a file", where=str(folder), fix="give a folder")
+    paths = [folder / name for name in OUTPUTS]
+    if folder.is_dir():
+        for path in paths:
+            check_output(path, overwrite=overwrite)
+        return paths
+    try:
+        folder.mkdir(parents=True)
+    except OSError as exc:
+        raise InputError(
+            "cannot create the output folder",
+            where=str(folder),
+            fix=f"check the path and its permissions ({exc.strerror})",
+        ) from None
+    return paths
+
+
+def _comparison(heights, truth) -> list[str]:
+    """The lines comparing a heights layer (from ``estimate``) with a simulator's truth table.
+
+    One row per building: ``estimate`` (``relative_height``), ``range`` (``height_lower`` to
+    ``height_upper``, above the estimated ground), ``truth`` (the true roof above the true
+    ground), ``error`` (estimated minus true roof height, ODN) and ``status``; then the number
+    of converged buildings, their RMSE and how many of their ranges hold the true roof.
+    """
+    import numpy as np
+    import pyogrio
+
+    from ..tables import read_table
+
+    est = pyogrio.read_dataframe(heights, layer="heights", read_geometry=False)
+    true = read_table(truth).set_index("id").reindex(est["id"].astype(str))
+    roof, ground = true["height"].to_numpy(), est["ground"].to_numpy()
+    lower, upper = est["height_lower"].to_numpy(), est["height_upper"].to_numpy()
+    error = est["height"].to_numpy() - roof
+    converged = est["converged"].to_numpy(dtype=bool, na_value=False)
+    rows = [("id", "estimate", "range", "truth", "error")]
+    for k, (bid, relative) in enumerate(zip(est["id"], est["relative_height"], strict=True)):
+        ok = converged[k]
+        rows.append(
+            (
+                str(bid),
+                f"{relative:.2f}" if ok else "-",
+                f"{lower[k] - ground[k]:.2f}-{upper[k] - ground[k]:.2f}" if ok else "-",
+                f"{roof[k] - true['ground'].iloc[k]:.2f}",
+                f"{error[k]:+.2f}" if ok else "-",
+            )
+        )
+    widths = [max(len(row[i]) for row in rows) for i in range(len(rows[0]))]
+    status = ["status", *est["status"].astype(str)]
+    lines = ["heights above the ground (m); error = estimated - true roof height"]
+    for row, words in zip(rows, status, strict=True):
+        cells = [f"{c:{a}{w}}" for c, a, w in zip(row, "<>>>>", widths, strict=True)]
+        lines.append("  ".join([*cells, words]))
+    n = int(converged.sum())
+    inside = int(np.sum(converged & (lower <= roof) & (roof <= upper)))
+    rmse = f"{np.sqrt(np.mean(error[converged] ** 2)):.2f} m" if n else "-"
+    lines.append(
+        f"{n} of {len(est)} buildings converged, RMSE {rmse}, truth inside the range for "
+        f"{inside} of {n}"
+    )
+    return lines

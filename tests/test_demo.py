@@ -1,0 +1,92 @@
+"""`gnss-citygml demo` from the user's side: the sample city through `estimate` and `convert`,
+the files left behind, and the table that compares every estimate with the simulator's truth."""
+
+import json
+
+import numpy as np
+import pandas as pd
+import pyogrio
+import pytest
+
+from gnss_citygml.cli import main
+from gnss_citygml.cli.demo import CITY, OUTPUTS
+from gnss_citygml.geodesy import GRID_DIR_ENV
+
+
+def run(args, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main([str(a) for a in args])
+    out = capsys.readouterr()
+    return exc.value.code, out.out, out.err
+
+
+def test_demo_writes_the_models_and_compares_with_the_truth(tmp_path, capsys, monkeypatch):
+    monkeypatch.delenv(GRID_DIR_ENV, raising=False)  # the grids found as for a user
+    folder = tmp_path / "new" / "out"  # made by the demo
+    code, out, err = run(["demo", "-o", folder, "--quiet"], capsys)
+    assert code == 0, err
+    assert sorted(p.name for p in folder.iterdir()) == sorted(OUTPUTS)  # no temporary file left
+    assert json.loads((folder / "city.city.json").read_text())["type"] == "CityJSON"
+    assert "valid (json, structure, geometry)" in out and "valid (xml, xsd, geometry)" in out
+    assert (folder / "city.gml").read_bytes().startswith(b"<?xml")
+
+    heights = pyogrio.read_dataframe(folder / "heights.gpkg", layer="heights").set_index("id")
+    truth = pd.read_csv(CITY / "truth.csv").set_index("id")
+    lines = out.splitlines()
+    start = lines.index(next(line for line in lines if line.split()[:2] == ["id", "estimate"]))
+    table = [line.split(maxsplit=5) for line in lines[start + 1 : start + 31]]
+    assert sorted(row[0] for row in table) == sorted(truth.index)
+    for bid, estimate, span, true, error, status in table:
+        h, t = heights.loc[bid], truth.loc[bid]
+        assert true == f"{t['height'] - t['ground']:.2f}"
+        assert status == h["status"]
+        if h["converged"]:
+            assert estimate == f"{h['relative_height']:.2f}"
+            assert error == f"{h['height'] - t['height']:+.2f}"
+            assert (
+                span
+                == f"{h['height_lower'] - h['ground']:.2f}-{h['height_upper'] - h['ground']:.2f}"
+            )
+        else:
+            assert estimate == span == error == "-"
+    ok = heights["converged"].astype(bool)
+    errors = (heights["height"] - truth["height"].reindex(heights.index))[ok]
+    inside = heights["height_lower"].le(truth["height"]) & heights["height_upper"].ge(
+        truth["height"]
+    )
+    rmse = np.sqrt(np.mean(errors**2))
+    assert lines[start + 31] == (
+        f"{ok.sum()} of 30 buildings converged, RMSE {rmse:.2f} m, truth inside the range for "
+        f"{(inside & ok).sum()} of {ok.sum()}"
+    )
+    assert ok.sum() == 25  # as `estimate` on the sample city (README)
+
+    # Again without --overwrite: refused before any work, the files untouched.
+    before = {p.name: p.stat().st_mtime_ns for p in folder.iterdir()}
+    code, out, err = run(["demo", "-o", folder], capsys)
+    assert code == 2 and out == ""
+    assert (
+        err
+        == f"error: output exists ({folder / 'heights.gpkg'}): choose another name or --overwrite\n"
+    )
+    assert {p.name: p.stat().st_mtime_ns for p in folder.iterdir()} == before
+    code, out, _ = run(["demo", "-o", folder, "--overwrite", "-q"], capsys)
+    assert code == 0 and out.splitlines()[-1] == lines[start + 31]
+    assert sorted(p.name for p in folder.iterdir()) == sorted(OUTPUTS)
+
+
+def test_demo_refuses_a_file_as_its_folder_and_an_existing_model(tmp_path, capsys):
+    afile = tmp_path / "file"
+    afile.write_text("mine")
+    code, out, err = run(["demo", "-o", afile], capsys)
+    assert (code, out) == (2, "")
+    assert err == f"error: the output folder is a file ({afile}): give a folder\n"
+    assert afile.read_text() == "mine"
+    (tmp_path / "out").mkdir()
+    (tmp_path / "out" / "city.gml").write_text(
+        "mine"
+    )  # the last output: checked first all the same
+    code, out, err = run(["demo", "-o", tmp_path / "out"], capsys)
+    assert code == 2 and out == "" and "output exists" in err and "city.gml" in err
+    assert [p.name for p in (tmp_path / "out").iterdir()] == ["city.gml"]
+    assert (tmp_path / "out" / "city.gml").read_text() == "mine"

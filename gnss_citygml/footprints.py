@@ -79,7 +79,8 @@ def read_footprints(path, *, layer: str | None = None, id_field: str | None = No
         The column holding the building ids (default: see the module's rules).
     grid_dir
         Folder of the OSTN15/OSGM15 grids, for footprints in another CRS than EPSG:27700
-        (see :mod:`gnss_citygml.geodesy`; default ``$GNSS_CITYGML_GRID_DIR``, then PROJ's).
+        (see :mod:`gnss_citygml.geodesy`; default ``$GNSS_CITYGML_GRID_DIR``, then PROJ's
+        folders, then the copy bundled with the package).
 
     Returns
     -------

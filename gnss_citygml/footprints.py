@@ -11,7 +11,10 @@ Rules
   that order, any letter case); else the source's feature id (the GeoPackage ``fid``, the row
   number of a Shapefile). MasterMap features use their TOID (the ``fid`` attribute, or
   ``gml_id`` in newer schemas). The id field *moves* to the text column ``id``; every other
-  attribute is kept untouched. Ids must be present and unique.
+  attribute is kept untouched. Ids must be present and unique. The field's name is kept in the
+  table's ``attrs`` (:mod:`gnss_citygml.ids`) so that the outputs carry the id under it: a
+  field's own name, ``toid`` for MasterMap's TOIDs, ``id`` for feature ids and for a field
+  named ``fid`` (GDAL's name for the feature id itself: a GeoPackage cannot hold it as text).
 - **geometry**: every feature must be a Polygon or MultiPolygon: a missing geometry, a point,
   a line or a collection is an error naming the features (pick a polygon layer or filter the
   source), never a silently dropped building (:func:`check_polygonal`, which the terrain
@@ -46,6 +49,7 @@ from pandas.api.types import is_list_like
 
 from .errors import InputError, MissingColumnError, listing
 from .geodesy import CrsError, OutsideExtentError, is_bng, to_bng
+from .ids import with_id_field
 from .paths import input_file
 
 __all__ = ["check_polygonal", "read_footprints"]
@@ -86,7 +90,8 @@ def read_footprints(path, *, layer: str | None = None, id_field: str | None = No
     -------
     geopandas.GeoDataFrame
         ``id`` (str), the input attributes, and ``geometry`` (Polygon/MultiPolygon, valid)
-        in EPSG:27700.
+        in EPSG:27700; ``attrs["id_field"]`` is the name the outputs give the id (see the
+        module's rules and :mod:`gnss_citygml.ids`).
 
     Raises
     ------
@@ -118,9 +123,10 @@ def read_footprints(path, *, layer: str | None = None, id_field: str | None = No
     if frame.empty:
         what = "no building features" if kind == "mastermap" else "the layer has no features"
         raise InputError(what, where=where, fix="give a layer with building footprints")
-    frame = _with_ids(frame, id_field, where)
+    frame, field = _with_ids(frame, id_field, where)
     check_polygonal(frame.geometry.to_numpy(), frame["id"].to_numpy(), where)
-    return _repaired(_to_bng(frame, where, grid_dir), where)
+    frame = _repaired(_to_bng(frame, where, grid_dir), where)
+    return with_id_field(frame, _output_name(field, kind == "mastermap"))
 
 
 def _sniff_gml(path: Path) -> str | None:
@@ -249,8 +255,11 @@ def _has_building_group(groups: pd.Series) -> np.ndarray:
     )
 
 
-def _with_ids(frame: gpd.GeoDataFrame, id_field: str | None, where: str) -> gpd.GeoDataFrame:
-    """Move the id field (or the feature id) to a text column ``id`` placed first."""
+def _with_ids(
+    frame: gpd.GeoDataFrame, id_field: str | None, where: str
+) -> tuple[gpd.GeoDataFrame, str | None]:
+    """Move the id field (or the feature id) to a text column ``id`` placed first; the field
+    moved (None: the feature id)."""
     columns = [c for c in frame.columns if c != frame.geometry.name]
     if id_field is None:
         lower = {str(c).lower(): c for c in reversed(columns)}
@@ -277,7 +286,14 @@ def _with_ids(frame: gpd.GeoDataFrame, id_field: str | None, where: str) -> gpd.
             where=where,
             fix="give each footprint its own id, or choose another --id-field",
         )
-    return frame
+    return frame, id_field
+
+
+def _output_name(field: str | None, mastermap: bool) -> str:
+    """The name the outputs give the id of footprints whose ids came from ``field``."""
+    if field is None or (field.lower() == "fid" and not mastermap):
+        return "id"
+    return "toid" if mastermap and field in ("fid", "gml_id") else field
 
 
 def _id_text(ids: pd.Series, name: str, where: str) -> pd.Series:

@@ -19,6 +19,7 @@ import shapely
 from .calibrate import calibrate_receivers
 from .errors import InputError
 from .geodesy import grid_bearing, is_bng, to_osgb
+from .ids import id_field, source_named, with_id_field
 from .model.estimate import HEIGHTS_COLUMNS, estimate_heights
 from .observations import check_observations
 from .raycast import footprint_entries
@@ -243,7 +244,9 @@ def estimate(
         One row per footprint: its geometry and attributes, ``ground``, the heights table
         columns and ``relative_height`` (height - ground). Buildings no ray enters, or whose
         estimate did not converge, have empty heights and ``converged = False`` with the
-        reason in ``status``: never a guess.
+        reason in ``status``: never a guess. The id column has the name of the footprints'
+        id field (``toid`` for footprints read with ``id_field="toid"``; ``attrs["id_field"]``,
+        see :mod:`gnss_citygml.ids`).
 
     Raises
     ------
@@ -309,7 +312,7 @@ def estimate(
     say(STAGES[4])
     heights = estimate_heights(inter, method=method, init_threshold=init_threshold, **options)
     say(STAGES[5])
-    return _join(buildings, heights, method)
+    return _join(buildings, heights, method, id_field(footprints))
 
 
 def _check_footprints(footprints) -> None:
@@ -359,8 +362,11 @@ def _check_near(rx: pd.DataFrame, footprints: gpd.GeoDataFrame, max_range: float
         )
 
 
-def _join(buildings: gpd.GeoDataFrame, heights: pd.DataFrame, method: str) -> gpd.GeoDataFrame:
-    """Every footprint with its estimate; those no ray entered get an explicit status."""
+def _join(
+    buildings: gpd.GeoDataFrame, heights: pd.DataFrame, method: str, name: str
+) -> gpd.GeoDataFrame:
+    """Every footprint with its estimate; those no ray entered get an explicit status. The id
+    goes out under ``name``, the footprints' source's id field (:mod:`gnss_citygml.ids`)."""
     est = heights.set_index("id").reindex(buildings["id"].astype(str))
     missing = est["method"].isna().to_numpy()
     est["method"] = est["method"].where(~missing, method)
@@ -375,4 +381,5 @@ def _join(buildings: gpd.GeoDataFrame, heights: pd.DataFrame, method: str) -> gp
     out["relative_height"] = out["height"] - out["ground"]
     geometry = out.pop("geometry")
     out["geometry"] = shapely.force_2d(geometry.to_numpy())
-    return gpd.GeoDataFrame(out, geometry="geometry", crs=buildings.crs)
+    out = gpd.GeoDataFrame(out, geometry="geometry", crs=buildings.crs)
+    return source_named(with_id_field(out, name))

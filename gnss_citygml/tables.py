@@ -14,6 +14,7 @@ import numpy as np
 import pandas as pd
 
 from .errors import InputError
+from .ids import source_named
 from .paths import atomic_path, check_output, input_file
 
 __all__ = [
@@ -127,9 +128,10 @@ def write_layer(frame, path, layer: str, *, overwrite: bool = True) -> None:
     replaced (with ``overwrite``) or added. FlatGeobuf (``.fgb``) and GeoParquet
     (``.parquet``) hold one layer: the file is replaced. List-valued attributes (OS
     MasterMap's ``descriptiveGroup``, read by GDAL as lists) are written as text joined by
-    ``|``, which every GIS reads."""
+    ``|``, which every GIS reads. The id is written under the name of its source's field
+    (e.g. ``toid``; :func:`gnss_citygml.ids.source_named`)."""
     path = check_layer_output(path, layer, overwrite=overwrite)
-    out = frame.copy()
+    out = source_named(frame).copy()
     for column in out.columns.drop(out.geometry.name):
         if out[column].map(lambda v: isinstance(v, list | tuple | np.ndarray)).any():
             out[column] = out[column].map(

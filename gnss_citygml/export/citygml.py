@@ -5,8 +5,9 @@ EPSG:7405, British National Grid + ODN, ``srsDimension`` 3) and one ``core:cityO
 per building. A ``bldg:Building`` holds, in the order ``building.xsd`` requires:
 ``core:creationDate``; generic attributes (``gen:doubleAttribute``, ``gen:intAttribute``,
 ``gen:stringAttribute``: every column of the buildings table, see
-:mod:`gnss_citygml.export.cityjson` for their meaning, plus ``id``, the original id, when it is
-not a valid ``gml:id``); ``bldg:measuredHeight uom="m"`` (roof - ground); then either
+:mod:`gnss_citygml.export.cityjson` for their meaning, plus the original id when it is not a
+valid ``gml:id``, under the name of its source's field: ``id``, or e.g. ``toid``, see
+:mod:`gnss_citygml.ids`); ``bldg:measuredHeight uom="m"`` (roof - ground); then either
 ``bldg:lod1Solid`` or, for a MultiPolygon footprint, one ``bldg:consistsOfBuildingPart`` per
 polygon, each a ``bldg:BuildingPart`` with its own ``bldg:lod1Solid``. A solid is a
 ``gml:Solid/gml:exterior/gml:CompositeSurface`` of ``gml:Polygon`` s whose ``gml:posList``
@@ -168,7 +169,8 @@ def write_citygml(
                             rows.geometry, rows["ground"], rows["height"], numbering="all"
                         )
                         xf.flush()
-                        raw.write(_members(rows, prisms, date).encode("utf-8"))
+                        members = _members(rows, prisms, date, plan.id_field)
+                        raw.write(members.encode("utf-8"))
                         if progress is not None:
                             progress(len(rows))
         result = plan.result(path, None)  # raises if nothing was written
@@ -244,13 +246,14 @@ def _text(value) -> str:
     return escape(_NOT_XML_CHAR.sub("\ufffd", value))
 
 
-def _attribute_xml(rows: gpd.GeoDataFrame, changed: list[bool]) -> list[list[str]]:
-    """Per attribute column, the generic attribute element of each building ('' if missing)."""
+def _attribute_xml(rows: gpd.GeoDataFrame, changed: list[bool], id_name: str) -> list[list[str]]:
+    """Per attribute column, the generic attribute element of each building ('' if missing);
+    first the original ids that are not their gml:id, as ``id_name``."""
     columns = []
     names = [(n, k) for n, k in attribute_columns(rows) if n not in _RESERVED]
     if any(changed):
         originals = [_text(i) if c else None for i, c in zip(rows["id"], changed, strict=True)]
-        columns.append(_generic("id", "string", originals))
+        columns.append(_generic(id_name, "string", originals))
     for name, kind in names:
         values = attribute_values(rows[name], kind)
         if kind == "bool":
@@ -274,8 +277,9 @@ def _generic(name: str, kind: str, values: list) -> list[str]:
     return ["" if v is None else start + v + end for v in values]
 
 
-def _members(rows, prisms: Prisms, date: str) -> str:
-    """The cityObjectMember elements of a chunk of buildings, as one text.
+def _members(rows, prisms: Prisms, date: str, id_name: str) -> str:
+    """The cityObjectMember elements of a chunk of buildings, as one text (an original id that
+    is not its gml:id is written as the attribute ``id_name``).
 
     The text is a sequence of tokens from a vocabulary: the fixed texts (:data:`_FIXED`), each
     building's opening (up to its ``bldg:measuredHeight``), each building part's opening, the
@@ -294,7 +298,8 @@ def _members(rows, prisms: Prisms, date: str) -> str:
         f'<bldg:measuredHeight uom="m">{h!r}</bldg:measuredHeight>'
         for h in measured_heights(rows["ground"], rows["height"])
     ]
-    headers = list(map("".join, zip(opening, *_attribute_xml(rows, changed), heights, strict=True)))
+    attributes = _attribute_xml(rows, changed, id_name)
+    headers = list(map("".join, zip(opening, *attributes, heights, strict=True)))
     part_openings = [
         f'<bldg:consistsOfBuildingPart><bldg:BuildingPart gml:id="{part}"><bldg:lod1Solid>'
         for group in parts

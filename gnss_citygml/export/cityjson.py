@@ -7,6 +7,9 @@ Vertices are integers in millimetres (``transform.scale`` 0.001, ``translate`` t
 below the data) and identical vertices are stored once. ``metadata.referenceSystem`` is
 ``https://www.opengis.net/def/crs/EPSG/0/7405`` (British National Grid + ODN heights).
 
+Each city object's key is the building's id (e.g. its TOID, whatever its source's field is
+called); the id is not repeated as an attribute.
+
 Attributes are plain CityJSON attributes, not an Extension: ``measuredHeight`` (roof - ground,
 m, as in the spec), ``creationDate`` (the export date), then every column of the buildings table
 under its own name (for an estimate: ``height`` the absolute roof height in m ODN,

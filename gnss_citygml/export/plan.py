@@ -32,6 +32,7 @@ import pandas as pd
 import shapely
 
 from ..errors import InputError, MissingColumnError, listing
+from ..ids import id_field, id_named, with_id_field
 from ..validate import Report
 from .output import ExportResult
 from .prisms import part_ids, snap_footprints
@@ -81,12 +82,17 @@ _FALSE = {"false", "f", "no", "n", "0", "0.0"}
 def footprints_with_heights(
     footprints: gpd.GeoDataFrame, heights: pd.DataFrame, *, where: str = "heights table"
 ) -> gpd.GeoDataFrame:
-    """The footprints joined with a heights table (``id`` and the heights columns), e.g. one
-    written by ``gnss-citygml heights``. Footprints without a row keep empty heights (the
-    writers skip and list them); a ``ground`` already on the footprints (from a DEM) wins over
-    the table's. Heights of ids that are not among the footprints are an error."""
+    """The footprints joined with a heights table (the ids and the heights columns), e.g. one
+    written by ``gnss-citygml heights``. The table's ids are in ``id`` or in a column named
+    like the footprints' id field (e.g. ``toid``, as ``estimate`` writes them; see
+    :mod:`gnss_citygml.ids`), and the result keeps that name for the outputs. Footprints
+    without a row keep empty heights (the writers skip and list them); a ``ground`` already on
+    the footprints (from a DEM) wins over the table's. Heights of ids that are not among the
+    footprints are an error."""
+    name = id_field(footprints)
+    footprints, heights = id_named(footprints), id_named(heights, name, where=where)
     if "id" not in heights.columns:
-        raise MissingColumnError(["id"], where=where, have=list(heights.columns))
+        raise MissingColumnError([name], where=where, have=list(heights.columns))
     table = heights.assign(id=heights["id"].astype(str))
     repeated = pd.unique(table["id"][table["id"].duplicated()])
     if repeated.size:
@@ -105,7 +111,7 @@ def footprints_with_heights(
             where=where,
             fix="give the footprints the heights were estimated for",
         )
-    return footprints.merge(table, on="id", how="left")
+    return with_id_field(footprints.merge(table, on="id", how="left"), name)
 
 
 def buildings_with_heights(
@@ -209,6 +215,8 @@ class Plan:
         ``(id, reason)`` of the buildings left out so far.
     written
         Buildings handed out so far.
+    id_field
+        The name of the source's id field (:mod:`gnss_citygml.ids`), for an id attribute.
     """
 
     def __init__(
@@ -220,6 +228,7 @@ class Plan:
         bounds: np.ndarray,
     ):
         self.frame = frame
+        self.id_field = id_field(frame)
         self.rows = rows
         self.skipped = skipped
         self.strict = strict
@@ -276,7 +285,8 @@ def prepare_buildings(buildings: gpd.GeoDataFrame, *, strict: bool = False) -> P
     buildings
         GeoDataFrame in EPSG:27700 with ``id``, ``geometry`` (Polygon/MultiPolygon), ``ground``
         and ``height`` (absolute roof height, m ODN); ``converged`` (and ``status``, the reason)
-        is honoured when present.
+        is honoured when present. The id may be under the name of its source's field
+        (``attrs["id_field"]``, as :func:`~gnss_citygml.pipeline.estimate` returns it).
     strict
         Raise instead of skipping buildings without a usable height.
 
@@ -297,6 +307,7 @@ def prepare_buildings(buildings: gpd.GeoDataFrame, *, strict: bool = False) -> P
             f"the buildings must be a GeoDataFrame, not {type(buildings).__name__}",
             fix="read them with read_footprints or geopandas",
         )
+    buildings = id_named(buildings)
     missing = [c for c in ("id", "ground", "height") if c not in buildings.columns]
     if missing:
         raise MissingColumnError(missing, where="buildings", have=list(buildings.columns))

@@ -1,0 +1,87 @@
+"""The building id: ``id`` between the stages, the source's own name at the edges.
+
+Inside the toolkit every buildings and heights table names its id column ``id`` (DESIGN.md).
+The footprints' source may call it otherwise (``toid``, ``TOID``, ``ref``): analysts join the
+results back to the source by that field, so the outputs carry it under its own name.
+:func:`~gnss_citygml.footprints.read_footprints` moves the id to ``id`` and records the name in
+the table's ``attrs`` (:data:`ID_FIELD`; absent means ``id``). At the edges the name is put
+back: :func:`~gnss_citygml.pipeline.estimate` returns its table with the id under the source's
+name (:func:`source_named`), the layer writer writes it so, and a writer or join handed such a
+table takes it back as ``id`` (:func:`id_named`), keeping the name for its own output (e.g.
+CityGML's id attribute).
+
+The name travels in ``attrs`` because the Python API hands the footprints from
+``read_footprints`` to ``estimate`` itself: nothing else goes with the table. pandas keeps
+``attrs`` through copies, slices, column changes, ``rename`` and ``concat`` of like tables,
+not through ``merge``: a function that merges sets them again (:func:`with_id_field`). Each
+path from a reader to an output is tested.
+"""
+
+from __future__ import annotations
+
+import pandas as pd
+
+from .errors import InputError
+
+__all__ = ["ID_FIELD", "id_field", "id_named", "source_named", "with_id_field"]
+
+#: The key of ``DataFrame.attrs`` holding the name of the source's id field.
+ID_FIELD = "id_field"
+
+
+def id_field(frame: pd.DataFrame) -> str:
+    """The name of the source's id field of a buildings or heights table (default ``id``)."""
+    return str(frame.attrs.get(ID_FIELD) or "id")
+
+
+def with_id_field(frame: pd.DataFrame, name: str) -> pd.DataFrame:
+    """``frame`` itself, its ``attrs`` recording ``name`` as its source's id field."""
+    frame.attrs[ID_FIELD] = name
+    return frame
+
+
+def source_named(frame: pd.DataFrame) -> pd.DataFrame:
+    """The table with its ``id`` column under the source's name (unchanged if it has no ``id``
+    or the source's field is ``id``).
+
+    Examples
+    --------
+    >>> table = with_id_field(pd.DataFrame({"id": ["osgb1"], "height": [12.5]}), "toid")
+    >>> source_named(table).columns.tolist()
+    ['toid', 'height']
+    """
+    name = id_field(frame)
+    if name == "id" or "id" not in frame.columns:
+        return frame
+    _check_single(frame, name, "buildings")
+    return frame.rename(columns={"id": name})
+
+
+def id_named(
+    frame: pd.DataFrame, name: str | None = None, *, where: str = "buildings"
+) -> pd.DataFrame:
+    """The table with its id column named ``id``: a column ``name`` (default: the table's
+    source's id field) is renamed to ``id``; the ``attrs`` keep the name. Unchanged if the
+    table has no such column.
+
+    Examples
+    --------
+    >>> table = with_id_field(pd.DataFrame({"toid": ["osgb1"], "height": [12.5]}), "toid")
+    >>> back = id_named(table)
+    >>> back.columns.tolist(), id_field(back)
+    (['id', 'height'], 'toid')
+    """
+    name = id_field(frame) if name is None else name
+    if name == "id" or name not in frame.columns:
+        return frame
+    _check_single(frame, name, where)
+    return frame.rename(columns={name: "id"})
+
+
+def _check_single(frame: pd.DataFrame, name: str, where: str) -> None:
+    if "id" in frame.columns and name in frame.columns:
+        raise InputError(
+            f"the table has a column 'id' besides its id field {name!r}",
+            where=where,
+            fix="rename or drop one of them",
+        )

@@ -25,7 +25,10 @@ from .options import QUIET, THRESHOLD, output_file, progress
     "FlatGeobuf (.fgb) or GeoParquet (.parquet)."
 )
 @click.option("--layer", help="Footprint layer (default: the only polygon layer).")
-@click.option("--id-field", help="Footprint id column (default: toid, id or fid).")
+@click.option(
+    "--id-field",
+    help="Footprint id column (default: toid, id or fid); the output's id column keeps its name.",
+)
 @click.option("--min-elevation", type=float, default=10.0, show_default=True, help="Degrees.")
 @click.option("--max-elevation", type=float, default=85.0, show_default=True, help="Degrees.")
 @click.option(

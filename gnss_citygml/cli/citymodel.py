@@ -1,15 +1,26 @@
-"""Subcommands around city models: convert a footprint layer, export heights, validate a file."""
+"""Subcommands around city models: convert a footprint layer, export heights, validate a file.
+
+``convert`` and ``export`` write a file, or with ``-o -`` CityJSONSeq to standard output: the
+model is written and validated in a temporary file first and only then copied to standard
+output, so a failed run puts nothing there (a reader such as ``cjio stdin`` would take a
+partial stream for a whole city); every message goes to standard error.
+"""
 
 from __future__ import annotations
 
+import contextlib
+import os
+import shutil
 import sys
+import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 
 import click
 
-from ..errors import escape_controls
+from ..errors import InputError, escape_controls
 from .observe import GRID_DIR
-from .options import OVERWRITE, QUIET, output_file, progress
+from .options import MODEL_OUTPUT, OVERWRITE, QUIET, STDOUT, progress
 
 _SCHEMA_DIR = click.option(
     "--schema-dir",
@@ -18,9 +29,7 @@ _SCHEMA_DIR = click.option(
     help="Official schemas (CityJSON JSON schemas; optionally a schemas.opengis.net tree).",
 )
 _MODEL_OPTIONS = [
-    output_file(
-        "OUT.city.json (CityJSON 2.0), OUT.city.jsonl (CityJSONSeq) or OUT.gml (CityGML 2.0)."
-    ),
+    MODEL_OUTPUT,
     OVERWRITE,
     click.option("--strict", is_flag=True, help="Stop if a building has no usable height."),
     click.option("--no-validate", "no_validate", is_flag=True, help="Skip validating the output."),
@@ -46,10 +55,13 @@ def _footprints(path, layer, id_field, dem, dem_crs, grid_dir):
 
 
 def _model_writer(output, overwrite):
-    """The writer for the format the output's name asks for, checked before any work."""
+    """The writer for the format the output's name asks for (CityJSONSeq for standard
+    output), checked before any work."""
     from ..export import write_citygml, write_cityjson, write_cityjsonseq
     from ..paths import check_output
 
+    if output == STDOUT:
+        return write_cityjsonseq
     writers = {".jsonl": write_cityjsonseq, ".json": write_cityjson}
     writers.update(dict.fromkeys((".gml", ".xml"), write_citygml))
     check_output(output, overwrite=overwrite, suffixes=tuple(writers))
@@ -58,10 +70,10 @@ def _model_writer(output, overwrite):
 
 def _write_model(frame, writer, output, overwrite, strict, no_validate, schema_dir, quiet):
     """Write the buildings with ``writer`` (from :func:`_model_writer`); report skips."""
-    with progress(len(frame), "writing", quiet) as bar:
+    with _staged(output) as path, progress(len(frame), "writing", quiet) as bar:
         result = writer(
             frame,
-            output,
+            path,
             validate=not no_validate,
             schema_dir=schema_dir,
             overwrite=overwrite,
@@ -71,7 +83,40 @@ def _write_model(frame, writer, output, overwrite, strict, no_validate, schema_d
     for building, reason in result.skipped.itertuples(index=False):
         click.echo(f"skipped {building}: {reason}", err=True)
     checked = "" if result.report is None else ", valid (" + ", ".join(result.report.checks) + ")"
-    click.echo(f"{result.written} buildings, {len(result.skipped)} skipped -> {output}{checked}")
+    to = "standard output" if output == STDOUT else output
+    summary = f"{result.written} buildings, {len(result.skipped)} skipped -> {to}{checked}"
+    click.echo(summary, err=output == STDOUT)
+
+
+@contextlib.contextmanager
+def _staged(output: Path) -> Iterator[Path]:
+    """The path to write ``output`` to: itself, or for standard output a temporary file that
+    is copied there when the writer has finished without an error (else nothing is)."""
+    if output != STDOUT:
+        yield output
+        return
+    with tempfile.TemporaryDirectory(prefix="gnss-citygml-") as folder:
+        path = Path(folder) / "stdout.city.jsonl"
+        yield path
+        _copy_to_stdout(path)
+
+
+def _copy_to_stdout(path: Path) -> None:
+    """Copy a file to standard output; a reader that stops early (``| head``) is one error
+    line, not a traceback."""
+    stream = click.get_binary_stream("stdout")
+    try:
+        with open(path, "rb") as source:
+            shutil.copyfileobj(source, stream, 1 << 20)
+        stream.flush()
+    except BrokenPipeError:
+        # what is left in Python's buffer goes nowhere at exit, instead of a second error
+        os.dup2(os.open(os.devnull, os.O_WRONLY), stream.fileno())
+        raise InputError(
+            "standard output was closed before the whole city model was written",
+            where="-o -",
+            fix="let the reader take all of it, or write a file with -o FILE",
+        ) from None
 
 
 @click.command()

@@ -7,7 +7,16 @@ from pathlib import Path
 
 import click
 
-__all__ = ["OVERWRITE", "QUIET", "SEED", "THRESHOLD", "output_file", "progress"]
+__all__ = [
+    "MODEL_OUTPUT",
+    "OVERWRITE",
+    "QUIET",
+    "SEED",
+    "STDOUT",
+    "THRESHOLD",
+    "output_file",
+    "progress",
+]
 
 SEED = click.option(
     "--seed",
@@ -36,6 +45,22 @@ def output_file(help_text):
         required=True,
         help=help_text,
     )
+
+
+#: The output name that means standard output.
+STDOUT = Path("-")
+
+#: The output of the commands that write a city model (``convert``, ``export``).
+MODEL_OUTPUT = click.option(
+    "--output",
+    "-o",
+    type=click.Path(dir_okay=False, allow_dash=True, path_type=Path),
+    required=True,
+    help="OUT.city.json (CityJSON 2.0), OUT.city.jsonl (CityJSONSeq) or OUT.gml (CityGML 2.0); "
+    "'-' writes CityJSONSeq to standard output (e.g. | cjio stdin ...) once it is complete "
+    "and validated: it is written to a temporary file (in $TMPDIR) first, so a failed run "
+    "writes nothing there; messages go to standard error.",
+)
 
 
 def progress(total, label, quiet):

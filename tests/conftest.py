@@ -1,12 +1,24 @@
-"""Shared fixtures: small datasets drawn from known curves and simulated scenes."""
+"""Shared fixtures: small datasets drawn from known curves and simulated scenes, and the
+reference data.
 
+Reference data comes from two places: ``tests/data`` (small public files, in the repository)
+and the project's shared data folder beside the clone (``../shared/data``, or
+``$GNSS_CITYGML_SHARED_DATA``), which holds what may not or need not be in the repository (OS
+MasterMap, larger logs and orbits, schemas). A test that needs the shared folder is marked
+``shared_data``; without the folder it is skipped and the run ends with one line saying how
+many did not run. With ``$CI`` set, missing shared data is a failure, never a skip.
+"""
+
+import functools
 import os
 from pathlib import Path
+from typing import NoReturn
 
 import numpy as np
 import pandas as pd
 import pytest
 
+from gnss_citygml.geodesy import GridError, grid_status
 from gnss_citygml.gnss.gpstime import gps_to_utc
 from gnss_citygml.gnss.sp3 import read_sp3
 from gnss_citygml.model.fourpl import logistic4
@@ -27,23 +39,6 @@ def synthetic_intersections(rng, truth=45.0, n=4000, building="b1", blocked=0.4,
     cn0[~is_open & (rng.random(n) < blocked)] = np.nan
     cn0[cn0 < 12.0] = np.nan
     return pd.DataFrame({"building": building, "height": h, "cn0": cn0})
-
-
-SHARED_DATA = Path(
-    os.environ.get(
-        "GNSS_CITYGML_SHARED_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"
-    )
-)
-
-
-@pytest.fixture(scope="session")
-def shared_data() -> Path:
-    """The project's reference data (``../shared/data`` or ``$GNSS_CITYGML_SHARED_DATA``).
-
-    Missing data fails the test run instead of skipping it: CI always has it."""
-    if not SHARED_DATA.is_dir():
-        pytest.fail(f"reference data not found at {SHARED_DATA}: set GNSS_CITYGML_SHARED_DATA")
-    return SHARED_DATA
 
 
 @pytest.fixture
@@ -116,3 +111,165 @@ def compare(precise: pd.DataFrame, broadcast: pd.DataFrame) -> np.ndarray:
     """The distances between two ``positions_all`` tables at the rows they share."""
     both = precise.merge(broadcast, on=["time_utc", "constellation", "svid"])
     return distance(both[["x_x", "y_x", "z_x"]], both[["x_y", "y_y", "z_y"]])
+
+
+# --- reference data: tests/data and the shared data folder ------------------------------------
+
+#: The project's reference data beside the repository: real logs, orbits, OS MasterMap, schemas.
+SHARED_DATA_ENV = "GNSS_CITYGML_SHARED_DATA"
+SHARED_DATA = Path(
+    os.environ.get(SHARED_DATA_ENV) or Path(__file__).resolve().parents[2] / "shared" / "data"
+)
+#: Small public reference data kept in the repository (sources and licences: data/README.md).
+REPO_DATA = Path(__file__).resolve().parent / "data"
+#: How to give a run the shared data, for the messages below.
+HOW_TO_GET = (
+    "put the project's shared folder beside this clone (../shared/data) "
+    f"or set ${SHARED_DATA_ENV} to its data folder"
+)
+#: Starts the reason of every test left out for lack of shared data (counted at the end).
+LACKING = "needs the shared data"
+
+
+def in_ci() -> bool:
+    """True under continuous integration (``$CI`` set, as CI services do): data must be there."""
+    return os.environ.get("CI", "").strip().lower() not in ("", "0", "false", "no")
+
+
+def lacking(what: str) -> NoReturn:
+    """Leave out the running test for lack of shared data: a skip, or under CI a failure."""
+    if in_ci():
+        pytest.fail(
+            f"{LACKING}: {what}; with $CI set this is a failure: {HOW_TO_GET}", pytrace=False
+        )
+    pytest.skip(f"{LACKING}: {what}")
+
+
+class SharedPath(type(Path())):
+    """A path in the shared data folder: joining a name that is not there leaves the test out
+    (:func:`lacking`), so an incomplete folder never lets a test pass on a missing file."""
+
+    def __truediv__(self, name):
+        path = super().__truediv__(name)
+        if not path.exists():
+            lacking(f"{path} is missing")
+        return path
+
+
+@pytest.fixture(scope="session")
+def shared_data() -> Path:
+    """The project's reference data (``../shared/data`` or ``$GNSS_CITYGML_SHARED_DATA``).
+
+    A test using it is marked ``shared_data`` (:func:`pytest_collection_modifyitems`) and does
+    not run without the folder; a file missing from the folder leaves the test out too."""
+    if not SHARED_DATA.is_dir():
+        lacking(f"no folder {SHARED_DATA}")
+    return SharedPath(SHARED_DATA)
+
+
+@pytest.fixture(scope="session")
+def repo_data() -> Path:
+    """The reference data kept in the repository (``tests/data``, laid out as the shared)."""
+    return REPO_DATA
+
+
+@pytest.fixture
+def reference_data(request) -> Path:
+    """The reference data of one test: ``tests/data``, or for a test marked ``shared_data``
+    the shared folder (which holds every file of ``tests/data`` too). A test parametrized over
+    files of both marks the parameters whose files are only in the shared folder:
+    ``pytest.param(name, marks=pytest.mark.shared_data)``."""
+    if request.node.get_closest_marker("shared_data"):
+        return request.getfixturevalue("shared_data")
+    return REPO_DATA
+
+
+@functools.cache
+def default_grid_folder() -> Path | None:
+    """The folder where the toolkit, given no folder, finds both OSTN15/OSGM15 grids (its own
+    copies, PROJ's user folder...), or None."""
+    try:
+        status = grid_status()
+    except GridError:  # e.g. $GNSS_CITYGML_GRID_DIR names no folder
+        return None
+    folders = {Path(path).parent for path in status["path"] if path}
+    return folders.pop() if status["found"].all() and len(folders) == 1 else None
+
+
+@pytest.fixture(scope="session")
+def grid_dir(request) -> Path | None:
+    """The grid folder for a test that transforms coordinates: None (the toolkit's own grid
+    discovery, as for a user) when that finds the grids, else the shared data's copies."""
+    if default_grid_folder() is not None:
+        return None
+    return request.getfixturevalue("shared_data") / "geodesy"
+
+
+@pytest.fixture(scope="session")
+def grid_args(grid_dir) -> list[str]:
+    """:func:`grid_dir` as command-line options: none, or ``--grid-dir FOLDER``."""
+    return [] if grid_dir is None else ["--grid-dir", str(grid_dir)]
+
+
+@pytest.fixture(scope="session")
+def grid_folder(request) -> Path:
+    """A folder holding both grids, for a test about grid folders themselves: where the
+    toolkit's own discovery finds them, else the shared data's copies."""
+    return default_grid_folder() or request.getfixturevalue("shared_data") / "geodesy"
+
+
+def needs_shared_data(item) -> bool:
+    """A test needs the shared data: marked so, or using :func:`shared_data` (directly or
+    through other fixtures), or the grids when only the shared folder has them."""
+    names = getattr(item, "fixturenames", ())
+    return (
+        item.get_closest_marker("shared_data") is not None
+        or "shared_data" in names
+        or (("grid_dir" in names or "grid_folder" in names) and default_grid_folder() is None)
+    )
+
+
+def pytest_collection_modifyitems(config, items):
+    """Mark the tests that need the shared data; without the folder skip them, or under CI
+    stop the run before any test with one message."""
+    needing = [item for item in items if needs_shared_data(item)]
+    for item in needing:
+        item.add_marker(pytest.mark.shared_data)
+    if not needing or SHARED_DATA.is_dir():
+        return
+    if in_ci():
+        pytest.exit(
+            f"NO SHARED DATA: {len(needing)} tests need the shared data folder {SHARED_DATA}, "
+            f"which does not exist; with $CI set they must run, not skip: {HOW_TO_GET}",
+            returncode=pytest.ExitCode.USAGE_ERROR,
+        )
+    skip = pytest.mark.skip(reason=f"{LACKING}: no folder {SHARED_DATA}")
+    for item in needing:
+        item.add_marker(skip)
+
+
+def _reason(report) -> str:
+    longrepr = report.longrepr
+    return longrepr[2] if isinstance(longrepr, tuple) else str(longrepr)
+
+
+@pytest.hookimpl(wrapper=True, tryfirst=True)
+def pytest_terminal_summary(terminalreporter):
+    """One loud line last (before the counts): how many tests did not run for lack of shared
+    data, why, and how to run them."""
+    result = yield
+    reasons = [_reason(r) for r in terminalreporter.stats.get("skipped", [])]
+    lacks = [r.split(f"{LACKING}: ", 1)[1] for r in reasons if f"{LACKING}: " in r]
+    if lacks:
+        why = sorted(set(lacks))
+        shown = "; ".join(why[:3]) + (f"; and {len(why) - 3} more" if len(why) > 3 else "")
+        n = len(lacks)
+        tests, them = ("TEST", "it") if n == 1 else ("TESTS", "them")
+        terminalreporter.write_sep(
+            "!",
+            f"{n} {tests} DID NOT RUN FOR LACK OF THE SHARED DATA ({shown}): to run {them}, "
+            + HOW_TO_GET,
+            red=True,
+            bold=True,
+        )
+    return result

@@ -81,8 +81,8 @@ XYZ = ["x", "y", "z"]
 
 
 @pytest.fixture(scope="session")
-def orbits_dir(shared_data) -> Path:
-    return shared_data / "orbits"
+def orbits_dir(repo_data) -> Path:
+    return repo_data / "orbits"
 
 
 @pytest.fixture(scope="session")
@@ -92,9 +92,10 @@ def cod(orbits_dir) -> pd.DataFrame:
 
 
 @pytest.fixture(scope="session")
-def gfz(orbits_dir) -> pd.DataFrame:
-    """GFZ's rapid multi-GNSS orbits of the whole of 2025-11-16 (SP3-d)."""
-    return read_sp3(orbits_dir / GFZ_2025)
+def gfz(shared_data) -> pd.DataFrame:
+    """GFZ's rapid multi-GNSS orbits of the whole of 2025-11-16 (SP3-d): only in the shared
+    data (no licence stated where it was found), as is brdc3200.25n of the same day."""
+    return read_sp3(shared_data / "orbits" / GFZ_2025)
 
 
 def sp3_times_utc(table: pd.DataFrame) -> np.ndarray:
@@ -185,22 +186,20 @@ def reference_data(request) -> Path:
 
 
 @functools.cache
-def default_grid_folder() -> Path | None:
-    """The folder where the toolkit, given no folder, finds both OSTN15/OSGM15 grids (its own
-    copies, PROJ's user folder...), or None."""
+def grids_found_by_default() -> bool:
+    """The toolkit, given no folder, finds the OSTN15/OSGM15 grids (PROJ's user folder, the
+    copies bundled with the package...)."""
     try:
-        status = grid_status()
+        return bool(grid_status()["found"].all())
     except GridError:  # e.g. $GNSS_CITYGML_GRID_DIR names no folder
-        return None
-    folders = {Path(path).parent for path in status["path"] if path}
-    return folders.pop() if status["found"].all() and len(folders) == 1 else None
+        return False
 
 
 @pytest.fixture(scope="session")
 def grid_dir(request) -> Path | None:
     """The grid folder for a test that transforms coordinates: None (the toolkit's own grid
     discovery, as for a user) when that finds the grids, else the shared data's copies."""
-    if default_grid_folder() is not None:
+    if grids_found_by_default():
         return None
     return request.getfixturevalue("shared_data") / "geodesy"
 
@@ -211,21 +210,14 @@ def grid_args(grid_dir) -> list[str]:
     return [] if grid_dir is None else ["--grid-dir", str(grid_dir)]
 
 
-@pytest.fixture(scope="session")
-def grid_folder(request) -> Path:
-    """A folder holding both grids, for a test about grid folders themselves: where the
-    toolkit's own discovery finds them, else the shared data's copies."""
-    return default_grid_folder() or request.getfixturevalue("shared_data") / "geodesy"
-
-
 def needs_shared_data(item) -> bool:
     """A test needs the shared data: marked so, or using :func:`shared_data` (directly or
-    through other fixtures), or the grids when only the shared folder has them."""
+    through other fixtures), or :func:`grid_dir` when only the shared folder has the grids."""
     names = getattr(item, "fixturenames", ())
     return (
         item.get_closest_marker("shared_data") is not None
         or "shared_data" in names
-        or (("grid_dir" in names or "grid_folder" in names) and default_grid_folder() is None)
+        or ("grid_dir" in names and not grids_found_by_default())
     )
 
 

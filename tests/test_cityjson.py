@@ -102,8 +102,8 @@ NOT_CONVERGED = {
 }
 
 
-def official(shared_data, kind="cityjson"):
-    schema = json.loads((shared_data / SCHEMAS / f"{kind}.min.schema.json").read_text())
+def official(data, kind="cityjson"):
+    schema = json.loads((data / SCHEMAS / f"{kind}.min.schema.json").read_text())
     return jsonschema.Draft7Validator(schema)
 
 
@@ -122,7 +122,7 @@ def solid_volumes(objects, vertices, transform):
     return volumes
 
 
-def test_cityjson_round_trip(tmp_path, shared_data):
+def test_cityjson_round_trip(tmp_path, repo_data):
     frame = heights_table([NOT_CONVERGED])
     out = write_cityjson(frame, tmp_path / "b.city.json", date="2024-05-01", title="Bloomsbury")
     assert out.written == 5
@@ -131,8 +131,8 @@ def test_cityjson_round_trip(tmp_path, shared_data):
     ]
     assert out.report.valid and out.report.checks == ["json", "structure", "geometry"]
     model = json.loads((tmp_path / "b.city.json").read_text())
-    assert list(official(shared_data).iter_errors(model)) == []
-    assert validate_file(tmp_path / "b.city.json", schema_dir=shared_data / SCHEMAS).valid
+    assert list(official(repo_data).iter_errors(model)) == []
+    assert validate_file(tmp_path / "b.city.json", schema_dir=repo_data / SCHEMAS).valid
 
     assert model["version"] == "2.0"
     assert model["metadata"]["referenceSystem"] == "https://www.opengis.net/def/crs/EPSG/0/7405"
@@ -198,18 +198,18 @@ def test_collinear_vertex_kept_and_repeated_vertex_dropped():
     assert len(prisms.face_kind) == 2 + 5
 
 
-def test_cityjsonseq_lines(tmp_path, shared_data):
+def test_cityjsonseq_lines(tmp_path, repo_data):
     out = write_cityjsonseq(
-        heights_table([NOT_CONVERGED]), tmp_path / "b.city.jsonl", schema_dir=shared_data / SCHEMAS
+        heights_table([NOT_CONVERGED]), tmp_path / "b.city.jsonl", schema_dir=repo_data / SCHEMAS
     )
     assert out.report.valid and "json-schema" in out.report.checks
     lines = [json.loads(line) for line in (tmp_path / "b.city.jsonl").read_text().splitlines()]
     header, features = lines[0], lines[1:]
     assert header["type"] == "CityJSON" and header["CityObjects"] == {}
     assert header["vertices"] == [] and header["transform"]["scale"] == [0.001] * 3
-    header_schema = official(shared_data)
+    header_schema = official(repo_data)
     assert list(header_schema.iter_errors(header)) == []
-    feature_schema = official(shared_data, "cityjsonfeature")
+    feature_schema = official(repo_data, "cityjsonfeature")
     assert [f["id"] for f in features] == list(FOOTPRINTS)
     for feature in features:
         assert feature["type"] == "CityJSONFeature"

@@ -16,9 +16,8 @@ def run(args, capsys):
     return exc.value.code, out.out, out.err
 
 
-def test_simulate_then_heights(shared_data, tmp_path, capsys):
-    grids = str(shared_data / "geodesy")
-    args = ["simulate", "hermitage", "-o", str(tmp_path), "--interval", "30", "--grid-dir", grids]
+def test_simulate_then_heights(grid_args, tmp_path, capsys):
+    args = ["simulate", "hermitage", "-o", str(tmp_path), "--interval", "30", *grid_args]
     code, out, _ = run(args, capsys)
     assert code == 0 and "intersections" in out
     for name in ("observations.csv", "intersections.csv", "truth.csv", "footprints.gpkg"):
@@ -45,9 +44,8 @@ def test_user_errors_are_one_line_with_exit_code_2(tmp_path, capsys):
     assert not (tmp_path / "h.csv").exists()
 
 
-def test_unknown_output_format_writes_nothing(shared_data, tmp_path, capsys):
-    grids = str(shared_data / "geodesy")
-    run(["simulate", "ucl", "-o", str(tmp_path), "--interval", "120", "--grid-dir", grids], capsys)
+def test_unknown_output_format_writes_nothing(grid_args, tmp_path, capsys):
+    run(["simulate", "ucl", "-o", str(tmp_path), "--interval", "120", *grid_args], capsys)
     code, _, err = run(
         ["heights", str(tmp_path / "intersections.csv"), "-o", str(tmp_path / "h.xlsx")], capsys
     )
@@ -68,9 +66,9 @@ def test_entry_points_report_the_version(command):
 DEMO_2016 = "google_demo_pseudoranges_log_2016_08_22_14_45_50.txt"
 
 
-def test_observe_a_real_log(shared_data, tmp_path, capsys):
+def test_observe_a_real_log(repo_data, tmp_path, capsys):
     out_path = tmp_path / "obs.parquet"
-    log, nav = shared_data / "gnss" / DEMO_2016, shared_data / "orbits" / "hour2350.16n"
+    log, nav = repo_data / "gnss" / DEMO_2016, repo_data / "orbits" / "hour2350.16n"
     code, out, err = run(["observe", str(log), "--orbits", str(nav), "-o", str(out_path)], capsys)
     assert code == 0, err
     assert "1863 signals (1850 received, 13 blocked)" in out
@@ -78,23 +76,23 @@ def test_observe_a_real_log(shared_data, tmp_path, capsys):
     assert len(pd.read_parquet(out_path)) == 1863
 
 
-def test_observe_with_orbits_of_another_day_writes_nothing(shared_data, tmp_path, capsys):
+def test_observe_with_orbits_of_another_day_writes_nothing(repo_data, tmp_path, capsys):
     out_path = tmp_path / "obs.parquet"
-    log, nav = shared_data / "gnss" / DEMO_2016, shared_data / "orbits" / "hour1820.16n"
+    log, nav = repo_data / "gnss" / DEMO_2016, repo_data / "orbits" / "hour1820.16n"
     code, _, err = run(["observe", str(log), "--orbits", str(nav), "-o", str(out_path)], capsys)
     assert code == 2
     assert "error: the orbits cover 2016-06-29" in err and "2016-08-22 21:45:56" in err
     assert not list(tmp_path.iterdir())
 
 
-def simulated_site(folder, grids, capsys, interval="30"):
+def simulated_site(folder, grid_args, capsys, interval="30"):
     """A simulated Hermitage Rd written as a user's files in ``folder``."""
-    args = ["simulate", "hermitage", "-o", str(folder), "--interval", interval, "--grid-dir", grids]
+    args = ["simulate", "hermitage", "-o", str(folder), "--interval", interval, *grid_args]
     code, _, err = run(args, capsys)
     assert code == 0, err
 
 
-def estimate_args(folder, grids, observations="observations.csv", output="heights.gpkg"):
+def estimate_args(folder, grid_args, observations="observations.csv", output="heights.gpkg"):
     return [
         "estimate",
         str(folder / observations),
@@ -103,16 +101,14 @@ def estimate_args(folder, grids, observations="observations.csv", output="height
         str(folder / "dem.tif"),
         "-o",
         str(folder / output),
-        "--grid-dir",
-        grids,
+        *grid_args,
     ]
 
 
-def test_estimate_from_simulated_files(shared_data, tmp_path, capsys):
-    grids = str(shared_data / "geodesy")
-    simulated_site(tmp_path, grids, capsys)
+def test_estimate_from_simulated_files(grid_args, tmp_path, capsys):
+    simulated_site(tmp_path, grid_args, capsys)
     out_path = tmp_path / "heights.gpkg"
-    args = estimate_args(tmp_path, grids)
+    args = estimate_args(tmp_path, grid_args)
     code, out, err = run(args, capsys)
     assert code == 0, err
     assert "buildings have a height" in out
@@ -132,16 +128,15 @@ def test_estimate_from_simulated_files(shared_data, tmp_path, capsys):
     assert not list(tmp_path.glob(".*part*"))
 
 
-def test_estimate_with_position_errors(shared_data, tmp_path, capsys):
-    grids = str(shared_data / "geodesy")
-    simulated_site(tmp_path, grids, capsys, interval="60")
-    code, _, err = run([*estimate_args(tmp_path, grids), "--position-sd", "-1"], capsys)
+def test_estimate_with_position_errors(grid_args, tmp_path, capsys):
+    simulated_site(tmp_path, grid_args, capsys, interval="60")
+    code, _, err = run([*estimate_args(tmp_path, grid_args), "--position-sd", "-1"], capsys)
     assert code == 2 and "--position-sd" in err
-    code, _, err = run([*estimate_args(tmp_path, grids), "--calibration-window", "30"], capsys)
+    code, _, err = run([*estimate_args(tmp_path, grid_args), "--calibration-window", "30"], capsys)
     assert code == 2 and "--calibration-sd" in err
-    code, _, err = run([*estimate_args(tmp_path, grids), "--position-window", "30"], capsys)
+    code, _, err = run([*estimate_args(tmp_path, grid_args), "--position-window", "30"], capsys)
     assert code == 2 and "--position-sd" in err
-    code, _, err = run([*estimate_args(tmp_path, grids), "--position-sd", "1"], capsys)
+    code, _, err = run([*estimate_args(tmp_path, grid_args), "--position-sd", "1"], capsys)
     assert code == 0, err
     row = gpd.read_file(tmp_path / "heights.gpkg", layer="heights").set_index("id")
     row = row.loc["hermitage_terrace"]
@@ -151,13 +146,12 @@ def test_estimate_with_position_errors(shared_data, tmp_path, capsys):
     assert row["height_upper"] > row["c"] + 3.0 / row["b"]
 
 
-def test_estimate_bad_observation_names_its_line(shared_data, tmp_path, capsys):
-    grids = str(shared_data / "geodesy")
-    simulated_site(tmp_path, grids, capsys, interval="60")
+def test_estimate_bad_observation_names_its_line(grid_args, tmp_path, capsys):
+    simulated_site(tmp_path, grid_args, capsys, interval="60")
     obs = pd.read_csv(tmp_path / "observations.csv")
     obs.loc[4, "azimuth"] = 400.0
     obs.to_csv(tmp_path / "bad.csv", index=False)
-    code, _, err = run(estimate_args(tmp_path, grids, "bad.csv", "h.gpkg"), capsys)
+    code, _, err = run(estimate_args(tmp_path, grid_args, "bad.csv", "h.gpkg"), capsys)
     assert code == 2
     assert err.strip() == (
         f"error: azimuth 400 outside 0..360 ({tmp_path / 'bad.csv'}, line 6): give azimuths in "
@@ -166,11 +160,10 @@ def test_estimate_bad_observation_names_its_line(shared_data, tmp_path, capsys):
     assert not (tmp_path / "h.gpkg").exists()
 
 
-def test_convert_and_validate(shared_data, tmp_path, capsys):
-    grids = str(shared_data / "geodesy")
-    simulated_site(tmp_path, grids, capsys)
+def test_convert_and_validate(grid_args, repo_data, tmp_path, capsys):
+    simulated_site(tmp_path, grid_args, capsys)
     heights = tmp_path / "heights.gpkg"
-    code, _, err = run(estimate_args(tmp_path, grids), capsys)
+    code, _, err = run(estimate_args(tmp_path, grid_args), capsys)
     assert code == 0, err
     for name in ("city.city.json", "city.city.jsonl", "city.gml"):
         code, out, err = run(["convert", str(heights), "-o", str(tmp_path / name)], capsys)
@@ -178,16 +171,15 @@ def test_convert_and_validate(shared_data, tmp_path, capsys):
         assert "valid" in out
         code, out, _ = run(["validate", str(tmp_path / name)], capsys)
         assert code == 0 and "valid" in out
-    broken = shared_data / "citymodels" / "cityjson" / "invalid"
+    broken = repo_data / "citymodels" / "cityjson" / "invalid"
     code, out, _ = run(["validate", str(sorted(broken.glob("*.json"))[0])], capsys)
     assert code == 1 and "invalid" in out
     code, _, err = run(["validate", str(tmp_path / "nope.gml")], capsys)
     assert code == 2 and err.startswith("error: ")
 
 
-def test_export_a_heights_table(shared_data, tmp_path, capsys):
-    grids = str(shared_data / "geodesy")
-    simulated_site(tmp_path, grids, capsys)
+def test_export_a_heights_table(grid_args, tmp_path, capsys):
+    simulated_site(tmp_path, grid_args, capsys)
     table = tmp_path / "h.csv"
     code, _, err = run(["heights", str(tmp_path / "intersections.csv"), "-o", str(table)], capsys)
     assert code == 0, err

@@ -77,11 +77,6 @@ def test_id_rules(tmp_path):
         read_footprints(path, id_field="toid")
 
 
-@pytest.fixture(scope="module")
-def grid_dir(shared_data):
-    return shared_data / "geodesy"
-
-
 def test_footprints_in_wgs84_are_transformed_with_ostn15(tmp_path, grid_dir):
     """Made from BNG with OSTN15, back to within 1 mm (fresh interpreters, the commands and
     ETRS89 / UTM: tests/test_geodesy.py)."""

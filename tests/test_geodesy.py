@@ -53,16 +53,16 @@ def grid_dir():
 
 
 @pytest.fixture(scope="module")
-def os_points(shared_data):
+def os_points(repo_data):
     """The OS test inputs and expected outputs of both directions, one row per point."""
-    grid_dir = shared_data / "geodesy"
-    etrs = pd.read_csv(grid_dir / "OSTN15_OSGM15_TestInput_ETRStoOSGB.txt")
+    vectors = repo_data / "geodesy"
+    etrs = pd.read_csv(vectors / "OSTN15_OSGM15_TestInput_ETRStoOSGB.txt")
     etrs.columns = ["point", "lat", "lon", "h"]
-    osgb = pd.read_csv(grid_dir / "OSTN15_OSGM15_TestOutput_ETRStoOSGB.txt").iloc[:, :5]
+    osgb = pd.read_csv(vectors / "OSTN15_OSGM15_TestOutput_ETRStoOSGB.txt").iloc[:, :5]
     osgb.columns = ["point", "e", "n", "odn", "flag"]
-    back_in = pd.read_csv(grid_dir / "OSTN15_OSGM15_TestInput_OSGBtoETRS.txt")
+    back_in = pd.read_csv(vectors / "OSTN15_OSGM15_TestInput_OSGBtoETRS.txt")
     back_in.columns = ["point", "e_in", "n_in", "odn_in"]
-    back = pd.read_csv(grid_dir / "OSTN15_OSGM15_TestOutput_OSGBtoETRS.txt").iloc[:, :5]
+    back = pd.read_csv(vectors / "OSTN15_OSGM15_TestOutput_OSGBtoETRS.txt").iloc[:, :5]
     back.columns = ["point", "step", "lat_out", "lon_out", "h_out"]
     back = back[back["step"] == "RESULT"].drop(columns="step")
     table = etrs.merge(osgb, on="point").merge(back_in, on="point").merge(back, on="point")

@@ -18,6 +18,8 @@ STANFORD = "stanford_2023-11-07_Pixel7_gnss_log.txt"
 NO_LOCK = "no code lock (State)"
 INCOMPLETE = "incomplete epoch (a row of it is bad, cut off or missing)"
 FCN = "GLONASS slot unknown (Svid is a frequency channel)"
+#: The mark of a test of the London log: too large for tests/data, only in the shared folder.
+SHARED = pytest.mark.shared_data
 
 # Figures from ../shared/data/gnss/README.md (Raw rows per constellation before any filtering,
 # epochs, satellites, Fix rows per provider, first and last epoch in UTC), and the rows this
@@ -105,16 +107,19 @@ def _raw_table(path) -> pd.DataFrame:
     return table
 
 
-@pytest.fixture(scope="module")
-def gnss_dir(shared_data):
-    return shared_data / "gnss"
+@pytest.fixture
+def gnss_dir(reference_data):
+    return reference_data / "gnss"
 
 
+@SHARED
 def test_every_staged_log_has_expected_figures(gnss_dir):
     assert {p.name for p in gnss_dir.glob("*.txt")} == set(EXPECTED)
 
 
-@pytest.mark.parametrize("name", sorted(EXPECTED))
+@pytest.mark.parametrize(
+    "name", [pytest.param(n, marks=SHARED) if n == LONDON else n for n in sorted(EXPECTED)]
+)
 def test_log_matches_readme(gnss_dir, name):
     want = EXPECTED[name]
     log = _read(gnss_dir / name, lenient=True)
@@ -145,7 +150,9 @@ def test_epochs_match_utc_time_millis(gnss_dir, name):
     assert np.abs(ours - own).max() < pd.Timedelta("1ms")
 
 
-@pytest.mark.parametrize(("name", "leap"), [(DEMO_AUG, 17), (LONDON, 18), (STANFORD, 18)])
+@pytest.mark.parametrize(
+    ("name", "leap"), [(DEMO_AUG, 17), pytest.param(LONDON, 18, marks=SHARED), (STANFORD, 18)]
+)
 def test_epochs_match_gps_fix_times_with_leap_seconds(gnss_dir, name, leap):
     # logs whose Fix time is that of the epoch: a wrong leap second would be 1 s off
     log = _read(gnss_dir / name)
@@ -168,6 +175,7 @@ def test_epochs_of_the_june_2016_demo_within_a_second_of_its_fixes(gnss_dir):
     assert nearest.max() < np.timedelta64(1, "s")
 
 
+@SHARED
 def test_state_rule_matches_the_receivers_time_uncertainty(gnss_dir):
     # rows kept for code lock are exactly those with a known received time (< 1 s uncertainty)
     for name in (LONDON, STANFORD, PIXEL7PRO):
@@ -232,6 +240,7 @@ def test_corrupted_altitude_names_file_and_line(gnss_dir):
     assert len(log.fixes) == 4 and len(log.raw) == 29
 
 
+@SHARED
 def test_cut_off_last_line_of_the_london_log_is_skipped_with_a_warning(gnss_dir):
     # the cut line is a BeiDou row of the last epoch: that epoch is dropped whole
     with pytest.warns(
@@ -250,9 +259,9 @@ def test_cut_off_last_line_of_the_london_log_is_skipped_with_a_warning(gnss_dir)
 
 
 @pytest.fixture(scope="module")
-def small_log_lines(shared_data):
+def small_log_lines(repo_data):
     """Header, 20 Raw rows (one epoch and part of the next) and 3 Fix rows of a v3 log."""
-    lines = (shared_data / "gnss" / STANFORD).read_text().splitlines()
+    lines = (repo_data / "gnss" / STANFORD).read_text().splitlines()
     header = [line for line in lines if line.startswith("#")]
     raw = [line for line in lines if line.startswith("Raw,")][:20]
     fix = [line for line in lines if line.startswith("Fix,")][:3]
@@ -324,10 +333,10 @@ def test_unterminated_cut_last_line_warns_in_strict_mode(tmp_path, small_log_lin
 
 
 @pytest.fixture(scope="module")
-def three_epochs(shared_data):
+def three_epochs(repo_data):
     """Header, the 90 Raw rows of the first three epochs (30 each) of the Stanford log, and the
     line numbers of each epoch's first row."""
-    lines = (shared_data / "gnss" / STANFORD).read_text().splitlines()
+    lines = (repo_data / "gnss" / STANFORD).read_text().splitlines()
     header = [line for line in lines if line.startswith("#")]
     raw = [line for line in lines if line.startswith("Raw,")][:90]
     firsts = [len(header) + 1 + 30 * k for k in range(3)]
@@ -441,10 +450,10 @@ def test_a_log_cut_at_a_line_end_inside_its_last_epoch(tmp_path, three_epochs):
     assert (log.dropped["reason"] == INCOMPLETE).sum() == 12
 
 
-def test_a_log_cut_inside_its_last_field_is_a_cut_off_line(tmp_path, shared_data):
+def test_a_log_cut_inside_its_last_field_is_a_cut_off_line(tmp_path, repo_data):
     # a 1.4 log ends its rows with ConstellationType: cut just before it, the row has all its
     # fields, one of them empty
-    text = (shared_data / "gnss" / DEMO_JUNE).read_text()
+    text = (repo_data / "gnss" / DEMO_JUNE).read_text()
     end = text.index("\n", text.index("\nRaw,") + 1000)
     path = tmp_path / "june.txt"
     path.write_text(text[: end - 1])

@@ -80,25 +80,24 @@ def test_a_name_taken_by_another_column_is_an_error():
 
 
 @pytest.fixture(scope="module")
-def site(shared_data, tmp_path_factory):
+def site(grid_args, tmp_path_factory):
     """A simulated site, its footprints with TOIDs in `toid`, and their heights.gpkg."""
     folder = tmp_path_factory.mktemp("site")
-    grids = str(shared_data / "geodesy")
-    args = ["simulate", "hermitage", "-o", folder, "--interval", "60", "--grid-dir", grids]
+    args = ["simulate", "hermitage", "-o", folder, "--interval", "60", *grid_args]
     with pytest.raises(SystemExit) as exc:
         main([str(a) for a in args])
     assert exc.value.code == 0
     footprints = gpd.read_file(folder / "footprints.gpkg")
     footprints.insert(0, "toid", footprints.pop("id").map(TOIDS))
     footprints.to_file(folder / "toids.gpkg")
-    return folder, grids
+    return folder, grid_args
 
 
 def estimate_args(site, output, *extra):
-    folder, grids = site
+    folder, grid_args = site
     return [
         *("estimate", str(folder / "observations.csv"), str(folder / "toids.gpkg")),
-        *("--dem", str(folder / "dem.tif"), "--grid-dir", grids, "-q", "-o", str(output)),
+        *("--dem", str(folder / "dem.tif"), *grid_args, "-q", "-o", str(output)),
         *extra,
     ]
 
@@ -208,11 +207,11 @@ def test_export_joins_a_heights_table_by_toid(site, heights, tmp_path, capsys, n
     assert code == 2 and "column 'id' besides its id field 'toid'" in err and str(csv) in err
 
 
-def test_python_estimate_returns_a_toid_column(site, tmp_path):
-    folder, grids = site
+def test_python_estimate_returns_a_toid_column(site, grid_dir, tmp_path):
+    folder, _ = site
     footprints = read_footprints(folder / "toids.gpkg", id_field="toid")
     obs = read_observations(folder / "observations.csv")
-    heights = estimate(obs, footprints, str(folder / "dem.tif"), grid_dir=grids)
+    heights = estimate(obs, footprints, str(folder / "dem.tif"), grid_dir=grid_dir)
     assert "id" not in heights.columns and sorted(heights["toid"]) == sorted(TOIDS.values())
     ok = sorted(heights["toid"][heights["converged"]])
     # the writers take it as it is

@@ -22,10 +22,11 @@ from gnss_citygml.gnss.orbits import load_orbits
         ("brdc1350.20n", 415, 18),
         ("brdc1180.21n", 105, 18),
         ("brdc1190.21n", 106, 18),
-        ("brdc3200.25n", 415, 18),
+        pytest.param("brdc3200.25n", 415, 18, marks=pytest.mark.shared_data),
     ],
 )
-def test_rinex2_files_parse(orbits_dir, name, records, leap):
+def test_rinex2_files_parse(reference_data, name, records, leap):
+    orbits_dir = reference_data / "orbits"
     table = read_nav(orbits_dir / name)
     assert len(table) == records and set(table["constellation"]) == {"G"}
     assert table["sqrt_a"].between(5150, 5160).all() and table["e"].between(0, 0.03).all()

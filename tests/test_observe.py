@@ -26,17 +26,17 @@ def separation(az1, el1, az2, el2):
     return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
 
 
-def test_orbit_sky_matches_googles_derived_positions(shared_data):
+def test_orbit_sky_matches_googles_derived_positions(repo_data):
     """Azimuth and elevation from the broadcast orbits vs from Google's own satellite positions
     for the same GPS satellites at the same (transmission) times, seen from the ground truth:
     within 0.01 deg. (The file's ``millisSinceGpsEpoch`` labels are ~1 s off its positions.)"""
-    gnss = shared_data / "gnss"
+    gnss = repo_data / "gnss"
     derived = pd.read_csv(gnss / "gsdc2021_mtv_2020-05-14_Pixel4_derived_excerpt.csv")
     derived = derived[derived["signalType"] == "GPS_L1"]
     truth = pd.read_csv(gnss / "gsdc2021_mtv_2020-05-14_Pixel4_ground_truth_excerpt.csv").iloc[0]
     sent = derived["receivedSvTimeInGpsNanos"] - derived["satClkBiasM"] / 299792458.0 * 1e9
     times = gps_to_utc(np.round(sent.to_numpy()).astype(np.int64))
-    orbits = load_orbits([shared_data / "orbits" / "brdc1350.20n"])
+    orbits = load_orbits([repo_data / "orbits" / "brdc1350.20n"])
     ours = orbits.positions(times, "G", derived["svid"].to_numpy())
     place = (truth["latDeg"], truth["lngDeg"], truth["heightAboveWgs84EllipsoidM"])
     google = derived[["xSatPosM", "ySatPosM", "zSatPosM"]].to_numpy()
@@ -48,10 +48,10 @@ def test_orbit_sky_matches_googles_derived_positions(shared_data):
     )
 
 
-def test_google_positions_match_the_phones_status_angles(shared_data):
+def test_google_positions_match_the_phones_status_angles(repo_data):
     """The phone's own (whole-degree) Status directions of its Galileo satellites vs those from
     Google's positions: within 2 deg. (No Galileo orbits exist for that day here.)"""
-    gnss = shared_data / "gnss"
+    gnss = repo_data / "gnss"
     with pytest.warns(UserWarning, match="skipped 1 bad line"):  # its corrupted Fix altitude
         log = read_gnsslogger(
             gnss / "gsdc2021_mtv_2020-05-14_Pixel4_GnssLog_excerpt.txt", lenient=True
@@ -74,18 +74,16 @@ def test_google_positions_match_the_phones_status_angles(shared_data):
 
 
 @pytest.fixture(scope="module")
-def demo_observations(shared_data):
+def demo_observations(repo_data):
     with pytest.warns(UserWarning, match="without orbit data"):
-        return observe(
-            [shared_data / "gnss" / DEMO_2016], [shared_data / "orbits" / "hour2350.16n"]
-        )
+        return observe([repo_data / "gnss" / DEMO_2016], [repo_data / "orbits" / "hour2350.16n"])
 
 
-def test_observations_of_a_real_log(shared_data, demo_observations):
+def test_observations_of_a_real_log(repo_data, demo_observations):
     obs = demo_observations
     assert list(obs.columns) == OBSERVATION_COLUMNS
     check_observations(obs)  # the schema holds
-    log = read_gnsslogger(shared_data / "gnss" / DEMO_2016)
+    log = read_gnsslogger(repo_data / "gnss" / DEMO_2016)
     gps = log.raw[(log.raw["constellation"] == "G") & (log.raw["band"] == "L1")]
     assert obs["time_utc"].nunique() == log.epochs.size == 207
     assert set(obs["constellation"]) == {"G"}  # the nav file has GPS only
@@ -99,27 +97,27 @@ def test_observations_of_a_real_log(shared_data, demo_observations):
     assert obs["receiver"].unique().tolist() == [DEMO_2016.removesuffix(".txt")]
 
 
-def test_mask_changes_the_rows(shared_data, demo_observations):
+def test_mask_changes_the_rows(repo_data, demo_observations):
     with pytest.warns(UserWarning):
         high = observe(
-            [shared_data / "gnss" / DEMO_2016],
-            [shared_data / "orbits" / "hour2350.16n"],
+            [repo_data / "gnss" / DEMO_2016],
+            [repo_data / "orbits" / "hour2350.16n"],
             min_elevation=30.0,
         )
     assert 0 < len(high) < len(demo_observations)
     assert high["elevation"].min() >= 30.0
 
 
-def test_orbits_not_covering_the_log(shared_data):
+def test_orbits_not_covering_the_log(repo_data):
     with pytest.raises(OrbitSpanError, match="2016-08-22"):
-        observe([shared_data / "gnss" / DEMO_2016], [shared_data / "orbits" / "hour1820.16n"])
+        observe([repo_data / "gnss" / DEMO_2016], [repo_data / "orbits" / "hour1820.16n"])
 
 
-def test_empty_mask_is_an_error(shared_data):
+def test_empty_mask_is_an_error(repo_data):
     with pytest.raises(InputError, match="elevation mask"):
         observe(
-            [shared_data / "gnss" / DEMO_2016],
-            [shared_data / "orbits" / "hour2350.16n"],
+            [repo_data / "gnss" / DEMO_2016],
+            [repo_data / "orbits" / "hour2350.16n"],
             min_elevation=50.0,
             max_elevation=40.0,
         )
@@ -138,12 +136,12 @@ def _observe(args, capsys):
 
 
 @pytest.fixture(scope="module")
-def june(shared_data, tmp_path_factory):
+def june(repo_data, tmp_path_factory):
     """The June 2016 demo log, its observations through the command, and where its last epoch
     starts (with the TimeNanos of the epoch before)."""
     folder = tmp_path_factory.mktemp("june")
-    log = shared_data / "gnss" / DEMO_JUNE
-    nav = shared_data / "orbits" / "hour1820.16n"
+    log = repo_data / "gnss" / DEMO_JUNE
+    nav = repo_data / "orbits" / "hour1820.16n"
     with pytest.raises(SystemExit) as exc:
         main(["observe", str(log), "--orbits", str(nav), "-o", str(folder / "full.parquet"), "-q"])
     assert exc.value.code == 0

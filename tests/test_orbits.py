@@ -26,10 +26,10 @@ def test_load_orbits_prefers_sp3_and_reports_nav_ignored(orbits_dir):
     assert end == pd.Timestamp("2021-04-28 23:59:42", tz="UTC")
 
 
-def test_two_sp3_files_and_a_gap_of_one_satellite(tmp_path, orbits_dir, gfz):
+def test_two_sp3_files_and_a_gap_of_one_satellite(tmp_path, shared_data, gfz):
     """The GFZ day cut in two files that share one epoch (as consecutive days share midnight),
     with G05 marked missing (0.000000) from 14:00 to 14:40 in the second."""
-    lines = (orbits_dir / GFZ_2025).read_text().splitlines(keepends=True)
+    lines = (shared_data / "orbits" / GFZ_2025).read_text().splitlines(keepends=True)
     epoch_at = [i for i, line in enumerate(lines) if line.startswith("*")]
     (tmp_path / "a.sp3").write_text("".join(lines[: epoch_at[150]]) + "EOF\n")
     second = lines[: epoch_at[0]]
@@ -126,9 +126,9 @@ def test_times_outside_the_orbits_name_both_spans(orbits_dir, name, orbit_span):
     assert info.value.where == name
 
 
-def test_not_an_orbit_file(shared_data):
+def test_not_an_orbit_file(repo_data):
     with pytest.raises(InputError, match="neither an SP3 orbit file nor a RINEX navigation"):
-        load_orbits(shared_data / "gnss" / "gsdc2022_mtv_2021-04-29_ground_truth_excerpt.csv")
+        load_orbits(repo_data / "gnss" / "gsdc2022_mtv_2021-04-29_ground_truth_excerpt.csv")
 
 
 # --- found by fuzzing (tests/fuzz/test_fuzz_gnss.py) ------------------------------------------

@@ -37,7 +37,7 @@ def heights_gpkg(folder: Path, **columns) -> Path:
     return path
 
 
-def estimate(folder: Path, grids: str, output: str, *extra) -> list[str]:
+def estimate(folder: Path, grid_args: list[str], output: str, *extra) -> list[str]:
     return [
         "estimate",
         str(CITY / "observations.parquet"),
@@ -46,8 +46,7 @@ def estimate(folder: Path, grids: str, output: str, *extra) -> list[str]:
         str(CITY / "dem.tif"),
         "-o",
         str(folder / output),
-        "--grid-dir",
-        grids,
+        *grid_args,
         "-q",
         *extra,
     ]
@@ -56,19 +55,18 @@ def estimate(folder: Path, grids: str, output: str, *extra) -> list[str]:
 # --- a GeoPackage keeps its other layers ----------------------------------------------------
 
 
-def test_estimate_into_a_geopackage_keeps_its_other_layers(shared_data, tmp_path, capsys):
-    grids = str(shared_data / "geodesy")
+def test_estimate_into_a_geopackage_keeps_its_other_layers(grid_args, tmp_path, capsys):
     target = tmp_path / "map.gpkg"
     mine = buildings()
     mine.to_file(target, layer="buildings", driver="GPKG")
-    code, _, err = run(estimate(tmp_path, grids, "map.gpkg"), capsys)  # a new layer: no flag
+    code, _, err = run(estimate(tmp_path, grid_args, "map.gpkg"), capsys)  # a new layer: no flag
     assert code == 0, err
     assert sorted(pyogrio.list_layers(target)[:, 0]) == ["buildings", "heights"]
     first = gpd.read_file(target, layer="heights")
     assert len(first) == 30
-    code, _, err = run(estimate(tmp_path, grids, "map.gpkg"), capsys)
+    code, _, err = run(estimate(tmp_path, grid_args, "map.gpkg"), capsys)
     assert code == 2 and "output exists and has a layer 'heights'" in err
-    code, _, err = run(estimate(tmp_path, grids, "map.gpkg", "--overwrite"), capsys)
+    code, _, err = run(estimate(tmp_path, grid_args, "map.gpkg", "--overwrite"), capsys)
     assert code == 0, err
     assert sorted(pyogrio.list_layers(target)[:, 0]) == ["buildings", "heights"]
     kept = gpd.read_file(target, layer="buildings")
@@ -82,9 +80,8 @@ def test_estimate_into_a_geopackage_keeps_its_other_layers(shared_data, tmp_path
 
 
 @pytest.mark.parametrize("suffix, driver", [(".fgb", "FlatGeobuf"), (".parquet", None)])
-def test_estimate_writes_the_format_its_name_says(suffix, driver, shared_data, tmp_path, capsys):
-    grids = str(shared_data / "geodesy")
-    code, _, err = run(estimate(tmp_path, grids, "h" + suffix), capsys)
+def test_estimate_writes_the_format_its_name_says(suffix, driver, grid_args, tmp_path, capsys):
+    code, _, err = run(estimate(tmp_path, grid_args, "h" + suffix), capsys)
     assert code == 0, err
     path = tmp_path / ("h" + suffix)
     if driver:

@@ -80,9 +80,9 @@ def city():
     )
 
 
-def test_the_job_from_the_top_level(city, shared_data, tmp_path):
+def test_the_job_from_the_top_level(city, grid_dir, tmp_path):
     observations, footprints, dem = city
-    heights = gnss_citygml.estimate(observations, footprints, dem, grid_dir=shared_data / "geodesy")
+    heights = gnss_citygml.estimate(observations, footprints, dem, grid_dir=grid_dir)
     assert heights.crs.to_epsg() == 27700 and len(heights) == len(footprints)
     converged = int(heights["converged"].sum())
     assert converged >= 25

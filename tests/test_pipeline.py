@@ -19,11 +19,11 @@ from gnss_citygml.simulate.scenes import Building, Scene, Session
 
 
 @pytest.fixture(scope="module")
-def site(shared_data, tmp_path_factory):
+def site(grid_dir, tmp_path_factory):
     sim = simulate("hermitage", locations="manual", seed=0, interval=20.0)
     folder = tmp_path_factory.mktemp("hermitage")
-    paths = write_site(sim, folder, grid_dir=shared_data / "geodesy")
-    return sim, paths, shared_data / "geodesy"
+    paths = write_site(sim, folder, grid_dir=grid_dir)
+    return sim, paths, grid_dir
 
 
 def test_heights_from_files(site):
@@ -101,11 +101,10 @@ def test_footprint_no_ray_enters(site):
     assert out.loc["shed", "status"] == "no signal's ray enters the footprint"
 
 
-def test_real_mastermap_footprints(shared_data, tmp_path):
+def test_real_mastermap_footprints(shared_data, grid_dir, tmp_path):
     """Real OS MasterMap footprints (Bloomsbury: courtyards, party walls, odd shapes) given
     simulated heights and phones in the streets around them: the pipeline, reading the GML
     itself, finds heights for the buildings the phones see well, within a few metres."""
-    grids = shared_data / "geodesy"
     real = read_footprints(shared_data / "footprints" / "mastermap-topo_3473984_0.gml")
     centre = (529540.0, 182293.0)  # Gower Street, where the London log was recorded
     near = real[real.distance(shapely.Point(centre)) < 100.0].reset_index(drop=True)
@@ -117,11 +116,11 @@ def test_real_mastermap_footprints(shared_data, tmp_path):
     block = shapely.STRtree(blocks).query(near.geometry.to_numpy(), predicate="within")[1]
     assert block.size == len(near)
     tops = ground + rng.uniform(10.0, 30.0, blocks.size)[block] + rng.uniform(-1, 1, len(near))
-    lat0, lon0, _ = from_osgb(*centre, 0.0, grid_dir=grids)
+    lat0, lon0, _ = from_osgb(*centre, 0.0, grid_dir=grid_dir)
     origin = Scene("bloomsbury", float(lat0), float(lon0), ground, (), ())
 
     def local(xy):
-        lat, lon, _ = from_osgb(xy[:, 0], xy[:, 1], 0.0, grid_dir=grids)
+        lat, lon, _ = from_osgb(xy[:, 0], xy[:, 1], 0.0, grid_dir=grid_dir)
         return np.column_stack(wgs84_to_local(origin, lon, lat))
 
     shapes = shapely.transform(near.geometry.to_numpy(), local)
@@ -138,8 +137,8 @@ def test_real_mastermap_footprints(shared_data, tmp_path):
     )
     scene = replace(origin, buildings=buildings, sessions=sessions)
     sim = simulate(scene, seed=0, interval=5.0)
-    paths = write_site(sim, tmp_path, grid_dir=grids)  # the flat DEM; footprints not used
-    out = estimate(sim.observations, near, str(paths["dem"]), grid_dir=grids)
+    paths = write_site(sim, tmp_path, grid_dir=grid_dir)  # the flat DEM; footprints not used
+    out = estimate(sim.observations, near, str(paths["dem"]), grid_dir=grid_dir)
     ok = out[out["converged"]].set_index("toid")  # MasterMap's TOIDs keep their name
     error = ok["height"] - sim.truth.set_index("id").loc[ok.index, "height"]
     # measured: 13 of 48 converge, median error 1.6 m; houses inside terraces, seen only

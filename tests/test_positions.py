@@ -17,16 +17,17 @@ STANFORD = "stanford_2023-11-07_Pixel7_gnss_log.txt"
 
 
 @pytest.fixture(scope="module")
-def gnss_dir(shared_data):
-    return shared_data / "gnss"
+def gnss_dir(repo_data):
+    return repo_data / "gnss"
 
 
 @pytest.fixture(scope="module")
-def london(gnss_dir) -> GnssLog:
-    """The London log; the warning about its cut-off last line is test_gnsslogger's."""
+def london(shared_data) -> GnssLog:
+    """The London log (2.7 MB: only in the shared data); the warning about its cut-off last
+    line is test_gnsslogger's."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        return read_gnsslogger(gnss_dir / LONDON)
+        return read_gnsslogger(shared_data / "gnss" / LONDON)
 
 
 def test_london_positions_from_gps_fixes(london):

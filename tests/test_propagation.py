@@ -25,8 +25,8 @@ def test_sp3_vs_broadcast_gps_2021(orbits_dir, cod):
     assert np.median(diff) < 2.0 and diff.max() < 6.0
 
 
-def test_sp3_vs_broadcast_gps_full_day_2025(orbits_dir, gfz):
-    nav = load_orbits(orbits_dir / "brdc3200.25n")
+def test_sp3_vs_broadcast_gps_full_day_2025(shared_data, gfz):
+    nav = load_orbits(shared_data / "orbits" / "brdc3200.25n")
     times = gps_to_utc(np.unique(gfz["time_gps"]))
     diff = compare(Sp3Orbits(gfz).positions_all(times, "G"), nav.positions_all(times, "G"))
     print(f"GFZ vs brdc3200 GPS: n {diff.size} max {diff.max():.2f} median {np.median(diff):.2f}")
@@ -55,15 +55,15 @@ def test_sp3_vs_broadcast_gps_full_day_2025(orbits_dir, gfz):
         ),
     ],
 )
-def test_broadcast_gps_matches_google(shared_data, nav, csv, time_col, clock_col, columns, limit):
+def test_broadcast_gps_matches_google(repo_data, nav, csv, time_col, clock_col, columns, limit):
     """Google's satellite positions are at the transmit time: received SV time - SV clock."""
-    table = pd.read_csv(shared_data / "gnss" / csv)
+    table = pd.read_csv(repo_data / "gnss" / csv)
     kind = "ConstellationType" if "ConstellationType" in table else "constellationType"
     svid = "Svid" if "Svid" in table else "svid"
     table = table[(table[kind] == 1) & table[columns[0]].notna()]
     transmit_ns = table[time_col].to_numpy() - table[clock_col].to_numpy() / LIGHT * 1e9
     transmit_utc = gps_to_utc(GPS_EPOCH + transmit_ns.astype(np.int64).astype("timedelta64[ns]"))
-    orbits = load_orbits(shared_data / "orbits" / nav)
+    orbits = load_orbits(repo_data / "orbits" / nav)
     diff = distance(orbits.positions(transmit_utc, "G", table[svid]), table[columns])
     print(f"{nav} vs {csv}: {diff.size} signals, max {diff.max():.3f} m")
     assert diff.size >= 60 and diff.max() < limit

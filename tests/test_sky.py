@@ -25,9 +25,9 @@ GOOGLE = [
 
 
 @pytest.mark.parametrize(("device", "truth"), GOOGLE)
-def test_matches_google_azimuth_elevation(shared_data, device, truth):
-    gnss = pd.read_csv(shared_data / "gnss" / device).dropna(subset=["SvPositionXEcefMeters"])
-    rx = pd.read_csv(shared_data / "gnss" / truth)
+def test_matches_google_azimuth_elevation(repo_data, device, truth):
+    gnss = pd.read_csv(repo_data / "gnss" / device).dropna(subset=["SvPositionXEcefMeters"])
+    rx = pd.read_csv(repo_data / "gnss" / truth)
     m = gnss.merge(rx, left_on="utcTimeMillis", right_on="UnixTimeMillis")
     assert len(m) > 100
     sat = m[["SvPositionXEcefMeters", "SvPositionYEcefMeters", "SvPositionZEcefMeters"]]

@@ -223,7 +223,7 @@ IDS = (
     rows=st.lists(st.tuples(IDS, GEOMETRIES), min_size=1, max_size=4),
     crs=st.sampled_from(["EPSG:27700", "EPSG:4326", "EPSG:23030", None]),
 )
-def test_geopackage_attributes(rows, crs, folder, clean, shared_data):
+def test_geopackage_attributes(rows, crs, folder, clean, grid_dir):
     """Any ids (missing, repeated, huge; one type per column, as a layer has), any geometries
     and a few CRSs (EPSG:4326 through the grids; ED50, which has no grid path)."""
     ids, geometries = map(list, zip(*rows, strict=True))
@@ -235,4 +235,4 @@ def test_geopackage_attributes(rows, crs, folder, clean, shared_data):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         frame.to_file(path, layer="buildings", geometry_type="Unknown")
-        _check(clean(read_footprints, path, grid_dir=shared_data / "geodesy"))
+        _check(clean(read_footprints, path, grid_dir=grid_dir))

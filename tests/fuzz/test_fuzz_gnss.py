@@ -1,6 +1,6 @@
 """Fuzzing the GNSS readers: GnssLogger logs, SP3 orbits, RINEX 2 and 3 navigation files.
 
-Seeds are cut at test time from the shared reference data, at record boundaries so that each
+Seeds are cut at test time from the reference data, at record boundaries so that each
 seed is a valid file: the first 150 lines of GnssLogger logs of five versions (1.4, 2.0.0.1,
 2.0.4.2, 3.0.6.4, "Not Available"), the header and a few epochs of SP3-c and SP3-d files, the
 header and a few records per system of RINEX 2 and RINEX 3 navigation files. Every case must
@@ -118,28 +118,28 @@ def _nav_seed(text: str, per_system: int) -> bytes:
 
 
 @pytest.fixture(scope="module")
-def sp3_seeds(shared_data) -> list[bytes]:
+def sp3_seeds(repo_data) -> list[bytes]:
     seeds = []
     for name, (epochs, satellites) in SP3.items():
-        seed = _sp3_seed(_text(shared_data / "orbits" / name), epochs, satellites)
+        seed = _sp3_seed(_text(repo_data / "orbits" / name), epochs, satellites)
         assert len(_read_file(read_sp3, seed, "seed.sp3")) == epochs * satellites
         seeds.append(_Seed(seed, name))
     return seeds
 
 
 @pytest.fixture(scope="module")
-def sp3_source_seed(shared_data) -> bytes:
+def sp3_source_seed(repo_data) -> bytes:
     name, epochs, satellites = SP3_SOURCE
-    seed = _sp3_seed(_text(shared_data / "orbits" / name), epochs, satellites)
+    seed = _sp3_seed(_text(repo_data / "orbits" / name), epochs, satellites)
     assert len(_read_file(_orbits_in_use, seed, "seed.sp3")) == satellites
     return _Seed(seed, name)
 
 
 @pytest.fixture(scope="module")
-def nav_seeds(shared_data) -> list[bytes]:
+def nav_seeds(repo_data) -> list[bytes]:
     seeds = []
     for name, per_system in NAV.items():
-        seed = _nav_seed(_text(shared_data / "orbits" / name), per_system)
+        seed = _nav_seed(_text(repo_data / "orbits" / name), per_system)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             assert len(_read_file(_orbits_in_use, seed, name)) > 0

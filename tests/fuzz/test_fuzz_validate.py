@@ -75,9 +75,9 @@ def folder():
 
 
 @pytest.fixture(scope="module")
-def schema_dir(shared_data) -> Path:
+def schema_dir(repo_data) -> Path:
     """The official CityJSON schemas: the JSON Schema check runs on every case."""
-    return shared_data / "schemas" / "cityjson"
+    return repo_data / "schemas" / "cityjson"
 
 
 def _validate(data: bytes, path: Path, schema_dir: Path, clean) -> Report | None:

@@ -24,7 +24,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-from shared_data import SHARED_DATA
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from test_kill9 import WRITERS, Trials, prepare_inputs  # noqa: E402
@@ -58,7 +57,7 @@ def main() -> int:
         folder = Path(tmp)
         prepare_inputs(folder / "inputs")
         for name in args.writers:
-            trials = Trials(WRITERS[name], folder / name, SHARED_DATA, folder / "inputs")
+            trials = Trials(WRITERS[name], folder / name, folder / "inputs")
             kills = [trials.kill(delay) for delay in trials.delays(args.kills, rng)]
             chosen = [trials.kill_when_writing(replaced=replaced) for replaced in (False, True)]
             verdicts = [kill.verdict() for kill in kills]

@@ -38,6 +38,8 @@ from gnss_citygml.tables import read_table
 from gnss_citygml.validate import validate_file
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "city"
+#: Small public reference data in the repository (the Google demo log and its orbits).
+DATA = Path(__file__).resolve().parent / "data"
 DEMO_LOG = "google_demo_pseudoranges_log_2016_08_22_14_45_50.txt"
 DEMO_ORBITS = "hour2350.16n"  # the broadcast orbits covering DEMO_LOG (tests/test_observe.py)
 
@@ -47,7 +49,7 @@ class Writer:
     """A command that writes files, in two variants whose outputs differ.
 
     ``args`` is the command line, with ``{out}`` (the folder written to), ``{inputs}``,
-    ``{example}``, ``{grids}``, ``{data}`` (the shared reference data) and ``{variant}``
+    ``{example}``, ``{data}`` (tests/data: small public reference data) and ``{variant}``
     (``previous`` or ``new``) filled in; ``previous`` and ``new`` are the options that differ.
     ``outputs`` are the names of the files the command writes in ``{out}``."""
 
@@ -83,8 +85,6 @@ WRITERS = {
                 "{example}/footprints.gpkg",
                 "--dem",
                 "{example}/dem.tif",
-                "--grid-dir",
-                "{grids}",
                 "-o",
                 "{out}/heights.gpkg",
                 "-q",
@@ -130,7 +130,7 @@ WRITERS = {
         Writer(
             "simulate",
             ("observations.csv", "footprints.gpkg", "dem.tif", "truth.csv", "intersections.csv"),
-            ("simulate", "goodchild", "-o", "{out}", "--interval", "20", "--grid-dir", "{grids}"),
+            ("simulate", "goodchild", "-o", "{out}", "--interval", "20"),
             previous=("--seed", "0"),
             new=("--seed", "1"),
         ),
@@ -138,14 +138,9 @@ WRITERS = {
 }
 
 
-def places(shared_data: Path, inputs: Path) -> dict:
-    """The folders the writers' command lines refer to."""
-    return {
-        "example": EXAMPLE,
-        "grids": shared_data / "geodesy",
-        "data": shared_data,
-        "inputs": inputs,
-    }
+def places(inputs: Path) -> dict:
+    """The folders the writers' command lines refer to (the grids: the bundled copy)."""
+    return {"example": EXAMPLE, "data": DATA, "inputs": inputs}
 
 
 def run_in_process(argv: list[str]) -> None:
@@ -237,9 +232,9 @@ class Trials:
     command (its duration is measured: the random kills' delays are drawn below it), ``run/``
     the previous output that every killed run tries to replace (made in this process)."""
 
-    def __init__(self, writer: Writer, folder: Path, shared_data: Path, inputs: Path):
+    def __init__(self, writer: Writer, folder: Path, inputs: Path):
         self.writer = writer
-        self.where = places(shared_data, inputs)
+        self.where = places(inputs)
         self.run, reference = folder / "run", folder / "reference"
         self.run.mkdir(parents=True)
         reference.mkdir(parents=True)
@@ -354,7 +349,7 @@ class Trials:
 
 
 @pytest.fixture(scope="module")
-def trials_of(tmp_path_factory, shared_data):
+def trials_of(tmp_path_factory):
     """The kill trials of a writer by name, set up once per module."""
     inputs = tmp_path_factory.mktemp("inputs")
     prepare_inputs(inputs)
@@ -362,7 +357,7 @@ def trials_of(tmp_path_factory, shared_data):
 
     def get(name):
         if name not in made:
-            made[name] = Trials(WRITERS[name], tmp_path_factory.mktemp(name), shared_data, inputs)
+            made[name] = Trials(WRITERS[name], tmp_path_factory.mktemp(name), inputs)
         return made[name]
 
     return get

@@ -6,6 +6,10 @@ the receiver height), ``constellation`` (RINEX letter), ``svid``, ``azimuth`` (d
 north), ``elevation`` (deg) and ``cn0`` (dB-Hz; empty = above the horizon but not received,
 i.e. blocked). :func:`check_observations` turns any table a user hands in into that schema or
 says exactly which row is wrong and why.
+
+The columns, which of them are required, their types, the constellation letters and the ranges
+come from the published JSON Schema of a row (``schemas/observations.schema.json``, see
+:mod:`gnss_citygml.contracts`); the checks themselves run on whole columns at once.
 """
 
 from __future__ import annotations
@@ -17,6 +21,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from .contracts import OBSERVATIONS, load, types
 from .errors import InputError, MissingColumnError
 from .tables import read_table, write_table
 
@@ -28,32 +33,31 @@ __all__ = [
     "write_observations",
 ]
 
-#: Column order of the observations table.
-OBSERVATION_COLUMNS = [
-    "time_utc",
-    "receiver",
-    "lat",
-    "lon",
-    "h",
-    "constellation",
-    "svid",
-    "azimuth",
-    "elevation",
-    "cn0",
-]
+_SCHEMA = load(OBSERVATIONS)
+_PROPERTIES = _SCHEMA["properties"]
+
+#: Column order of the observations table (the schema's properties).
+OBSERVATION_COLUMNS = list(_PROPERTIES)
 
 #: RINEX system letters: GPS, GLONASS, Galileo, BeiDou, QZSS, SBAS, NavIC.
-CONSTELLATIONS = ("G", "R", "E", "C", "J", "S", "I")
+CONSTELLATIONS = tuple(_PROPERTIES["constellation"]["enum"])
 
-_REQUIRED = [c for c in OBSERVATION_COLUMNS if c != "h"]
-#: RINEX numbers have two digits; larger ones are no satellite (and would overflow int64).
-_MAX_SVID = 999
+_REQUIRED = list(_SCHEMA["required"])
+#: Columns of numbers, in column order (lat, lon, h, azimuth, elevation, cn0); those that may
+#: be empty (null in the schema: h, cn0).
+_NUMBERS = [c for c, spec in _PROPERTIES.items() if "number" in types(spec)]
+_MAY_BE_EMPTY = [c for c in _NUMBERS if "null" in types(_PROPERTIES[c])]
+#: The satellite numbers RINEX has (larger ones are no satellite and would overflow int64).
+_SVIDS = (_PROPERTIES["svid"]["minimum"], _PROPERTIES["svid"]["maximum"])
+#: (lowest, highest, whether the highest is excluded) of each column of numbers with a range.
 _RANGES = {
-    "lat": (-90.0, 90.0),
-    "lon": (-180.0, 180.0),
-    "azimuth": (0.0, 360.0),
-    "elevation": (-90.0, 90.0),
-    "cn0": (0.0, 100.0),
+    c: (
+        float(spec["minimum"]),
+        float(spec.get("maximum", spec.get("exclusiveMaximum"))),
+        "exclusiveMaximum" in spec,
+    )
+    for c, spec in _PROPERTIES.items()
+    if c in _NUMBERS and "minimum" in spec
 }
 
 
@@ -153,10 +157,11 @@ def check_observations(
         return f"{where}, row {row}" if line is None else f"{where}, line {line}"
 
     out["time_utc"] = _times(out["time_utc"], locate)
-    for column in ("lat", "lon", "h", "azimuth", "elevation", "cn0"):
+    for column in _NUMBERS:
         out[column] = _numbers(out[column], column, locate)
-    for column in ("lat", "lon", "azimuth", "elevation"):
-        _no_gaps(out[column], column, locate)
+    for column in _NUMBERS:
+        if column not in _MAY_BE_EMPTY:  # lat, lon, azimuth, elevation
+            _no_gaps(out[column], column, locate)
     out["svid"] = _svids(out["svid"], locate)
     out["receiver"] = _labels(out["receiver"], "receiver", locate)
     out["constellation"] = _labels(out["constellation"], "constellation", locate).str.upper()
@@ -168,11 +173,9 @@ def check_observations(
             where=locate(row),
             fix="use a RINEX letter: " + ", ".join(CONSTELLATIONS),
         )
-    for column, (lo, hi) in _RANGES.items():
+    for column, (lo, hi, below_hi) in _RANGES.items():
         values = out[column].to_numpy()
-        bad = (values < lo) | (values > hi)
-        if column == "azimuth":
-            bad |= values == hi  # 360 is 0
+        bad = (values < lo) | (values >= hi if below_hi else values > hi)  # azimuth 360 is 0
         if bad.any():
             row = _first_bad(bad)
             raise InputError(
@@ -249,7 +252,8 @@ def _numbers(column: pd.Series, name: str, locate) -> pd.Series:
             f"{name} {_show(column.iloc[row])} is not a "
             + ("finite number" if np.isinf(numbers.iloc[row]) else "number"),
             where=locate(row),
-            fix=f"give {name} as a number" + (" or leave it empty" if name in ("h", "cn0") else ""),
+            fix=f"give {name} as a number"
+            + (" or leave it empty" if name in _MAY_BE_EMPTY else ""),
         )
     return numbers
 
@@ -287,7 +291,8 @@ def _no_gaps(column: pd.Series, name: str, locate) -> None:
 
 def _svids(column: pd.Series, locate) -> pd.Series:
     numbers = _to_numeric(column)
-    bad = (numbers.isna() | (numbers % 1 != 0) | (numbers < 0) | (numbers > _MAX_SVID)).to_numpy()
+    lo, hi = _SVIDS
+    bad = (numbers.isna() | (numbers % 1 != 0) | (numbers < lo) | (numbers > hi)).to_numpy()
     if bad.any():
         row = _first_bad(bad)
         raise InputError(

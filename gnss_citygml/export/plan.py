@@ -31,6 +31,7 @@ import numpy as np
 import pandas as pd
 import shapely
 
+from ..contracts import HEIGHTS, load
 from ..errors import InputError, MissingColumnError, listing
 from ..ids import id_field, id_named, with_id_field
 from ..validate import Report
@@ -88,11 +89,14 @@ def footprints_with_heights(
     :mod:`gnss_citygml.ids`), and the result keeps that name for the outputs. Footprints
     without a row keep empty heights (the writers skip and list them); a ``ground`` already on
     the footprints (from a DEM) wins over the table's. Heights of ids that are not among the
-    footprints are an error."""
-    name = id_field(footprints)
+    footprints are an error, as is a table without the columns the heights schema requires
+    (``schemas/heights.schema.json``: the id, ``height``)."""
+    name, columns = id_field(footprints), list(heights.columns)
     footprints, heights = id_named(footprints), id_named(heights, name, where=where)
-    if "id" not in heights.columns:
-        raise MissingColumnError([name], where=where, have=list(heights.columns))
+    required = load(HEIGHTS)["required"]
+    missing = [name if c == "id" else c for c in required if c not in heights.columns]
+    if missing:
+        raise MissingColumnError(missing, where=where, have=columns)
     table = heights.assign(id=heights["id"].astype(str))
     repeated = pd.unique(table["id"][table["id"].duplicated()])
     if repeated.size:

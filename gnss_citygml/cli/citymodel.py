@@ -9,6 +9,7 @@ partial stream for a whole city); every message goes to standard error.
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
 import shutil
 import sys
@@ -20,7 +21,7 @@ import click
 
 from ..errors import InputError, escape_controls
 from .observe import GRID_DIR
-from .options import MODEL_OUTPUT, OVERWRITE, QUIET, STDOUT, progress
+from .options import MODEL_OUTPUT, OVERWRITE, QUIET, STDOUT, TYPED_ATTRIBUTES, progress
 
 _SCHEMA_DIR = click.option(
     "--schema-dir",
@@ -34,6 +35,7 @@ _MODEL_OPTIONS = [
     click.option("--strict", is_flag=True, help="Stop if a building has no usable height."),
     click.option("--no-validate", "no_validate", is_flag=True, help="Skip validating the output."),
     _SCHEMA_DIR,
+    TYPED_ATTRIBUTES,
     QUIET,
 ]
 
@@ -54,18 +56,28 @@ def _footprints(path, layer, id_field, dem, dem_crs, grid_dir):
     return frame if dem is None else building_ground(frame, dem, assume_crs=dem_crs)
 
 
-def _model_writer(output, overwrite):
+def _model_writer(output, overwrite, typed_attributes):
     """The writer for the format the output's name asks for (CityJSONSeq for standard
-    output), checked before any work."""
+    output), checked before any work (typed attributes are CityJSON's: CityGML's generic
+    attributes are typed already)."""
     from ..export import write_citygml, write_cityjson, write_cityjsonseq
     from ..paths import check_output
 
-    if output == STDOUT:
-        return write_cityjsonseq
     writers = {".jsonl": write_cityjsonseq, ".json": write_cityjson}
     writers.update(dict.fromkeys((".gml", ".xml"), write_citygml))
-    check_output(output, overwrite=overwrite, suffixes=tuple(writers))
-    return writers[output.suffix.lower()]
+    if output == STDOUT:
+        writer = write_cityjsonseq
+    else:
+        check_output(output, overwrite=overwrite, suffixes=tuple(writers))
+        writer = writers[output.suffix.lower()]
+    if not typed_attributes:
+        return writer
+    if writer is write_citygml:
+        raise click.UsageError(
+            "--typed-attributes is for CityJSON (.city.json, .city.jsonl): CityGML's generic "
+            "attributes are typed already"
+        )
+    return functools.partial(writer, typed_attributes=True)
 
 
 def _write_model(frame, writer, output, overwrite, strict, no_validate, schema_dir, quiet):
@@ -150,6 +162,7 @@ def convert(
     strict,
     no_validate,
     schema_dir,
+    typed_attributes,
     quiet,
 ):
     """Turn footprints with a height attribute into CityJSON, CityJSONSeq or CityGML LOD1.
@@ -161,7 +174,7 @@ def convert(
 
     if ground_field is not None and dem is not None:
         raise click.UsageError("give the ground with --ground-field or --dem, not both")
-    writer = _model_writer(output, overwrite)
+    writer = _model_writer(output, overwrite, typed_attributes)
     frame = _footprints(input_, layer, id_field, dem, dem_crs, grid_dir)
     frame = buildings_with_heights(
         frame, height_field, relative=relative, ground_field=ground_field
@@ -196,13 +209,14 @@ def export(
     strict,
     no_validate,
     schema_dir,
+    typed_attributes,
     quiet,
 ):
     """Write the city model of a heights table (CSV or Parquet, from `heights`)."""
     from ..export import footprints_with_heights
     from ..tables import read_table
 
-    writer = _model_writer(output, overwrite)
+    writer = _model_writer(output, overwrite, typed_attributes)
     table = read_table(heights)
     frame = _footprints(footprints, layer, id_field, dem, dem_crs, grid_dir)
     frame = footprints_with_heights(frame, table, where=str(heights))

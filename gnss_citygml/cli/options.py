@@ -14,6 +14,7 @@ __all__ = [
     "SEED",
     "STDOUT",
     "THRESHOLD",
+    "TYPED_ATTRIBUTES",
     "output_file",
     "progress",
 ]
@@ -33,6 +34,14 @@ THRESHOLD = click.option(
     default=30.0,
     show_default=True,
     help="C/N0 (dB-Hz) where the initial signal classifier gives 50 %.",
+)
+
+TYPED_ATTRIBUTES = click.option(
+    "--typed-attributes",
+    is_flag=True,
+    help="CityJSON: write the toolkit's attributes as +height, +height_lower, ... typed by its "
+    "CityJSON Extension (declared in the file; schemas/gnss_citygml.ext.json) instead of plain "
+    "attributes.",
 )
 
 

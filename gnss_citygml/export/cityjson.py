@@ -10,12 +10,19 @@ below the data) and identical vertices are stored once. ``metadata.referenceSyst
 Each city object's key is the building's id (e.g. its TOID, whatever its source's field is
 called); the id is not repeated as an attribute.
 
-Attributes are plain CityJSON attributes, not an Extension: ``measuredHeight`` (roof - ground,
-m, as in the spec), ``creationDate`` (the export date), then every column of the buildings table
-under its own name (for an estimate: ``height`` the absolute roof height in m ODN,
+Attributes are plain CityJSON attributes by default: ``measuredHeight`` (roof - ground, m, as in
+the spec), ``creationDate`` (the export date), then every column of the buildings table under
+its own name (for an estimate: ``height`` the absolute roof height in m ODN,
 ``height_lower``/``height_upper`` its range, ``ground``, ``n_signals``, ``converged``,
 ``method``, ...). Missing values (NaN) are left out. Plain attributes need no Extension file
 reachable at a URL, so every CityJSON reader and validator accepts the files offline.
+
+With ``typed_attributes=True`` the toolkit's own attributes (the columns of the heights table:
+``height``, ``height_lower``, ..., ``ground``, ``relative_height``) are written as ``+height``,
+``+height_lower``, ... of the types the toolkit's CityJSON Extension gives them (integers as
+integers, ``converged`` as a boolean), and the file declares that Extension (``extensions``:
+its name, URL and version; the file ships in the package, see :mod:`gnss_citygml.contracts`).
+The footprints' own attributes stay plain.
 
 CityJSONSeq (``.city.jsonl``) has the CityJSON header on its first line (empty ``CityObjects``
 and ``vertices``) and one ``CityJSONFeature`` per building on each following line, written
@@ -30,10 +37,12 @@ import geopandas as gpd
 import numpy as np
 import pandas as pd
 
+from ..contracts import EXTENSION, load
+from ..errors import InputError, listing
 from ..paths import atomic_path
 from .attributes import attribute_columns, attribute_values, creation_date, measured_heights
 from .output import ExportResult, Progress, validated_output
-from .plan import CHUNK, chunks, prepare_buildings
+from .plan import CHUNK, booleans, chunks, prepare_buildings
 from .prisms import SCALE, SURFACES, Prisms, extrude, part_ids
 
 __all__ = ["CRS_URL", "VERSION", "write_cityjson", "write_cityjsonseq"]
@@ -45,6 +54,14 @@ CRS_URL = "https://www.opengis.net/def/crs/EPSG/0/7405"
 
 _SURFACES_JSON = json.dumps([{"type": kind} for kind in SURFACES], separators=(",", ":"))
 _RESERVED = ("measuredHeight", "creationDate")
+#: The kind (of :func:`~gnss_citygml.export.attributes.attribute_values`) of each column the
+#: Extension types, by the column's name (its attribute's without the ``+``).
+_TYPED = {
+    name[1:]: {"number": "double", "integer": "int", "boolean": "bool", "string": "string"}[
+        spec["type"]
+    ]
+    for name, spec in load(EXTENSION)["extraAttributes"]["Building"].items()
+}
 
 
 def write_cityjson(
@@ -58,6 +75,7 @@ def write_cityjson(
     date=None,
     title: str | None = None,
     progress: Progress | None = None,
+    typed_attributes: bool = False,
 ) -> ExportResult:
     """Write the buildings as one CityJSON 2.0 file of LOD1 solids.
 
@@ -86,11 +104,21 @@ def write_cityjson(
         ``metadata.title``.
     progress
         Called with the number of buildings written after each chunk.
+    typed_attributes
+        Write the toolkit's attributes as ``+height``, ... typed by its CityJSON Extension,
+        which the file declares (default: plain attributes).
 
     Returns
     -------
     ExportResult
         Buildings written and skipped, and the validation report.
+
+    Raises
+    ------
+    InputError
+        Besides the buildings table's errors (:func:`~gnss_citygml.export.plan.prepare_buildings`):
+        with ``typed_attributes``, a column the Extension types whose values are not of its
+        type (``n_signals`` of 2.5, ``converged`` of ``maybe``).
 
     Examples
     --------
@@ -105,10 +133,18 @@ def write_cityjson(
     (1, True)
     >>> model["CityObjects"]["osgb1"]["attributes"]
     {'measuredHeight': 12.5, 'creationDate': '2024-05-01', 'ground': 20.0, 'height': 32.5}
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     out = write_cityjson(frame, f"{folder}/b.city.json", date="2024-05-01",
+    ...                          typed_attributes=True)
+    ...     model = json.load(open(out.path))
+    >>> model["extensions"]["GnssCityGML"]["version"]
+    '1.0'
+    >>> model["CityObjects"]["osgb1"]["attributes"]
+    {'measuredHeight': 12.5, 'creationDate': '2024-05-01', '+ground': 20.0, '+height': 32.5}
     """
     plan = prepare_buildings(buildings, strict=strict)
     date = creation_date(date)
-    header, translate = _header(plan.bounds_mm(), date, title)
+    header, translate = _header(plan.bounds_mm(), date, title, typed_attributes)
     frames = list(plan.chunks())
     if not frames:
         return plan.result(path, None)  # raises: nothing to write
@@ -119,7 +155,8 @@ def write_cityjson(
         with open(tmp, "w", encoding="utf-8") as out:
             out.write(_dumps(header)[:-1] + ',"CityObjects":{')
             for part in chunks(len(frame)):
-                objects = _objects(frame.iloc[part], prisms.take(part), parts[part], date)
+                rows = frame.iloc[part]
+                objects = _objects(rows, prisms.take(part), parts[part], date, typed_attributes)
                 out.write(("," if part.start else "") + ",".join(objects))
                 if progress is not None:
                     progress(part.stop - part.start)
@@ -143,6 +180,7 @@ def write_cityjsonseq(
     date=None,
     title: str | None = None,
     progress: Progress | None = None,
+    typed_attributes: bool = False,
 ) -> ExportResult:
     """Write the buildings as CityJSONSeq: a header line, then one CityJSONFeature per line.
 
@@ -165,14 +203,15 @@ def write_cityjsonseq(
     """
     plan = prepare_buildings(buildings, strict=strict)
     date = creation_date(date)
-    header, translate = _header(plan.bounds_mm(), date, title)
+    header, translate = _header(plan.bounds_mm(), date, title, typed_attributes)
     header.update({"CityObjects": {}, "vertices": []})
     with atomic_path(path, overwrite=overwrite) as tmp:
         with open(tmp, "w", encoding="utf-8") as out:
             out.write(_dumps(header) + "\n")
             for rows in plan.chunks():
                 prisms = extrude(rows.geometry, rows["ground"], rows["height"])
-                objects = _objects(rows, prisms, part_ids(rows["id"], rows.geometry), date)
+                parts = part_ids(rows["id"], rows.geometry)
+                objects = _objects(rows, prisms, parts, date, typed_attributes)
                 vertices = _nested_text(
                     _vertex_texts(prisms.vertices - translate),
                     [(prisms.vertex_start, "[", "]", ",")],
@@ -193,8 +232,11 @@ def _dumps(value) -> str:
     return json.dumps(value, separators=(",", ":"), ensure_ascii=False, allow_nan=False)
 
 
-def _header(bounds: np.ndarray, date: str, title: str | None) -> tuple[dict, np.ndarray]:
-    """The CityJSON object without CityObjects and vertices, and the translation (mm)."""
+def _header(
+    bounds: np.ndarray, date: str, title: str | None, typed: bool
+) -> tuple[dict, np.ndarray]:
+    """The CityJSON object without CityObjects and vertices, and the translation (mm); with
+    ``typed``, it declares the toolkit's Extension."""
     translate = (bounds[:3] // 1000) * 1000  # whole metres below the data
     metadata = {
         "referenceSystem": CRS_URL,
@@ -203,19 +245,27 @@ def _header(bounds: np.ndarray, date: str, title: str | None) -> tuple[dict, np.
     }
     if title is not None:
         metadata["title"] = title
-    header = {
-        "type": "CityJSON",
-        "version": VERSION,
-        "transform": {"scale": [SCALE] * 3, "translate": (translate * SCALE).tolist()},
-        "metadata": metadata,
-    }
+    header = {"type": "CityJSON", "version": VERSION}
+    if typed:
+        extension = load(EXTENSION)
+        header["extensions"] = {
+            extension["name"]: {"url": extension["url"], "version": extension["version"]}
+        }
+    header["transform"] = {"scale": [SCALE] * 3, "translate": (translate * SCALE).tolist()}
+    header["metadata"] = metadata
     return header, translate
 
 
-def _objects(rows: gpd.GeoDataFrame, prisms: Prisms, parts, date: str) -> list[str]:
-    """Per building, its CityObjects (the building, then its parts) as JSON members."""
-    columns = [(n, k) for n, k in attribute_columns(rows) if n not in _RESERVED]
-    values = [(name, attribute_values(rows[name], kind)) for name, kind in columns]
+def _objects(rows: gpd.GeoDataFrame, prisms: Prisms, parts, date: str, typed: bool) -> list[str]:
+    """Per building, its CityObjects (the building, then its parts) as JSON members; with
+    ``typed``, the toolkit's attributes are those of its Extension (:func:`_typed_values`)."""
+    values = [
+        ("+" + name, _typed_values(rows, name))
+        if typed and name in _TYPED
+        else (name, attribute_values(rows[name], kind))
+        for name, kind in attribute_columns(rows)
+        if name not in _RESERVED
+    ]
     heights = measured_heights(rows["ground"], rows["height"])
     solids = _solids(prisms)
     building_start = prisms.building_start.tolist()
@@ -236,6 +286,37 @@ def _objects(rows: gpd.GeoDataFrame, prisms: Prisms, parts, date: str) -> list[s
         )
         out.append(",".join(members))
     return out
+
+
+def _typed_values(rows: pd.DataFrame, name: str) -> list:
+    """The values of a column the Extension types, of its type (None where missing).
+
+    Numbers stored as text are read; whole numbers stored as floats (a column with gaps) are
+    integers; flags are read as :func:`~gnss_citygml.export.plan.booleans` reads them. A value
+    of another type is an error naming the buildings, never written."""
+    kind, column = _TYPED[name], rows[name]
+    if kind == "bool":
+        return attribute_values(booleans(column, name, rows), kind)
+    if kind == "string":
+        values = attribute_values(column, kind)
+        bad = np.array([isinstance(v, list) for v in values], dtype=bool)
+        what = "text"
+    else:
+        numbers = pd.to_numeric(column, errors="coerce").astype(float)
+        bad = (numbers.isna() & column.notna()).to_numpy()
+        if kind == "int":
+            bad = bad | (np.isfinite(numbers) & (numbers % 1 != 0)).to_numpy()
+        numbers = numbers.where(np.isfinite(numbers))
+        values = attribute_values(numbers.astype("Int64") if kind == "int" else numbers, kind)
+        what = "a whole number" if kind == "int" else "a number"
+    if bad.any():
+        raise InputError(
+            f"column {name!r} is not {what} as the Extension's '+{name}' is "
+            f"(buildings {listing(rows['id'][bad].astype(str).tolist())})",
+            where="buildings",
+            fix="give it so, or write plain attributes",
+        )
+    return values
 
 
 def _solids(prisms: Prisms) -> list[str]:

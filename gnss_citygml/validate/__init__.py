@@ -7,7 +7,8 @@ modules of this package:
 - :mod:`.citygml`: CityGML 2.0, XML Schema validation against the official schemas, offline,
   and the solids read by :mod:`.gml`;
 - :mod:`.cityjson`: CityJSON (1.0 to 2.0) and CityJSONSeq, the spec's structural rules
-  (:mod:`.cityjson_rules`) and the official JSON schemas (:mod:`.json_schema`);
+  (:mod:`.cityjson_rules`), the toolkit's own CityJSON Extension (:mod:`.extensions`) and
+  the official JSON schemas (:mod:`.json_schema`);
 - :mod:`.geometry`: the solids of both formats, with the matching val3dity error codes;
 - :mod:`.schemas`: where the official schemas are found.
 

@@ -2,7 +2,9 @@
 
 The spec's structural rules (:mod:`.cityjson_rules`: vertex indices in range, boundary nesting
 per geometry type, ``transform``, CityObject types, ``lod`` values, parent/child links,
-semantics and appearance indices, Extension names) and, when the official JSON schemas are found
+semantics and appearance indices, Extension names), the attributes of the toolkit's own
+Extension when a file declares it (:mod:`.extensions`, offline) and, when the official JSON
+schemas are found
 (``schema_dir`` or ``$GNSS_CITYGML_SCHEMA_DIR``: a folder with ``cityjson.min.schema.json``, or
 with one sub-folder per version such as ``2.0.1/``), JSON Schema validation with ``jsonschema``
 (:mod:`.json_schema`), each CityObject against its own type's schema.

@@ -6,6 +6,7 @@ import re
 
 import numpy as np
 
+from .extensions import Extensions
 from .geometry import Shell, Shells, coordinate_problem
 from .report import Issue, Report
 
@@ -66,6 +67,7 @@ class CityJSONRules:
             self.translate = np.array(transform["translate"], dtype=float)
         self.transform = transform
         self.extensions = _object_or_empty(header.get("extensions"))
+        self.known_extensions = Extensions(self.extensions, report)
         self.report = report
         self._appearance(header)
         templates = _object_or_empty(header.get("geometry-templates"))
@@ -225,6 +227,7 @@ class CityJSONRules:
                         )
                     )
         issues += self._extension_names(obj.get("attributes"), key, where, "attribute")
+        issues += self.known_extensions.errors(key, obj, where)
         return issues
 
     def _geometry(self, key, geometry, n_vertices, vertices, where, shells) -> list[Issue]:

@@ -1,6 +1,7 @@
 """The wheel as a user gets it: built from the tree, installed into a clean venv, it holds the
-grids with their licence, the sample city and the command, and runs `gnss-citygml demo` with no
-other file, no network and nothing of the developer's (no grid folder, no PROJ user grids).
+grids with their licence, the sample city, the contracts (schemas/) and the command, and runs
+`gnss-citygml demo` with no other file, no network and nothing of the developer's (no grid
+folder, no PROJ user grids).
 
 The clean venv gets the third-party packages through a ``.pth`` file naming the development
 venv's site-packages (installing them would need the network). ``.pth`` files inside a folder
@@ -22,6 +23,7 @@ from pathlib import Path
 import pytest
 
 import gnss_citygml
+from gnss_citygml.contracts import SCHEMA_FOLDER
 from gnss_citygml.geodesy import BUNDLED_GRID_DIR, GRIDS
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -109,6 +111,8 @@ def test_the_wheel_holds_the_grids_their_licence_the_city_and_the_command(wheel)
             assert data + "grids/" + name in names
         for name in CITY_FILES:
             assert data + "city/" + name in names
+        for name in SCHEMA_FOLDER.iterdir():  # the contracts: JSON Schemas, CityJSON Extension
+            assert archive.read("gnss_citygml/schemas/" + name.name) == name.read_bytes()
         assert f"{info}/licenses/LICENSE" in names
         notice = archive.read(f"{info}/licenses/gnss_citygml/data/grids/LICENSE").decode()
         assert "Ordnance Survey" in notice and "Redistribution and use" in notice
@@ -147,3 +151,8 @@ def test_the_installed_wheel_runs_the_demo_offline(clean_venv, user_env, tmp_pat
     rows = lines[header + 1 : header + 31]
     assert len(rows) == 30 and all(row.startswith("city_") for row in rows)
     assert lines[header + 31].startswith("25 of 30 buildings converged, RMSE ")
+
+    # typed attributes: the installed package finds its CityJSON Extension to validate them
+    args = ["convert", "OUT/heights.gpkg", "-o", "typed.city.json", "--typed-attributes"]
+    typed = _run([command, *args], env=user_env, cwd=work)
+    assert "extension" in typed.stdout.split("valid (")[1]

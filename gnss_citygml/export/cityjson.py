@@ -300,23 +300,23 @@ def _typed_values(rows: pd.DataFrame, name: str) -> list:
     if kind == "string":
         values = attribute_values(column, kind)
         bad = np.array([isinstance(v, list) for v in values], dtype=bool)
-        what = "text"
     else:
         numbers = pd.to_numeric(column, errors="coerce").astype(float)
         bad = (numbers.isna() & column.notna()).to_numpy()
         if kind == "int":
             bad = bad | (np.isfinite(numbers) & (numbers % 1 != 0)).to_numpy()
-        numbers = numbers.where(np.isfinite(numbers))
-        values = attribute_values(numbers.astype("Int64") if kind == "int" else numbers, kind)
-        what = "a whole number" if kind == "int" else "a number"
     if bad.any():
+        what = {"int": "a whole number", "double": "a number", "string": "text"}[kind]
         raise InputError(
             f"column {name!r} is not {what} as the Extension's '+{name}' is "
             f"(buildings {listing(rows['id'][bad].astype(str).tolist())})",
             where="buildings",
             fix="give it so, or write plain attributes",
         )
-    return values
+    if kind == "string":
+        return values
+    numbers = numbers.where(np.isfinite(numbers))
+    return attribute_values(numbers.astype("Int64") if kind == "int" else numbers, kind)
 
 
 def _solids(prisms: Prisms) -> list[str]:

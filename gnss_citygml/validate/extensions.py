@@ -24,7 +24,8 @@ class Extensions:
     def __init__(self, declared: dict, report: Report):
         """``declared``: the file's ``extensions`` member; notes on what is not checked go to
         ``report``."""
-        self.attributes: dict[str, dict] = {}  # CityObject type: {"+name": validator}
+        #: per CityObject type, a validator of its attributes and the ``+`` names it defines
+        self.by_type: dict[str, tuple[object, set[str]]] = {}
         self.complete = True  # every declared Extension is known
         own = load(EXTENSION)
         for name, ref in declared.items():
@@ -40,41 +41,43 @@ class Extensions:
             import jsonschema
 
             for kind, attributes in own["extraAttributes"].items():
-                checkers = self.attributes.setdefault(kind, {})
-                for attribute, schema in attributes.items():
-                    checkers[attribute] = jsonschema.Draft202012Validator(schema)
+                schema = {"type": "object", "properties": attributes}  # one call per object
+                self.by_type[kind] = (jsonschema.Draft202012Validator(schema), set(attributes))
             if "extension" not in report.checks:
                 report.checks.append("extension")
-        # nothing to check without a known Extension: an undeclared '+' is the rules' error
-        self.active = bool(self.attributes)
 
     def errors(self, key: str, obj: dict, where: str) -> list[Issue]:
-        """The ``+`` attributes of CityObject ``key`` that break the known Extensions."""
+        """The ``+`` attributes of CityObject ``key`` that break the known Extensions (none
+        without a known Extension: a ``+`` attribute of a file that declares no Extension is
+        the structural rules' error)."""
         attributes = obj.get("attributes")
-        if not self.active or not isinstance(attributes, dict):
+        if not self.by_type or not isinstance(attributes, dict):
             return []
         kind = obj.get("type")
-        known = self.attributes.get(kind, {}) if isinstance(kind, str) else {}
+        validator, names = (
+            self.by_type.get(kind, (None, set())) if isinstance(kind, str) else (None, set())
+        )
         issues = []
-        for name, value in attributes.items():
-            if not name.startswith("+"):
-                continue
-            checker = known.get(name)
-            if checker is None:
-                if self.complete:
-                    issues.append(
-                        Issue(
-                            key,
-                            "extension",
-                            where + f"attribute {name!r} of a {kind} is defined by none of the "
-                            "file's Extensions",
-                        )
-                    )
-                continue
-            issues.extend(
-                Issue(key, "extension", where + f"attribute {name!r}: {_message(error)}")
-                for error in checker.iter_errors(value)
-            )
+        if self.complete:
+            issues += [
+                Issue(
+                    key,
+                    "extension",
+                    where + f"attribute {name!r} of a {kind} is defined by none of the file's "
+                    "Extensions",
+                )
+                for name in attributes
+                if name.startswith("+") and name not in names
+            ]
+        if validator is not None:
+            issues += [
+                Issue(
+                    key,
+                    "extension",
+                    where + f"attribute {error.path[0]!r}: {_message(error)}",
+                )
+                for error in validator.iter_errors(attributes)
+            ]
         return issues
 
 

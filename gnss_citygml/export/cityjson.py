@@ -245,7 +245,7 @@ def _header(
     }
     if title is not None:
         metadata["title"] = title
-    header = {"type": "CityJSON", "version": VERSION}
+    header: dict[str, object] = {"type": "CityJSON", "version": VERSION}
     if typed:
         extension = load(EXTENSION)
         header["extensions"] = {
@@ -304,7 +304,8 @@ def _typed_values(rows: pd.DataFrame, name: str) -> list:
         numbers = pd.to_numeric(column, errors="coerce").astype(float)
         bad = (numbers.isna() & column.notna()).to_numpy()
         if kind == "int":
-            bad = bad | (np.isfinite(numbers) & (numbers % 1 != 0)).to_numpy()
+            floats = numbers.to_numpy()
+            bad = bad | (np.isfinite(floats) & (floats % 1 != 0))
     if bad.any():
         what = {"int": "a whole number", "double": "a number", "string": "text"}[kind]
         raise InputError(

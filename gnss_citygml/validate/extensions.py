@@ -12,6 +12,8 @@ left to it.
 
 from __future__ import annotations
 
+from typing import Any
+
 from ..contracts import EXTENSION, load
 from .report import Issue, Report
 
@@ -25,7 +27,7 @@ class Extensions:
         """``declared``: the file's ``extensions`` member; notes on what is not checked go to
         ``report``."""
         #: per CityObject type, a validator of its attributes and the ``+`` names it defines
-        self.by_type: dict[str, tuple[object, set[str]]] = {}
+        self.by_type: dict[str, tuple[Any, set[str]]] = {}
         self.complete = True  # every declared Extension is known
         own = load(EXTENSION)
         for name, ref in declared.items():

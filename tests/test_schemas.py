@@ -19,6 +19,7 @@ from gnss_citygml.cli.demo import CITY
 from gnss_citygml.contracts import EXTENSION, HEIGHTS, OBSERVATIONS, SCHEMA_FOLDER, load
 from gnss_citygml.errors import InputError, MissingColumnError
 from gnss_citygml.export import footprints_with_heights
+from gnss_citygml.ids import with_id_field
 from gnss_citygml.model.estimate import HEIGHTS_COLUMNS, estimate_heights
 from gnss_citygml.observations import OBSERVATION_COLUMNS, check_observations
 
@@ -197,6 +198,18 @@ def test_the_export_requires_the_schemas_required_columns(estimated, column):
     else:
         joined = footprints_with_heights(footprints, table)
         assert len(joined) == len(footprints) and column not in joined
+
+
+def test_the_required_id_is_named_like_the_footprints_id_field(estimated):
+    """With footprints whose ids come from a field ``toid``, the heights table's id column is
+    ``toid`` (or ``id``): a table without it, or without a height, is refused naming them."""
+    footprints = with_id_field(gnss_citygml.read_footprints(CITY / "footprints.gpkg"), "toid")
+    table = estimated.rename(columns={"id": "toid"})
+    assert len(footprints_with_heights(footprints, table)) == len(footprints)
+    with pytest.raises(MissingColumnError, match=r"'height' .*has: toid, ground"):
+        footprints_with_heights(footprints, table.drop(columns="height"))
+    with pytest.raises(MissingColumnError, match=r"missing column\(s\) 'toid' "):
+        footprints_with_heights(footprints, table.drop(columns="toid"))
 
 
 # --- the CityJSON Extension ---------------------------------------------------------------------

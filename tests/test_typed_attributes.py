@@ -152,6 +152,11 @@ def test_the_command_line(tmp_path, capsys):
     assert code == 1
     assert "\textension\tline 2: attribute '+n_signals': 250.5 is not of type 'integer'" in stdout
 
+    code, stdout, err = run(["convert", str(source), "-o", "-", "--typed-attributes"], capsys)
+    header, feature = [json.loads(line) for line in stdout.splitlines()[:2]]
+    assert code == 0 and header["extensions"] == DECLARED and "extension" in err
+    assert feature["CityObjects"][feature["id"]]["attributes"]["+converged"] is True
+
     gml = tmp_path / "city.gml"
     code, _, err = run(["convert", str(source), "-o", str(gml), "--typed-attributes"], capsys)
     assert code == 2 and "--typed-attributes is for CityJSON" in err

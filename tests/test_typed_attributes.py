@@ -27,7 +27,7 @@ def typed_model(tmp_path, **columns):
     return out, json.loads(path.read_text())
 
 
-def test_cityjson_with_typed_attributes_is_valid(tmp_path, shared_data):
+def test_cityjson_with_typed_attributes_is_valid(tmp_path, repo_data):
     out, model = typed_model(tmp_path)
     assert out.report.valid and "extension" in out.report.checks
     assert model["extensions"] == DECLARED
@@ -45,8 +45,8 @@ def test_cityjson_with_typed_attributes_is_valid(tmp_path, shared_data):
         "+status": "ok",
         "source": "OS",  # the footprints' own attribute stays plain
     }
-    assert list(official(shared_data).iter_errors(model)) == []
-    report = validate_file(tmp_path / "t.city.json", schema_dir=shared_data / SCHEMAS)
+    assert list(official(repo_data).iter_errors(model)) == []
+    report = validate_file(tmp_path / "t.city.json", schema_dir=repo_data / SCHEMAS)
     assert report.valid and {"extension", "json-schema"} <= set(report.checks)
 
 

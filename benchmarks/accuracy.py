@@ -23,6 +23,7 @@ from gnss_citygml.model import METHODS
 from gnss_citygml.model.estimate import estimate_heights
 from gnss_citygml.observations import read_observations
 from gnss_citygml.pipeline import intersections, receivers
+from gnss_citygml.settings import Calibration, Estimator, PositionError
 from gnss_citygml.simulate import simulate
 from gnss_citygml.simulate.files import write_site
 
@@ -66,7 +67,8 @@ def run_accuracy(
 ) -> pd.DataFrame:
     """One row per (preset, locations, method, threshold, target building).
 
-    ``options`` go to :func:`estimate_heights` for the 4PL methods (e.g. ``weighting``).
+    ``options`` are the 4PL methods' :class:`~gnss_citygml.settings.Estimator` settings
+    (e.g. ``weighting``).
     ``position_sd`` (a mapping from locations to metres per axis, e.g. ``{"manual": 1,
     "gnss": 5}``) makes the 4PL fits model the height errors of position errors that size
     (``height_sd`` of :func:`~gnss_citygml.pipeline.intersections`), one error per recording
@@ -89,8 +91,9 @@ def run_accuracy(
         for loc in locations:
             sim = simulate(preset, locations=loc, seed=seed, interval=interval)
             sd = None if position_sd is None else position_sd[loc]
+            position_error = PositionError(sd=sd, window=position_window)
             rays, footprints, inter_all = site_tables(
-                sim, pipeline_grids, positions, sd, position_window
+                sim, pipeline_grids, positions, position_error
             )
             truth = sim.truth.set_index("id")
             targets = truth.index[truth["target"]]
@@ -99,17 +102,16 @@ def run_accuracy(
                 for threshold in thresholds:
                     start = time.perf_counter()
                     inter = inter_all
+                    estimator = Estimator(method=method, init_threshold=threshold, **opts)
                     if calibration_sd is not None and method == "4PL-B":
-                        fixed = calibrate_receivers(
-                            rays,
-                            footprints,
-                            position_sd=calibration_sd[loc],
-                            window=calibration_window,
-                            init_threshold=threshold,
-                            **opts,
+                        calibration = Calibration(
+                            prior_sd=calibration_sd[loc], window=calibration_window
                         )
-                        inter = _recast(fixed, footprints, sd, position_window)
-                    out = estimate_heights(inter, method=method, init_threshold=threshold, **opts)
+                        fixed = calibrate_receivers(
+                            rays, footprints, calibration, estimator=estimator
+                        )
+                        inter = _recast(fixed, footprints, position_error)
+                    out = estimate_heights(inter, estimator)
                     seconds = time.perf_counter() - start
                     out = out.set_index("id").reindex(targets)
                     for bid, r in out.iterrows():
@@ -140,13 +142,14 @@ def run_accuracy(
     return result
 
 
-def site_tables(sim, grid_dir=None, positions="reported", position_sd=None, position_window=None):
+def site_tables(
+    sim, grid_dir=None, positions="reported", position_error: PositionError = PositionError()
+):
     """The rays (receivers with ``e``, ``n``, ``z``, ``bearing``), footprints and intersections
     of a simulated site: the simulator's own in its local grid, or, with ``grid_dir``, the
     pipeline's from the site written as files (British National Grid). ``positions`` (one of
-    :data:`POSITIONS`) moves the rays' origins; with ``position_sd`` (and ``position_window``)
-    the intersections have the ``height_sd`` (and ``recording``) of
-    :func:`~gnss_citygml.pipeline.intersections`."""
+    :data:`POSITIONS`) moves the rays' origins; with a ``position_error`` the intersections
+    have the ``height_sd`` (and ``recording``) of :func:`~gnss_citygml.pipeline.intersections`."""
     _check_positions(positions, grid_dir)
     if grid_dir is None:
         rays = sim.observations.assign(bearing=sim.observations["azimuth"])
@@ -158,16 +161,16 @@ def site_tables(sim, grid_dir=None, positions="reported", position_sd=None, posi
         )
         if positions != "reported":
             rays = _oracle_rays(rays, positions)
-        if positions == "reported" and position_sd is None:
+        if positions == "reported" and position_error == PositionError():
             return rays, footprints, sim.intersections
-        return rays, footprints, _recast(rays, footprints, position_sd, position_window)
+        return rays, footprints, _recast(rays, footprints, position_error)
     with tempfile.TemporaryDirectory() as folder:
         paths = write_site(sim, folder, grid_dir=grid_dir)
         rays = receivers(
             read_observations(paths["observations"]), str(paths["dem"]), grid_dir=grid_dir
         )
         footprints = read_footprints(paths["footprints"])
-    return rays, footprints, _recast(rays, footprints, position_sd, position_window)
+    return rays, footprints, _recast(rays, footprints, position_error)
 
 
 def _check_positions(positions, grid_dir):
@@ -188,9 +191,9 @@ def _oracle_rays(rays: pd.DataFrame, positions: str) -> pd.DataFrame:
     return rays.assign(e=e, n=n)
 
 
-def _recast(rays, footprints, position_sd=None, position_window=None) -> pd.DataFrame:
+def _recast(rays, footprints, position_error: PositionError) -> pd.DataFrame:
     """The intersections table of rays cast from (corrected) positions."""
-    return intersections(rays, footprints, position_sd=position_sd, position_window=position_window)
+    return intersections(rays, footprints, position_error=position_error)
 
 
 def summarise(results: pd.DataFrame) -> pd.DataFrame:

@@ -31,7 +31,7 @@ from accuracy import (
 )
 from shared_data import GRIDS
 
-from gnss_citygml import estimate_heights
+from gnss_citygml import Estimator, estimate_heights
 from gnss_citygml.model.fourpl import logistic4
 from gnss_citygml.simulate import simulate
 
@@ -213,7 +213,7 @@ def _throughput():
     times = []
     for _ in range(5):
         start = time.perf_counter()
-        estimate_heights(one, init_threshold=30.0)
+        estimate_heights(one, Estimator(init_threshold=30.0))
         times.append(time.perf_counter() - start)
     print(
         f"- one building, 10,000 signals: {1e3 * min(times):.1f} ms per 4PL-B fit "
@@ -231,7 +231,7 @@ def _throughput():
     cn0[cn0 < 12.0] = np.nan
     table = pd.DataFrame({"building": building, "height": height, "cn0": cn0})
     start = time.perf_counter()
-    out = estimate_heights(table, init_threshold=30.0)
+    out = estimate_heights(table, Estimator(init_threshold=30.0))
     seconds = time.perf_counter() - start
     err = out["height"].to_numpy() - truth
     print(

@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 from accuracy import site_tables
 
-from gnss_citygml import estimate_heights
+from gnss_citygml import Estimator, PositionError, estimate_heights
 from gnss_citygml.simulate import EPOCH, LOCATIONS, simulate
 from gnss_citygml.simulate.scenes import city_scene
 
@@ -60,13 +60,14 @@ def main():
         scene, start, layout = random_scene(k)
         for locations in LOCATIONS:
             sim = simulate(scene, locations=locations, seed=k, start=start)
-            sd = POSITION_SD[locations] if args.position_sd else None
-            window = args.position_window if args.position_sd else None
-            intersections = site_tables(sim, position_sd=sd, position_window=window)[2]
+            error = PositionError()
+            if args.position_sd:
+                error = PositionError(sd=POSITION_SD[locations], window=args.position_window)
+            intersections = site_tables(sim, position_error=error)[2]
             truth = sim.truth.set_index("id")["height"]
             errors = []
             for threshold in THRESHOLDS:
-                out = estimate_heights(intersections, init_threshold=threshold)
+                out = estimate_heights(intersections, Estimator(init_threshold=threshold))
                 out = out.set_index("id")
                 ok = out["converged"].astype(bool)
                 true = truth.reindex(out.index)[ok]

@@ -11,7 +11,10 @@ loading numpy, pandas, scipy, GDAL or PROJ.
   with its height (:func:`estimate_heights` is the height model alone, on intersections);
 - :func:`write_cityjson`, :func:`write_cityjsonseq` and :func:`write_citygml` write that
   GeoDataFrame as an LOD1 city model, validated before it is renamed into place;
-- :func:`validate_file` checks a CityGML or CityJSON file.
+- :func:`validate_file` checks a CityGML or CityJSON file;
+- :class:`Rays`, :class:`ReceiverHeights`, :class:`Estimator` (with :class:`Acceptance`),
+  :class:`PositionError` and :class:`Calibration` are the options of :func:`estimate` and
+  :func:`estimate_heights`, with their defaults (:mod:`gnss_citygml.settings`).
 
 >>> import gnss_citygml
 >>> gnss_citygml.METHODS
@@ -53,6 +56,13 @@ _LAZY = {
     "observe": "gnss.observe",
     "read_gnsslogger": "gnss.gnsslogger",
     "load_orbits": "gnss.orbits",
+    # the options (frozen dataclasses with their defaults)
+    "Rays": "settings",
+    "ReceiverHeights": "settings",
+    "Estimator": "settings",
+    "Acceptance": "settings",
+    "PositionError": "settings",
+    "Calibration": "settings",
     # the errors of the geodesy
     "GridError": "geodesy",
     "OutsideExtentError": "geodesy",
@@ -78,6 +88,7 @@ if TYPE_CHECKING:  # the same names, for type checkers (tests/test_package.py co
     from .model.estimate import HEIGHTS_COLUMNS, estimate_heights
     from .observations import check_observations, read_observations, write_observations
     from .pipeline import estimate
+    from .settings import Acceptance, Calibration, Estimator, PositionError, Rays, ReceiverHeights
     from .terrain import building_ground, sample_ground
     from .validate import validate_file
 
@@ -108,6 +119,13 @@ __all__ = [
     "observe",
     "read_gnsslogger",
     "load_orbits",
+    # the options
+    "Rays",
+    "ReceiverHeights",
+    "Estimator",
+    "Acceptance",
+    "PositionError",
+    "Calibration",
     # the errors
     "GnssCityGMLError",
     "InputError",

@@ -33,6 +33,8 @@ from .errors import InputError, MissingColumnError
 from .model.fourpl import logistic4
 from .model.fourplb import fourplb
 from .raycast import footprint_entries
+from .recordings import recording_windows
+from .settings import Calibration, Estimator, Rays
 
 __all__ = ["calibrate_receivers"]
 
@@ -59,13 +61,10 @@ CORRELATION_TIME = 60.0
 def calibrate_receivers(
     receivers: pd.DataFrame,
     buildings,
+    calibration: Calibration,
     *,
-    position_sd: float = 1.0,
-    window: float | None = None,
-    rounds: int = 3,
-    init_threshold: float = 30.0,
-    max_range: float = 500.0,
-    **options,
+    estimator: Estimator = Estimator(),
+    rays: Rays = Rays(),
 ) -> pd.DataFrame:
     """Receiver positions corrected by one offset per recording, estimated with the heights.
 
@@ -73,21 +72,19 @@ def calibrate_receivers(
     ----------
     receivers
         Observations with the receiver columns (DESIGN.md): ``receiver``, ``e``, ``n``, ``z``,
-        ``bearing``, ``elevation``, ``cn0`` (and ``time_utc`` with ``window``).
+        ``bearing``, ``elevation``, ``cn0`` (and ``time_utc`` with a window).
     buildings
         Table with ``id`` and ``geometry`` (footprints in the receivers' grid).
-    position_sd
-        Prior standard deviation (m, per axis) of a recording's position offset: what the
-        positions are believed to be worth.
-    window
-        Seconds: estimate one offset per window of each recording instead of one per recording
-        (for positions whose error drifts, e.g. phone fixes). ``None``: one per recording.
-    rounds
-        Rounds of (heights | offsets) alternation.
-    init_threshold, options
-        Passed to 4PL-B (see :func:`~gnss_citygml.model.estimate.estimate_heights`).
-    max_range
-        Horizontal range (m) of the rays.
+    calibration
+        The prior standard deviation (m per axis) of a recording's offset: what the positions
+        are believed to be worth; the window (s): one offset per window of each recording (for
+        positions whose error drifts, e.g. phone fixes; windows of
+        :func:`~gnss_citygml.recordings.recording_windows`) instead of one per recording; the
+        rounds of (heights | offsets) alternation (:class:`~gnss_citygml.settings.Calibration`).
+    estimator
+        The 4PL-B settings (:class:`~gnss_citygml.settings.Estimator`, method 4PL-B).
+    rays
+        The rays' horizontal range (``max_range``, m).
 
     Returns
     -------
@@ -95,29 +92,34 @@ def calibrate_receivers(
         ``receivers`` with ``e`` and ``n`` corrected and the applied offsets in ``offset_e``
         and ``offset_n`` (m).
     """
+    if not calibration.on:
+        raise InputError(
+            "self-calibration without a prior",
+            fix="give Calibration(prior_sd=...), e.g. 1 m for hand-placed points",
+        )
+    calibration.check_method(estimator)
     missing = [c for c in _REQUIRED if c not in receivers.columns]
-    if window is not None and "time_utc" not in receivers.columns:
+    if calibration.window is not None and "time_utc" not in receivers.columns:
         missing.append("time_utc")
     if missing:
         raise MissingColumnError(missing, where="receivers table", have=list(receivers.columns))
-    if not position_sd > 0:
-        raise InputError("position_sd must be positive", fix="e.g. 1 (m) for surveyed points")
-    unit, n_units = _units(receivers, window)
+    sd = calibration.prior_sd
+    unit = recording_windows(receivers, calibration.window)
+    n_units = int(unit.max(initial=-1)) + 1
     temper = min(1.0, _interval(receivers) / CORRELATION_TIME)
-    rays = _Rays(receivers, buildings, max_range)
+    origins = _Rays(receivers, buildings, rays.max_range)
     offsets = np.zeros((n_units, 2))
     best = None
-    for _ in range(rounds):
-        cast = rays.cast(offsets[unit])
+    for _ in range(calibration.rounds):
+        cast = origins.cast(offsets[unit])
         fits, classifier = fourplb(
             cast.building,
             cast.height,
             cast.cn0,
-            rays.n_buildings,
-            init_threshold=init_threshold,
+            origins.n_buildings,
+            estimator,
             signal=cast.ray,
             order=cast.order,
-            **options,
         )
         n_ok = int(fits.converged.sum())
         if best is not None and n_ok < best[0]:
@@ -136,29 +138,17 @@ def calibrate_receivers(
             unit[cast.ray[use]],
             n_units,
             offsets,
-            position_sd,
+            sd,
             temper,
         )
         offsets = offsets + step
-        if np.max(np.abs(step), initial=0.0) < 0.01 * position_sd:
+        if np.max(np.abs(step), initial=0.0) < 0.01 * sd:
             break
     out = receivers.copy()
     out["offset_e"], out["offset_n"] = offsets[unit, 0], offsets[unit, 1]
     out["e"] = out["e"] + out["offset_e"]
     out["n"] = out["n"] + out["offset_n"]
     return out
-
-
-def _units(receivers, window):
-    """The calibration unit (recording, or recording x time window) of every row."""
-    if window is None:
-        codes, names = pd.factorize(receivers["receiver"])
-        return codes.astype(np.intp), len(names)
-    t = pd.to_datetime(receivers["time_utc"])
-    start = t.groupby(receivers["receiver"]).transform("min")
-    slot = ((t - start).dt.total_seconds() // float(window)).astype(np.int64)
-    codes, names = pd.factorize(pd.MultiIndex.from_arrays([receivers["receiver"], slot]))
-    return codes.astype(np.intp), len(names)
 
 
 class _Cast:

@@ -23,12 +23,11 @@ from .ids import id_field, source_named, with_id_field
 from .model.estimate import HEIGHTS_COLUMNS, estimate_heights
 from .observations import check_observations
 from .raycast import footprint_entries
+from .recordings import recording_windows
+from .settings import Calibration, Estimator, PositionError, Rays, ReceiverHeights
 from .terrain import building_ground, sample_ground
 
-__all__ = ["RECEIVER_HEIGHTS", "STAGES", "estimate", "intersections", "receivers"]
-
-#: Where receiver heights come from: the DEM plus an antenna height, or the log's own heights.
-RECEIVER_HEIGHTS = ("dem", "log")
+__all__ = ["STAGES", "estimate", "intersections", "receivers"]
 
 #: The stages :func:`estimate` reports to ``progress``, in order.
 STAGES = ("observations", "receivers", "buildings", "ray casting", "height model", "output")
@@ -48,30 +47,25 @@ def receivers(
     observations: pd.DataFrame,
     dem=None,
     *,
-    receiver_height: str = "dem",
-    antenna_height: float = 1.0,
+    heights: ReceiverHeights = ReceiverHeights(),
     grid_dir=None,
     dem_crs=None,
 ) -> pd.DataFrame:
     """The observations with the receiver columns of DESIGN.md: ``e``, ``n`` (BNG, m), ``z``
     (ODN height of the antenna, m) and ``bearing`` (grid bearing of the ray, deg).
 
-    Each distinct receiver position is transformed once. ``receiver_height="dem"`` puts the
-    antenna ``antenna_height`` above the DEM (the paper's choice with phone fixes, whose
-    heights are poor); ``"log"`` converts the observations' ellipsoidal ``h`` to ODN.
+    Each distinct receiver position is transformed once. ``heights`` says where the antenna's
+    height comes from (:class:`~gnss_citygml.settings.ReceiverHeights`): ``antenna_height``
+    above the DEM (the paper's choice with phone fixes, whose heights are poor), or the
+    observations' ellipsoidal ``h`` converted to ODN.
     """
-    if receiver_height not in RECEIVER_HEIGHTS:
-        raise InputError(
-            f"unknown receiver height source {receiver_height!r}",
-            fix="use one of " + ", ".join(RECEIVER_HEIGHTS),
-        )
     # the rows of an epoch share a position: transform each run of equal positions once
     coords = observations[["lat", "lon", "h"]].to_numpy(dtype=float)
     same = (coords[1:] == coords[:-1]) | (np.isnan(coords[1:]) & np.isnan(coords[:-1]))
     starts = np.r_[True, ~same.all(axis=1)]
     where = np.cumsum(starts) - 1
     lat, lon, h = coords[starts].T
-    if receiver_height == "log" and np.isnan(h).any():
+    if heights.source == "log" and np.isnan(h).any():
         raise InputError(
             "observations without an ellipsoidal height 'h'",
             where=f"{int(np.isnan(h[where]).sum())} rows",
@@ -86,11 +80,11 @@ def receivers(
         ).to_numpy()
 
     e, n, odn = to_osgb(lat, lon, h, grid_dir=grid_dir, labels=labels)
-    if receiver_height == "dem":
+    if heights.source == "dem":
         if dem is None:
             raise InputError("receiver heights from the DEM need a DEM", fix="give --dem")
         labels = [f"receiver at lat {a:.6f} lon {b:.6f}" for a, b in zip(lat, lon, strict=True)]
-        z = sample_ground(dem, e, n, assume_crs=dem_crs, labels=labels) + antenna_height
+        z = sample_ground(dem, e, n, assume_crs=dem_crs, labels=labels) + heights.antenna_height
     else:
         z = odn
     out = observations.copy()
@@ -105,46 +99,45 @@ def intersections(
     receivers: pd.DataFrame,
     buildings: gpd.GeoDataFrame,
     *,
-    max_range: float = 500.0,
-    earth_curvature: bool = False,
-    position_sd: float | None = None,
-    position_window: float | None = None,
+    rays: Rays = Rays(),
+    position_error: PositionError = PositionError(),
 ) -> pd.DataFrame:
     """The intersections table of DESIGN.md: every signal x building its ray enters.
 
     ``height`` is the ODN height of the ray where it first enters the footprint: the antenna
-    height ``z`` plus ``distance * tan(elevation)``, plus, with ``earth_curvature``, the fall
-    of the ground away from the ray's tangent plane (``d^2 (1 - k) / 2R`` with the standard
-    refraction coefficient k = 0.13: 2 cm at 500 m).
+    height ``z`` plus ``distance * tan(elevation)``, plus, with ``rays.earth_curvature``, the
+    fall of the ground away from the ray's tangent plane (``d^2 (1 - k) / 2R`` with the
+    standard refraction coefficient k = 0.13: 2 cm at 500 m). Rays reach ``rays.max_range``.
 
-    With ``position_sd`` (m per axis: how far the receiver positions may be off), a column
-    ``height_sd``: the standard deviation of each height that follows, ``position_sd *
+    With ``position_error.sd`` (m per axis: how far the receiver positions may be off), a
+    column ``height_sd``: the standard deviation of each height that follows, ``sd *
     tan(elevation) / cos(incidence)`` (a position error across the entry wall lengthens or
     shortens the ray's way to it by itself over the cosine of the angle of incidence; along
     the wall it changes nothing), with the cosine floored at :data:`MIN_INCIDENCE`. With
-    ``position_window`` (s; needs ``time_utc``), a column ``recording`` too: rows of one
-    receiver within one window of that many seconds share one position error (a walker's
-    traced path drifts; by default a whole recording shares one, as a point placed by hand).
+    ``position_error.window`` (s; needs ``time_utc``), a column ``recording`` too: rows of one
+    receiver within one window of that many seconds share one position error
+    (:func:`~gnss_citygml.recordings.recording_windows`: a walker's traced path drifts; by
+    default a whole recording shares one, as a point placed by hand).
     """
     ray, fp, dist, incidence = footprint_entries(
         receivers["e"].to_numpy(),
         receivers["n"].to_numpy(),
         receivers["bearing"].to_numpy(),
         buildings.geometry.to_numpy(),
-        max_range,
+        rays.max_range,
     )
     elevation = np.radians(receivers["elevation"].to_numpy()[ray])
     height = receivers["z"].to_numpy()[ray] + dist * np.tan(elevation)
-    if earth_curvature:
+    if rays.earth_curvature:
         height += dist**2 * (1.0 - REFRACTION) / (2.0 * EARTH_RADIUS)
     first = np.r_[True, ray[1:] != ray[:-1]]
     start = np.maximum.accumulate(np.where(first, np.arange(ray.size), 0))
     extra = {}
-    if position_sd is not None:
+    if position_error.sd is not None:
         spread = np.tan(elevation) / np.maximum(incidence, MIN_INCIDENCE)
-        extra["height_sd"] = position_sd * spread
-    if position_window is not None:
-        extra["recording"] = _error_windows(receivers, position_window)[ray]
+        extra["height_sd"] = position_error.sd * spread
+    if position_error.window is not None:
+        extra["recording"] = recording_windows(receivers, position_error.window)[ray]
     return pd.DataFrame(
         {
             "signal": receivers.index.to_numpy()[ray],
@@ -160,41 +153,19 @@ def intersections(
     )
 
 
-def _error_windows(receivers: pd.DataFrame, window: float) -> np.ndarray:
-    """One integer per (receiver, window of ``window`` seconds) of each receiver row."""
-    if "time_utc" not in receivers.columns:
-        raise InputError(
-            "a position window needs the observations' time_utc",
-            fix="give every observation its time, or leave out the position window",
-        )
-    utc = pd.to_datetime(receivers["time_utc"], utc=True).dt.tz_convert(None)
-    ns = utc.to_numpy().astype("datetime64[ns]").astype(np.int64)
-    slot = (ns - ns.min()) // max(int(window * 1e9), 1)
-    receiver = pd.factorize(receivers["receiver"])[0].astype(np.int64)
-    return receiver * (int(slot.max()) + 1) + slot
-
-
 def estimate(
     observations: pd.DataFrame,
     footprints: gpd.GeoDataFrame,
     dem=None,
     *,
-    min_elevation: float = 10.0,
-    max_elevation: float = 85.0,
-    receiver_height: str = "dem",
-    antenna_height: float = 1.0,
-    init_threshold: float = 30.0,
-    method: str = "4PL-B",
-    max_range: float = 500.0,
-    earth_curvature: bool = False,
+    rays: Rays = Rays(),
+    receiver_heights: ReceiverHeights = ReceiverHeights(),
+    estimator: Estimator = Estimator(),
+    position_error: PositionError = PositionError(),
+    calibration: Calibration = Calibration(),
     grid_dir=None,
     dem_crs=None,
     progress: Callable[[str], None] | None = None,
-    position_sd: float | None = None,
-    position_window: float | None = None,
-    calibration_sd: float | None = None,
-    calibration_window: float | None = None,
-    **options,
 ) -> gpd.GeoDataFrame:
     """Building heights from observations, footprints and a DEM.
 
@@ -209,34 +180,34 @@ def estimate(
         :func:`~gnss_citygml.footprints.read_footprints`.
     dem
         A DEM rasterio opens, in EPSG:27700 (a path or an open dataset): each building's
-        ``ground`` and, with ``receiver_height="dem"``, the receivers' heights.
-    min_elevation, max_elevation
-        Signals outside this elevation band (deg) are left out.
-    receiver_height, antenna_height
-        See :func:`receivers`.
-    init_threshold, method, options
-        Passed to :func:`~gnss_citygml.model.estimate.estimate_heights`.
-    max_range, earth_curvature
-        See :func:`intersections`.
+        ``ground`` and, with receiver heights from the DEM, the receivers' heights.
+    rays
+        The elevation mask and the rays' range (:class:`~gnss_citygml.settings.Rays`; see
+        :func:`intersections`).
+    receiver_heights
+        Where the antenna's height comes from (:class:`~gnss_citygml.settings.ReceiverHeights`;
+        see :func:`receivers`).
+    estimator
+        The height estimator and its settings (:class:`~gnss_citygml.settings.Estimator`; see
+        :func:`~gnss_citygml.model.estimate.estimate_heights`).
+    position_error
+        How far the receiver positions may be off, e.g. ``PositionError(sd=1)`` for points
+        placed by hand on a map (:class:`~gnss_citygml.settings.PositionError`): the height
+        fits then model each signal's resulting height error (``height_sd`` of
+        :func:`intersections`) and the ranges carry the roof line's position uncertainty.
+        Default: the positions are taken as exact, as in the paper.
+    calibration
+        With ``Calibration(prior_sd=...)`` (m per axis, the prior of the offsets), 4PL-B first
+        estimates one position offset per recording (or per ``window`` seconds of it) jointly
+        with the heights (:func:`~gnss_citygml.calibrate.calibrate_receivers`). Off by default:
+        it costs a few extra casts and fits. Only 4PL-B can use it: with another method it is
+        an error.
     grid_dir
         Folder of the OSTN15/OSGM15 grids (see :mod:`gnss_citygml.geodesy`).
     dem_crs
         CRS of a DEM that has none (e.g. ``"EPSG:27700"`` for an OS Terrain ASCII grid).
     progress
         Optional callable told the name of each stage (:data:`STAGES`) as it starts.
-    position_sd
-        How far (m per axis) the receiver positions may be off, e.g. 1 for points placed by
-        hand on a map: the height fits then model each signal's resulting height error
-        (``height_sd`` of :func:`intersections`) and the ranges carry the roof line's position
-        uncertainty. Default: the positions are taken as exact, as in the paper.
-    position_window
-        With ``position_sd``: how long (s) one position error lasts, e.g. 30 for a walker's
-        traced path; default: a whole recording (a point placed by hand).
-    calibration_sd, calibration_window
-        With ``calibration_sd`` (m per axis, the prior of the offsets), 4PL-B first estimates
-        one position offset per recording (or per ``calibration_window`` seconds of it)
-        jointly with the heights (:func:`~gnss_citygml.calibrate.calibrate_receivers`). Off by
-        default: it costs a few extra casts and fits.
 
     Returns
     -------
@@ -251,39 +222,25 @@ def estimate(
     Raises
     ------
     InputError
-        Footprints that are not a GeoDataFrame in EPSG:27700 (before any work), and any
-        stage's error.
+        Self-calibration asked for with a method other than 4PL-B, and footprints that are
+        not a GeoDataFrame in EPSG:27700 (both before any work), and any stage's error.
     """
+    calibration.check_method(estimator)
     _check_footprints(footprints)
-    if position_window is not None and position_sd is None:
-        raise InputError(
-            "a position window without a position error",
-            fix="give position_sd (--position-sd) too, e.g. 1 m for points placed by hand",
-        )
-    if calibration_window is not None and calibration_sd is None:
-        raise InputError(
-            "a calibration window without self-calibration",
-            fix="give calibration_sd (--calibration-sd) too, e.g. 5 m for phone fixes",
-        )
     say = progress or (lambda stage: None)
     say(STAGES[0])
     obs = check_observations(observations)
-    obs = obs[obs["elevation"].between(min_elevation, max_elevation)].reset_index(drop=True)
+    obs = obs[obs["elevation"].between(rays.min_elevation, rays.max_elevation)]
+    obs = obs.reset_index(drop=True)
     if obs.empty:
         raise InputError(
-            f"no observations between {min_elevation:g} and {max_elevation:g} deg elevation",
+            f"no observations between {rays.min_elevation:g} and {rays.max_elevation:g} deg "
+            "elevation",
             fix="check the elevation mask",
         )
     say(STAGES[1])
-    rx = receivers(
-        obs,
-        dem,
-        receiver_height=receiver_height,
-        antenna_height=antenna_height,
-        grid_dir=grid_dir,
-        dem_crs=dem_crs,
-    )
-    _check_near(rx, footprints, max_range)
+    rx = receivers(obs, dem, heights=receiver_heights, grid_dir=grid_dir, dem_crs=dem_crs)
+    _check_near(rx, footprints, rays.max_range)
     say(STAGES[2])
     buildings = footprints
     if dem is not None:
@@ -291,28 +248,13 @@ def estimate(
     elif "ground" not in buildings.columns:
         raise InputError("building ground heights need a DEM", fix="give --dem")
     say(STAGES[3])
-    if calibration_sd is not None and method == "4PL-B":
-        rx = calibrate_receivers(
-            rx,
-            buildings,
-            position_sd=calibration_sd,
-            window=calibration_window,
-            init_threshold=init_threshold,
-            max_range=max_range,
-            **options,
-        )
-    inter = intersections(
-        rx,
-        buildings,
-        max_range=max_range,
-        earth_curvature=earth_curvature,
-        position_sd=position_sd,
-        position_window=position_window,
-    )
+    if calibration.on:
+        rx = calibrate_receivers(rx, buildings, calibration, estimator=estimator, rays=rays)
+    inter = intersections(rx, buildings, rays=rays, position_error=position_error)
     say(STAGES[4])
-    heights = estimate_heights(inter, method=method, init_threshold=init_threshold, **options)
+    heights = estimate_heights(inter, estimator)
     say(STAGES[5])
-    return _join(buildings, heights, method, id_field(footprints))
+    return _join(buildings, heights, estimator.method, id_field(footprints))
 
 
 def _check_footprints(footprints) -> None:

@@ -6,6 +6,8 @@ import pytest
 
 from gnss_citygml.calibrate import calibrate_receivers
 from gnss_citygml.errors import InputError, MissingColumnError
+from gnss_citygml.recordings import recording_windows
+from gnss_citygml.settings import Calibration, Estimator
 from gnss_citygml.simulate import simulate
 
 
@@ -27,7 +29,7 @@ def _cross_street_error(rx):
 
 def test_offsets_move_receivers_towards_the_truth(canyon):
     rx, buildings = canyon
-    out = calibrate_receivers(rx, buildings, position_sd=1.0, init_threshold=30.0)
+    out = calibrate_receivers(rx, buildings, Calibration(prior_sd=1.0))
     before, after = _cross_street_error(rx), _cross_street_error(out)
     assert np.sqrt(np.mean(after**2)) < 0.6 * np.sqrt(np.mean(before**2))
     # one offset per recording, applied to e and n
@@ -38,15 +40,27 @@ def test_offsets_move_receivers_towards_the_truth(canyon):
 
 def test_windows_give_one_offset_per_window(canyon):
     rx, buildings = canyon
-    out = calibrate_receivers(rx, buildings, position_sd=1.0, window=600.0, rounds=1)
+    out = calibrate_receivers(rx, buildings, Calibration(prior_sd=1.0, window=600.0, rounds=1))
     assert out.groupby("receiver")["offset_n"].nunique().max() > 1
+    # the windows are those of the modelled position errors: one offset in each
+    windows = recording_windows(rx, 600.0)
+    assert (out.groupby(windows)[["offset_e", "offset_n"]].nunique() == 1).all().all()
 
 
 def test_bad_input(canyon):
     rx, buildings = canyon
+    one_metre = Calibration(prior_sd=1.0)
     with pytest.raises(MissingColumnError):
-        calibrate_receivers(rx.drop(columns="bearing"), buildings)
-    with pytest.raises(MissingColumnError):
-        calibrate_receivers(rx.drop(columns="time_utc"), buildings, window=60.0)
-    with pytest.raises(InputError):
-        calibrate_receivers(rx, buildings, position_sd=0.0)
+        calibrate_receivers(rx.drop(columns="bearing"), buildings, one_metre)
+    with pytest.raises(MissingColumnError, match="time_utc"):
+        calibrate_receivers(
+            rx.drop(columns="time_utc"), buildings, Calibration(prior_sd=1.0, window=60.0)
+        )
+    with pytest.raises(InputError, match="positive"):
+        Calibration(prior_sd=0.0)
+    with pytest.raises(InputError, match="calibration window without self-calibration"):
+        Calibration(window=60.0)
+    with pytest.raises(InputError, match="without a prior"):
+        calibrate_receivers(rx, buildings, Calibration())
+    with pytest.raises(InputError, match="needs method 4PL-B, not 4PL"):
+        calibrate_receivers(rx, buildings, one_metre, estimator=Estimator(method="4PL"))

@@ -2,11 +2,12 @@ import subprocess
 import sys
 from pathlib import Path
 
+import click
 import geopandas as gpd
 import pandas as pd
 import pytest
 
-from gnss_citygml.cli import main
+from gnss_citygml.cli import cli, main
 
 
 def run(args, capsys):
@@ -14,6 +15,27 @@ def run(args, capsys):
         main(args)
     out = capsys.readouterr()
     return exc.value.code, out.out, out.err
+
+
+def test_an_option_means_the_same_in_every_command():
+    """An option that several commands take is declared once (cli/options.py): same type,
+    default and help everywhere. Only what a file is for may be said per command, whether the
+    DEM must be given, and whether the output may be '-' (standard output)."""
+    per_command = {"dem": ("help", "required"), "output": ("help", "type"), "output_dir": ("help",)}
+    ctx = click.Context(cli)
+    declared = {}
+    for name in cli.list_commands(ctx):
+        for param in cli.get_command(ctx, name).params:
+            if isinstance(param, click.Option):
+                info = param.to_info_dict()
+                for key in per_command.get(param.name, ()):
+                    info.pop(key)
+                declared.setdefault(param.opts[0], {})[name] = info
+    shared = {opt: by_command for opt, by_command in declared.items() if len(by_command) > 1}
+    assert {"--grid-dir", "--layer", "--id-field", "--dem-crs", "--method"} <= set(shared)
+    for opt, by_command in shared.items():
+        first, *others = by_command.values()
+        assert all(info == first for info in others), opt
 
 
 def test_simulate_then_heights(grid_args, tmp_path, capsys):
@@ -136,6 +158,13 @@ def test_estimate_with_position_errors(grid_args, tmp_path, capsys):
     assert code == 2 and "--calibration-sd" in err
     code, _, err = run([*estimate_args(tmp_path, grid_args), "--position-window", "30"], capsys)
     assert code == 2 and "--position-sd" in err
+    # self-calibration fits 4PL-B's roof lines: with another method it is refused, not ignored
+    calibrated_hinge = ["--calibration-sd", "5", "--method", "hinge"]
+    code, _, err = run([*estimate_args(tmp_path, grid_args), *calibrated_hinge], capsys)
+    assert code == 2 and err.count("\n") == 1
+    assert err.startswith("error: self-calibration needs method 4PL-B, not hinge: ")
+    assert "--calibration-sd" in err
+    assert not (tmp_path / "heights.gpkg").exists()
     code, _, err = run([*estimate_args(tmp_path, grid_args), "--position-sd", "1"], capsys)
     assert code == 0, err
     row = gpd.read_file(tmp_path / "heights.gpkg", layer="heights").set_index("id")

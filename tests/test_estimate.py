@@ -5,6 +5,8 @@ from conftest import occluded_pair, synthetic_intersections
 
 from gnss_citygml import (
     HEIGHTS_COLUMNS,
+    Acceptance,
+    Estimator,
     InputError,
     MissingColumnError,
     ModelError,
@@ -20,7 +22,7 @@ def test_every_method_returns_the_heights_table(rng, method):
             synthetic_intersections(rng, 30.0, building="b"),
         ]
     )
-    out = estimate_heights(table, method=method)
+    out = estimate_heights(table, Estimator(method=method))
     assert list(out.columns) == HEIGHTS_COLUMNS
     assert list(out["id"]) == ["a", "b"]
     assert (out["method"] == method).all()
@@ -31,7 +33,7 @@ def test_every_method_returns_the_heights_table(rng, method):
 @pytest.mark.parametrize("threshold", [20.0, 30.0, 40.0])
 def test_4plb_is_robust_to_the_initial_threshold(rng, threshold):
     table = synthetic_intersections(rng, 45.0, n=6000)
-    out = estimate_heights(table, init_threshold=threshold)
+    out = estimate_heights(table, Estimator(init_threshold=threshold))
     row = out.iloc[0]
     assert row["converged"], row["status"]
     assert row["height_lower"] <= row["height"] <= row["height_upper"]
@@ -68,7 +70,7 @@ def test_degenerate_buildings_are_reported_not_guessed(rng, case, reason):
     }[case]
     bad = pd.DataFrame({"building": "bad", "height": h, "cn0": cn0})
     for method in ("4PL-B", "4PL"):
-        out = estimate_heights(pd.concat([good, bad]), method=method).set_index("id")
+        out = estimate_heights(pd.concat([good, bad]), Estimator(method=method)).set_index("id")
         assert out.loc["good", "converged"]
         assert not out.loc["bad", "converged"]
         assert np.isnan(out.loc["bad", "height"])
@@ -105,13 +107,18 @@ def test_non_numeric_values_are_refused():
 
 
 def test_unknown_method_and_option():
-    table = pd.DataFrame({"building": ["a"], "height": [1.0], "cn0": [30.0]})
     with pytest.raises(ModelError, match="unknown method"):
-        estimate_heights(table, method="lidar")
-    with pytest.raises(ModelError, match="unknown option"):
-        estimate_heights(table, method="hinge", weighting="none")
+        Estimator(method="lidar")
+    with pytest.raises(ModelError, match="weighting not used by method hinge"):
+        Estimator(method="hinge", weighting="height")
+    with pytest.raises(ModelError, match="acceptance not used by method bayes"):
+        Estimator(method="bayes", acceptance=Acceptance(max_uncertainty=5.0))
     with pytest.raises(ModelError, match="unknown weighting"):
-        estimate_heights(table, weighting="magic")
+        Estimator(weighting="magic")
+    # a baseline's own settings are its initial threshold and min_signals
+    table = pd.DataFrame({"building": ["a"] * 3, "height": [1.0, 2.0, 3.0], "cn0": [30.0] * 3})
+    few = Estimator(method="hinge", acceptance=Acceptance(min_signals=3))
+    assert estimate_heights(table, few)["n_signals"].iloc[0] == 3
 
 
 def test_error_messages_say_what_where_and_how():
@@ -126,7 +133,7 @@ def test_visibility_model_ignores_signals_blocked_by_a_nearer_building(rng):
     assert seen.loc["A", "converged"] and seen.loc["B", "converged"]
     assert seen.loc["A", "height"] == pytest.approx(30.0, abs=1.5)
     assert seen.loc["B", "height"] == pytest.approx(20.0, abs=1.5)
-    blind = estimate_heights(table, visibility=False).set_index("id")
+    blind = estimate_heights(table, Estimator(visibility=False)).set_index("id")
     # Without it, signals blocked by A count as closed above B's roof: the upper asymptote
     # (the open fraction of signals clearing B) sinks.
     assert seen.loc["B", "a"] > 0.9 > blind.loc["B", "a"]
@@ -147,14 +154,15 @@ def test_a_blurred_roof_line_is_reported_as_too_uncertain(rng):
     out = estimate_heights(table).iloc[0]
     assert not out["converged"]
     assert out["status"] == "height range wider than 10 m"
-    loose = estimate_heights(table, max_uncertainty=100.0).iloc[0]
+    loose = estimate_heights(table, Estimator(acceptance=Acceptance(max_uncertainty=100.0)))
+    loose = loose.iloc[0]
     assert loose["converged"]
     assert loose["height_upper"] - loose["height_lower"] > 10.0
 
 
 def test_the_one_shot_4pl_always_answers_when_its_fit_converges(rng):
     table = synthetic_intersections(rng, 45.0, n=6000, noise=12.0)
-    out = estimate_heights(table, method="4PL").iloc[0]
+    out = estimate_heights(table, Estimator(method="4PL")).iloc[0]
     assert out["converged"] and np.isfinite(out["height"])
 
 

@@ -40,6 +40,7 @@ from gnss_citygml.geodesy import (
     to_osgb,
 )
 from gnss_citygml.pipeline import receivers
+from gnss_citygml.settings import ReceiverHeights
 
 GRS80 = Geod(ellps="GRS80")
 CITY = Path(__file__).resolve().parents[1] / "examples" / "city"
@@ -520,7 +521,7 @@ def test_receivers_outside_the_grids_are_named_by_receiver_and_time(grid_dir):
         }
     )
     with pytest.raises(OutsideExtentError) as info:
-        receivers(obs, receiver_height="log", grid_dir=grid_dir)
+        receivers(obs, heights=ReceiverHeights(source="log"), grid_dir=grid_dir)
     assert (
         info.value.where == "receiver phone2 at 2020-06-01 10:00:01 (lat 48.000000, lon -3.000000)"
     )

@@ -13,6 +13,13 @@ from gnss_citygml.footprints import read_footprints
 from gnss_citygml.geodesy import from_osgb
 from gnss_citygml.observations import read_observations
 from gnss_citygml.pipeline import STAGES, estimate, intersections, receivers
+from gnss_citygml.settings import (
+    Calibration,
+    Estimator,
+    PositionError,
+    Rays,
+    ReceiverHeights,
+)
 from gnss_citygml.simulate import simulate, wgs84_to_local
 from gnss_citygml.simulate.files import write_site
 from gnss_citygml.simulate.scenes import Building, Scene, Session
@@ -68,12 +75,14 @@ def test_pipeline_intersections_match_the_simulators(site):
 def test_antenna_height_and_log_heights(site):
     sim, paths, grids = site
     obs = read_observations(paths["observations"]).head(50)
-    rx = receivers(obs, str(paths["dem"]), grid_dir=grids, antenna_height=1.5)
+    rx = receivers(
+        obs, str(paths["dem"]), grid_dir=grids, heights=ReceiverHeights(antenna_height=1.5)
+    )
     np.testing.assert_allclose(rx["z"], sim.scene.ground + 1.5, atol=1e-4)
     with pytest.raises(InputError, match="without an ellipsoidal height"):
-        receivers(obs, receiver_height="log", grid_dir=grids)
+        receivers(obs, heights=ReceiverHeights(source="log"), grid_dir=grids)
     with_h = obs.assign(h=80.0)
-    rx = receivers(with_h, receiver_height="log", grid_dir=grids)
+    rx = receivers(with_h, heights=ReceiverHeights(source="log"), grid_dir=grids)
     assert (rx["z"] - 80.0).between(-50.0, -44.0).all()  # ODN is ~47 m above the ellipsoid
 
 
@@ -95,7 +104,9 @@ def test_footprint_no_ray_enters(site):
     )
     both = gpd.GeoDataFrame(pd.concat([fp, shed], ignore_index=True), crs=fp.crs)
     obs = read_observations(paths["observations"])
-    out = estimate(obs, both, str(paths["dem"]), grid_dir=grids, max_range=30.0).set_index("id")
+    out = estimate(
+        obs, both, str(paths["dem"]), grid_dir=grids, rays=Rays(max_range=30.0)
+    ).set_index("id")
     assert not out.loc["shed", "converged"] and np.isnan(out.loc["shed", "height"])
     assert out.loc["shed", "n_signals"] == 0
     assert out.loc["shed", "status"] == "no signal's ray enters the footprint"
@@ -148,6 +159,17 @@ def test_real_mastermap_footprints(shared_data, grid_dir, tmp_path):
     assert out["toid"].str.startswith("osgb").all() and out.crs.to_epsg() == 27700
 
 
+def test_calibration_with_another_method_is_refused_before_any_work():
+    # the check comes first: the observations are not even looked at
+    with pytest.raises(InputError, match="self-calibration needs method 4PL-B, not bayes"):
+        estimate(
+            pd.DataFrame(),
+            gpd.GeoDataFrame(geometry=[], crs="EPSG:27700"),
+            estimator=Estimator(method="bayes"),
+            calibration=Calibration(prior_sd=1.0),
+        )
+
+
 def test_height_errors_of_position_errors():
     # A wall 10 m east of the receiver: head-on, at 60 deg from its normal, and grazing.
     wall = gpd.GeoDataFrame({"id": ["w"]}, geometry=[shapely.box(10, -500, 20, 500)])
@@ -164,7 +186,7 @@ def test_height_errors_of_position_errors():
     )
     plain = intersections(rx, wall)
     assert "height_sd" not in plain
-    out = intersections(rx, wall, position_sd=2.0)
+    out = intersections(rx, wall, position_error=PositionError(sd=2.0))
     np.testing.assert_allclose(out["height"], plain["height"])
     # tan 45 = 1; 1 / cos 60 = 2; grazing (cos 3 deg from the wall = 0.05) capped at 10
     np.testing.assert_allclose(out["height_sd"], [2.0, 4.0, 20.0])
@@ -185,8 +207,9 @@ def test_position_errors_shared_per_window():
             "cn0": 40.0,
         }
     )
-    out = intersections(rx, wall, position_sd=1.0, position_window=30.0)
+    walker = PositionError(sd=1.0, window=30.0)
+    out = intersections(rx, wall, position_error=walker)
     rec = out["recording"].to_numpy()
     assert rec[0] == rec[1] and len({rec[0], rec[2], rec[3]}) == 3
     with pytest.raises(InputError, match="time_utc"):
-        intersections(rx.drop(columns="time_utc"), wall, position_sd=1.0, position_window=30.0)
+        intersections(rx.drop(columns="time_utc"), wall, position_error=walker)

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from gnss_citygml import estimate_heights
+from gnss_citygml import Estimator, estimate_heights
 from gnss_citygml.simulate import simulate
 
 THRESHOLDS = (20.0, 30.0, 40.0)
@@ -21,10 +21,11 @@ def sims():
     return get
 
 
-def _target(sim, threshold, **options):
+def _target(sim, threshold, method="4PL-B"):
     """The estimate of the site's target building and its true height."""
     truth = sim.truth.set_index("id")
-    out = estimate_heights(sim.intersections, init_threshold=threshold, **options).set_index("id")
+    estimator = Estimator(method=method, init_threshold=threshold)
+    out = estimate_heights(sim.intersections, estimator).set_index("id")
     bid = truth.index[truth["target"]][0]
     return out.loc[bid], truth.loc[bid, "height"]
 
@@ -62,7 +63,7 @@ def test_canyon_with_gnss_fixes_is_reported_not_guessed(sims, threshold):
 def test_city_with_walkers(sims, threshold):
     sim = sims("city", "manual")
     truth = sim.truth.set_index("id")["height"]
-    out = estimate_heights(sim.intersections, init_threshold=threshold).set_index("id")
+    out = estimate_heights(sim.intersections, Estimator(init_threshold=threshold)).set_index("id")
     ok = out["converged"]
     err = (out["height"] - truth.reindex(out.index))[ok]
     assert ok.mean() >= 0.7

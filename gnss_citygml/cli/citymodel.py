@@ -20,21 +20,27 @@ from pathlib import Path
 import click
 
 from ..errors import InputError, escape_controls
-from .observe import GRID_DIR
-from .options import MODEL_OUTPUT, OVERWRITE, QUIET, STDOUT, TYPED_ATTRIBUTES, progress
-
-_SCHEMA_DIR = click.option(
-    "--schema-dir",
-    type=click.Path(file_okay=False, path_type=Path),
-    envvar="GNSS_CITYGML_SCHEMA_DIR",
-    help="Official schemas (CityJSON JSON schemas; optionally a schemas.opengis.net tree).",
+from .options import (
+    DEM_CRS,
+    GRID_DIR,
+    ID_FIELD,
+    LAYER,
+    MODEL_OUTPUT,
+    OVERWRITE,
+    QUIET,
+    SCHEMA_DIR,
+    STDOUT,
+    TYPED_ATTRIBUTES,
+    dem_file,
+    progress,
 )
+
 _MODEL_OPTIONS = [
     MODEL_OUTPUT,
     OVERWRITE,
     click.option("--strict", is_flag=True, help="Stop if a building has no usable height."),
     click.option("--no-validate", "no_validate", is_flag=True, help="Skip validating the output."),
-    _SCHEMA_DIR,
+    SCHEMA_DIR,
     TYPED_ATTRIBUTES,
     QUIET,
 ]
@@ -133,8 +139,8 @@ def _copy_to_stdout(path: Path) -> None:
 
 @click.command()
 @click.argument("input_", metavar="INPUT", type=click.Path(path_type=Path))
-@click.option("--layer", help="Layer of INPUT (default: its only polygon layer).")
-@click.option("--id-field", help="Field with the building ids (default: toid, id or fid).")
+@LAYER
+@ID_FIELD
 @click.option(
     "--height-field",
     default="height",
@@ -143,8 +149,8 @@ def _copy_to_stdout(path: Path) -> None:
 )
 @click.option("--relative", is_flag=True, help="The height field is above the ground.")
 @click.option("--ground-field", help="Field with the ground height (m ODN).")
-@click.option("--dem", help="DEM for the ground under each footprint (instead of --ground-field).")
-@click.option("--dem-crs", help="CRS of a DEM without one, e.g. EPSG:27700.")
+@dem_file("DEM for the ground under each footprint (instead of --ground-field).")
+@DEM_CRS
 @GRID_DIR
 @_model_options
 def convert(
@@ -190,10 +196,10 @@ def convert(
     type=click.Path(path_type=Path),
     help="The footprints the heights were estimated for (GeoPackage, MasterMap GML).",
 )
-@click.option("--layer", help="Layer of the footprints.")
-@click.option("--id-field", help="Field of the footprints with the building ids.")
-@click.option("--dem", help="DEM for the ground, when the heights table has no ground column.")
-@click.option("--dem-crs", help="CRS of a DEM without one, e.g. EPSG:27700.")
+@LAYER
+@ID_FIELD
+@dem_file("DEM for the ground, when the heights table has no ground column.")
+@DEM_CRS
 @GRID_DIR
 @_model_options
 def export(
@@ -225,7 +231,7 @@ def export(
 
 @click.command()
 @click.argument("path", type=click.Path(path_type=Path))
-@_SCHEMA_DIR
+@SCHEMA_DIR
 @click.option(
     "--max-errors",
     type=click.IntRange(min=0),

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import click
 
-from .options import OVERWRITE, QUIET
+from .options import OVERWRITE, QUIET, output_dir
 
 #: The sample city: ``examples/city`` in the repository is a link to it.
 CITY = Path(__file__).resolve().parents[1] / "data" / "city"
@@ -22,13 +22,7 @@ OUTPUTS = ("heights.gpkg", "city.city.json", "city.gml")
 
 
 @click.command()
-@click.option(
-    "--output-dir",
-    "-o",
-    type=click.Path(path_type=Path),
-    required=True,
-    help="Folder for heights.gpkg, city.city.json and city.gml (created if needed).",
-)
+@output_dir("Folder for heights.gpkg, city.city.json and city.gml (created if needed).")
 @OVERWRITE
 @QUIET
 @click.pass_context

@@ -6,42 +6,55 @@ from pathlib import Path
 
 import click
 
-from ..model import METHODS
-from .observe import GRID_DIR
-from .options import QUIET, THRESHOLD, output_file, progress
+from ..settings import RECEIVER_HEIGHTS, Rays, ReceiverHeights
+from .options import (
+    DEM_CRS,
+    GRID_DIR,
+    ID_FIELD,
+    LAYER,
+    MAX_ELEVATION,
+    METHOD,
+    MIN_ELEVATION,
+    OVERWRITE,
+    QUIET,
+    THRESHOLD,
+    dem_file,
+    output_file,
+    progress,
+)
 
 
 @click.command()
 @click.argument("observations", type=click.Path(dir_okay=False, path_type=Path))
 @click.argument("footprints", type=click.Path(path_type=Path))
-@click.option(
-    "--dem",
-    type=click.Path(path_type=str),
-    required=True,
-    help="DEM raster in EPSG:27700 (GeoTIFF, ASCII grid, zip://...!/tile.asc).",
-)
+@dem_file("DEM raster in EPSG:27700 (GeoTIFF, ASCII grid, zip://...!/tile.asc).", required=True)
 @output_file(
     "Output layer 'heights': a GeoPackage (.gpkg; other layers of an existing one are kept), "
     "FlatGeobuf (.fgb) or GeoParquet (.parquet)."
 )
-@click.option("--layer", help="Footprint layer (default: the only polygon layer).")
-@click.option(
-    "--id-field",
-    help="Footprint id column (default: toid, id or fid); the output's id column keeps its name.",
-)
-@click.option("--min-elevation", type=float, default=10.0, show_default=True, help="Degrees.")
-@click.option("--max-elevation", type=float, default=85.0, show_default=True, help="Degrees.")
+@LAYER
+@ID_FIELD
+@MIN_ELEVATION
+@MAX_ELEVATION
 @click.option(
     "--receiver-height",
-    type=click.Choice(["dem", "log"]),
-    default="dem",
+    type=click.Choice(list(RECEIVER_HEIGHTS)),
+    default=ReceiverHeights.source,
     show_default=True,
     help="Antenna height from the DEM (+ --antenna-height) or from the observations' h.",
 )
-@click.option("--antenna-height", type=float, default=1.0, show_default=True, help="Metres.")
+@click.option(
+    "--antenna-height",
+    type=float,
+    default=ReceiverHeights.antenna_height,
+    show_default=True,
+    help="Metres.",
+)
 @THRESHOLD
-@click.option("--method", type=click.Choice(list(METHODS)), default="4PL-B", show_default=True)
-@click.option("--max-range", type=float, default=500.0, show_default=True, help="Ray length (m).")
+@METHOD
+@click.option(
+    "--max-range", type=float, default=Rays.max_range, show_default=True, help="Ray length (m)."
+)
 @click.option(
     "--position-sd",
     type=click.FloatRange(min=0.0, min_open=True),
@@ -53,14 +66,15 @@ from .options import QUIET, THRESHOLD, output_file, progress
 @click.option(
     "--position-window",
     type=click.FloatRange(min=0.0, min_open=True),
-    help="With --position-sd: one position error lasts this many seconds (e.g. 30 for a "
-    "walker's traced path). Default: a whole recording, as a point placed by hand.",
+    help="With --position-sd: one position error lasts this many seconds of a recording "
+    "(e.g. 30 for a walker's traced path). Default: a whole recording, as a point placed by "
+    "hand.",
 )
 @click.option(
     "--calibration-sd",
     type=click.FloatRange(min=0.0, min_open=True),
     help="Self-calibrate one position offset per recording with this prior (m per axis; "
-    "about 1 for hand-placed points, 5 for phone fixes). Off by default.",
+    "about 1 for hand-placed points, 5 for phone fixes; method 4PL-B only). Off by default.",
 )
 @click.option(
     "--calibration-window",
@@ -68,11 +82,9 @@ from .options import QUIET, THRESHOLD, output_file, progress
     help="With --calibration-sd: one offset per this many seconds of a recording (about 30 "
     "for phone fixes, whose errors drift) instead of one per recording.",
 )
-@click.option("--dem-crs", help="CRS of a DEM that has none, e.g. EPSG:27700.")
+@DEM_CRS
 @GRID_DIR
-@click.option(
-    "--overwrite", is_flag=True, help="Replace an existing output (in a GeoPackage: the layer)."
-)
+@OVERWRITE
 @QUIET
 def estimate(
     observations,
@@ -108,8 +120,15 @@ def estimate(
     from ..observations import read_observations
     from ..pipeline import STAGES
     from ..pipeline import estimate as run
+    from ..settings import Calibration, Estimator, PositionError
     from ..tables import check_layer_output, write_layer
 
+    rays = Rays(min_elevation=min_elevation, max_elevation=max_elevation, max_range=max_range)
+    receiver_heights = ReceiverHeights(source=receiver_height, antenna_height=antenna_height)
+    estimator = Estimator(method=method, init_threshold=init_threshold)
+    position_error = PositionError(sd=position_sd, window=position_window)
+    calibration = Calibration(prior_sd=calibration_sd, window=calibration_window)
+    calibration.check_method(estimator)  # as the pipeline does, but before any file is read
     check_layer_output(output, "heights", overwrite=overwrite)
     obs = read_observations(observations)
     fp = read_footprints(footprints, layer=layer, id_field=id_field, grid_dir=grid_dir)
@@ -123,19 +142,13 @@ def estimate(
             obs,
             fp,
             dem,
-            min_elevation=min_elevation,
-            max_elevation=max_elevation,
-            receiver_height=receiver_height,
-            antenna_height=antenna_height,
-            init_threshold=init_threshold,
-            method=method,
-            max_range=max_range,
+            rays=rays,
+            receiver_heights=receiver_heights,
+            estimator=estimator,
+            position_error=position_error,
+            calibration=calibration,
             grid_dir=grid_dir,
             dem_crs=dem_crs,
-            position_sd=position_sd,
-            position_window=position_window,
-            calibration_sd=calibration_sd,
-            calibration_window=calibration_window,
             progress=stage,
         )
     write_layer(heights, output, "heights", overwrite=overwrite)

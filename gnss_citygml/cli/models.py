@@ -6,21 +6,14 @@ from pathlib import Path
 
 import click
 
-from ..model import METHODS
+from ..settings import WEIGHTINGS, Estimator
 from ..simulate.scenes import PRESETS
-from .observe import GRID_DIR
-from .options import OVERWRITE, SEED, THRESHOLD, output_file
+from .options import GRID_DIR, METHOD, OVERWRITE, SEED, THRESHOLD, output_dir, output_file
 
 
 @click.command()
 @click.argument("preset", type=click.Choice(list(PRESETS)))
-@click.option(
-    "--output-dir",
-    "-o",
-    type=click.Path(file_okay=False, path_type=Path),
-    required=True,
-    help="Folder for observations, intersections and truth tables.",
-)
+@output_dir("Folder for observations, footprints, DEM, intersections and truth tables.")
 @click.option(
     "--locations",
     type=click.Choice(["manual", "gnss"]),
@@ -58,18 +51,14 @@ def simulate(preset, output_dir, locations, seed, interval, fmt, grid_dir, overw
 @click.command()
 @click.argument("intersections", type=click.Path(path_type=Path))
 @output_file("Heights table (.csv or .parquet).")
-@click.option(
-    "--method",
-    type=click.Choice(list(METHODS)),
-    default="4PL-B",
-    show_default=True,
-)
+@METHOD
 @THRESHOLD
 @click.option(
     "--weighting",
-    type=click.Choice(["height", "balanced", "none"]),
-    default=None,
-    help="Reweighting of the 4PL height fit (4PL-B and 4PL; default: none).",
+    type=click.Choice(list(WEIGHTINGS)),
+    default=Estimator.weighting,
+    show_default=True,
+    help="Reweighting of the 4PL height fit (4PL-B and 4PL).",
 )
 @OVERWRITE
 def heights(intersections, output, method, init_threshold, weighting, overwrite):
@@ -77,11 +66,9 @@ def heights(intersections, output, method, init_threshold, weighting, overwrite)
     from ..model.estimate import estimate_heights
     from ..tables import check_table_output, read_table, write_table
 
+    estimator = Estimator(method=method, init_threshold=init_threshold, weighting=weighting)
     check_table_output(output, overwrite=overwrite)
-    options = {} if weighting is None else {"weighting": weighting}
-    out = estimate_heights(
-        read_table(intersections), method=method, init_threshold=init_threshold, **options
-    )
+    out = estimate_heights(read_table(intersections), estimator)
     write_table(out, output, overwrite=overwrite)
     ok = int(out["converged"].sum())
     click.echo(f"{ok} of {len(out)} buildings converged -> {output}")

@@ -6,15 +6,7 @@ from pathlib import Path
 
 import click
 
-from .options import OVERWRITE, QUIET, output_file, progress
-
-GRID_DIR = click.option(
-    "--grid-dir",
-    type=click.Path(file_okay=False, path_type=Path),
-    envvar="GNSS_CITYGML_GRID_DIR",
-    help="Folder holding the OSTN15/OSGM15 grids, searched first (default: PROJ's folders, "
-    "then the copy bundled with gnss-citygml).",
-)
+from .options import GRID_DIR, MAX_ELEVATION, MIN_ELEVATION, OVERWRITE, QUIET, output_file, progress
 
 
 @click.command()
@@ -43,8 +35,8 @@ GRID_DIR = click.option(
 @click.option(
     "--interpolate", is_flag=True, help="Interpolate fixes in time instead of the nearest."
 )
-@click.option("--min-elevation", type=float, default=10.0, show_default=True, help="Degrees.")
-@click.option("--max-elevation", type=float, default=85.0, show_default=True, help="Degrees.")
+@MIN_ELEVATION
+@MAX_ELEVATION
 @click.option("--band", default="L1", show_default=True, help="Signal band kept (L1 or L5).")
 @click.option("--lenient", is_flag=True, help="Skip bad log lines (counted) instead of failing.")
 @output_file("Observations table (.parquet or .csv).")

@@ -1,4 +1,9 @@
-"""Options and helpers shared by the subcommands (defined once, as in rasterio's ``rio``)."""
+"""Options and helpers shared by the subcommands (each declared once, as in rasterio's ``rio``).
+
+An option that two commands take is declared here, so that it has one name, one type, one
+default and one help text everywhere. The defaults of the model's options are those of
+:mod:`gnss_citygml.settings`, the objects the commands build from them.
+"""
 
 from __future__ import annotations
 
@@ -7,14 +12,27 @@ from pathlib import Path
 
 import click
 
+from ..model import METHODS
+from ..settings import Estimator, Rays
+
 __all__ = [
+    "DEM_CRS",
+    "GRID_DIR",
+    "ID_FIELD",
+    "LAYER",
+    "MAX_ELEVATION",
+    "METHOD",
+    "MIN_ELEVATION",
     "MODEL_OUTPUT",
     "OVERWRITE",
     "QUIET",
+    "SCHEMA_DIR",
     "SEED",
     "STDOUT",
     "THRESHOLD",
     "TYPED_ATTRIBUTES",
+    "dem_file",
+    "output_dir",
     "output_file",
     "progress",
 ]
@@ -28,10 +46,51 @@ SEED = click.option(
 )
 OVERWRITE = click.option("--overwrite", is_flag=True, help="Replace an existing output.")
 QUIET = click.option("--quiet", "-q", is_flag=True, help="No progress output.")
+GRID_DIR = click.option(
+    "--grid-dir",
+    type=click.Path(file_okay=False, path_type=Path),
+    envvar="GNSS_CITYGML_GRID_DIR",
+    help="Folder holding the OSTN15/OSGM15 grids, searched first (default: PROJ's folders, "
+    "then the copy bundled with gnss-citygml).",
+)
+SCHEMA_DIR = click.option(
+    "--schema-dir",
+    type=click.Path(file_okay=False, path_type=Path),
+    envvar="GNSS_CITYGML_SCHEMA_DIR",
+    help="Official schemas (CityJSON JSON schemas; optionally a schemas.opengis.net tree).",
+)
+LAYER = click.option("--layer", help="Footprint layer (default: the only polygon layer).")
+ID_FIELD = click.option(
+    "--id-field",
+    help="Footprint field with the building ids (default: toid, id or fid); the outputs' id "
+    "column keeps its name.",
+)
+DEM_CRS = click.option("--dem-crs", help="CRS of a DEM that has none, e.g. EPSG:27700.")
+MIN_ELEVATION = click.option(
+    "--min-elevation",
+    type=float,
+    default=Rays.min_elevation,
+    show_default=True,
+    help="Signals below this elevation (deg) are left out.",
+)
+MAX_ELEVATION = click.option(
+    "--max-elevation",
+    type=float,
+    default=Rays.max_elevation,
+    show_default=True,
+    help="Signals above this elevation (deg) are left out.",
+)
+METHOD = click.option(
+    "--method",
+    type=click.Choice(list(METHODS)),
+    default=Estimator.method,
+    show_default=True,
+    help="Height estimator: 4PL-B, the paper's one-shot 4PL, or the hinge or Bayes baseline.",
+)
 THRESHOLD = click.option(
     "--init-threshold",
     type=float,
-    default=30.0,
+    default=Estimator.init_threshold,
     show_default=True,
     help="C/N0 (dB-Hz) where the initial signal classifier gives 50 %.",
 )
@@ -43,6 +102,19 @@ TYPED_ATTRIBUTES = click.option(
     "CityJSON Extension (declared in the file; schemas/gnss_citygml.ext.json) instead of plain "
     "attributes.",
 )
+
+
+def dem_file(help_text, required=False):
+    """The ``--dem`` option: a raster GDAL reads, for what ``help_text`` says."""
+    return click.option("--dem", type=click.Path(path_type=str), required=required, help=help_text)
+
+
+def output_dir(help_text):
+    """The required ``--output-dir`` / ``-o`` folder option of a command that writes several
+    files; the command itself says when the path is a file, in its own words."""
+    return click.option(
+        "--output-dir", "-o", type=click.Path(path_type=Path), required=True, help=help_text
+    )
 
 
 def output_file(help_text):

@@ -8,10 +8,10 @@ from dataclasses import asdict
 import numpy as np
 import pandas as pd
 
-from ..errors import InputError, MissingColumnError, ModelError
-from . import METHODS
+from ..errors import InputError, MissingColumnError, listing
+from ..settings import Estimator
 from .baselines import bayes_heights, hinge_heights
-from .fourplb import WEIGHTINGS, fourplb
+from .fourplb import fourplb
 
 __all__ = ["HEIGHTS_COLUMNS", "estimate_heights"]
 
@@ -34,25 +34,9 @@ HEIGHTS_COLUMNS = [
 ]
 
 _REQUIRED = ["building", "height", "cn0"]
-_FOURPL_OPTIONS = {
-    "weighting",
-    "visibility",
-    "max_iter",
-    "label_tol",
-    "min_signals",
-    "min_separation",
-    "max_uncertainty",
-}
-_BASELINE_OPTIONS = {"min_signals"}
 
 
-def estimate_heights(
-    intersections,
-    *,
-    method: str = "4PL-B",
-    init_threshold: float = 30.0,
-    **options,
-) -> pd.DataFrame:
+def estimate_heights(intersections, estimator: Estimator = Estimator()) -> pd.DataFrame:
     """Estimate every building's height from the signals that cross its footprint.
 
     Parameters
@@ -63,22 +47,15 @@ def estimate_heights(
         and ``cn0`` (dB-Hz, NaN = blocked); optionally ``signal`` (rows with the same value are
         one signal crossing several buildings), ``receiver``, ``distance``, ``order`` and
         ``height_sd`` (m: how far each height may be off owing to its receiver's position
-        error, e.g. from :func:`gnss_citygml.pipeline.intersections` given ``position_sd``).
-        With ``height_sd``, 4PL-B and 4PL model that error (the slope ``b`` is then the roof
-        line's own) and widen the range by the roof line's position uncertainty, each
-        ``recording`` (default: each ``receiver``) counting as one shared error.
-    method
-        ``4PL-B`` (default), ``4PL`` (no bootstrapping), ``hinge`` (Weissman) or ``bayes``
-        (Irish et al.).
-    init_threshold
-        C/N0 (dB-Hz) where the initial signal classifier gives Pr(open) = 0.5.
-    **options
-        For 4PL-B and 4PL: ``weighting`` (``none``, the default, ``height`` or ``balanced``),
-        ``visibility`` (True: with ``signal`` and ``order``, a signal blocked by another
-        building at the current estimates is left out for this one), ``max_iter`` (10),
-        ``label_tol`` (0.01), ``min_signals`` (10), ``min_separation`` (0.3),
-        ``max_uncertainty`` (10 m: the widest range of a converged estimate).
-        For hinge and bayes: ``min_signals``.
+        error, e.g. from :func:`gnss_citygml.pipeline.intersections` given a
+        :class:`~gnss_citygml.settings.PositionError`). With ``height_sd``, 4PL-B and 4PL model
+        that error (the slope ``b`` is then the roof line's own) and widen the range by the
+        roof line's position uncertainty, each ``recording`` (default: each ``receiver``)
+        counting as one shared error.
+    estimator
+        The method and its settings (:class:`~gnss_citygml.settings.Estimator`; default: 4PL-B
+        with the paper's settings), e.g. ``Estimator(method="hinge")`` or
+        ``Estimator(init_threshold=25)``.
 
     Returns
     -------
@@ -95,49 +72,39 @@ def estimate_heights(
     ------
     InputError
         Missing columns, columns of different lengths, non-numeric or NaN heights.
-    ModelError
-        An unknown method or option.
+
+    Examples
+    --------
+    >>> import pandas as pd
+    >>> table = pd.DataFrame({"building": ["a", "a"], "height": [10.0, 30.0], "cn0": [None, 40]})
+    >>> estimate_heights(table, Estimator(method="hinge"))[["id", "converged", "status"]]
+      id  converged                 status
+    0  a      False  fewer than 10 signals
     """
-    if method not in METHODS:
-        raise ModelError(f"unknown method {method!r}", fix="use one of " + ", ".join(METHODS))
-    allowed = _FOURPL_OPTIONS if method in ("4PL-B", "4PL") else _BASELINE_OPTIONS
-    unknown = sorted(set(options) - allowed)
-    if unknown:
-        raise ModelError(
-            f"unknown option(s) {', '.join(unknown)} for method {method}",
-            fix="use " + ", ".join(sorted(allowed)),
-        )
-    if options.get("weighting", "none") not in WEIGHTINGS:
-        raise ModelError(
-            f"unknown weighting {options['weighting']!r}", fix="use one of " + ", ".join(WEIGHTINGS)
-        )
-    if not np.isfinite(init_threshold):
-        raise ModelError("init_threshold must be a finite C/N0 in dB-Hz", fix="e.g. 30")
+    method = estimator.method
     table = _as_table(intersections)
     ids, codes, height, cn0, signal, order = _columns(table)
     n = len(ids)
     height_sd = _height_sd(table)
 
-    if method in ("4PL-B", "4PL"):
+    if estimator.fourpl:
         fits, classifier = fourplb(
             codes,
             height,
             cn0,
             n,
-            init_threshold=init_threshold,
+            estimator,
             signal=signal,
             order=order,
-            bootstrap=method == "4PL-B",
             height_sd=height_sd,
             receiver=_recordings(table, height_sd),
-            **options,
         )
         columns = {name: getattr(fits, name) for name in HEIGHTS_COLUMNS[1:] if name != "method"}
     else:
         func = hinge_heights if method == "hinge" else bayes_heights
-        h = func(codes, height, cn0, n, init_threshold=init_threshold)
+        h = func(codes, height, cn0, n, init_threshold=estimator.init_threshold)
         n_signals = np.bincount(codes, minlength=n)
-        min_signals = options.get("min_signals", 10)
+        min_signals = estimator.acceptance.min_signals
         ok = n_signals >= min_signals
         nan = np.full(n, np.nan)
         columns = {
@@ -149,7 +116,7 @@ def estimate_heights(
             "status": np.where(ok, "ok", f"fewer than {min_signals} signals").astype(object),
         }
     out = pd.DataFrame({"id": ids, **columns, "method": method})[HEIGHTS_COLUMNS]
-    if method in ("4PL-B", "4PL"):
+    if estimator.fourpl:
         out.attrs["signal_classifier"] = asdict(classifier)
     return out
 
@@ -245,7 +212,6 @@ def _numeric(table, column) -> np.ndarray:
     return values
 
 
-def _rows(mask, limit: int = 5) -> str:
-    idx = np.flatnonzero(mask)
-    shown = ", ".join(str(i) for i in idx[:limit])
-    return shown + (f" and {idx.size - limit} more" if idx.size > limit else "")
+def _rows(mask) -> str:
+    """The first few rows where ``mask`` holds, for a message."""
+    return listing(np.flatnonzero(mask), shown=5)

@@ -31,20 +31,12 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from ..errors import ModelError
+from ..settings import WEIGHTINGS, Estimator
 from .classifier import SignalClassifier
 from .fourpl import B_BOUNDS, fit_4pl, group_range
 
-__all__ = [
-    "WEIGHTINGS",
-    "Acceptance",
-    "BuildingFits",
-    "fourplb",
-    "height_weights",
-    "position_margin",
-]
-
-#: Reweighting schemes of the height fit; see :func:`height_weights`.
-WEIGHTINGS = ("none", "height", "balanced")
+__all__ = ["BuildingFits", "fourplb", "height_weights", "position_margin"]
 
 #: With the visibility model, at least this fraction of the signals crossing a building below
 #: its fitted roof line must be unblocked by other buildings; otherwise the lower edge of the
@@ -54,16 +46,6 @@ MIN_VISIBLE = 0.1
 #: Width (m) of the intersection-height bins of the ``height`` weighting: finer than any
 #: building's height uncertainty, coarse enough to hold several signals each.
 HEIGHT_BIN = 1.0
-
-
-@dataclass(frozen=True)
-class Acceptance:
-    """What a 4PL-B estimate must satisfy to count as converged (see :func:`fourplb`)."""
-
-    label_tol: float = 0.01
-    min_signals: int = 10
-    min_separation: float = 0.3
-    max_uncertainty: float = 10.0
 
 
 @dataclass(frozen=True)
@@ -137,22 +119,14 @@ def fourplb(
     height,
     cn0,
     n_groups: int,
+    estimator: Estimator = Estimator(),
     *,
-    init_threshold: float = 30.0,
     signal=None,
     order=None,
-    weighting: str = "none",
-    visibility: bool = True,
-    max_iter: int = 10,
-    label_tol: float = 0.01,
-    min_signals: int = 10,
-    min_separation: float = 0.3,
-    max_uncertainty: float = 10.0,
-    bootstrap: bool = True,
     height_sd=None,
     receiver=None,
 ) -> tuple[BuildingFits, SignalClassifier]:
-    """Run 4PL-B (or, with ``bootstrap=False``, the paper's one-shot 4PL) on coded arrays.
+    """Run 4PL-B (or, for method ``4PL``, the paper's one-shot 4PL) on coded arrays.
 
     Parameters
     ----------
@@ -162,46 +136,38 @@ def fourplb(
         Intersection height (m) and C/N0 (dB-Hz, NaN = blocked) of each row.
     n_groups
         Number of buildings.
-    init_threshold
-        C/N0 at which the initial signal classifier gives Pr(open) = 0.5.
+    estimator
+        The settings (:class:`~gnss_citygml.settings.Estimator`, method 4PL-B or 4PL): the
+        initial threshold, the reweighting of the height fit (:func:`height_weights`), the
+        visibility model, the iteration cap and what a converged estimate must satisfy. With
+        ``visibility`` and ``signal``, a building leaves out the rows whose ray another building
+        blocks (at the current estimates): such a signal says nothing about it; the first fit
+        uses only the first building along each ray (needs ``order``). The loop stops after
+        ``max_iter`` iterations or when fewer than ``acceptance.label_tol`` of every building's
+        map labels change between two iterations. Method ``4PL`` runs a single pass (label by
+        the initial classifier, fit, stop), which, as in the paper, always returns the fitted
+        height when the optimiser converged on data of both classes; the plausibility checks of
+        4PL-B are not applied to it.
     signal, order
         Optional signal code of each row (rows of one signal crossing several buildings) and
         the row's position along its ray (0 = first building crossed).
-    weighting
-        Reweighting of the height fit, one of :data:`WEIGHTINGS`.
-    visibility
-        With ``signal``: leave out, for a building, the rows whose ray is blocked by another
-        building (at the current estimates); such a signal says nothing about this building.
-        The first fit uses only the first building along each ray (needs ``order``).
-    max_iter, label_tol
-        Stop after ``max_iter`` iterations or when fewer than ``label_tol`` of every building's
-        map labels change between two iterations.
-    min_signals, min_separation
-        A building needs at least ``min_signals`` rows, and its fitted asymptotes must differ by
-        at least ``min_separation`` for its estimate to count as converged: the roof line must
-        change the open probability by that much. (The paper's classifier, trained at one site
-        and applied to others, still had a - d of about 0.4.)
-    max_uncertainty
-        Widest height range (c, c + 3/b), with ``height_sd`` widened by the position margin,
-        in metres, of a converged estimate. The default, 10 m, keeps the estimate within 5 m
-        of both ends of its range: CityGML's accuracy class for LOD1, the benchmark the paper
-        measures itself against.
-    bootstrap
-        False runs a single pass (label by the initial classifier, fit, stop): the paper's 4PL,
-        which, as in the paper, always returns the fitted height when the optimiser converged
-        on data of both classes; the plausibility checks of 4PL-B are not applied to it.
     height_sd, receiver
         Optional standard deviation (m) of each row's intersection height owing to its
         receiver's position error, and the row's recording (any hashable codes). With
         ``height_sd`` the height 4PLs model that error (errors in variables, see
         :mod:`.fourpl`), so ``b`` is the sharpness of the roof line itself, and the range is
-        widened by :func:`position_margin` for the part of the error no fit averages away.
+        widened by :func:`position_margin` for the part of the error no fit averages away
+        (``acceptance.max_uncertainty`` then bounds the widened range).
 
     Returns
     -------
     (BuildingFits, SignalClassifier)
         The per-building fits and the final signal classifier.
     """
+    if not estimator.fourpl:
+        raise ModelError(f"fourplb runs 4PL-B or 4PL, not {estimator.method}")
+    bootstrap = estimator.method == "4PL-B"
+    accept = estimator.acceptance
     g = np.asarray(groups, dtype=np.intp)
     h = np.asarray(height, dtype=float)
     by_group = np.lexsort((h, g))  # a building's rows together, by height: faster fits
@@ -216,17 +182,17 @@ def fourplb(
         sig = None
     if order is not None:
         order = np.asarray(order)[by_group]
-    occlusion = visibility and sig is not None
+    occlusion = estimator.visibility and sig is not None
     seen = np.ones(h.size, dtype=bool)
     if occlusion and order is not None:
         seen = np.asarray(order) == 0
 
-    classifier = SignalClassifier.initial(init_threshold)
+    classifier = SignalClassifier.initial(estimator.init_threshold)
     labels = classifier.label(s)
     fit, prev_map, change, iterations = None, None, np.ones(n_groups), 0
-    for iterations in range(1, (max_iter if bootstrap else 1) + 1):
+    for iterations in range(1, (estimator.max_iter if bootstrap else 1) + 1):
         c_now = None if fit is None else fit.c
-        weights = height_weights(h, g, n_groups, weighting, c=c_now, mask=seen)
+        weights = height_weights(h, g, n_groups, estimator.weighting, c=c_now, mask=seen)
         fit_labels, fit_seen = labels, seen
         # every building's map classifier, a 4PL in intersection height, fitted at once
         use = weights > 0  # rows left out weigh nothing: do not carry them through the fit
@@ -248,7 +214,7 @@ def fourplb(
         prev_map = new_map
         # Only plausible fits teach the classifier: a building whose map says nothing (flat,
         # or its inflection point outside its data) would relabel its signals at random.
-        plausible = _plausible(fit, h, g, seen, n_groups, min_separation)
+        plausible = _plausible(fit, h, g, seen, n_groups, accept.min_separation)
         teach = plausible
         if not teach.any():
             # A poor initial classifier (e.g. a low threshold labelling reflections open) can
@@ -259,10 +225,9 @@ def fourplb(
         labels = classifier.label(s)
         if occlusion:
             seen = _unoccluded(h, g, sig, fit, plausible, order)
-        if iterations > 1 and np.all(change < label_tol):
+        if iterations > 1 and np.all(change < accept.label_tol):
             break
 
-    accept = Acceptance(label_tol, min_signals, min_separation, max_uncertainty)
     margin = np.zeros(n_groups)
     if sd is not None:
         rec = None if receiver is None else receiver[fit_seen]

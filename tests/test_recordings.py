@@ -1,0 +1,60 @@
+"""Time windows of recordings: one rule for the modelled position errors and the calibration."""
+
+import geopandas as gpd
+import pandas as pd
+import pytest
+import shapely
+
+from gnss_citygml.errors import InputError
+from gnss_citygml.pipeline import intersections
+from gnss_citygml.recordings import recording_windows
+from gnss_citygml.settings import PositionError
+
+START = pd.Timestamp("2020-02-11T10:00:00Z")
+
+
+def rows(receivers, seconds):
+    return pd.DataFrame(
+        {"receiver": receivers, "time_utc": START + pd.to_timedelta(seconds, unit="s")}
+    )
+
+
+def groups(codes):
+    """The partition of row positions that ``codes`` makes, independent of the code values."""
+    return sorted(sorted(i for i, c in enumerate(codes) if c == code) for code in set(codes))
+
+
+def test_a_window_starts_at_its_recordings_first_epoch():
+    # b starts 25 s after a: its windows are 25..55 and 55..85, not the run's 0..30, 30..60...
+    table = rows(["a", "a", "a", "b", "b", "b"], [0, 10, 40, 25, 50, 60])
+    codes = recording_windows(table, 30.0)
+    assert groups(codes) == [[0, 1], [2], [3, 4], [5]]
+    # ... so b is cut the same way whichever other recordings are in the run
+    alone = recording_windows(table[table["receiver"] == "b"], 30.0)
+    assert groups(alone) == [[0, 1], [2]]
+
+
+def test_without_a_window_a_recording_is_one_group():
+    table = rows(["a", "b", "a"], [0, 1000, 5000])
+    assert list(recording_windows(table)) == [0, 1, 0]
+
+
+def test_time_zones_and_order_do_not_matter():
+    table = rows(["a", "a", "a"], [70, 0, 35])
+    local = table.assign(time_utc=table["time_utc"].dt.tz_convert("Europe/Berlin"))
+    assert groups(recording_windows(table, 30.0)) == [[0], [1], [2]]
+    assert list(recording_windows(local, 30.0)) == list(recording_windows(table, 30.0))
+
+
+def test_windows_need_times():
+    with pytest.raises(InputError, match="time_utc"):
+        recording_windows(pd.DataFrame({"receiver": ["a"]}), 30.0)
+
+
+def test_the_pipelines_position_errors_share_the_windows():
+    wall = gpd.GeoDataFrame({"id": ["w"]}, geometry=[shapely.box(10, -50, 20, 50)])
+    table = rows(["a", "a", "a", "b", "b", "b"], [0, 10, 40, 25, 50, 60]).assign(
+        e=0.0, n=0.0, z=1.0, bearing=90.0, elevation=30.0, cn0=40.0
+    )
+    out = intersections(table, wall, position_error=PositionError(sd=1.0, window=30.0))
+    assert groups(out["recording"].tolist()) == [[0, 1], [2], [3, 4], [5]]

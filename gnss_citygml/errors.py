@@ -3,8 +3,9 @@
 Every error a user can cause is a :class:`GnssCityGMLError`. Its message says *what* went
 wrong, *where* (file, line, column, feature id) and *how to fix it*, so that the command line
 can print it as one line (``error: <what> (<where>): <how to fix>``) without a traceback.
-:func:`listing` (the first items and how many more) and :func:`escape_controls` (one line
-whatever the data holds) shape the messages, the same way in every module.
+:func:`listing` (the first items and how many more), :func:`first_line` (what a library's own
+error says, in one line) and :func:`escape_controls` (one line whatever the data holds) shape
+the messages, the same way in every module.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ __all__ = [
     "MissingColumnError",
     "ModelError",
     "escape_controls",
+    "first_line",
     "listing",
 ]
 
@@ -41,6 +43,19 @@ def listing(items: Iterable, shown: int = 10) -> str:
     items = list(items)
     text = ", ".join(str(item) for item in items[:shown])
     return text + (f" and {len(items) - shown} more" if len(items) > shown else "")
+
+
+def first_line(exc: BaseException) -> str:
+    """The first line of an exception's message (GDAL's and lxml's run over several), or the
+    name of its type when it has none: the part of a library's error worth quoting in ours.
+
+    >>> first_line(ValueError("bad header" + chr(10) + "  at byte 12"))
+    'bad header'
+    >>> first_line(KeyError())
+    'KeyError'
+    """
+    lines = str(exc).splitlines()
+    return lines[0] if lines else type(exc).__name__
 
 
 class GnssCityGMLError(Exception):

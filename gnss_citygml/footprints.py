@@ -47,7 +47,7 @@ import pyogrio
 import shapely
 from pandas.api.types import is_list_like
 
-from .errors import InputError, MissingColumnError, listing
+from .errors import InputError, MissingColumnError, first_line, listing
 from .geodesy import CrsError, OutsideExtentError, is_bng, to_bng
 from .ids import with_id_field
 from .paths import input_file
@@ -220,9 +220,8 @@ def _polygon_layer(path: str, kind: str | None) -> str | None:
 
 
 def _unreadable(exc: Exception, where: str) -> InputError:
-    first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
     return InputError(
-        f"cannot read the footprints: {first}",
+        f"cannot read the footprints: {first_line(exc)}",
         where=where,
         fix="give a polygon layer GDAL reads (GeoPackage, Shapefile, GeoJSON, MasterMap GML)",
     )

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .errors import InputError
+from .errors import InputError, first_line
 from .ids import source_named
 from .paths import atomic_path, check_output, input_file
 
@@ -37,9 +37,8 @@ def read_table(path) -> pd.DataFrame:
     try:
         return pd.read_csv(path) if suffix == ".csv" else pd.read_parquet(path)
     except (ValueError, OSError, pd.errors.ParserError) as exc:
-        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise InputError(
-            f"cannot read the table: {first}",
+            f"cannot read the table: {first_line(exc)}",
             where=str(path),
             fix="give a well-formed CSV (with a header row) or Parquet file",
         ) from None
@@ -113,9 +112,8 @@ def _layers(path: Path) -> list[str]:
     try:
         return [str(name) for name in pyogrio.list_layers(path)[:, 0]]
     except Exception as exc:  # GDAL raises its own errors for a file that is not a GeoPackage
-        first = (str(exc).splitlines() or [type(exc).__name__])[0]
         raise InputError(
-            f"the output exists and is not a readable GeoPackage ({first})",
+            f"the output exists and is not a readable GeoPackage ({first_line(exc)})",
             where=str(path),
             fix="choose another name, or remove the file",
         ) from None

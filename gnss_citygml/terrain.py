@@ -31,7 +31,7 @@ from pyproj.exceptions import CRSError
 from rasterio.io import DatasetReader
 from rasterio.windows import Window
 
-from .errors import InputError, MissingColumnError, listing
+from .errors import InputError, MissingColumnError, first_line, listing
 from .footprints import check_polygonal
 from .geodesy import is_bng
 
@@ -71,7 +71,7 @@ def _open_dem(dem, assume_crs, band: int) -> Iterator[DatasetReader]:
         dataset = rasterio.open(name)
     except rasterio.errors.RasterioIOError as exc:
         raise InputError(
-            f"cannot open the DEM: {str(exc).splitlines()[0]}",
+            f"cannot open the DEM: {first_line(exc)}",
             where=name,
             fix="give a raster GDAL reads (GeoTIFF, ESRI ASCII grid; zip://tiles.zip!/NG33.asc)",
         ) from None

@@ -18,7 +18,7 @@ from pathlib import Path
 
 from lxml import etree
 
-from ..errors import InputError
+from ..errors import InputError, first_line
 from .geometry import BATCH, Shells
 from .gml import GML, GML_ID, gml_solids
 from .report import Issue, Report
@@ -93,7 +93,7 @@ def _citygml_schema(folder: Path) -> etree.XMLSchema:
         )
         return etree.XMLSchema(document)
     except (etree.XMLSchemaParseError, etree.XMLSyntaxError) as exc:
-        missing = ", ".join(resolver.missing) or str(exc).splitlines()[0]
+        missing = ", ".join(resolver.missing) or first_line(exc)
         raise InputError(
             f"cannot compile the CityGML 2.0 schemas (missing: {missing})",
             where=str(folder),

@@ -32,17 +32,23 @@ def escape_controls(text: str) -> str:
     return _CONTROL.sub(lambda m: repr(m.group())[1:-1], text)
 
 
-def listing(items: Iterable, shown: int = 10) -> str:
+def listing(items: Iterable, shown: int = 10, *, total: int | None = None) -> str:
     """The items for a message, comma-separated; past the first ``shown``, how many more.
+
+    ``total`` is how many there are in all when ``items`` holds only the first few (to spare
+    formatting thousands of items a message will not show).
 
     >>> listing(range(3))
     '0, 1, 2'
     >>> listing(range(14))
     '0, 1, 2, 3, 4, 5, 6, 7, 8, 9 and 4 more'
+    >>> listing(["a", "b"], 2, total=5)
+    'a, b and 3 more'
     """
     items = list(items)
+    total = len(items) if total is None else total
     text = ", ".join(str(item) for item in items[:shown])
-    return text + (f" and {len(items) - shown} more" if len(items) > shown else "")
+    return text + (f" and {total - shown} more" if total > shown else "")
 
 
 def first_line(exc: BaseException) -> str:

@@ -61,7 +61,7 @@ from pyproj.datadir import append_data_dir, get_data_dir, get_user_data_dir
 from pyproj.exceptions import ProjError
 from pyproj.sync import get_proj_endpoint
 
-from .errors import GnssCityGMLError, InputError
+from .errors import GnssCityGMLError, InputError, listing
 
 __all__ = [
     "BUNDLED_GRID_DIR",
@@ -487,8 +487,7 @@ def _name_points(bad, x, y, geographic, labels) -> str:
     else:
         coords = [f"E {x[i]:.3f}, N {y[i]:.3f}" for i in index[:_LIST_POINTS]]
     shown = [f"{name} ({c})" for name, c in zip(names[:_LIST_POINTS], coords, strict=True)]
-    more = f" and {index.size - _LIST_POINTS} more" if index.size > _LIST_POINTS else ""
-    return ", ".join(shown) + more
+    return listing(shown, _LIST_POINTS, total=index.size)
 
 
 def _spatial_order(x, y, cell):

@@ -98,6 +98,9 @@ def test_nan_heights_are_refused_with_rows():
     table = pd.DataFrame({"building": ["a"] * 3, "height": [1.0, np.nan, 2.0], "cn0": 30.0})
     with pytest.raises(InputError, match="rows 1"):
         estimate_heights(table)
+    many = pd.DataFrame({"building": "a", "height": [np.nan] * 8 + [1.0], "cn0": 30.0})
+    with pytest.raises(InputError, match=r"rows 0, 1, 2, 3, 4 and 3 more\)"):
+        estimate_heights(many)
 
 
 def test_non_numeric_values_are_refused():

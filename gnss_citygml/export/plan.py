@@ -111,7 +111,7 @@ def footprints_with_heights(
     if unknown.any():
         raise InputError(
             f"{int(unknown.sum())} height(s) for buildings not among the footprints: "
-            + ", ".join(table["id"][unknown].head(10)),
+            + listing(table["id"][unknown]),
             where=where,
             fix="give the footprints the heights were estimated for",
         )

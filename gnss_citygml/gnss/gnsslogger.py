@@ -53,7 +53,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from gnss_citygml.errors import InputError
+from gnss_citygml.errors import InputError, listing
 from gnss_citygml.gnss.gpstime import NAT_NS, utc_ns
 from gnss_citygml.gnss.logrecords import INT_PATTERN, RECORDS, parse_records, split_lines
 from gnss_citygml.gnss.measurements import cut_line_epoch, fix_table, raw_signals, status_table
@@ -331,12 +331,9 @@ def _dropping(epochs: set[int], subject: str) -> str:
     if not epochs:
         return ""
     times = sorted(epochs)
-    shown = ", ".join(_time_text(t) for t in times[:3])
-    if len(times) > 3:
-        shown += f" and {len(times) - 3} more"
     return (
         f"; dropped the {len(times)} epoch(s) {subject} may belong to, whose rows are not all "
-        f"there: {shown}"
+        f"there: {listing(map(_time_text, times), 3)}"
     )
 
 

@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from gnss_citygml.errors import InputError
+from gnss_citygml.errors import InputError, listing
 from gnss_citygml.gnss.gpstime import (
     GPS_EPOCH,
     NS_PER_S,
@@ -220,9 +220,7 @@ class Orbits(ABC):
         k = np.searchsorted(cov[:, 0], t, side="right") - 1
         inside = (k >= 0) & (t <= cov[np.maximum(k, 0), 1])
         if not inside.all():
-            spans = "; ".join(f"{_utc_text(a)} to {_utc_text(b)}" for a, b in cov[:5])
-            if len(cov) > 5:
-                spans += f" (and {len(cov) - 5} more pieces)"
+            spans = listing((f"{_utc_text(a)} to {_utc_text(b)}" for a, b in cov), 5)
             bad = t[~inside]
             raise OrbitSpanError(
                 f"the orbits cover {spans} but positions were requested from "

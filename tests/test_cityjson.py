@@ -349,6 +349,17 @@ def test_unusable_heights_are_listed_and_skipped(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["b.city.jsonl"]  # nothing half-written
 
 
+def test_british_national_grid_however_it_is_spelt(tmp_path):
+    # with ODN heights, or bound to WGS 84 by a Helmert: the same grid (geodesy.is_bng)
+    bound = (
+        "+proj=tmerc +lat_0=49 +lon_0=-2 +k=0.9996012717 +x_0=400000 +y_0=-100000 +ellps=airy "
+        "+towgs84=446.448,-125.157,542.06,0.15,0.247,0.842,-20.489 +units=m +no_defs"
+    )
+    for k, crs in enumerate(["EPSG:7405", "EPSG:27700+5701", bound]):
+        frame = heights_table().set_crs(crs, allow_override=True)
+        assert write_cityjson(frame, tmp_path / f"{k}.city.json").written == len(frame)
+
+
 def test_bad_input(tmp_path):
     target = tmp_path / "b.city.json"
     frame = heights_table()

@@ -33,6 +33,7 @@ import shapely
 
 from ..contracts import HEIGHTS, load
 from ..errors import InputError, MissingColumnError, listing
+from ..geodesy import is_bng
 from ..ids import id_field, id_named, with_id_field
 from ..validate import Report
 from .output import ExportResult
@@ -315,7 +316,7 @@ def prepare_buildings(buildings: gpd.GeoDataFrame, *, strict: bool = False) -> P
     missing = [c for c in ("id", "ground", "height") if c not in buildings.columns]
     if missing:
         raise MissingColumnError(missing, where="buildings", have=list(buildings.columns))
-    if buildings.crs is None or buildings.crs.to_epsg() not in (27700, 7405):
+    if buildings.crs is None or not is_bng(buildings.crs):
         raise InputError(
             f"the buildings are in {buildings.crs or 'no CRS'}, not EPSG:27700",
             where="buildings",

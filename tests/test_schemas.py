@@ -181,7 +181,7 @@ def test_heights_tables_the_toolkit_writes_validate(estimated, rng):
         [synthetic_intersections(rng), synthetic_intersections(rng, building="few", n=5)]
     )
     for method in gnss_citygml.METHODS:
-        tables.append(estimate_heights(intersections, method=method))
+        tables.append(estimate_heights(intersections, gnss_citygml.Estimator(method=method)))
     for table in tables:
         assert table["height"].isna().any()
         errors = [e.message for row in json_rows(table) for e in check.iter_errors(row)]

@@ -14,8 +14,9 @@ import os
 import shutil
 import sys
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 
@@ -34,6 +35,9 @@ from .options import (
     dem_file,
     progress,
 )
+
+if TYPE_CHECKING:
+    from ..export import ExportResult
 
 _MODEL_OPTIONS = [
     MODEL_OUTPUT,
@@ -69,7 +73,10 @@ def _model_writer(output, overwrite, typed_attributes):
     from ..export import write_citygml, write_cityjson, write_cityjsonseq
     from ..paths import check_output
 
-    writers = {".jsonl": write_cityjsonseq, ".json": write_cityjson}
+    writers: dict[str, Callable[..., ExportResult]] = {
+        ".jsonl": write_cityjsonseq,
+        ".json": write_cityjson,
+    }
     writers.update(dict.fromkeys((".gml", ".xml"), write_citygml))
     if output == STDOUT:
         writer = write_cityjsonseq
@@ -122,7 +129,7 @@ def _staged(output: Path) -> Iterator[Path]:
 def _copy_to_stdout(path: Path) -> None:
     """Copy a file to standard output; a reader that stops early (``| head``) is one error
     line, not a traceback."""
-    stream = click.get_binary_stream("stdout")
+    stream = sys.stdout.buffer  # click.get_binary_stream is deprecated (gone in Click 9)
     try:
         with open(path, "rb") as source:
             shutil.copyfileobj(source, stream, 1 << 20)

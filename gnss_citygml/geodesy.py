@@ -269,9 +269,10 @@ def to_bng(
     crs = pyproj.CRS.from_user_input(crs)
     if is_bng(crs):
         return x.copy(), y.copy()
-    crs = (crs.source_crs if crs.is_bound else crs).to_2d()
+    crs = (crs.source_crs if crs.is_bound else crs).to_2d()  # type: ignore[union-attr]  # bound: has a source
     geodetic = crs.geodetic_crs
-    datum = geodetic.datum.name if geodetic is not None and geodetic.is_geographic else None
+    frame = geodetic.datum if geodetic is not None and geodetic.is_geographic else None
+    datum = frame.name if frame is not None else None
     if datum in _ETRS89_DATUMS:
         lon, lat = _conversion(crs, geodetic).transform(x, y)
         e, n, _ = to_osgb(lat, lon, np.nan, grid_dir=grid_dir, network=network, labels=labels)
@@ -306,7 +307,7 @@ def is_bng(crs) -> bool:
     """
     crs = pyproj.CRS.from_user_input(crs)
     crs = crs.source_crs if crs.is_bound else crs
-    return crs.to_2d().to_epsg(min_confidence=70) == 27700
+    return crs.to_2d().to_epsg(min_confidence=70) == 27700  # type: ignore[union-attr]  # bound: has a source
 
 
 def meridian_convergence(lat: npt.ArrayLike, lon: npt.ArrayLike) -> np.ndarray:

@@ -19,6 +19,8 @@ path from a reader to an output is tested.
 
 from __future__ import annotations
 
+from typing import TypeVar
+
 import pandas as pd
 
 from .errors import InputError
@@ -28,19 +30,22 @@ __all__ = ["ID_FIELD", "id_field", "id_named", "source_named", "with_id_field"]
 #: The key of ``DataFrame.attrs`` holding the name of the source's id field.
 ID_FIELD = "id_field"
 
+#: A table, or a GeoDataFrame: what goes in comes out.
+Frame = TypeVar("Frame", bound=pd.DataFrame)
+
 
 def id_field(frame: pd.DataFrame) -> str:
     """The name of the source's id field of a buildings or heights table (default ``id``)."""
     return str(frame.attrs.get(ID_FIELD) or "id")
 
 
-def with_id_field(frame: pd.DataFrame, name: str) -> pd.DataFrame:
+def with_id_field(frame: Frame, name: str) -> Frame:
     """``frame`` itself, its ``attrs`` recording ``name`` as its source's id field."""
     frame.attrs[ID_FIELD] = name
     return frame
 
 
-def source_named(frame: pd.DataFrame) -> pd.DataFrame:
+def source_named(frame: Frame) -> Frame:
     """The table with its ``id`` column under the source's name (unchanged if it has no ``id``
     or the source's field is ``id``).
 
@@ -57,9 +62,7 @@ def source_named(frame: pd.DataFrame) -> pd.DataFrame:
     return frame.rename(columns={"id": name})
 
 
-def id_named(
-    frame: pd.DataFrame, name: str | None = None, *, where: str = "buildings"
-) -> pd.DataFrame:
+def id_named(frame: Frame, name: str | None = None, *, where: str = "buildings") -> Frame:
     """The table with its id column named ``id``: a column ``name`` (default: the table's
     source's id field) is renamed to ``id``; the ``attrs`` keep the name. Unchanged if the
     table has no such column.

@@ -83,8 +83,8 @@ def receivers(
     if heights.source == "dem":
         if dem is None:
             raise InputError("receiver heights from the DEM need a DEM", fix="give --dem")
-        labels = [f"receiver at lat {a:.6f} lon {b:.6f}" for a, b in zip(lat, lon, strict=True)]
-        z = sample_ground(dem, e, n, assume_crs=dem_crs, labels=labels) + heights.antenna_height
+        named = [f"receiver at lat {a:.6f} lon {b:.6f}" for a, b in zip(lat, lon, strict=True)]
+        z = sample_ground(dem, e, n, assume_crs=dem_crs, labels=named) + heights.antenna_height
     else:
         z = odn
     out = observations.copy()
@@ -142,7 +142,11 @@ def intersections(
         {
             "signal": receivers.index.to_numpy()[ray],
             # categorical: the city's ids once, not one string per row
-            "building": pd.Categorical.from_codes(fp, categories=buildings["id"].astype(str)),
+            # pandas-stubs takes only an Index for the categories; pandas, any array
+            "building": pd.Categorical.from_codes(
+                fp,
+                categories=buildings["id"].astype(str),  # type: ignore[call-overload]
+            ),
             "height": height,
             "distance": dist,
             "order": np.arange(ray.size) - start,

@@ -59,7 +59,12 @@ def footprint_entries(x, y, bearing, footprints, max_range: float = 500.0, *, gr
     rad = np.radians(np.asarray(bearing, dtype=float))
     dx, dy = np.sin(rad), np.cos(rad)
     footprints = np.asarray(footprints, dtype=object)
-    empty = (np.array([], dtype=np.intp), np.array([], dtype=np.intp), np.array([]), np.array([]))
+    empty: tuple[np.ndarray, ...] = (
+        np.array([], dtype=np.intp),
+        np.array([], dtype=np.intp),
+        np.array([]),
+        np.array([]),
+    )
     if gradient:
         empty = (*empty, np.zeros((0, 2)))
     if x.size == 0 or footprints.size == 0:

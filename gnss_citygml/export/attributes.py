@@ -10,8 +10,11 @@ CityJSON and CityGML writers spell these in their own formats.
 from __future__ import annotations
 
 import datetime as dt
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 import pandas as pd
 
 from ..errors import InputError
@@ -56,7 +59,8 @@ def attribute_values(column: pd.Series, kind: str) -> list:
         out = [None if m else v.isoformat() for v, m in zip(column, missing, strict=True)]
     else:
         missing = column.isna().to_numpy()  # elementwise: a list value is not missing
-        convert = {"int": int, "bool": bool, "string": _text}[kind]
+        converters: dict[str, Callable[[Any], object]] = {"int": int, "bool": bool, "string": _text}
+        convert = converters[kind]
         objects = column.astype(object).tolist()
         return [None if m else convert(v) for v, m in zip(objects, missing.tolist(), strict=True)]
     if missing.any():
@@ -83,7 +87,7 @@ def creation_date(date: dt.date | str | None) -> str:
     return date.isoformat() if isinstance(date, dt.date) else str(date)
 
 
-def measured_heights(ground: np.ndarray, roof: np.ndarray) -> list[float]:
+def measured_heights(ground: npt.ArrayLike, roof: npt.ArrayLike) -> list[float]:
     """roof - ground in metres, from the millimetre values the geometry uses."""
     mm = np.rint(np.asarray(roof) * 1000).astype(np.int64) - np.rint(
         np.asarray(ground) * 1000

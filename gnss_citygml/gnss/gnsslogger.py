@@ -158,7 +158,7 @@ def read_gnsslogger(path: str | Path, *, lenient: bool = False) -> GnssLog:
     split = split_lines(text, path, lenient)
     bad = list(split.bad)
     suspects = dict.fromkeys(split.garbled, "garbled")  # damaged lines that may be Raw rows
-    value_bad = set()
+    value_bad: set[int] = set()
     tables = {}
     for kind, columns in RECORDS.items():
         numbers, lines = split.records[kind]

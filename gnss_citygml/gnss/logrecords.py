@@ -186,7 +186,7 @@ def split_lines(text: str, path: Path, lenient: bool) -> _Lines:
     )
 
 
-def _check_version(text: str, path: Path, line: int, lenient: bool) -> str:
+def _check_version(text: str, path: Path, line: int | None, lenient: bool) -> str:
     """The version from the text of the ``# Version:`` line; unknown ones raise or warn."""
     if text.startswith("Not Available"):
         return "Not Available"

@@ -65,7 +65,8 @@ def read_nav(path) -> pd.DataFrame:
     lines = read_lines(path)
     version, header_end = _nav_header(lines, path)
     records = _rinex2_records if version < 3 else _rinex3_records
-    rows, skipped = [], {}
+    rows: list[dict] = []
+    skipped: dict[str, int] = {}
     for no, system, svid, epoch, values in records(lines, header_end, path, version):
         if system in KEPLER_CONSTANTS:
             toe_sow = values[3 + _KEPLER_FIELDS.index("toe_sow")]
@@ -112,7 +113,7 @@ def _nav_header(lines: list[str], path) -> tuple[float, int]:
 
 def _record_values(group: list[tuple[int, str]], first_at: int, rest_at: int, path) -> list:
     """The D19.12 numbers of a record: 3 on its first line, 4 on each continuation line."""
-    values = []
+    values: list[float] = []
     for k, (no, line) in enumerate(group):
         starts = range(first_at, first_at + 57, 19) if k == 0 else range(rest_at, rest_at + 76, 19)
         values.extend(fortran_float(line[i : i + 19], path, no) for i in starts)

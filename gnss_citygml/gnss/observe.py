@@ -103,7 +103,7 @@ def observe_log(
     cn0 = signals.groupby(key, as_index=False)["cn0"].max()  # one value per satellite
     cn0["time_utc"] = cn0["time_utc"].astype(table["time_utc"].dtype)
     out = table.merge(cn0, on=key, how="left", validate="one_to_one")
-    _warn_unplaced(log, cn0, sky, key)
+    _warn_unplaced(log, cn0, sky, key)  # type: ignore[arg-type]  # a DataFrame: as_index=False
     return out[OBSERVATION_COLUMNS]
 
 

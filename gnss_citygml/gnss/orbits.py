@@ -36,6 +36,7 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 from collections.abc import Iterable
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 import pandas as pd
@@ -283,7 +284,8 @@ class Sp3Orbits(Orbits):
         self._series = {}
         for (cons, svid), rows in good.groupby(["constellation", "svid"]):
             if len(rows) >= LAGRANGE_POINTS:
-                self._series[(cons, int(svid))] = (
+                # pandas-stubs types the keys of a groupby as Hashable
+                self._series[(cons, int(svid))] = (  # type: ignore[call-overload]
                     rows["t"].to_numpy(),
                     rows[["x", "y", "z"]].to_numpy(),
                 )
@@ -333,10 +335,11 @@ class BroadcastOrbits(Orbits):
             omega_e=consts[:, 1],
             geo=(cons == "C") & ((table["svid"] <= 5) | (table["svid"] >= 59)).to_numpy(),
         )
-        self._rows = {
-            (c, int(s)): rows.to_numpy()
-            for (c, s), rows in table.groupby(["constellation", "svid"]).groups.items()
-        }
+        # pandas-stubs types the keys of a groupby as Hashable
+        groups = cast(
+            dict[tuple[str, int], pd.Index], table.groupby(["constellation", "svid"]).groups
+        )
+        self._rows = {(c, int(s)): rows.to_numpy() for (c, s), rows in groups.items()}
 
     def _satellites(self):
         return self._rows.keys()

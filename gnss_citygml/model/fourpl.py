@@ -26,6 +26,7 @@ transition itself and the samples with precise ``x`` pin ``c`` and ``b`` more th
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 from scipy.special import expit
@@ -244,19 +245,23 @@ def fit_4pl(
     return FourPLFit(a, b, c, d, ll, converged & ~empty, n_iter, separable)
 
 
+#: The samples' x, y, w, g and v of :func:`_evaluate`.
+_Samples = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+
+
 class _ActiveRows:
     """The samples of the groups still iterating, compacted whenever they fall to half, so
     that a few slow groups cost their own rows per iteration, not the whole dataset's."""
 
     def __init__(self, x, y, w, g, v, active):
-        self.arrays = (x, y, w, g, v)
+        self.arrays: _Samples = (x, y, w, g, v)
         self.shrink(active)
 
-    def shrink(self, active):
+    def shrink(self, active: np.ndarray) -> _Samples:
         g = self.arrays[3]
         keep = active[g]
         if keep.sum() <= 0.5 * g.size:
-            self.arrays = tuple(v[keep] for v in self.arrays)
+            self.arrays = cast(_Samples, tuple(v[keep] for v in self.arrays))
         return self.arrays
 
 

@@ -45,7 +45,7 @@ class Session:
     receiver: str
     start: float  # s after the scene epoch
     duration: float  # s
-    path: tuple[tuple[float, float], ...]
+    path: tuple[tuple[float, ...], ...]  # (x, y) points
     walking: bool = False
 
 

@@ -182,7 +182,8 @@ def _syntax_errors(path: Path) -> list[Issue]:
     is ever read, no entity expanded, nothing loaded from the network; an entity reference left
     unexpanded would be validated as if it were not there, so the file is refused whole, at its
     document type declaration, before the parser reads the DTD."""
-    parser = etree.XMLParser(target=_NoTree(), **_xml_parser_options())
+    # types-lxml wants a target with every method of its ParserTarget; lxml calls those it has
+    parser = etree.XMLParser(target=_NoTree(), **_xml_parser_options())  # type: ignore[call-overload]
     try:
         etree.parse(str(path), parser)
         fatal = None
@@ -202,7 +203,7 @@ def _syntax_errors(path: Path) -> list[Issue]:
                 break  # what libxml2 says after it, on the same spot, follows from it
     if isinstance(fatal, OSError) and not issues:
         raise InputError(f"cannot read the file ({fatal})", where=str(path), fix="check it")
-    if fatal is not None and not issues:  # not expected: libxml2 logs what it raises
+    if isinstance(fatal, etree.XMLSyntaxError) and not issues:  # not expected: libxml2 logs it
         line, column = fatal.position or (0, 0)
         issues = [_syntax_issue(line, column, re.sub(r", line \d+, column \d+$", "", fatal.msg))]
     return issues

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import re
+from typing import Any, TypeGuard
 
 import numpy as np
 
@@ -60,8 +61,8 @@ class CityJSONRules:
     def __init__(self, header: dict, report: Report):
         self.version = header.get("version")
         transform = header.get("transform")
-        self.scale = np.ones(3)
-        self.translate = np.zeros(3)
+        self.scale: np.ndarray = np.ones(3)
+        self.translate: np.ndarray = np.zeros(3)
         if _is_transform(transform):
             self.scale = np.array(transform["scale"], dtype=float)
             self.translate = np.array(transform["translate"], dtype=float)
@@ -247,7 +248,7 @@ class CityJSONRules:
                 issues.append(
                     Issue(key, "lod", where + f"{kind}: lod {lod!r} is not a string like '2.2'")
                 )
-        boundaries = geometry.get("boundaries")
+        boundaries: Any = geometry.get("boundaries")  # JSON, checked by _flatten
         leaves, problem = _flatten(boundaries, depth)
         if problem:
             return issues + [Issue(key, "boundaries", where + f"{label}: {problem}")]
@@ -350,11 +351,11 @@ def _array_or_empty(value) -> list:
     return value if isinstance(value, list) else []
 
 
-def _is_transform(transform) -> bool:
+def _is_transform(transform) -> TypeGuard[dict]:
     """Whether ``transform`` has scale and translate, 3 finite numbers each, scale non-zero."""
     if not isinstance(transform, dict):
         return False
-    parts = [transform.get("scale"), transform.get("translate")]
+    parts: list[Any] = [transform.get("scale"), transform.get("translate")]
     if not all(isinstance(p, list) and len(p) == 3 for p in parts):
         return False
     if not all(isinstance(v, int | float) and not isinstance(v, bool) for p in parts for v in p):

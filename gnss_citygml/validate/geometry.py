@@ -199,7 +199,7 @@ class _Geometry:
         keep[end[closed]] = False
         return points[keep], sizes - closed
 
-    def _report(self, shell: int, rule: str, text: str) -> None:
+    def _report(self, shell: int | np.integer, rule: str, text: str) -> None:
         meta = self.meta[shell]
         self.issues.append(Issue(meta.object_id, rule, f"{meta.label}: {text}"))
 
@@ -211,10 +211,10 @@ class _Geometry:
         """Rings with fewer than 3 points or repeated consecutive points."""
         few = self.sizes < 3
         step = np.linalg.norm(self.q[self.following] - self.q, axis=1)
-        repeated = np.bincount(
+        repeats = np.bincount(
             self.point_ring, weights=step < SNAP_TOLERANCE, minlength=len(self.sizes)
         )
-        repeated = (repeated > 0) & ~few
+        repeated = (repeats > 0) & ~few
         for ring in np.flatnonzero(few):
             self._report(
                 self.ring_shell[ring],

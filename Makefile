@@ -15,6 +15,7 @@ $(STAMP): pyproject.toml
 lint: $(STAMP)
 	$(BIN)/ruff check gnss_citygml tests benchmarks
 	$(BIN)/ruff format --check gnss_citygml tests benchmarks
+	$(BIN)/mypy gnss_citygml
 
 test: lint
 	$(BIN)/python -m pytest
@@ -41,4 +42,4 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/startup.py
 
 clean:
-	rm -rf $(VENV) demo-out .pytest_cache .ruff_cache build *.egg-info
+	rm -rf $(VENV) demo-out .pytest_cache .ruff_cache .mypy_cache build *.egg-info

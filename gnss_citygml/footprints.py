@@ -50,7 +50,7 @@ from pandas.api.types import is_list_like
 from .errors import InputError, MissingColumnError, first_line, listing
 from .geodesy import CrsError, OutsideExtentError, is_bng, to_bng
 from .ids import with_id_field
-from .paths import input_file
+from .paths import StrPath, input_file
 
 __all__ = ["check_polygonal", "read_footprints"]
 
@@ -65,7 +65,13 @@ _MASTERMAP_NAMESPACES = (
 _GML_MARKERS = (b"opengis.net/gml", b"<csw:GetRecordsResponse")
 
 
-def read_footprints(path, *, layer: str | None = None, id_field: str | None = None, grid_dir=None):
+def read_footprints(
+    path: StrPath,
+    *,
+    layer: str | None = None,
+    id_field: str | None = None,
+    grid_dir: StrPath | None = None,
+) -> gpd.GeoDataFrame:
     """Read building footprints as the *buildings* table (without ``ground``).
 
     Parameters

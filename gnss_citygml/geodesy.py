@@ -51,6 +51,7 @@ import os
 import urllib.request
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any, TypeAlias
 
 import numpy as np
 import numpy.typing as npt
@@ -70,6 +71,7 @@ __all__ = [
     "GRID_DIR_ENV",
     "OSGB_ODN",
     "CrsError",
+    "CrsInput",
     "GridError",
     "OutsideExtentError",
     "fetch_grids",
@@ -86,6 +88,9 @@ __all__ = [
 ETRS89 = "EPSG:4937"
 #: OSGB36 / British National Grid + ODN height.
 OSGB_ODN = "EPSG:7405"
+#: A CRS as :meth:`pyproj.crs.CRS.from_user_input` takes it (a ``pyproj.CRS``, ``"EPSG:4326"``,
+#: ``4326``, WKT, a PROJ string...), which pyproj types as Any.
+CrsInput: TypeAlias = Any
 #: Environment variable naming a folder that holds the grids.
 GRID_DIR_ENV = "GNSS_CITYGML_GRID_DIR"
 #: The PROJ grids the transformation needs, with what each is for.
@@ -224,7 +229,7 @@ def from_osgb(
 def to_bng(
     x: npt.ArrayLike,
     y: npt.ArrayLike,
-    crs,
+    crs: CrsInput,
     *,
     grid_dir: str | os.PathLike | None = None,
     network: bool = False,
@@ -292,7 +297,7 @@ def to_bng(
     )
 
 
-def is_bng(crs) -> bool:
+def is_bng(crs: CrsInput) -> bool:
     """Whether a CRS is British National Grid (alone, with a vertical CRS, or bound to WGS 84).
 
     Parameters

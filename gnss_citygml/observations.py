@@ -23,6 +23,7 @@ import pandas as pd
 
 from .contracts import OBSERVATIONS, load, types
 from .errors import InputError, MissingColumnError
+from .paths import StrPath
 from .tables import read_table, write_table
 
 __all__ = [
@@ -61,7 +62,7 @@ _RANGES = {
 }
 
 
-def read_observations(path) -> pd.DataFrame:
+def read_observations(path: StrPath) -> pd.DataFrame:
     """Read an observations table (CSV or Parquet) and check it (:func:`check_observations`).
 
     Errors name the file and, for bad values, the line of the CSV file (or the Parquet row).
@@ -94,7 +95,7 @@ def _csv_line(path, row: int) -> int | None:
     return None
 
 
-def write_observations(table: pd.DataFrame, path, *, overwrite: bool = True) -> None:
+def write_observations(table: pd.DataFrame, path: StrPath, *, overwrite: bool = True) -> None:
     """Write an observations table (CSV or Parquet by suffix), atomically."""
     write_table(check_observations(table, where="observations to write"), path, overwrite=overwrite)
 

@@ -16,14 +16,19 @@ import re
 import secrets
 import shutil
 import socket
+from collections.abc import Iterator
 from pathlib import Path
+from typing import TypeAlias
 
 from .errors import InputError
 
-__all__ = ["atomic_path", "check_output", "input_file", "stale_parts"]
+__all__ = ["StrPath", "atomic_path", "check_output", "input_file", "stale_parts"]
+
+#: A file or folder a caller names: a string or any path-like object (:class:`~pathlib.Path`).
+StrPath: TypeAlias = str | os.PathLike[str]
 
 
-def input_file(path, what: str = "file") -> Path:
+def input_file(path: StrPath, what: str = "file") -> Path:
     """``path`` as a :class:`~pathlib.Path` if it is a readable file, else an :class:`InputError`.
 
     ``what`` names the file in the message (``"orbit file"``, ``"footprint file"``...).
@@ -45,7 +50,13 @@ def input_file(path, what: str = "file") -> Path:
     return path
 
 
-def check_output(path, *, overwrite: bool, suffixes=None, exists_ok: bool = False) -> Path:
+def check_output(
+    path: StrPath,
+    *,
+    overwrite: bool,
+    suffixes: tuple[str, ...] | None = None,
+    exists_ok: bool = False,
+) -> Path:
     """Check that ``path`` can be written, before the work that makes it starts.
 
     Parameters
@@ -104,7 +115,7 @@ def _part_prefix(path: Path) -> str:
     return f".{path.name}.part-"
 
 
-def stale_parts(path) -> list[Path]:
+def stale_parts(path: StrPath) -> list[Path]:
     """Temporary files of ``path`` left by killed runs of this machine whose process is gone.
 
     A temporary file is named ``.NAME.part-HOST-PID-RANDOM.SUFFIX`` so that a later run can
@@ -133,7 +144,7 @@ def _alive(pid: int) -> bool:
 
 
 @contextlib.contextmanager
-def atomic_path(path, *, overwrite: bool = True, update: bool = False):
+def atomic_path(path: StrPath, *, overwrite: bool = True, update: bool = False) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; put it in place of ``path`` if the block succeeds.
 
     Parameters
@@ -193,7 +204,7 @@ def atomic_path(path, *, overwrite: bool = True, update: bool = False):
             os.unlink(tmp)
 
 
-def _identity(path: Path):
+def _identity(path: Path) -> tuple[int, int, int, int, int] | None:
     """(device, inode, mtime, mode, size) of ``path``, or None if there is none."""
     try:
         st = os.stat(path)

@@ -9,13 +9,17 @@ every other layer (and the styles table) of the file is kept."""
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
 
 from .errors import InputError, first_line
 from .ids import source_named
-from .paths import atomic_path, check_output, input_file
+from .paths import StrPath, atomic_path, check_output, input_file
+
+if TYPE_CHECKING:
+    import geopandas as gpd
 
 __all__ = [
     "LAYER_FORMATS",
@@ -30,7 +34,7 @@ __all__ = [
 LAYER_FORMATS = {".gpkg": "GPKG", ".fgb": "FlatGeobuf", ".parquet": "GeoParquet"}
 
 
-def read_table(path) -> pd.DataFrame:
+def read_table(path: StrPath) -> pd.DataFrame:
     """Read a CSV or Parquet table, with a one-line error for a missing or unreadable file."""
     path = input_file(path)
     suffix = _suffix(path)
@@ -62,13 +66,13 @@ def _suffix(path: Path) -> str:
     return suffix
 
 
-def check_table_output(path, *, overwrite: bool) -> Path:
+def check_table_output(path: StrPath, *, overwrite: bool) -> Path:
     """Check, before the work starts, that a table can be written to ``path`` (CSV, Parquet)."""
     _suffix(Path(path))
     return check_output(path, overwrite=overwrite)
 
 
-def write_table(table: pd.DataFrame, path, *, overwrite: bool = True) -> None:
+def write_table(table: pd.DataFrame, path: StrPath, *, overwrite: bool = True) -> None:
     """Write a table as CSV or Parquet (by the file's suffix), atomically."""
     suffix = _suffix(Path(path))
     with atomic_path(path, overwrite=overwrite) as tmp:
@@ -78,7 +82,7 @@ def write_table(table: pd.DataFrame, path, *, overwrite: bool = True) -> None:
             table.to_parquet(tmp, index=False)
 
 
-def check_layer_output(path, layer: str, *, overwrite: bool) -> Path:
+def check_layer_output(path: StrPath, layer: str, *, overwrite: bool) -> Path:
     """Check, before the work starts, that ``layer`` can be written to ``path``.
 
     The suffix names the format (:data:`LAYER_FORMATS`); a Shapefile is refused, since it cuts
@@ -119,7 +123,9 @@ def _layers(path: Path) -> list[str]:
         ) from None
 
 
-def write_layer(frame, path, layer: str, *, overwrite: bool = True) -> None:
+def write_layer(
+    frame: gpd.GeoDataFrame, path: StrPath, layer: str, *, overwrite: bool = True
+) -> None:
     """Write a GeoDataFrame as ``layer`` of ``path``, atomically, in the format its suffix names.
 
     GeoPackage (``.gpkg``): an existing file keeps its other layers and styles and ``layer`` is
@@ -130,7 +136,7 @@ def write_layer(frame, path, layer: str, *, overwrite: bool = True) -> None:
     (e.g. ``toid``; :func:`gnss_citygml.ids.source_named`)."""
     path = check_layer_output(path, layer, overwrite=overwrite)
     out = source_named(frame).copy()
-    for column in out.columns.drop(out.geometry.name):
+    for column in out.columns.drop([out.geometry.name]):
         if out[column].map(lambda v: isinstance(v, list | tuple | np.ndarray)).any():
             out[column] = out[column].map(
                 lambda v: "|".join(map(str, v)) if isinstance(v, list | tuple | np.ndarray) else v

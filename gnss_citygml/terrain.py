@@ -21,9 +21,11 @@ from __future__ import annotations
 import contextlib
 import os
 from collections.abc import Iterator, Sequence
+from typing import TypeAlias
 
 import geopandas as gpd
 import numpy as np
+import numpy.typing as npt
 import rasterio
 import rasterio.features
 import shapely
@@ -33,15 +35,20 @@ from rasterio.windows import Window
 
 from .errors import InputError, MissingColumnError, first_line, listing
 from .footprints import check_polygonal
-from .geodesy import is_bng
+from .geodesy import CrsInput, is_bng
+from .paths import StrPath
 
 __all__ = [
     "STATISTICS",
+    "Dem",
     "DemCoverageError",
     "building_ground",
     "sample_ground",
 ]
 
+#: A DEM: a raster path rasterio opens (also ``"zip://tiles.zip!/NG33.asc"``, as a str) or an
+#: open dataset.
+Dem: TypeAlias = StrPath | DatasetReader
 #: The ground statistics :func:`building_ground` offers.
 STATISTICS = ("median", "min", "mean")
 #: Side (cells) of the DEM blocks read at once.
@@ -170,7 +177,13 @@ def _bilinear(ds: DatasetReader, band: int, x: np.ndarray, y: np.ndarray):
 
 
 def sample_ground(
-    dem, e, n, *, assume_crs=None, band: int = 1, labels: Sequence | None = None
+    dem: Dem,
+    e: npt.ArrayLike,
+    n: npt.ArrayLike,
+    *,
+    assume_crs: CrsInput | None = None,
+    band: int = 1,
+    labels: Sequence | None = None,
 ) -> np.ndarray:
     """Ground heights at points by bilinear interpolation of a DEM.
 
@@ -242,10 +255,10 @@ def sample_ground(
 
 def building_ground(
     buildings: gpd.GeoDataFrame,
-    dem,
+    dem: Dem,
     statistic: str = "median",
     *,
-    assume_crs=None,
+    assume_crs: CrsInput | None = None,
     band: int = 1,
 ) -> gpd.GeoDataFrame:
     """The buildings with their ``ground`` height: a statistic of the DEM under each footprint.

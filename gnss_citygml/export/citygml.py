@@ -31,8 +31,10 @@ vertex and gluing the texts in Python gave 18,000.
 
 from __future__ import annotations
 
+import datetime as dt
 import re
 import warnings
+from collections.abc import Iterable
 from xml.sax.saxutils import escape
 
 import geopandas as gpd
@@ -41,7 +43,7 @@ import pandas as pd
 from lxml import etree
 
 from ..errors import InputError, listing
-from ..paths import atomic_path
+from ..paths import StrPath, atomic_path
 from .attributes import attribute_columns, attribute_values, creation_date, measured_heights
 from .output import ExportResult, Progress, validated_output
 from .plan import CHECK_CHUNK, Plan, chunks, hash_texts, prepare_buildings, repeated_positions
@@ -79,7 +81,7 @@ _ELEMENT = {"int": "intAttribute", "double": "doubleAttribute"}
 _RESERVED = ("measuredHeight", "creationDate")
 
 
-def gml_ids(ids) -> tuple[list[str], list[bool]]:
+def gml_ids(ids: Iterable[str]) -> tuple[list[str], list[bool]]:
     """Valid ``gml:id`` s (NCNames) for building ids, and whether each was changed.
 
     Examples
@@ -101,13 +103,13 @@ def gml_ids(ids) -> tuple[list[str], list[bool]]:
 
 def write_citygml(
     buildings: gpd.GeoDataFrame,
-    path,
+    path: StrPath,
     *,
     validate: bool = True,
-    schema_dir=None,
+    schema_dir: StrPath | None = None,
     overwrite: bool = False,
     strict: bool = False,
-    date=None,
+    date: dt.date | str | None = None,
     progress: Progress | None = None,
 ) -> ExportResult:
     """Write the buildings as a CityGML 2.0 file of LOD1 solids.

@@ -32,6 +32,7 @@ chunk by chunk: memory does not grow with the number of buildings.
 from __future__ import annotations
 
 import json
+from typing import TYPE_CHECKING
 
 import geopandas as gpd
 import numpy as np
@@ -44,6 +45,11 @@ from .attributes import attribute_columns, attribute_values, creation_date, meas
 from .output import ExportResult, Progress, validated_output
 from .plan import CHUNK, booleans, chunks, prepare_buildings
 from .prisms import SCALE, SURFACES, Prisms, extrude, part_ids
+
+if TYPE_CHECKING:
+    import datetime as dt
+
+    from ..paths import StrPath
 
 __all__ = ["CRS_URL", "VERSION", "write_cityjson", "write_cityjsonseq"]
 
@@ -66,13 +72,13 @@ _TYPED = {
 
 def write_cityjson(
     buildings: gpd.GeoDataFrame,
-    path,
+    path: StrPath,
     *,
     validate: bool = True,
-    schema_dir=None,
+    schema_dir: StrPath | None = None,
     overwrite: bool = False,
     strict: bool = False,
-    date=None,
+    date: dt.date | str | None = None,
     title: str | None = None,
     progress: Progress | None = None,
     typed_attributes: bool = False,
@@ -171,13 +177,13 @@ def write_cityjson(
 
 def write_cityjsonseq(
     buildings: gpd.GeoDataFrame,
-    path,
+    path: StrPath,
     *,
     validate: bool = True,
-    schema_dir=None,
+    schema_dir: StrPath | None = None,
     overwrite: bool = False,
     strict: bool = False,
-    date=None,
+    date: dt.date | str | None = None,
     title: str | None = None,
     progress: Progress | None = None,
     typed_attributes: bool = False,

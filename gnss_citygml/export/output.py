@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import pandas as pd
 
 from ..errors import GnssCityGMLError
+from ..paths import StrPath
 from ..validate import Report, validate_file
 
 __all__ = ["ExportResult", "InvalidOutputError", "Progress", "validated_output"]
@@ -47,7 +48,9 @@ class ExportResult:
     report: Report | None = None
 
 
-def validated_output(tmp, path, validate: bool, schema_dir) -> Report | None:
+def validated_output(
+    tmp: StrPath, path: StrPath, validate: bool, schema_dir: StrPath | None
+) -> Report | None:
     """The validation report of a file just written to ``tmp``; raise if it is invalid."""
     if not validate:
         return None

@@ -24,7 +24,7 @@ Rules
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 
 import geopandas as gpd
 import numpy as np
@@ -35,6 +35,7 @@ from ..contracts import HEIGHTS, load
 from ..errors import InputError, MissingColumnError, listing
 from ..geodesy import is_bng
 from ..ids import id_field, id_named, with_id_field
+from ..paths import StrPath
 from ..validate import Report
 from .output import ExportResult
 from .prisms import part_ids, snap_footprints
@@ -265,7 +266,7 @@ class Plan:
         """(min e, min n, min ground, max e, max n, max roof) of the buildings, in mm."""
         return np.rint(self._bounds * 1000).astype(np.int64)
 
-    def result(self, path, report: Report | None) -> ExportResult:
+    def result(self, path: StrPath, report: Report | None) -> ExportResult:
         """What was written; an error if nothing was."""
         if not self.written:
             raise InputError(
@@ -491,7 +492,7 @@ def booleans(column: pd.Series, name: str, frame: pd.DataFrame) -> pd.Series:
     return out
 
 
-def hash_texts(texts) -> np.ndarray:
+def hash_texts(texts: Sequence[str] | np.ndarray) -> np.ndarray:
     """A 64-bit hash of each of a sequence of texts (Python's: comparable within a process)."""
     return np.fromiter(map(hash, texts), dtype=np.int64, count=len(texts))
 

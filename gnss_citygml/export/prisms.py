@@ -25,9 +25,11 @@ Rules
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 import shapely
 
 __all__ = ["SCALE", "SURFACES", "Prisms", "extrude", "part_ids", "snap_footprints"]
@@ -93,7 +95,7 @@ class Prisms:
         )
 
 
-def snap_footprints(footprints) -> np.ndarray:
+def snap_footprints(footprints: npt.ArrayLike) -> np.ndarray:
     """Footprints on the 1 mm grid, valid, oriented, without repeated points.
 
     Parameters
@@ -120,7 +122,13 @@ def snap_footprints(footprints) -> np.ndarray:
     return shapely.orient_polygons(shapely.remove_repeated_points(snapped, 0.0))
 
 
-def extrude(footprints, ground, roof, *, numbering: str = "building") -> Prisms:
+def extrude(
+    footprints: npt.ArrayLike,
+    ground: npt.ArrayLike,
+    roof: npt.ArrayLike,
+    *,
+    numbering: str = "building",
+) -> Prisms:
     """Extrude footprints into LOD1 solids with outward faces and shared vertices.
 
     Parameters
@@ -233,7 +241,7 @@ def _ragged_take(values: np.ndarray, starts: np.ndarray, sizes: np.ndarray) -> n
     return values[np.repeat(starts - offsets, sizes) + np.arange(sizes.sum())]
 
 
-def part_ids(ids, footprints) -> list[list[str]]:
+def part_ids(ids: Iterable[str], footprints: npt.ArrayLike) -> list[list[str]]:
     """Per building, the ids of its parts (``<id>-1``, ...; none for a single polygon)."""
     geoms = np.asarray(footprints, dtype=object)
     counts = np.where(shapely.get_type_id(geoms) == 3, 0, shapely.get_num_geometries(geoms))

@@ -28,7 +28,7 @@ passes. No DTD is read, no XML entity expanded, nothing fetched from the network
 from __future__ import annotations
 
 from ..errors import InputError
-from ..paths import input_file
+from ..paths import StrPath, input_file
 from .citygml import validate_citygml
 from .cityjson import validate_cityjson
 from .geometry import PLANARITY_TOLERANCE, SNAP_TOLERANCE
@@ -45,7 +45,7 @@ __all__ = [
 ]
 
 
-def validate_file(path, *, schema_dir=None) -> Report:
+def validate_file(path: StrPath, *, schema_dir: StrPath | None = None) -> Report:
     """Validate a CityGML 2.0, CityJSON or CityJSONSeq file.
 
     Parameters

@@ -34,7 +34,7 @@ def _local(element) -> str:
     return element.tag.rpartition("}")[2]
 
 
-def gml_solids(member, shells: Shells) -> list[Issue]:
+def gml_solids(member: etree._Element, shells: Shells) -> list[Issue]:
     """Add the solids of one city object member to ``shells``; problems reading them."""
     problems: list[Issue] = []
     lookup: dict[str, etree._Element] | None = None
@@ -42,8 +42,7 @@ def gml_solids(member, shells: Shells) -> list[Issue]:
         owner = _owner(solid, member)
         parent = solid.getparent()
         group = None
-        if parent is not None and parent.getparent() is not None:
-            composite = parent.getparent()
+        if parent is not None and (composite := parent.getparent()) is not None:
             if composite.tag == _COMPOSITE_SOLID:
                 group = f"CompositeSolid (line {composite.sourceline})"
         label = f"{_property(solid)} Solid (line {solid.sourceline})"
@@ -58,7 +57,7 @@ def gml_solids(member, shells: Shells) -> list[Issue]:
                         faces = _gml_plain_faces(surface)
                     else:
                         if lookup is None:
-                            lookup = {e.get(GML_ID): e for e in member.iter() if e.get(GML_ID)}
+                            lookup = {i: e for e in member.iter() if (i := e.get(GML_ID))}
                         faces = _gml_faces(surface, lookup, reverse=False)
             except _GmlProblem as exc:
                 problems.append(Issue(owner, exc.rule, f"{label}: {exc}"))

@@ -111,7 +111,9 @@ def _schema_message(error, prefix: str = "") -> str:
     return f"{path}: {text}"
 
 
-def json_schema(schema_dir: Path | None, version, kind: str, report: Report):
+def json_schema(
+    schema_dir: Path | None, version: object, kind: str, report: Report
+) -> _JsonSchema | None:
     """The schema of this CityJSON version found under ``schema_dir`` (None: a note says why)."""
     if schema_dir is None:
         report.notes.append(f"JSON Schema check left out: no schema folder (${SCHEMA_DIR_ENV})")

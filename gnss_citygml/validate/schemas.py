@@ -7,6 +7,7 @@ import re
 from pathlib import Path
 
 from ..errors import InputError
+from ..paths import StrPath
 
 __all__ = ["SCHEMA_DIR_ENV", "citygml_schema_folder", "cityjson_schema_file", "schema_folder"]
 
@@ -14,7 +15,7 @@ __all__ = ["SCHEMA_DIR_ENV", "citygml_schema_folder", "cityjson_schema_file", "s
 SCHEMA_DIR_ENV = "GNSS_CITYGML_SCHEMA_DIR"
 
 
-def schema_folder(schema_dir) -> Path | None:
+def schema_folder(schema_dir: StrPath | None) -> Path | None:
     """The schema folder given, else ``$GNSS_CITYGML_SCHEMA_DIR`` (None if neither)."""
     if schema_dir is None:
         schema_dir = os.environ.get(SCHEMA_DIR_ENV) or None

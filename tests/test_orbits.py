@@ -93,6 +93,22 @@ def test_healthy_ephemeris_is_preferred(orbits_dir):
     assert len(everyone) == len(sats) + 2 * evening.size
 
 
+class _PathLike:
+    """An ``os.PathLike`` that is neither a str nor a Path (as ``os.DirEntry`` is)."""
+
+    def __init__(self, path):
+        self.path = path
+
+    def __fspath__(self):
+        return str(self.path)
+
+
+def test_one_path_of_any_path_like_kind(orbits_dir):
+    """One path-like is one file, as a str or a Path is (it used to be iterated, a TypeError)."""
+    orbits = load_orbits(_PathLike(orbits_dir / "brdc1190.21n"))
+    assert orbits.source == "broadcast" and orbits.paths == (orbits_dir / "brdc1190.21n",)
+
+
 def test_unknown_satellite_gives_nan_rows(orbits_dir):
     orbits = load_orbits(orbits_dir / "brdc1190.21n")
     times = pd.date_range("2021-04-29 22:00", periods=3, freq="min")

@@ -57,6 +57,7 @@ from gnss_citygml.errors import InputError, listing
 from gnss_citygml.gnss.gpstime import NAT_NS, utc_ns
 from gnss_citygml.gnss.logrecords import INT_PATTERN, RECORDS, parse_records, split_lines
 from gnss_citygml.gnss.measurements import cut_line_epoch, fix_table, raw_signals, status_table
+from gnss_citygml.paths import StrPath
 
 __all__ = ["GnssLog", "read_gnsslogger"]
 
@@ -120,7 +121,7 @@ class GnssLog:
         )
 
 
-def read_gnsslogger(path: str | Path, *, lenient: bool = False) -> GnssLog:
+def read_gnsslogger(path: StrPath, *, lenient: bool = False) -> GnssLog:
     """Read an Android GnssLogger text log (version 1.4 to 3.x).
 
     Parameters

@@ -14,7 +14,11 @@ row to :data:`LEAP_SECONDS`.
 
 from __future__ import annotations
 
+import datetime
+from typing import TypeAlias
+
 import numpy as np
+import numpy.typing as npt
 import pandas as pd
 
 from gnss_citygml.errors import InputError
@@ -25,6 +29,7 @@ __all__ = [
     "LEAP_SECONDS",
     "NAT_NS",
     "NS_PER_S",
+    "Times",
     "gps_minus_utc",
     "gps_seconds",
     "gps_to_utc",
@@ -32,6 +37,10 @@ __all__ = [
     "utc_ns",
     "utc_to_gps",
 ]
+
+#: Times as the functions here take them: a scalar (``datetime64``, ``pandas.Timestamp``, a
+#: string pandas parses), a list, a numpy array, a pandas Series or Index.
+Times: TypeAlias = npt.ArrayLike | datetime.datetime
 
 #: Nanoseconds per second: the unit of the ``datetime64[ns]`` times.
 NS_PER_S = 1_000_000_000
@@ -71,7 +80,7 @@ _OFFSETS = np.array([s for _, s in LEAP_SECONDS], dtype=np.int64)
 _STARTS_GPS = _STARTS_UTC + _OFFSETS.astype("timedelta64[s]")
 
 
-def to_datetime64(times) -> np.ndarray:
+def to_datetime64(times: Times) -> np.ndarray:
     """Times as a naive ``datetime64[ns]`` array; time-zone aware input is converted to UTC.
 
     Accepts a scalar, a list, a numpy ``datetime64`` array or a pandas Series / Index /
@@ -82,14 +91,14 @@ def to_datetime64(times) -> np.ndarray:
     >>> to_datetime64(pd.Timestamp("2021-04-29 22:35", tz="Europe/London"))
     array(['2021-04-29T21:35:00.000000000'], dtype='datetime64[ns]')
     """
-    if np.ndim(times) == 0:
+    if isinstance(times, datetime.datetime) or np.ndim(times) == 0:
         times = [times]
     dtype = times.dtype if hasattr(times, "dtype") else np.asarray(times).dtype
     if dtype.kind in "iufb":
         raise InputError(
             "times are numbers, not dates", fix="pass datetime64 values or pandas Timestamps"
         )
-    index = pd.DatetimeIndex(times)
+    index = pd.DatetimeIndex(times)  # type: ignore[arg-type]  # pandas-stubs: not any array
     if index.tz is not None:
         index = index.tz_convert("UTC").tz_localize(None)
     return index.as_unit("ns").to_numpy()
@@ -99,7 +108,7 @@ def to_datetime64(times) -> np.ndarray:
 NAT_NS = np.iinfo(np.int64).min
 
 
-def utc_ns(times) -> np.ndarray:
+def utc_ns(times: Times) -> np.ndarray:
     """UTC times -> int64 ns since 1970 (:data:`NAT_NS` for NaT).
 
     The log reader and the receiver positions compare and search times as these integers.
@@ -109,7 +118,7 @@ def utc_ns(times) -> np.ndarray:
     >>> utc_ns(pd.to_datetime(["1970-01-01 00:00:01", None], utc=True)).tolist()
     [1000000000, -9223372036854775808]
     """
-    return pd.DatetimeIndex(times).as_unit("ns").asi8
+    return pd.DatetimeIndex(times).as_unit("ns").asi8  # type: ignore[arg-type]  # as above
 
 
 def _table_index(times: np.ndarray, starts: np.ndarray, scale: str) -> np.ndarray:
@@ -123,7 +132,7 @@ def _table_index(times: np.ndarray, starts: np.ndarray, scale: str) -> np.ndarra
     return np.searchsorted(starts, times, side="right") - 1
 
 
-def gps_minus_utc(times_utc) -> np.ndarray:
+def gps_minus_utc(times_utc: Times) -> np.ndarray:
     """GPS - UTC (leap seconds, s) at UTC times.
 
     Examples
@@ -135,7 +144,7 @@ def gps_minus_utc(times_utc) -> np.ndarray:
     return _OFFSETS[_table_index(times, _STARTS_UTC, "UTC")]
 
 
-def utc_to_gps(times_utc) -> np.ndarray:
+def utc_to_gps(times_utc: Times) -> np.ndarray:
     """UTC times as GPS times (naive ``datetime64[ns]``).
 
     Examples
@@ -147,7 +156,7 @@ def utc_to_gps(times_utc) -> np.ndarray:
     return times + (gps_minus_utc(times) * NS_PER_S).astype("timedelta64[ns]")
 
 
-def gps_to_utc(times_gps) -> np.ndarray:
+def gps_to_utc(times_gps: Times) -> np.ndarray:
     """GPS times (naive ``datetime64[ns]``, or int nanoseconds since :data:`GPS_EPOCH`) as UTC.
 
     Integer input is what Android reports: ``TimeNanos - (FullBiasNanos + BiasNanos)``.
@@ -168,7 +177,7 @@ def gps_to_utc(times_gps) -> np.ndarray:
     return times - (offsets * NS_PER_S).astype("timedelta64[ns]")
 
 
-def gps_seconds(times_gps) -> np.ndarray:
+def gps_seconds(times_gps: Times) -> np.ndarray:
     """GPS times (naive ``datetime64``) as float seconds since :data:`GPS_EPOCH`.
 
     Float64 seconds resolve about 0.2 microseconds today: sub-millimetre for a satellite.

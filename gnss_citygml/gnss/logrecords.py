@@ -16,6 +16,7 @@ import csv
 import io
 import re
 import warnings
+from collections.abc import Sequence
 from pathlib import Path
 from typing import NamedTuple
 
@@ -23,6 +24,7 @@ import numpy as np
 import pandas as pd
 
 from gnss_citygml.errors import InputError, MissingColumnError
+from gnss_citygml.paths import StrPath
 
 __all__ = ["INT_PATTERN", "RECORDS", "parse_records", "split_lines"]
 
@@ -206,7 +208,14 @@ def _check_version(text: str, path: Path, line: int | None, lenient: bool) -> st
     return version
 
 
-def parse_records(kind, header, numbers, lines, columns, path):
+def parse_records(
+    kind: str,
+    header: tuple[int, list[str]] | None,
+    numbers: Sequence[int],
+    lines: list[str],
+    columns: dict[str, _Column],
+    path: StrPath,
+) -> tuple[pd.DataFrame, list[tuple[int, str]]]:
     """The needed columns of one record type as numbers; returns (table, bad lines)."""
     if header is None:  # no header and no records of this type
         names = [col.names[0] for col in columns.values()]

@@ -71,7 +71,9 @@ _BANDS = (
 )
 
 
-def raw_signals(table: pd.DataFrame, numbers: np.ndarray):
+def raw_signals(
+    table: pd.DataFrame, numbers: np.ndarray
+) -> tuple[pd.DataFrame, list[tuple[int, str]]]:
     """Raw rows -> (signals with the ``reason`` to drop them, "" to keep; bad lines with
     impossible times)."""
     time_nanos, full_bias = table["time_nanos"].to_numpy(), table["full_bias"].to_numpy()

@@ -25,6 +25,7 @@ from gnss_citygml.gnss.orbitfile import (
     record_epoch,
 )
 from gnss_citygml.gnss.propagation import KEPLER_CONSTANTS
+from gnss_citygml.paths import StrPath
 
 __all__ = ["EPHEMERIS_PARAMETERS", "read_nav"]
 
@@ -39,7 +40,7 @@ _GLONASS_STATE = "x y z vx vy vz ax ay az".split()
 EPHEMERIS_PARAMETERS = set(_KEPLER_FIELDS) | set(_GLONASS_STATE)
 
 
-def read_nav(path) -> pd.DataFrame:
+def read_nav(path: StrPath) -> pd.DataFrame:
     """Read a RINEX 2 GPS or RINEX 3 (mixed) navigation file (optionally ``.gz``).
 
     Parameters

@@ -21,6 +21,7 @@ import pandas as pd
 
 from ..errors import InputError
 from ..observations import OBSERVATION_COLUMNS
+from ..paths import StrPath
 from .gnsslogger import GnssLog, read_gnsslogger
 from .orbits import Orbits, load_orbits
 from .positions import positions, read_surveyed_positions, surveyed_positions
@@ -123,10 +124,10 @@ def _warn_unplaced(log: GnssLog, cn0: pd.DataFrame, sky: pd.DataFrame, key) -> N
 
 
 def observe(
-    logs: Sequence,
-    orbit_files: Sequence,
+    logs: Sequence[StrPath],
+    orbit_files: Sequence[StrPath],
     *,
-    surveyed=None,
+    surveyed: StrPath | None = None,
     provider: str = "gps",
     method: str = "nearest",
     min_elevation: float = 10.0,

@@ -12,23 +12,23 @@ from __future__ import annotations
 
 import datetime
 import gzip
-from pathlib import Path
+from typing import Literal, overload
 
 import numpy as np
 
 from gnss_citygml.errors import InputError
 from gnss_citygml.gnss.gpstime import NS_PER_S
-from gnss_citygml.paths import input_file
+from gnss_citygml.paths import StrPath, input_file
 
 __all__ = ["fortran_float", "garbled", "location", "read_lines", "record_epoch"]
 
 
-def location(path, line_no: int | None = None) -> str:
+def location(path: StrPath, line_no: int | None = None) -> str:
     """The ``where`` of an error: the file, and the line when there is one."""
     return str(path) if line_no is None else f"{path}, line {line_no}"
 
 
-def garbled(path, line_no: int, text: str, why: str) -> InputError:
+def garbled(path: StrPath, line_no: int, text: str, why: str) -> InputError:
     """The error for a garbled line of an orbit file."""
     return InputError(
         f"{why}: {text.rstrip()[:80]!r}",
@@ -37,7 +37,11 @@ def garbled(path, line_no: int, text: str, why: str) -> InputError:
     )
 
 
-def read_lines(path: Path, first_only: bool = False):
+@overload
+def read_lines(path: StrPath, first_only: Literal[False] = False) -> list[str]: ...
+@overload
+def read_lines(path: StrPath, first_only: Literal[True]) -> str: ...
+def read_lines(path: StrPath, first_only: bool = False) -> str | list[str]:
     """The lines of a text file (gzip too), or only its first line."""
     path = input_file(path, "orbit file")
     if path.suffix == ".Z":
@@ -52,7 +56,7 @@ def read_lines(path: Path, first_only: bool = False):
         raise InputError(f"cannot read the file ({exc})", where=str(path)) from exc
 
 
-def fortran_float(text: str, path, line_no: int) -> float:
+def fortran_float(text: str, path: StrPath, line_no: int) -> float:
     """A Fortran number (``D`` or ``E`` exponent); blank is NaN. No file writes "nan" or
     "inf": they are garbled numbers, as any other word."""
     text = text.strip()
@@ -67,7 +71,9 @@ def fortran_float(text: str, path, line_no: int) -> float:
     return value
 
 
-def record_epoch(text: str, path, line_no: int, line: str, two_digit_year: bool = False):
+def record_epoch(
+    text: str, path: StrPath, line_no: int, line: str, two_digit_year: bool = False
+) -> np.datetime64:
     """The epoch of a record (year, month, day, hour, minute as integers, then seconds), as
     ``datetime64[ns]``; a date that does not exist or lies outside 1980-2099 is garbled."""
     parts = text.split()

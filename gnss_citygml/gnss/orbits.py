@@ -33,18 +33,21 @@ the source raise :class:`OrbitSpanError`, which names both spans: nothing is ext
 
 from __future__ import annotations
 
+import os
 from abc import ABC, abstractmethod
 from collections.abc import Iterable
 from pathlib import Path
 from typing import cast
 
 import numpy as np
+import numpy.typing as npt
 import pandas as pd
 
 from gnss_citygml.errors import InputError, listing
 from gnss_citygml.gnss.gpstime import (
     GPS_EPOCH,
     NS_PER_S,
+    Times,
     gps_seconds,
     gps_to_utc,
     to_datetime64,
@@ -54,6 +57,7 @@ from gnss_citygml.gnss.navigation import EPHEMERIS_PARAMETERS, read_nav
 from gnss_citygml.gnss.orbitfile import location, read_lines
 from gnss_citygml.gnss.propagation import KEPLER_CONSTANTS, glonass_positions, kepler_positions
 from gnss_citygml.gnss.sp3 import LAGRANGE_POINTS, MAX_MISSING_EPOCHS, lagrange, read_sp3
+from gnss_citygml.paths import StrPath
 
 __all__ = [
     "MAX_AGE",
@@ -126,7 +130,9 @@ class Orbits(ABC):
         utc = gps_to_utc(GPS_EPOCH + (np.array([first, last]) * NS_PER_S).astype("timedelta64[ns]"))
         return pd.Timestamp(utc[0], tz="UTC"), pd.Timestamp(utc[1], tz="UTC")
 
-    def positions(self, times_utc, constellation, svid) -> np.ndarray:
+    def positions(
+        self, times_utc: Times, constellation: npt.ArrayLike, svid: npt.ArrayLike
+    ) -> np.ndarray:
         """ECEF positions (m) of satellites at UTC times.
 
         Parameters
@@ -170,7 +176,10 @@ class Orbits(ABC):
         return out
 
     def positions_all(
-        self, times_utc, constellations: str | None = None, healthy_only: bool = True
+        self,
+        times_utc: Times,
+        constellations: str | None = None,
+        healthy_only: bool = True,
     ) -> pd.DataFrame:
         """Positions of every satellite of the source at each of the given times.
 
@@ -375,7 +384,7 @@ def _kind(path: Path) -> str:
     )
 
 
-def load_orbits(paths) -> Orbits:
+def load_orbits(paths: StrPath | Iterable[StrPath]) -> Orbits:
     """Read orbit files into one source of satellite positions.
 
     Parameters
@@ -395,12 +404,12 @@ def load_orbits(paths) -> Orbits:
     InputError
         A missing, unreadable or garbled file.
     """
-    paths = [Path(paths)] if isinstance(paths, str | Path) else [Path(p) for p in paths]
-    if not paths:
+    files = [Path(paths)] if isinstance(paths, str | os.PathLike) else [Path(p) for p in paths]
+    if not files:
         raise InputError("no orbit files given", fix="give SP3 or RINEX navigation files")
-    kinds = {p: _kind(p) for p in paths}
-    sp3 = [p for p in paths if kinds[p] == "sp3"]
-    nav = [p for p in paths if kinds[p] == "nav"]
+    kinds = {p: _kind(p) for p in files}
+    sp3 = [p for p in files if kinds[p] == "sp3"]
+    nav = [p for p in files if kinds[p] == "nav"]
     if sp3:
         notes = [f"{p.name} ignored: SP3 precise orbits were given" for p in nav]
         return Sp3Orbits(pd.concat([read_sp3(p) for p in sp3], ignore_index=True), sp3, notes)

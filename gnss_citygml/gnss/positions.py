@@ -24,7 +24,8 @@ import pandas as pd
 
 from gnss_citygml.errors import InputError, MissingColumnError
 from gnss_citygml.gnss.gnsslogger import GnssLog
-from gnss_citygml.gnss.gpstime import utc_ns
+from gnss_citygml.gnss.gpstime import Times, utc_ns
+from gnss_citygml.paths import StrPath
 
 __all__ = ["positions", "read_surveyed_positions", "surveyed_positions"]
 
@@ -111,7 +112,7 @@ def positions(
     )
 
 
-def read_surveyed_positions(path: str | Path) -> pd.DataFrame:
+def read_surveyed_positions(path: StrPath) -> pd.DataFrame:
     """Read a CSV file of manually surveyed receiver positions.
 
     The file has a header line and one row per receiver and time span::
@@ -190,7 +191,7 @@ def read_surveyed_positions(path: str | Path) -> pd.DataFrame:
     return table
 
 
-def surveyed_positions(surveyed: pd.DataFrame, receiver: str, times) -> pd.DataFrame:
+def surveyed_positions(surveyed: pd.DataFrame, receiver: str, times: Times) -> pd.DataFrame:
     """The surveyed position of ``receiver`` at each of ``times``.
 
     Parameters
@@ -233,7 +234,8 @@ def surveyed_positions(surveyed: pd.DataFrame, receiver: str, times) -> pd.DataF
             where=where,
             fix=f"add rows for it (the file has: {', '.join(have) or 'no rows'})",
         )
-    times = pd.DatetimeIndex(pd.to_datetime(times, utc=True)).as_unit("ns")
+    # pandas-stubs: pd.to_datetime takes no array-like that is not a list or a pandas object
+    times = pd.DatetimeIndex(pd.to_datetime(times, utc=True)).as_unit("ns")  # type: ignore[arg-type]
     t, start, end = utc_ns(times), utc_ns(spans["start_utc"]), utc_ns(spans["end_utc"])
     k = np.searchsorted(start, t, side="right") - 1
     ok = (k >= 0) & (t <= end[k.clip(0)])

@@ -8,6 +8,7 @@ normal to the geodetic vertical), which is what a building's walls stand on: a g
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 
 __all__ = [
     "OMEGA_EARTH",
@@ -26,7 +27,7 @@ OMEGA_EARTH = 7.2921151467e-5
 SPEED_OF_LIGHT = 299792458.0
 
 
-def geodetic_to_ecef(lat, lon, h):
+def geodetic_to_ecef(lat: npt.ArrayLike, lon: npt.ArrayLike, h: npt.ArrayLike) -> np.ndarray:
     """WGS84 / ETRS89 latitude, longitude (deg) and ellipsoidal height (m) to ECEF (m).
 
     >>> np.round(geodetic_to_ecef(0.0, 0.0, 0.0), 3).tolist()
@@ -42,7 +43,7 @@ def geodetic_to_ecef(lat, lon, h):
     return np.stack(np.broadcast_arrays(x, y, z), axis=-1)
 
 
-def ecef_to_enu(vector, lat, lon):
+def ecef_to_enu(vector: npt.ArrayLike, lat: npt.ArrayLike, lon: npt.ArrayLike) -> np.ndarray:
     """Rotate ECEF vectors (..., 3) into east, north, up at geodetic ``lat``, ``lon`` (deg)."""
     lat, lon = np.radians(lat), np.radians(lon)
     v = np.asarray(vector, dtype=float)
@@ -53,7 +54,9 @@ def ecef_to_enu(vector, lat, lon):
     return np.stack([east, north, up], axis=-1)
 
 
-def azimuth_elevation(lat, lon, h, satellite):
+def azimuth_elevation(
+    lat: npt.ArrayLike, lon: npt.ArrayLike, h: npt.ArrayLike, satellite: npt.ArrayLike
+) -> tuple[np.ndarray, np.ndarray]:
     """Azimuth (deg clockwise from true north, in [0, 360)) and elevation (deg) of satellites
     at ECEF ``satellite`` (..., 3) seen from receivers at ``lat``, ``lon``, ``h``.
 
@@ -71,7 +74,7 @@ def azimuth_elevation(lat, lon, h, satellite):
     return azimuth, elevation
 
 
-def sagnac_rotate(satellite, travel_time):
+def sagnac_rotate(satellite: npt.ArrayLike, travel_time: npt.ArrayLike) -> np.ndarray:
     """Satellite ECEF positions at transmission, expressed in the ECEF frame of reception:
     the Earth turns by ``OMEGA_EARTH * travel_time`` while the signal travels (about 130 m
     at GNSS orbit radius, 0.02 deg of elevation)."""

@@ -29,6 +29,7 @@ from gnss_citygml.gnss.orbitfile import (
     read_lines,
     record_epoch,
 )
+from gnss_citygml.paths import StrPath
 
 __all__ = ["LAGRANGE_POINTS", "MAX_MISSING_EPOCHS", "lagrange", "read_sp3"]
 
@@ -40,7 +41,7 @@ MAX_MISSING_EPOCHS = 1
 _SP3_TIME_SYSTEMS = {"GPS": 0, "GAL": 0, "QZS": 0, "BDT": -BDT_MINUS_GPS, "TAI": -19}
 
 
-def read_sp3(path) -> pd.DataFrame:
+def read_sp3(path: StrPath) -> pd.DataFrame:
     """Read an SP3-c or SP3-d orbit file (optionally ``.gz``).
 
     Parameters
@@ -132,7 +133,7 @@ def _to_gps_time(times: np.ndarray, time_system: str) -> np.ndarray:
     return times + np.timedelta64(_SP3_TIME_SYSTEMS[time_system], "s")
 
 
-def lagrange(nodes_t: np.ndarray, nodes_xyz: np.ndarray, t: np.ndarray, step: float):
+def lagrange(nodes_t: np.ndarray, nodes_xyz: np.ndarray, t: np.ndarray, step: float) -> np.ndarray:
     """10-point Lagrange interpolation; NaN where no window of nodes without a gap holds t.
 
     The window is centred on t when it can be; near the ends of the series or next to a gap it

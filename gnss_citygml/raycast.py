@@ -12,6 +12,7 @@ building, so such a pair says nothing about the building and is left out.
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 import shapely
 
 __all__ = ["footprint_entries"]
@@ -22,7 +23,15 @@ _RAYS = 1 << 15
 _CHUNK = 1 << 18
 
 
-def footprint_entries(x, y, bearing, footprints, max_range: float = 500.0, *, gradient=False):
+def footprint_entries(
+    x: npt.ArrayLike,
+    y: npt.ArrayLike,
+    bearing: npt.ArrayLike,
+    footprints: npt.ArrayLike,
+    max_range: float = 500.0,
+    *,
+    gradient: bool = False,
+) -> tuple[np.ndarray, ...]:
     """The distance along each ray to each footprint it enters within ``max_range``.
 
     Parameters

@@ -17,7 +17,9 @@ from __future__ import annotations
 import os
 import sys
 import warnings
+from collections.abc import Sequence
 from importlib import import_module
+from typing import NoReturn
 
 import click
 
@@ -88,7 +90,7 @@ class LazyGroup(click.Group):
 
 @click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="gnss-citygml", prog_name="gnss-citygml")
-def cli():
+def cli() -> None:
     """3D city maps (CityGML LOD1 / CityJSON) from crowdsourced smartphone GNSS data."""
 
 
@@ -96,7 +98,7 @@ def _one_line_warning(message, category, filename, lineno, file=None, line=None)
     click.echo(f"warning: {escape_controls(str(message))}", err=True)
 
 
-def main(argv=None):
+def main(argv: Sequence[str] | None = None) -> NoReturn:
     """Entry point: run the click group, turning the toolkit's errors into one line."""
     warnings.showwarning = _one_line_warning
     try:

@@ -8,7 +8,9 @@ default and one help text everywhere. The defaults of the model's options are th
 from __future__ import annotations
 
 import sys
+from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 
@@ -36,6 +38,10 @@ __all__ = [
     "output_file",
     "progress",
 ]
+
+if TYPE_CHECKING:
+    from click.decorators import FC
+    from tqdm import tqdm
 
 SEED = click.option(
     "--seed",
@@ -104,12 +110,12 @@ TYPED_ATTRIBUTES = click.option(
 )
 
 
-def dem_file(help_text, required=False):
+def dem_file(help_text: str, required: bool = False) -> Callable[[FC], FC]:
     """The ``--dem`` option: a raster GDAL reads, for what ``help_text`` says."""
     return click.option("--dem", type=click.Path(path_type=str), required=required, help=help_text)
 
 
-def output_dir(help_text):
+def output_dir(help_text: str) -> Callable[[FC], FC]:
     """The required ``--output-dir`` / ``-o`` folder option of a command that writes several
     files; the command itself says when the path is a file, in its own words."""
     return click.option(
@@ -117,7 +123,7 @@ def output_dir(help_text):
     )
 
 
-def output_file(help_text):
+def output_file(help_text: str) -> Callable[[FC], FC]:
     """The required ``--output`` / ``-o`` file option of a command that writes one file."""
     return click.option(
         "--output",
@@ -144,7 +150,7 @@ MODEL_OUTPUT = click.option(
 )
 
 
-def progress(total, label, quiet):
+def progress(total: int, label: str, quiet: bool) -> tqdm:
     """A progress bar on stderr (only on a terminal; never with ``--quiet``)."""
     from tqdm import tqdm
 

@@ -68,4 +68,4 @@ def validated_output(
 
 
 #: A callback told how many more buildings were written.
-Progress = Callable[[int], None]
+Progress = Callable[[int], object]  # what it returns is ignored

@@ -134,7 +134,7 @@ def observe(
     max_elevation: float = 85.0,
     band: str = "L1",
     lenient: bool = False,
-    progress: Callable[[str], None] | None = None,
+    progress: Callable[[str], object] | None = None,
 ) -> pd.DataFrame:
     """Observations of several GnssLogger logs, one receiver per log (its file name).
 

@@ -16,6 +16,7 @@ flat interval, the middle of the interval is returned.
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 
 from .classifier import SignalClassifier
 
@@ -27,7 +28,14 @@ __all__ = ["bayes_heights", "hinge_heights"]
 BAYES_FLOOR = 0.01
 
 
-def hinge_heights(groups, height, cn0, n_groups, *, init_threshold=30.0):
+def hinge_heights(
+    groups: npt.ArrayLike,
+    height: npt.ArrayLike,
+    cn0: npt.ArrayLike,
+    n_groups: int,
+    *,
+    init_threshold: float = 30.0,
+) -> np.ndarray:
     """Weissman's hinge-loss height of every building (NaN where a building has no rows)."""
     is_open = SignalClassifier.initial(init_threshold).label(cn0)
     order, gs, hs, starts, ends = _sorted(groups, height, n_groups)
@@ -44,7 +52,15 @@ def hinge_heights(groups, height, cn0, n_groups, *, init_threshold=30.0):
     return _arg_best(cost, hs, gs, n_groups, span_to_next=False)
 
 
-def bayes_heights(groups, height, cn0, n_groups, *, init_threshold=30.0, floor=BAYES_FLOOR):
+def bayes_heights(
+    groups: npt.ArrayLike,
+    height: npt.ArrayLike,
+    cn0: npt.ArrayLike,
+    n_groups: int,
+    *,
+    init_threshold: float = 30.0,
+    floor: float = BAYES_FLOOR,
+) -> np.ndarray:
     """The maximum-likelihood height of every building under the C/N0 sensor model."""
     p = np.clip(SignalClassifier.initial(init_threshold).prob(cn0), floor, 1.0 - floor)
     order, gs, hs, starts, ends = _sorted(groups, height, n_groups)

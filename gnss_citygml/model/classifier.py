@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
+import numpy.typing as npt
 
 from .fourpl import fit_4pl, logistic4
 
@@ -50,17 +51,17 @@ class SignalClassifier:
             return float("nan")
         return self.c - np.log((self.a - 0.5) / (0.5 - self.d)) / self.b
 
-    def prob(self, cn0) -> np.ndarray:
+    def prob(self, cn0: npt.ArrayLike) -> np.ndarray:
         """Pr(open) of each signal; 0 for blocked signals (NaN C/N0)."""
         cn0 = np.asarray(cn0, dtype=float)
         p = logistic4(cn0, self.a, self.b, self.c, self.d)
         return np.where(np.isnan(cn0), 0.0, p)
 
-    def label(self, cn0) -> np.ndarray:
+    def label(self, cn0: npt.ArrayLike) -> np.ndarray:
         """The most likely class of each signal: True (open) where Pr(open) > 0.5."""
         return self.prob(cn0) > 0.5
 
-    def refit(self, cn0, labels) -> SignalClassifier:
+    def refit(self, cn0: npt.ArrayLike, labels: npt.ArrayLike) -> SignalClassifier:
         """The maximum-likelihood classifier for received signals labelled by the map.
 
         Blocked signals carry no C/N0 and stay closed whatever the classifier, so they are left

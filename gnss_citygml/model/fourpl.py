@@ -25,10 +25,12 @@ transition itself and the samples with precise ``x`` pin ``c`` and ``b`` more th
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import cast
 
 import numpy as np
+import numpy.typing as npt
 from scipy.special import expit
 
 __all__ = ["B_BOUNDS", "FourPLFit", "fit_4pl", "log_likelihood", "logistic4"]
@@ -42,7 +44,11 @@ _LOGIT_BOUND = 9.0
 _EPS = 1e-12
 
 
-def logistic4(x, a, b, c, d):
+#: A 4PL parameter: one value, or one per sample.
+_Param = float | np.ndarray
+
+
+def logistic4(x: npt.ArrayLike, a: _Param, b: _Param, c: _Param, d: _Param) -> np.ndarray:
     """The 4PL curve ``d + (a - d) / (1 + exp(-b (x - c)))``.
 
     Examples
@@ -53,7 +59,12 @@ def logistic4(x, a, b, c, d):
     return d + (a - d) * expit(b * (np.asarray(x, dtype=float) - c))
 
 
-def log_likelihood(params, x, y, weights=None):
+def log_likelihood(
+    params: Iterable[float],
+    x: npt.ArrayLike,
+    y: npt.ArrayLike,
+    weights: npt.ArrayLike | None = None,
+) -> tuple[float, np.ndarray]:
     """Bernoulli log-likelihood of labels ``y`` (0/1 or fractions) under a 4PL and its gradient.
 
     Parameters
@@ -112,14 +123,14 @@ class FourPLFit:
 
 
 def fit_4pl(
-    x,
-    y,
-    weights=None,
-    groups=None,
+    x: npt.ArrayLike,
+    y: npt.ArrayLike,
+    weights: npt.ArrayLike | None = None,
+    groups: npt.ArrayLike | None = None,
     n_groups: int | None = None,
     *,
-    init=None,
-    sd=None,
+    init: npt.ArrayLike | None = None,
+    sd: npt.ArrayLike | None = None,
     b_bounds: tuple[float, float] = B_BOUNDS,
     max_iter: int = 200,
     tol: float = 1e-9,
@@ -265,7 +276,7 @@ class _ActiveRows:
         return self.arrays
 
 
-def group_range(x, g, n_groups):
+def group_range(x: np.ndarray, g: np.ndarray, n_groups: int) -> tuple[np.ndarray, np.ndarray]:
     """Smallest and largest ``x`` of every group (0 for an empty group)."""
     lo = np.full(n_groups, np.inf)
     hi = np.full(n_groups, -np.inf)

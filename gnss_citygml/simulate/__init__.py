@@ -21,6 +21,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 import pandas as pd
 from pyproj import Transformer
 
@@ -230,7 +231,9 @@ def _session(rng, site: _Site, session: Session, locations, interval):
     )
 
 
-def local_to_wgs84(scene: Scene, x, y):
+def local_to_wgs84(
+    scene: Scene, x: npt.ArrayLike, y: npt.ArrayLike
+) -> tuple[np.ndarray, np.ndarray]:
     """WGS84 longitude and latitude (deg) of points of the scene's local grid (m east and north
     of the scene's origin on the WGS84 ellipsoid): an exact conversion, no datum shift."""
     x = np.asarray(x, dtype=float)
@@ -238,7 +241,9 @@ def local_to_wgs84(scene: Scene, x, y):
     return lon, lat
 
 
-def wgs84_to_local(scene: Scene, lon, lat):
+def wgs84_to_local(
+    scene: Scene, lon: npt.ArrayLike, lat: npt.ArrayLike
+) -> tuple[np.ndarray, np.ndarray]:
     """The scene's local grid coordinates (m east, m north) of WGS84 points (deg): the
     inverse of :func:`local_to_wgs84`."""
     lon = np.asarray(lon, dtype=float)

@@ -8,9 +8,11 @@ for real data).
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 
 __all__ = ["CONSTELLATIONS", "Constellation", "satellite_ecef", "sky"]
 
@@ -46,7 +48,9 @@ CONSTELLATIONS = (
 )
 
 
-def satellite_ecef(seconds, constellations=CONSTELLATIONS):
+def satellite_ecef(
+    seconds: npt.ArrayLike, constellations: Iterable[Constellation] = CONSTELLATIONS
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """ECEF positions (m) of every satellite at times ``seconds`` (s since the simulation epoch).
 
     Returns
@@ -75,7 +79,9 @@ def satellite_ecef(seconds, constellations=CONSTELLATIONS):
     return np.concatenate(letters), np.concatenate(svids), np.concatenate(xyz, axis=1)
 
 
-def sky(lat, lon, height, sat_xyz):
+def sky(
+    lat: float, lon: float, height: float, sat_xyz: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Azimuth (deg from true north) and elevation (deg, on the WGS84 ellipsoid's tangent plane)
     of satellites ``sat_xyz`` (``(..., 3)``, ECEF m) seen from one geodetic position."""
     phi, lam = np.radians(lat), np.radians(lon)

@@ -8,6 +8,7 @@ footprints, the DEM and the receivers line up as real data do.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from pathlib import Path
 
 import geopandas as gpd
@@ -19,7 +20,7 @@ from rasterio.transform import from_origin
 from ..errors import InputError
 from ..geodesy import to_osgb
 from ..observations import OBSERVATION_COLUMNS, write_observations
-from ..paths import atomic_path, check_output
+from ..paths import StrPath, atomic_path, check_output
 from ..tables import write_layer, write_table
 from . import Simulation, local_to_wgs84
 
@@ -30,7 +31,7 @@ DEM_CELL = 5.0
 DEM_MARGIN = 50.0
 
 
-def site_paths(folder, fmt: str = "parquet") -> dict[str, Path]:
+def site_paths(folder: StrPath, fmt: str = "parquet") -> dict[str, Path]:
     """The files of a site written by :func:`write_site`, by name."""
     folder = Path(folder)
     return {
@@ -41,7 +42,9 @@ def site_paths(folder, fmt: str = "parquet") -> dict[str, Path]:
     }
 
 
-def check_site(folder, fmt: str = "parquet", *, overwrite: bool, also=()) -> dict[str, Path]:
+def check_site(
+    folder: StrPath, fmt: str = "parquet", *, overwrite: bool, also: Iterable[StrPath] = ()
+) -> dict[str, Path]:
     """The site's paths (:func:`site_paths`), checked before any work: without ``overwrite``
     none of them, nor of ``also`` (other files the caller writes there), may exist."""
     paths = site_paths(folder, fmt)
@@ -54,8 +57,13 @@ def check_site(folder, fmt: str = "parquet", *, overwrite: bool, also=()) -> dic
 
 
 def write_site(
-    sim: Simulation, folder, *, grid_dir=None, fmt: str = "parquet", overwrite: bool = True
-) -> dict:
+    sim: Simulation,
+    folder: StrPath,
+    *,
+    grid_dir: StrPath | None = None,
+    fmt: str = "parquet",
+    overwrite: bool = True,
+) -> dict[str, Path]:
     """Write ``observations.<fmt>``, ``footprints.gpkg``, ``dem.tif`` and ``truth.csv``.
 
     Returns the paths by name. The DEM is flat at the scene's ground height (ODN), in

@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import shapely
 from shapely.geometry import Polygon, box
+from shapely.geometry.base import BaseGeometry
 
 __all__ = ["PRESETS", "Building", "Scene", "Session", "city_scene", "make_scene"]
 
@@ -34,7 +35,7 @@ class Building:
     true_height: float
 
     @property
-    def footprint(self):
+    def footprint(self) -> BaseGeometry:
         return shapely.union_all([p for p, _ in self.parts]).normalize()
 
 
@@ -187,7 +188,14 @@ def _hermitage(rng):
     )
 
 
-def city_scene(rng, columns=6, rows=5, walkers=8, walk_seconds=300.0, walk_length=None):
+def city_scene(
+    rng: np.random.Generator,
+    columns: int = 6,
+    rows: int = 5,
+    walkers: int = 8,
+    walk_seconds: float = 300.0,
+    walk_length: float | None = None,
+) -> Scene:
     """A grid of ``columns`` x ``rows`` blocks, 60 m apart, one building each (flat, pitched or
     multi-part, 8-45 m), and ``walkers`` people each walking ``walk_seconds`` along a street:
     the whole street, or a stretch of ``walk_length`` metres of it."""

@@ -21,6 +21,7 @@ Positions
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 from scipy.signal import lfilter
 
 __all__ = ["SignalModel", "ar1", "diffraction_loss", "gnss_fix_errors"]
@@ -42,7 +43,9 @@ class SignalModel:
     tracking_threshold = 12.0  # below this nothing is tracked
 
 
-def diffraction_loss(clearance, distance, elevation):
+def diffraction_loss(
+    clearance: npt.ArrayLike, distance: npt.ArrayLike, elevation: npt.ArrayLike
+) -> np.ndarray:
     """Knife-edge diffraction loss (dB, >= 0) of ITU-R P.526.
 
     ``clearance`` is how far (m) the line of sight passes *below* the edge, measured vertically
@@ -59,7 +62,14 @@ def diffraction_loss(clearance, distance, elevation):
     return np.where(v > -0.78, np.maximum(loss, 0.0), 0.0)
 
 
-def ar1(rng, n, dt, tau, sigma, size=()):
+def ar1(
+    rng: np.random.Generator,
+    n: int,
+    dt: float,
+    tau: float,
+    sigma: float,
+    size: tuple[int, ...] = (),
+) -> np.ndarray:
     """A stationary first-order Gauss-Markov process of ``n`` steps (axis 0)."""
     phi = np.exp(-dt / tau)
     innov = rng.normal(0.0, sigma * np.sqrt(1.0 - phi**2), (n, *size))
@@ -67,7 +77,15 @@ def ar1(rng, n, dt, tau, sigma, size=()):
     return lfilter([1.0], [1.0, -phi], innov, axis=0)
 
 
-def gnss_fix_errors(rng, az, el, received, nlos, cn0, dt=1.0):
+def gnss_fix_errors(
+    rng: np.random.Generator,
+    az: np.ndarray,
+    el: np.ndarray,
+    received: np.ndarray,
+    nlos: np.ndarray,
+    cn0: np.ndarray,
+    dt: float = 1.0,
+) -> tuple[np.ndarray, np.ndarray]:
     """East, north errors (m) of the phone's own position fix, epoch by epoch.
 
     Parameters

@@ -3,6 +3,7 @@ line that lists its commands without loading the pipeline's stages."""
 
 import ast
 import contextlib
+import inspect
 import json
 import pkgutil
 import subprocess
@@ -66,6 +67,64 @@ def test_version_comes_from_the_metadata():
 
 def test_the_package_says_it_is_typed():
     assert resources.files("gnss_citygml").joinpath("py.typed").is_file()
+
+
+def _modules():
+    """The package and every module in it (``__main__`` would run the command)."""
+    yield gnss_citygml
+    for info in pkgutil.walk_packages(gnss_citygml.__path__, "gnss_citygml."):
+        if info.name != "gnss_citygml.__main__":
+            yield import_module(info.name)
+
+
+def _public_functions():
+    """(name, function) of every function a module lists in its ``__all__`` and of the public
+    methods (and ``__init__``) of every class it lists, each where it is defined."""
+    for module in _modules():
+        for name in getattr(module, "__all__", ()):
+            value = getattr(module, name)
+            if getattr(value, "__module__", None) != module.__name__:
+                continue  # re-exported: checked where it is defined
+            if inspect.isfunction(value):
+                yield f"{module.__name__}.{name}", value
+            elif inspect.isclass(value):
+                for attr, member in vars(value).items():
+                    member = getattr(member, "__func__", getattr(member, "fget", member))
+                    if inspect.isfunction(member) and (attr == "__init__" or attr[0] != "_"):
+                        yield f"{module.__name__}.{name}.{attr}", member
+
+
+def _unannotated(function) -> list[str]:
+    """The parameters of ``function`` without a type annotation, and ``return`` if its result
+    has none (``__init__`` returns None by definition)."""
+    signature = inspect.signature(function)
+    missing = [
+        p.name
+        for p in signature.parameters.values()
+        if p.annotation is inspect.Parameter.empty and p.name not in ("self", "cls")
+    ]
+    if signature.return_annotation is inspect.Signature.empty and function.__name__ != "__init__":
+        missing.append("return")
+    return missing
+
+
+def test_unannotated_finds_what_lacks_a_type():
+    def half(x: int, y, *args, scale: float = 1.0, **kw) -> float: ...
+
+    def whole(self, x: int): ...
+
+    assert _unannotated(half) == ["y", "args", "kw"]
+    assert _unannotated(whole) == ["return"]
+    assert _unannotated(gnss_citygml.InputError.__init__) == []
+
+
+def test_public_signatures_are_typed():
+    """Every public function and method has its parameters and result annotated: mypy (in
+    ``make lint``) checks the calls of users who type-check their code against them."""
+    functions = dict(_public_functions())
+    assert "gnss_citygml.gnss.orbits.Orbits.positions" in functions and len(functions) > 150
+    missing = {name: gaps for name, f in functions.items() if (gaps := _unannotated(f))}
+    assert not missing, "\n".join(f"{name}: {', '.join(gaps)}" for name, gaps in missing.items())
 
 
 # --- the job with GeoDataFrames in and out --------------------------------------------------

@@ -26,6 +26,7 @@ recording the same way can be absorbed by the heights, so only the prior pins it
 
 from __future__ import annotations
 
+import geopandas as gpd
 import numpy as np
 import pandas as pd
 
@@ -60,7 +61,7 @@ CORRELATION_TIME = 60.0
 
 def calibrate_receivers(
     receivers: pd.DataFrame,
-    buildings,
+    buildings: gpd.GeoDataFrame,
     calibration: Calibration,
     *,
     estimator: Estimator = Estimator(),
@@ -92,7 +93,7 @@ def calibrate_receivers(
         ``receivers`` with ``e`` and ``n`` corrected and the applied offsets in ``offset_e``
         and ``offset_n`` (m).
     """
-    if not calibration.on:
+    if calibration.prior_sd is None:  # not calibration.on, in words mypy follows
         raise InputError(
             "self-calibration without a prior",
             fix="give Calibration(prior_sd=...), e.g. 1 m for hand-placed points",

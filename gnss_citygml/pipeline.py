@@ -18,14 +18,15 @@ import shapely
 
 from .calibrate import calibrate_receivers
 from .errors import InputError
-from .geodesy import grid_bearing, is_bng, to_osgb
+from .geodesy import CrsInput, grid_bearing, is_bng, to_osgb
 from .ids import id_field, source_named, with_id_field
 from .model.estimate import HEIGHTS_COLUMNS, estimate_heights
 from .observations import check_observations
+from .paths import StrPath
 from .raycast import footprint_entries
 from .recordings import recording_windows
 from .settings import Calibration, Estimator, PositionError, Rays, ReceiverHeights
-from .terrain import building_ground, sample_ground
+from .terrain import Dem, building_ground, sample_ground
 
 __all__ = ["STAGES", "estimate", "intersections", "receivers"]
 
@@ -45,11 +46,11 @@ MIN_INCIDENCE = 0.1
 
 def receivers(
     observations: pd.DataFrame,
-    dem=None,
+    dem: Dem | None = None,
     *,
     heights: ReceiverHeights = ReceiverHeights(),
-    grid_dir=None,
-    dem_crs=None,
+    grid_dir: StrPath | None = None,
+    dem_crs: CrsInput | None = None,
 ) -> pd.DataFrame:
     """The observations with the receiver columns of DESIGN.md: ``e``, ``n`` (BNG, m), ``z``
     (ODN height of the antenna, m) and ``bearing`` (grid bearing of the ray, deg).
@@ -160,15 +161,15 @@ def intersections(
 def estimate(
     observations: pd.DataFrame,
     footprints: gpd.GeoDataFrame,
-    dem=None,
+    dem: Dem | None = None,
     *,
     rays: Rays = Rays(),
     receiver_heights: ReceiverHeights = ReceiverHeights(),
     estimator: Estimator = Estimator(),
     position_error: PositionError = PositionError(),
     calibration: Calibration = Calibration(),
-    grid_dir=None,
-    dem_crs=None,
+    grid_dir: StrPath | None = None,
+    dem_crs: CrsInput | None = None,
     progress: Callable[[str], None] | None = None,
 ) -> gpd.GeoDataFrame:
     """Building heights from observations, footprints and a DEM.

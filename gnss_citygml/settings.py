@@ -51,7 +51,7 @@ def _finite(value) -> bool:
 
 def _count(value) -> bool:
     """A whole number, 1 or more."""
-    return isinstance(value, numbers.Integral) and value >= 1
+    return isinstance(value, numbers.Integral) and int(value) >= 1
 
 
 def _positive(value) -> bool:

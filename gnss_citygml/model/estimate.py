@@ -36,7 +36,9 @@ HEIGHTS_COLUMNS = [
 _REQUIRED = ["building", "height", "cn0"]
 
 
-def estimate_heights(intersections, estimator: Estimator = Estimator()) -> pd.DataFrame:
+def estimate_heights(
+    intersections: pd.DataFrame, estimator: Estimator = Estimator()
+) -> pd.DataFrame:
     """Estimate every building's height from the signals that cross its footprint.
 
     Parameters

@@ -29,12 +29,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 import pandas as pd
 
 from ..errors import ModelError
 from ..settings import WEIGHTINGS, Estimator
 from .classifier import SignalClassifier
-from .fourpl import B_BOUNDS, fit_4pl, group_range
+from .fourpl import B_BOUNDS, FourPLFit, fit_4pl, group_range
 
 __all__ = ["BuildingFits", "fourplb", "height_weights", "position_margin"]
 
@@ -65,7 +66,14 @@ class BuildingFits:
     height_upper: np.ndarray
 
 
-def height_weights(height, groups, n_groups, scheme, c=None, mask=None):
+def height_weights(
+    height: np.ndarray,
+    groups: np.ndarray,
+    n_groups: int,
+    scheme: str,
+    c: np.ndarray | None = None,
+    mask: np.ndarray | None = None,
+) -> np.ndarray:
     """Sample weights of the height fit, normalised to a mean of 1 within each building.
 
     Rows outside ``mask`` (default: all rows are in) get weight 0.
@@ -115,16 +123,16 @@ def _weights(height, groups, n_groups, scheme, c):
 
 
 def fourplb(
-    groups,
-    height,
-    cn0,
+    groups: npt.ArrayLike,
+    height: npt.ArrayLike,
+    cn0: npt.ArrayLike,
     n_groups: int,
     estimator: Estimator = Estimator(),
     *,
-    signal=None,
-    order=None,
-    height_sd=None,
-    receiver=None,
+    signal: npt.ArrayLike | None = None,
+    order: npt.ArrayLike | None = None,
+    height_sd: npt.ArrayLike | None = None,
+    receiver: npt.ArrayLike | None = None,
 ) -> tuple[BuildingFits, SignalClassifier]:
     """Run 4PL-B (or, for method ``4PL``, the paper's one-shot 4PL) on coded arrays.
 
@@ -228,6 +236,7 @@ def fourplb(
         if iterations > 1 and np.all(change < accept.label_tol):
             break
 
+    assert fit is not None  # max_iter >= 1: the loop fitted at least once
     margin = np.zeros(n_groups)
     if sd is not None:
         rec = None if receiver is None else receiver[fit_seen]
@@ -286,7 +295,14 @@ def _classifier_data(cn0, open_map, sig, seen):
     return cn0[first[used]], closed[used] == 0
 
 
-def position_margin(fit, g, h, sd, recording, n_groups):
+def position_margin(
+    fit: FourPLFit,
+    g: np.ndarray,
+    h: np.ndarray,
+    sd: np.ndarray,
+    recording: np.ndarray | None,
+    n_groups: int,
+) -> np.ndarray:
     """How far (m) the roof line may be off owing to the receivers' position errors: twice
     the standard error of ``c`` when every recording's error is shared by all its rows.
 

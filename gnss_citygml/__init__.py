@@ -64,7 +64,7 @@ _LAZY = {
     "PositionError": "settings",
     "Calibration": "settings",
     # the errors of the geodesy
-    "GridError": "geodesy",
+    "GridError": "grids",
     "OutsideExtentError": "geodesy",
 }
 
@@ -73,7 +73,6 @@ if TYPE_CHECKING:  # the same names, for type checkers (tests/test_package.py co
     from .export.cityjson import write_cityjson, write_cityjsonseq
     from .footprints import read_footprints
     from .geodesy import (
-        GridError,
         OutsideExtentError,
         from_osgb,
         grid_bearing,
@@ -83,6 +82,7 @@ if TYPE_CHECKING:  # the same names, for type checkers (tests/test_package.py co
     from .gnss.gnsslogger import read_gnsslogger
     from .gnss.observe import observe
     from .gnss.orbits import load_orbits
+    from .grids import GridError
     from .model import METHODS
     from .model.classifier import SignalClassifier
     from .model.estimate import HEIGHTS_COLUMNS, estimate_heights

@@ -89,7 +89,7 @@ def read_footprints(
         The column holding the building ids (default: see the module's rules).
     grid_dir
         Folder of the OSTN15/OSGM15 grids, for footprints in another CRS than EPSG:27700
-        (see :mod:`gnss_citygml.geodesy`; default ``$GNSS_CITYGML_GRID_DIR``, then PROJ's
+        (see :mod:`gnss_citygml.grids`; default ``$GNSS_CITYGML_GRID_DIR``, then PROJ's
         folders, then the copy bundled with the package).
 
     Returns

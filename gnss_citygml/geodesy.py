@@ -17,15 +17,10 @@ it (metres off, silently), so the user transforms the data with the transformati
 it. PROJ's own choice is never taken: without the grids on its search path it picks "OSGB36 to
 WGS 84 (6)", a Helmert transformation 2 m off, without a word.
 
-The package ships both grids (:data:`BUNDLED_GRID_DIR`, with Ordnance Survey's 2-clause BSD
-notice beside them), so that it works offline with nothing else installed. They are looked for,
-in order, in an explicit ``grid_dir`` (or ``$GNSS_CITYGML_GRID_DIR``), pyproj's user data
-directory, PROJ's data directories and last the bundled copy: a copy the user or PROJ keeps wins.
-Only if even the bundled copy is gone (a damaged install) are missing grids downloaded from
-PROJ's CDN into the user data directory with ``network=True`` (:func:`fetch_grids`); a grid that
-cannot be found is a :class:`GridError`, never a fallback to another transformation. The folders
-are added to PROJ's search path with :func:`pyproj.datadir.append_data_dir` (``PROJ_DATA`` is
-never touched).
+The grids are found by :mod:`gnss_citygml.grids` (an explicit ``grid_dir`` or
+``$GNSS_CITYGML_GRID_DIR``, PROJ's folders, and last the copy shipped inside the package); a grid
+that cannot be found is a :class:`~gnss_citygml.grids.GridError`, never a fallback to another
+transformation.
 
 Two PROJ behaviours are guarded against:
 
@@ -45,39 +40,27 @@ spatially sorted order and put back in their original order.
 from __future__ import annotations
 
 import functools
-import hashlib
-import json
 import os
-import urllib.request
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any, TypeAlias
 
 import numpy as np
 import numpy.typing as npt
-import pandas as pd
 import pyproj
 from pyproj import Proj, Transformer
-from pyproj.datadir import append_data_dir, get_data_dir, get_user_data_dir
 from pyproj.exceptions import ProjError
-from pyproj.sync import get_proj_endpoint
 
-from .errors import GnssCityGMLError, InputError, listing
+from .errors import InputError, listing
+from .grids import GRIDS, HOW_TO_GET, GridError, add_to_proj_path, grid_folders
 
 __all__ = [
-    "BUNDLED_GRID_DIR",
     "ETRS89",
-    "GRIDS",
-    "GRID_DIR_ENV",
     "OSGB_ODN",
     "CrsError",
     "CrsInput",
-    "GridError",
     "OutsideExtentError",
-    "fetch_grids",
     "from_osgb",
     "grid_bearing",
-    "grid_status",
     "is_bng",
     "meridian_convergence",
     "to_bng",
@@ -91,25 +74,6 @@ OSGB_ODN = "EPSG:7405"
 #: A CRS as :meth:`pyproj.crs.CRS.from_user_input` takes it (a ``pyproj.CRS``, ``"EPSG:4326"``,
 #: ``4326``, WKT, a PROJ string...), which pyproj types as Any.
 CrsInput: TypeAlias = Any
-#: Environment variable naming a folder that holds the grids.
-GRID_DIR_ENV = "GNSS_CITYGML_GRID_DIR"
-#: The PROJ grids the transformation needs, with what each is for.
-GRIDS = {
-    "uk_os_OSTN15_NTv2_OSGBtoETRS.tif": "OSTN15 horizontal shifts (OSGB36 to ETRS89 (2))",
-    "uk_os_OSGM15_GB.tif": "OSGM15 geoid (ETRS89 to ODN height (2))",
-}
-#: The copy of the grids shipped inside the package (a real folder: PROJ opens grids by path),
-#: searched last; its README names their source and checksums, its LICENSE their terms.
-BUNDLED_GRID_DIR = Path(__file__).resolve().parent / "data" / "grids"
-#: How messages name the bundled copy (``source`` in :func:`grid_status`).
-_BUNDLED = "bundled with gnss-citygml"
-
-_HOW_TO_GET = (
-    "reinstall gnss-citygml (it ships them), run `gnss-citygml grids --fetch` (downloads "
-    "them into pyproj's user data directory), or "
-    + " and ".join(f"`projsync --file {name}`" for name in GRIDS)
-    + f", or put them in a folder given by --grid-dir or ${GRID_DIR_ENV}"
-)
 #: OS test point TP09 (London), ETRS89 (lon, lat, h) and OSGB36 (E, N, ODN) from the OS test
 #: files. Per direction: source CRS, target CRS, TP09 in, TP09 out, tolerance per coordinate.
 _TP09_ETRS = (-0.11992557180, 51.48936564950, 66.057)
@@ -129,14 +93,8 @@ _ETRS89_DATUMS = frozenset(
     }
 )
 _OSGB36_DATUM = "Ordnance Survey of Great Britain 1936"
-#: Folders this module added to PROJ's search path: not searched for another grid_dir.
-_APPENDED: set[str] = set()
 #: Points listed by name in an error message.
 _LIST_POINTS = 5
-
-
-class GridError(GnssCityGMLError):
-    """A PROJ grid is missing, cannot be downloaded, or PROJ would not use it."""
 
 
 class OutsideExtentError(InputError):
@@ -365,78 +323,6 @@ def grid_bearing(lat: npt.ArrayLike, lon: npt.ArrayLike, azimuth: npt.ArrayLike)
     return (np.asarray(azimuth, dtype=float) - meridian_convergence(lat, lon)) % 360.0
 
 
-def grid_status(grid_dir: str | os.PathLike | None = None) -> pd.DataFrame:
-    """Where each needed grid is found, for ``gnss-citygml grids``.
-
-    Parameters
-    ----------
-    grid_dir
-        A folder searched first (default ``$GNSS_CITYGML_GRID_DIR``).
-
-    Returns
-    -------
-    pandas.DataFrame
-        One row per grid: ``grid`` (file name), ``purpose``, ``found`` (bool), ``source``
-        (which search location: ``"grid_dir"``, ``"$GNSS_CITYGML_GRID_DIR"``, ``"pyproj user
-        data directory"``, ``"PROJ data directory"``, ``"bundled with gnss-citygml"``, or
-        ``"missing"``) and ``path`` (the file, or ``""``).
-    """
-    rows = []
-    for name, purpose in GRIDS.items():
-        hit = _find(name, _search_dirs(grid_dir))
-        source, path = hit if hit else ("missing", "")
-        rows.append((name, purpose, bool(hit), source, str(path)))
-    return pd.DataFrame(rows, columns=["grid", "purpose", "found", "source", "path"])
-
-
-def fetch_grids(
-    target_dir: str | os.PathLike | None = None,
-    *,
-    endpoint: str | None = None,
-    force: bool = False,
-) -> list[Path]:
-    """Download the grids from PROJ's CDN (as ``projsync`` does), checking their SHA-256.
-
-    The checksums come from the CDN's catalogue ``files.geojson``. Each file is written to a
-    ``.part`` file in the same folder and renamed into place once verified.
-
-    Parameters
-    ----------
-    target_dir
-        Destination folder (default: pyproj's user data directory, created if needed).
-    endpoint
-        Base URL of the CDN (default: PROJ's, :func:`pyproj.sync.get_proj_endpoint`).
-    force
-        Download grids that are already in ``target_dir`` again.
-
-    Returns
-    -------
-    list of pathlib.Path
-        The grid files in ``target_dir``.
-
-    Raises
-    ------
-    GridError
-        The CDN cannot be reached (e.g. offline) or a download does not match its checksum.
-    """
-    target = Path(target_dir) if target_dir is not None else Path(get_user_data_dir(True))
-    target.mkdir(parents=True, exist_ok=True)
-    paths = [target / name for name in GRIDS]
-    todo = [p for p in paths if force or not p.is_file()]
-    if not todo:
-        return paths
-    base = (endpoint or get_proj_endpoint()).rstrip("/")
-    checksums = _catalogue(base)
-    for path in todo:
-        url = f"{base}/{path.name}"
-        if path.name not in checksums:
-            raise GridError(
-                f"{path.name} is not in the grid catalogue", where=f"{base}/files.geojson"
-            )
-        _download(url, path, checksums[path.name])
-    return paths
-
-
 def _run(direction, x, y, z, grid_dir, network, labels):
     """Validate, locate grids, transform (spatially sorted if spread out), check the result."""
     x, y, z = np.broadcast_arrays(*(np.asarray(a, dtype=float) for a in (x, y, z)))
@@ -444,7 +330,7 @@ def _run(direction, x, y, z, grid_dir, network, labels):
     x, y, z = x.ravel(), y.ravel(), z.ravel()
     geographic = direction == "to_osgb"
     _check_finite(x, y, z, geographic, labels)
-    transformer = _transformer(direction, _grid_folders(grid_dir, network))
+    transformer = _transformer(direction, grid_folders(grid_dir, network))
     no_z = np.isnan(z)
     z = np.where(no_z, 0.0, z)
     order = _spatial_order(x, y, 1.0 if geographic else 100_000.0)
@@ -505,61 +391,10 @@ def _spatial_order(x, y, cell):
     return np.argsort(key, kind="stable")
 
 
-def _search_dirs(grid_dir) -> list[tuple[str, Path]]:
-    """The folders searched for grids, in order, each with a label for messages."""
-    dirs = []
-    if grid_dir is None and os.environ.get(GRID_DIR_ENV):
-        dirs.append((f"${GRID_DIR_ENV}", Path(os.environ[GRID_DIR_ENV])))
-    elif grid_dir is not None:
-        dirs.append(("grid_dir", Path(grid_dir)))
-    if dirs and not dirs[0][1].is_dir():
-        raise GridError(
-            f"grid folder {dirs[0][1]} does not exist",
-            where=dirs[0][0],
-            fix=f"give an existing folder holding {', '.join(GRIDS)}",
-        )
-    dirs.append(("pyproj user data directory", Path(get_user_data_dir())))
-    for folder in get_data_dir().split(os.pathsep):
-        if folder not in _APPENDED:
-            dirs.append(("PROJ data directory", Path(folder)))
-    dirs.append((_BUNDLED, BUNDLED_GRID_DIR))
-    return dirs
-
-
-def _find(name, dirs):
-    """(label, path) of the first folder holding ``name``, or None."""
-    for label, folder in dirs:
-        if (folder / name).is_file():
-            return label, (folder / name).resolve()
-    return None
-
-
-def _grid_folders(grid_dir, network) -> tuple[str, ...]:
-    """The folders holding the grids, downloading them first if allowed; else GridError."""
-    dirs = _search_dirs(grid_dir)
-    hits = {name: _find(name, dirs) for name in GRIDS}
-    missing = [name for name, hit in hits.items() if hit is None]
-    if missing and network:
-        fetch_grids()
-        hits = {name: _find(name, dirs) for name in GRIDS}
-        missing = [name for name, hit in hits.items() if hit is None]
-    if missing:
-        raise GridError(
-            "missing PROJ grid(s) " + ", ".join(missing),
-            where="searched " + ", ".join(f"{folder} ({label})" for label, folder in dirs),
-            fix=_HOW_TO_GET,
-        )
-    return tuple(sorted({str(path.parent) for _, path in hits.values()}))
-
-
 @functools.cache
 def _transformer(direction: str, folders: tuple[str, ...]) -> Transformer:
     """The checked OSTN15 + OSGM15 transformer, cached by direction and grid folders."""
-    searched = get_data_dir().split(os.pathsep) + [get_user_data_dir()]
-    for folder in folders:
-        if folder not in searched:
-            append_data_dir(folder)
-            _APPENDED.add(folder)
+    add_to_proj_path(folders)
     src, dst, start, expected, tolerance = _DIRECTIONS[direction]
     try:
         best = Transformer.from_crs(src, dst, always_xy=True, only_best=True, allow_ballpark=False)
@@ -567,7 +402,7 @@ def _transformer(direction: str, folders: tuple[str, ...]) -> Transformer:
         raise GridError(
             f"PROJ cannot use the grids for {src} -> {dst}: {exc}",
             where=", ".join(folders),
-            fix="replace the grid files: " + _HOW_TO_GET,
+            fix="replace the grid files: " + HOW_TO_GET,
         ) from exc
     _check_operation(best, start, expected, tolerance)
     return best
@@ -580,7 +415,7 @@ def _check_operation(transformer: Transformer, start, expected, tolerance) -> No
         raise GridError(
             f"PROJ chose {transformer.description!r} instead of the OSTN15/OSGM15 pipeline",
             where=f"pyproj {pyproj.__version__}, PROJ {pyproj.proj_version_str}",
-            fix="report this with the PROJ version; check the grid files: " + _HOW_TO_GET,
+            fix="report this with the PROJ version; check the grid files: " + HOW_TO_GET,
         )
     got = np.array(transformer.transform(*start))
     if not np.all(np.abs(got - np.array(expected)) <= np.array(tolerance)):
@@ -588,7 +423,7 @@ def _check_operation(transformer: Transformer, start, expected, tolerance) -> No
             f"the grids do not reproduce Ordnance Survey test point TP09 (got {got.tolist()}, "
             f"expected {list(expected)})",
             where=transformer.definition,
-            fix="the grid files are damaged or not PROJ-data's: " + _HOW_TO_GET,
+            fix="the grid files are damaged or not PROJ-data's: " + HOW_TO_GET,
         )
 
 
@@ -602,49 +437,3 @@ def _conversion(src: pyproj.CRS, dst: pyproj.CRS) -> Transformer:
 def _bng() -> Proj:
     """British National Grid as a projection, for its scale factors and convergence."""
     return Proj("EPSG:27700")
-
-
-def _catalogue(base: str) -> dict[str, str]:
-    """File name -> SHA-256 from the CDN's ``files.geojson``."""
-    url = f"{base}/files.geojson"
-    try:
-        with urllib.request.urlopen(url, timeout=60) as response:
-            features = json.load(response)["features"]
-    except (OSError, ValueError, KeyError) as exc:
-        raise GridError(
-            f"cannot read PROJ's grid catalogue ({exc})",
-            where=url,
-            fix="connect to the internet, or copy " + ", ".join(GRIDS) + " from another "
-            f"machine into a folder given by --grid-dir or ${GRID_DIR_ENV}",
-        ) from exc
-    return {
-        f["properties"]["name"]: f["properties"].get("sha256", "")
-        for f in features
-        if f.get("properties", {}).get("name") in GRIDS
-    }
-
-
-def _download(url: str, path: Path, sha256: str) -> None:
-    """Fetch ``url`` to ``path`` through a ``.part`` file, checking the SHA-256 if known."""
-    part = path.with_name(path.name + ".part")
-    digest = hashlib.sha256()
-    try:
-        with urllib.request.urlopen(url, timeout=60) as response, part.open("wb") as out:
-            while chunk := response.read(1 << 20):
-                digest.update(chunk)
-                out.write(chunk)
-        if sha256 and digest.hexdigest() != sha256:
-            raise GridError(
-                f"{path.name} does not match its SHA-256 checksum",
-                where=url,
-                fix="try again later; the download was incomplete or altered",
-            )
-        part.replace(path)
-    except OSError as exc:
-        raise GridError(
-            f"cannot download {path.name} ({exc})",
-            where=url,
-            fix=f"check the internet connection, or copy the file into {path.parent}",
-        ) from exc
-    finally:
-        part.unlink(missing_ok=True)

@@ -18,9 +18,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from gnss_citygml.geodesy import GridError, grid_status
 from gnss_citygml.gnss.gpstime import gps_to_utc
 from gnss_citygml.gnss.sp3 import read_sp3
+from gnss_citygml.grids import GridError, grid_status
 from gnss_citygml.model.fourpl import logistic4
 
 

@@ -10,7 +10,7 @@ import pytest
 
 from gnss_citygml.cli import main
 from gnss_citygml.cli.demo import CITY, OUTPUTS
-from gnss_citygml.geodesy import GRID_DIR_ENV
+from gnss_citygml.grids import GRID_DIR_ENV
 
 
 def run(args, capsys):

@@ -25,19 +25,21 @@ import gnss_citygml
 from gnss_citygml.cli import main
 from gnss_citygml.footprints import read_footprints
 from gnss_citygml.geodesy import (
-    BUNDLED_GRID_DIR,
-    GRID_DIR_ENV,
-    GRIDS,
     CrsError,
-    GridError,
     OutsideExtentError,
-    fetch_grids,
     from_osgb,
     grid_bearing,
-    grid_status,
     meridian_convergence,
     to_bng,
     to_osgb,
+)
+from gnss_citygml.grids import (
+    BUNDLED_GRID_DIR,
+    GRID_DIR_ENV,
+    GRIDS,
+    GridError,
+    fetch_grids,
+    grid_status,
 )
 from gnss_citygml.pipeline import receivers
 from gnss_citygml.settings import ReceiverHeights
@@ -262,7 +264,8 @@ def test_a_user_without_grids_gets_the_bundled_copy(os_points, tmp_path):
     points = [os_points[c].tolist() for c in ("lat", "lon", "h")]
     code = f"""
         import json
-        from gnss_citygml.geodesy import grid_status, to_osgb
+        from gnss_citygml.geodesy import to_osgb
+        from gnss_citygml.grids import grid_status
         print(grid_status().to_json(orient="records"))
         print(json.dumps([a.tolist() for a in to_osgb(*{points!r})]))
     """
@@ -287,7 +290,8 @@ def test_an_explicit_grid_dir_wins_over_the_bundled_copy(shared_data, tmp_path):
     shutil.copy(shared_data / "geodesy" / "uk_os_OSGM15_Malin.tif", wrong / "uk_os_OSGM15_GB.tif")
     tp09 = "51.48936564950, -0.11992557180, 66.057"
     code = f"""
-        from gnss_citygml.geodesy import GridError, grid_status, to_osgb
+        from gnss_citygml.geodesy import to_osgb
+        from gnss_citygml.grids import GridError, grid_status
         print(grid_status({str(good)!r}).to_json(orient="records"))
         print(to_osgb({tp09}, grid_dir={str(good)!r})[2])
     """
@@ -296,7 +300,8 @@ def test_an_explicit_grid_dir_wins_over_the_bundled_copy(shared_data, tmp_path):
     assert {row["source"] for row in json.loads(status)} == {"grid_dir"}
     assert float(odn) == pytest.approx(20.544, abs=2e-3)
     code = f"""
-        from gnss_citygml.geodesy import GridError, to_osgb
+        from gnss_citygml.geodesy import to_osgb
+        from gnss_citygml.grids import GridError
         try:
             print(to_osgb({tp09}, grid_dir={str(wrong)!r})[2])
         except GridError as error:
@@ -313,7 +318,8 @@ def test_missing_grids_name_the_files_and_how_to_get_them(grid_dir, unbundled, t
     empty = tmp_path / "empty"
     empty.mkdir()
     code = f"""
-        from gnss_citygml.geodesy import GridError, grid_status, to_osgb
+        from gnss_citygml.geodesy import to_osgb
+        from gnss_citygml.grids import GridError, grid_status
         print(to_osgb(51.5, -0.12, 60.0, grid_dir={str(grid_dir)!r})[2])
         print(grid_status({str(empty)!r}).to_json(orient="records"))
         try:
@@ -333,7 +339,8 @@ def test_missing_grids_name_the_files_and_how_to_get_them(grid_dir, unbundled, t
 
 def test_network_fetches_missing_grids_into_the_user_directory(grid_dir, unbundled, tmp_path):
     code = """
-        from gnss_citygml.geodesy import grid_status, to_osgb
+        from gnss_citygml.geodesy import to_osgb
+        from gnss_citygml.grids import grid_status
         print(to_osgb(51.48936564950, -0.11992557180, 66.057, network=True)[2])
         print(grid_status().to_json(orient="records"))
     """
@@ -358,7 +365,8 @@ def test_network_is_not_used_while_the_bundled_grids_are_there(tmp_path):
 
 def test_network_unreachable_is_a_clear_error(unbundled, tmp_path):
     code = """
-        from gnss_citygml.geodesy import GridError, to_osgb
+        from gnss_citygml.geodesy import to_osgb
+        from gnss_citygml.grids import GridError
         try:
             to_osgb(51.5, -0.12, 60.0, network=True)
         except GridError as error:
@@ -575,7 +583,7 @@ def test_read_footprints_in_other_crs_within_a_millimetre(city, grid_dir, unbund
     code = f"""
         import numpy as np, shapely
         from gnss_citygml.footprints import read_footprints
-        from gnss_citygml.geodesy import GridError
+        from gnss_citygml.grids import GridError
         try:
             read_footprints({str(city / "footprints_EPSG4326.gpkg")!r}, grid_dir={str(empty)!r})
         except GridError as error:

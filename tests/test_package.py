@@ -263,11 +263,13 @@ def test_import_loads_no_stage():
     assert not {name.split(".")[0] for name in run.stdout.split()} & set(HEAVY)
 
 
-def test_a_subcommand_help_loads_only_its_module():
-    result = _loaded("estimate", "--help")
+@pytest.mark.parametrize("command", ["estimate", "heights"])
+def test_a_subcommand_help_loads_only_its_module(command):
+    """Only ``simulate`` loads the simulator: the commands of the job do not."""
+    result = _loaded(command, "--help")
     assert "--method [4PL-B|4PL|hinge|bayes]" in result["out"]
-    assert f"{cli_package.__name__}.estimate" in result["modules"]
-    assert f"{cli_package.__name__}.models" not in result["modules"]
+    assert f"{cli_package.__name__}.{command}" in result["modules"]
+    assert f"{cli_package.__name__}.simulate" not in result["modules"]
     assert not any(name.startswith(SIMULATOR) for name in result["modules"])
 
 

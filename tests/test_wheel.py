@@ -24,7 +24,7 @@ import pytest
 
 import gnss_citygml
 from gnss_citygml.contracts import SCHEMA_FOLDER
-from gnss_citygml.geodesy import BUNDLED_GRID_DIR, GRIDS
+from gnss_citygml.grids import BUNDLED_GRID_DIR, GRIDS
 
 ROOT = Path(__file__).resolve().parents[1]
 CITY_FILES = ("observations.parquet", "footprints.gpkg", "dem.tif", "truth.csv")

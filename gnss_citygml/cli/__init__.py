@@ -46,7 +46,7 @@ COMMANDS = {
         "Show which copy of the OSTN15 / OSGM15 grids is used, and where it comes from.",
     ),
     "heights": (
-        "models",
+        "heights",
         "Estimate building heights from an intersections table (CSV or Parquet).",
     ),
     "observe": (
@@ -54,7 +54,7 @@ COMMANDS = {
         "Turn GnssLogger LOGS and satellite orbits into an observations table.",
     ),
     "simulate": (
-        "models",
+        "simulate",
         "Simulate a site and write the files a user brings to `estimate`: observations, "
         "footprints.gpkg and dem.tif (EPSG:27700), plus the intersections and the true heights.",
     ),

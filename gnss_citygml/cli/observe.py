@@ -101,7 +101,7 @@ def grids(grid_dir, fetch):
     Searched in order: --grid-dir (or $GNSS_CITYGML_GRID_DIR), PROJ's user data folder, PROJ's
     data folders, and last the copy bundled with gnss-citygml, so that nothing needs fetching.
     Exit code 1 if a grid is found nowhere (a damaged install)."""
-    from ..geodesy import fetch_grids, grid_status
+    from ..grids import fetch_grids, grid_status
 
     if fetch:
         for path in fetch_grids():

@@ -1,14 +1,14 @@
-"""Subcommands around the height model: a simulated site, heights from intersections."""
+"""The ``simulate`` subcommand: a simulated site written as the files a user brings.
+
+Only this command loads the simulator (its module is imported when the command runs).
+"""
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import click
 
-from ..settings import WEIGHTINGS, Estimator
 from ..simulate.scenes import PRESETS
-from .options import GRID_DIR, METHOD, OVERWRITE, SEED, THRESHOLD, output_dir, output_file
+from .options import GRID_DIR, OVERWRITE, SEED, output_dir
 
 
 @click.command()
@@ -46,29 +46,3 @@ def simulate(preset, output_dir, locations, seed, interval, fmt, grid_dir, overw
         f"{len(sim.observations)} signals, {len(sim.intersections)} intersections, "
         f"{len(sim.truth)} buildings -> {output_dir}"
     )
-
-
-@click.command()
-@click.argument("intersections", type=click.Path(path_type=Path))
-@output_file("Heights table (.csv or .parquet).")
-@METHOD
-@THRESHOLD
-@click.option(
-    "--weighting",
-    type=click.Choice(list(WEIGHTINGS)),
-    default=Estimator.weighting,
-    show_default=True,
-    help="Reweighting of the 4PL height fit (4PL-B and 4PL).",
-)
-@OVERWRITE
-def heights(intersections, output, method, init_threshold, weighting, overwrite):
-    """Estimate building heights from an intersections table (CSV or Parquet)."""
-    from ..model.estimate import estimate_heights
-    from ..tables import check_table_output, read_table, write_table
-
-    estimator = Estimator(method=method, init_threshold=init_threshold, weighting=weighting)
-    check_table_output(output, overwrite=overwrite)
-    out = estimate_heights(read_table(intersections), estimator)
-    write_table(out, output, overwrite=overwrite)
-    ok = int(out["converged"].sum())
-    click.echo(f"{ok} of {len(out)} buildings converged -> {output}")

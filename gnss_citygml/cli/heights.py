@@ -1,0 +1,36 @@
+"""The ``heights`` subcommand: the model alone, on an intersections table."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from ..settings import WEIGHTINGS, Estimator
+from .options import METHOD, OVERWRITE, THRESHOLD, output_file
+
+
+@click.command()
+@click.argument("intersections", type=click.Path(path_type=Path))
+@output_file("Heights table (.csv or .parquet).")
+@METHOD
+@THRESHOLD
+@click.option(
+    "--weighting",
+    type=click.Choice(list(WEIGHTINGS)),
+    default=Estimator.weighting,
+    show_default=True,
+    help="Reweighting of the 4PL height fit (4PL-B and 4PL).",
+)
+@OVERWRITE
+def heights(intersections, output, method, init_threshold, weighting, overwrite):
+    """Estimate building heights from an intersections table (CSV or Parquet)."""
+    from ..model.estimate import estimate_heights
+    from ..tables import check_table_output, read_table, write_table
+
+    estimator = Estimator(method=method, init_threshold=init_threshold, weighting=weighting)
+    check_table_output(output, overwrite=overwrite)
+    out = estimate_heights(read_table(intersections), estimator)
+    write_table(out, output, overwrite=overwrite)
+    ok = int(out["converged"].sum())
+    click.echo(f"{ok} of {len(out)} buildings converged -> {output}")

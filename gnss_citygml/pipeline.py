@@ -18,7 +18,8 @@ import shapely
 
 from .calibrate import calibrate_receivers
 from .errors import InputError
-from .geodesy import CrsInput, grid_bearing, is_bng, to_osgb
+from .footprints import check_bng
+from .geodesy import CrsInput, grid_bearing, to_osgb
 from .ids import id_field, source_named, with_id_field
 from .model.estimate import HEIGHTS_COLUMNS, estimate_heights
 from .observations import check_observations
@@ -231,7 +232,7 @@ def estimate(
         not a GeoDataFrame in EPSG:27700 (both before any work), and any stage's error.
     """
     calibration.check_method(estimator)
-    _check_footprints(footprints)
+    check_bng(footprints, "footprints")
     say = progress or (lambda stage: None)
     say(STAGES[0])
     obs = check_observations(observations)
@@ -260,35 +261,6 @@ def estimate(
     heights = estimate_heights(inter, estimator)
     say(STAGES[5])
     return _join(buildings, heights, estimator.method, id_field(footprints))
-
-
-def _check_footprints(footprints) -> None:
-    """Refuse footprints that are not a GeoDataFrame in British National Grid, naming the CRS
-    found: the rays are cast in EPSG:27700, where footprints in another CRS lie far away."""
-    if not isinstance(footprints, gpd.GeoDataFrame):
-        raise InputError(
-            f"the footprints must be a GeoDataFrame, not {type(footprints).__name__}",
-            where="footprints",
-            fix="read them with read_footprints(path)",
-        )
-    crs = footprints.crs
-    if crs is None:
-        raise InputError(
-            "the footprints have no CRS",
-            where="footprints",
-            fix="read the file with read_footprints(path), or set the CRS of the coordinates, "
-            "e.g. gdf.set_crs('EPSG:27700') for British National Grid",
-        )
-    if not is_bng(crs):
-        authority = crs.to_authority()
-        found = crs.name + (f" ({':'.join(authority)})" if authority else "")
-        raise InputError(
-            f"the footprints are in {found}, not EPSG:27700 (British National Grid)",
-            where="footprints",
-            fix="read the file with read_footprints(path), which converts them with OSTN15 "
-            "(gdf.to_file('footprints.gpkg') first for a GeoDataFrame); not gdf.to_crs, which "
-            "may take PROJ's 2 m Helmert transformation",
-        )
 
 
 def _check_near(rx: pd.DataFrame, footprints: gpd.GeoDataFrame, max_range: float) -> None:

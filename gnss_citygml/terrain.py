@@ -34,7 +34,7 @@ from rasterio.io import DatasetReader
 from rasterio.windows import Window
 
 from .errors import InputError, MissingColumnError, first_line, listing
-from .footprints import check_polygonal
+from .footprints import check_bng, check_polygonal
 from .geodesy import CrsInput, is_bng
 from .paths import StrPath
 
@@ -316,12 +316,7 @@ def building_ground(
         )
     if "id" not in buildings.columns:
         raise MissingColumnError(["id"], where="buildings", have=list(buildings.columns))
-    if buildings.crs is None or not is_bng(buildings.crs):
-        raise InputError(
-            f"the buildings are in {buildings.crs or 'no CRS'}, not EPSG:27700",
-            where="buildings",
-            fix="read them with read_footprints, which transforms them",
-        )
+    check_bng(buildings)
     out = buildings.copy()
     if buildings.empty:
         out["ground"] = np.array([], dtype=float)

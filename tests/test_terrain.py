@@ -202,5 +202,5 @@ def test_other_bad_arguments(dem):
     )
     with pytest.raises(InputError, match=r"1 feature\(s\) are not polygons \(LineString\): line"):
         building_ground(b, dem)
-    with pytest.raises(InputError, match=r"in EPSG:4326, not EPSG:27700"):
+    with pytest.raises(InputError, match=r"in WGS 84 \(EPSG:4326\), not EPSG:27700"):
         building_ground(b.set_crs("EPSG:4326", allow_override=True), dem)

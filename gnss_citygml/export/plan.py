@@ -33,7 +33,7 @@ import shapely
 
 from ..contracts import HEIGHTS, load
 from ..errors import InputError, MissingColumnError, listing
-from ..geodesy import is_bng
+from ..footprints import check_bng
 from ..ids import id_field, id_named, with_id_field
 from ..paths import StrPath
 from ..validate import Report
@@ -308,21 +308,11 @@ def prepare_buildings(buildings: gpd.GeoDataFrame, *, strict: bool = False) -> P
         footprints, non-numeric heights, part ids taken by buildings, no usable height, or
         (``strict``) skipped buildings.
     """
-    if not isinstance(buildings, gpd.GeoDataFrame):
-        raise InputError(
-            f"the buildings must be a GeoDataFrame, not {type(buildings).__name__}",
-            fix="read them with read_footprints or geopandas",
-        )
+    check_bng(buildings)
     buildings = id_named(buildings)
     missing = [c for c in ("id", "ground", "height") if c not in buildings.columns]
     if missing:
         raise MissingColumnError(missing, where="buildings", have=list(buildings.columns))
-    if buildings.crs is None or not is_bng(buildings.crs):
-        raise InputError(
-            f"the buildings are in {buildings.crs or 'no CRS'}, not EPSG:27700",
-            where="buildings",
-            fix="read them with read_footprints, which transforms them with OSTN15",
-        )
     checks = _Checks(len(buildings))
     for part in chunks(len(buildings), CHECK_CHUNK):
         checks.add(buildings.iloc[part], part.start)

@@ -10,7 +10,12 @@ many did not run. With ``$CI`` set, missing shared data is a failure, never a sk
 """
 
 import functools
+import json
 import os
+import shutil
+import subprocess
+import sys
+import textwrap
 from pathlib import Path
 from typing import NoReturn
 
@@ -18,9 +23,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
+import gnss_citygml
 from gnss_citygml.gnss.gpstime import gps_to_utc
 from gnss_citygml.gnss.sp3 import read_sp3
-from gnss_citygml.grids import GridError, grid_status
+from gnss_citygml.grids import BUNDLED_GRID_DIR, GRID_DIR_ENV, GridError, grid_status
 from gnss_citygml.model.fourpl import logistic4
 
 
@@ -265,3 +271,101 @@ def pytest_terminal_summary(terminalreporter):
             bold=True,
         )
     return result
+
+
+# --- geodesy: the OS test points, fresh interpreters, an install without its grids ----------
+
+
+@pytest.fixture(scope="session")
+def os_points(repo_data):
+    """The OS test inputs and expected outputs of both directions, one row per point."""
+    vectors = repo_data / "geodesy"
+    etrs = pd.read_csv(vectors / "OSTN15_OSGM15_TestInput_ETRStoOSGB.txt")
+    etrs.columns = ["point", "lat", "lon", "h"]
+    osgb = pd.read_csv(vectors / "OSTN15_OSGM15_TestOutput_ETRStoOSGB.txt").iloc[:, :5]
+    osgb.columns = ["point", "e", "n", "odn", "flag"]
+    back_in = pd.read_csv(vectors / "OSTN15_OSGM15_TestInput_OSGBtoETRS.txt")
+    back_in.columns = ["point", "e_in", "n_in", "odn_in"]
+    back = pd.read_csv(vectors / "OSTN15_OSGM15_TestOutput_OSGBtoETRS.txt").iloc[:, :5]
+    back.columns = ["point", "step", "lat_out", "lon_out", "h_out"]
+    back = back[back["step"] == "RESULT"].drop(columns="step")
+    table = etrs.merge(osgb, on="point").merge(back_in, on="point").merge(back, on="point")
+    assert len(table) == 40
+    return table
+
+
+@pytest.fixture(scope="session")
+def unbundled(tmp_path_factory):
+    """A folder holding the package without its bundled grids (an install that lost them), for
+    a fresh interpreter's PYTHONPATH: only then is a grid found nowhere."""
+    site = tmp_path_factory.mktemp("unbundled")
+    package = Path(gnss_citygml.__file__).parent
+    shutil.copytree(
+        package,
+        site / "gnss_citygml",
+        ignore=lambda folder, names: (
+            ["grids"] if Path(folder) == BUNDLED_GRID_DIR.parent else ["__pycache__"]
+        ),
+    )
+    return site
+
+
+def fresh_env(tmp_path, endpoint=None, package=None):
+    """The environment of a fresh interpreter whose home is the empty ``tmp_path/home`` and PROJ
+    user directory the empty ``tmp_path/user`` (so grids fetched on this machine do not count),
+    without $GNSS_CITYGML_GRID_DIR and, if given, with another CDN endpoint and the package
+    imported from the folder ``package`` (:func:`unbundled`). No grid folder is on its PROJ
+    search path at the start, as for a user's run (in this process, earlier tests added some)."""
+    (tmp_path / "home").mkdir(parents=True, exist_ok=True)
+    env = dict(
+        os.environ,
+        HOME=str(tmp_path / "home"),
+        PROJ_USER_WRITABLE_DIRECTORY=str(tmp_path / "user"),
+    )
+    for name in (GRID_DIR_ENV, "XDG_DATA_HOME", "PYTHONPATH"):
+        env.pop(name, None)
+    if endpoint:
+        env["PROJ_NETWORK_ENDPOINT"] = endpoint
+    if package:
+        env["PYTHONPATH"] = str(package)
+    return env
+
+
+def isolated(code, tmp_path, endpoint=None, package=None):
+    """Run ``code`` in a fresh interpreter (:func:`fresh_env`); its printed lines. With
+    ``package``, the first line is checked to be the package's folder and left out."""
+    code = textwrap.dedent(code)
+    if package:
+        code = "import gnss_citygml; print(gnss_citygml.__file__)\n" + code
+    run = subprocess.run(
+        [sys.executable, "-c", code],
+        env=fresh_env(tmp_path, endpoint, package),
+        capture_output=True,
+        text=True,
+        check=True,
+        cwd=tmp_path,
+    )
+    lines = run.stdout.splitlines()
+    if package:
+        assert Path(lines.pop(0)).is_relative_to(package)
+    return lines
+
+
+def commands(runs, tmp_path, package=None):
+    """Several ``gnss-citygml`` runs (argument lists) in one fresh interpreter
+    (:func:`fresh_env`): (exit code, stdout, stderr) of each."""
+    code = f"""
+        import contextlib, io, json
+        from gnss_citygml.cli import main
+        results = []
+        for args in {[[str(a) for a in args] for args in runs]!r}:
+            out, err = io.StringIO(), io.StringIO()
+            with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+                try:
+                    main(args)
+                except SystemExit as exit_:
+                    results.append((exit_.code, out.getvalue(), err.getvalue()))
+        print(json.dumps(results))
+    """
+    (line,) = isolated(code, tmp_path, package=package)
+    return json.loads(line)

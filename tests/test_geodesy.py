@@ -1,16 +1,11 @@
-"""ETRS89 <-> BNG + ODN against the 40 Ordnance Survey test points; grids; meridian convergence;
+"""ETRS89 <-> BNG + ODN against the 40 Ordnance Survey test points; meridian convergence;
 every transformation of the toolkit (footprints in another CRS through `read_footprints`,
-`estimate`, `convert`, `export`) on the one OSTN15/OSGM15 path, or the grid error."""
+`estimate`, `convert`, `export`) on the one OSTN15/OSGM15 path, or the grid error. Where the
+grids come from: test_grids.py."""
 
 import contextlib
-import hashlib
 import io
 import json
-import os
-import shutil
-import subprocess
-import sys
-import textwrap
 from pathlib import Path
 
 import geopandas as gpd
@@ -19,9 +14,9 @@ import pandas as pd
 import pyproj
 import pytest
 import shapely
+from conftest import commands, isolated
 from pyproj import Geod
 
-import gnss_citygml
 from gnss_citygml.cli import main
 from gnss_citygml.footprints import read_footprints
 from gnss_citygml.geodesy import (
@@ -33,14 +28,7 @@ from gnss_citygml.geodesy import (
     to_bng,
     to_osgb,
 )
-from gnss_citygml.grids import (
-    BUNDLED_GRID_DIR,
-    GRID_DIR_ENV,
-    GRIDS,
-    GridError,
-    fetch_grids,
-    grid_status,
-)
+from gnss_citygml.grids import BUNDLED_GRID_DIR
 from gnss_citygml.pipeline import receivers
 from gnss_citygml.settings import ReceiverHeights
 
@@ -53,24 +41,6 @@ def grid_dir():
     """The grids' folder given explicitly: the copy bundled with the package (byte for byte the
     reference data's, see test_the_bundled_grids_are_the_reference_files)."""
     return BUNDLED_GRID_DIR
-
-
-@pytest.fixture(scope="module")
-def os_points(repo_data):
-    """The OS test inputs and expected outputs of both directions, one row per point."""
-    vectors = repo_data / "geodesy"
-    etrs = pd.read_csv(vectors / "OSTN15_OSGM15_TestInput_ETRStoOSGB.txt")
-    etrs.columns = ["point", "lat", "lon", "h"]
-    osgb = pd.read_csv(vectors / "OSTN15_OSGM15_TestOutput_ETRStoOSGB.txt").iloc[:, :5]
-    osgb.columns = ["point", "e", "n", "odn", "flag"]
-    back_in = pd.read_csv(vectors / "OSTN15_OSGM15_TestInput_OSGBtoETRS.txt")
-    back_in.columns = ["point", "e_in", "n_in", "odn_in"]
-    back = pd.read_csv(vectors / "OSTN15_OSGM15_TestOutput_OSGBtoETRS.txt").iloc[:, :5]
-    back.columns = ["point", "step", "lat_out", "lon_out", "h_out"]
-    back = back[back["step"] == "RESULT"].drop(columns="step")
-    table = etrs.merge(osgb, on="point").merge(back_in, on="point").merge(back, on="point")
-    assert len(table) == 40
-    return table
 
 
 def test_etrs_to_osgb_matches_all_40_os_points(os_points, grid_dir):
@@ -167,271 +137,6 @@ def test_non_finite_coordinates_are_an_error(grid_dir):
             [51.5, np.nan, 51.5], [-0.12, -0.12, -0.12], [50.0, 50.0, np.inf], grid_dir=grid_dir
         )
     assert "point 1 (lat nan" in str(info.value) and "point 2 (lat 51.5" in str(info.value)
-
-
-@pytest.fixture(scope="module")
-def unbundled(tmp_path_factory):
-    """A folder holding the package without its bundled grids (an install that lost them), for
-    a fresh interpreter's PYTHONPATH: only then is a grid found nowhere."""
-    site = tmp_path_factory.mktemp("unbundled")
-    package = Path(gnss_citygml.__file__).parent
-    shutil.copytree(
-        package,
-        site / "gnss_citygml",
-        ignore=lambda folder, names: (
-            ["grids"] if Path(folder) == BUNDLED_GRID_DIR.parent else ["__pycache__"]
-        ),
-    )
-    return site
-
-
-def _fresh_env(tmp_path, endpoint=None, package=None):
-    """The environment of a fresh interpreter whose home is the empty ``tmp_path/home`` and PROJ
-    user directory the empty ``tmp_path/user`` (so grids fetched on this machine do not count),
-    without $GNSS_CITYGML_GRID_DIR and, if given, with another CDN endpoint and the package
-    imported from the folder ``package`` (:func:`unbundled`). No grid folder is on its PROJ
-    search path at the start, as for a user's run (in this process, earlier tests added some)."""
-    (tmp_path / "home").mkdir(parents=True, exist_ok=True)
-    env = dict(
-        os.environ,
-        HOME=str(tmp_path / "home"),
-        PROJ_USER_WRITABLE_DIRECTORY=str(tmp_path / "user"),
-    )
-    for name in (GRID_DIR_ENV, "XDG_DATA_HOME", "PYTHONPATH"):
-        env.pop(name, None)
-    if endpoint:
-        env["PROJ_NETWORK_ENDPOINT"] = endpoint
-    if package:
-        env["PYTHONPATH"] = str(package)
-    return env
-
-
-def _isolated(code, tmp_path, endpoint=None, package=None):
-    """Run ``code`` in a fresh interpreter (:func:`_fresh_env`); its printed lines. With
-    ``package``, the first line is checked to be the package's folder and left out."""
-    code = textwrap.dedent(code)
-    if package:
-        code = "import gnss_citygml; print(gnss_citygml.__file__)\n" + code
-    run = subprocess.run(
-        [sys.executable, "-c", code],
-        env=_fresh_env(tmp_path, endpoint, package),
-        capture_output=True,
-        text=True,
-        check=True,
-        cwd=tmp_path,
-    )
-    lines = run.stdout.splitlines()
-    if package:
-        assert Path(lines.pop(0)).is_relative_to(package)
-    return lines
-
-
-def _commands(runs, tmp_path, package=None):
-    """Several ``gnss-citygml`` runs (argument lists) in one fresh interpreter
-    (:func:`_fresh_env`): (exit code, stdout, stderr) of each."""
-    code = f"""
-        import contextlib, io, json
-        from gnss_citygml.cli import main
-        results = []
-        for args in {[[str(a) for a in args] for args in runs]!r}:
-            out, err = io.StringIO(), io.StringIO()
-            with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-                try:
-                    main(args)
-                except SystemExit as exit_:
-                    results.append((exit_.code, out.getvalue(), err.getvalue()))
-        print(json.dumps(results))
-    """
-    (line,) = _isolated(code, tmp_path, package=package)
-    return json.loads(line)
-
-
-def test_the_bundled_grids_are_the_reference_files(shared_data):
-    """PROJ-data's files, unchanged: the size and checksum their README gives, byte for byte
-    the reference data's; with Ordnance Survey's notice beside them."""
-    readme = (BUNDLED_GRID_DIR / "README.md").read_text()
-    for name in GRIDS:
-        data = (BUNDLED_GRID_DIR / name).read_bytes()
-        assert f"`{name}` | {len(data)} | `{hashlib.sha256(data).hexdigest()}`" in readme
-        assert data == (shared_data / "geodesy" / name).read_bytes()
-    notice = (BUNDLED_GRID_DIR / "LICENSE").read_text()
-    assert "Ordnance Survey Limited 2016" in notice and "2. Redistributions in binary" in notice
-
-
-def test_a_user_without_grids_gets_the_bundled_copy(os_points, tmp_path):
-    """An empty home, no grid folder, nothing in PROJ's user folder (fresh interpreter): the
-    bundled grids are used, and match all 40 OS test points."""
-    points = [os_points[c].tolist() for c in ("lat", "lon", "h")]
-    code = f"""
-        import json
-        from gnss_citygml.geodesy import to_osgb
-        from gnss_citygml.grids import grid_status
-        print(grid_status().to_json(orient="records"))
-        print(json.dumps([a.tolist() for a in to_osgb(*{points!r})]))
-    """
-    status, result = _isolated(code, tmp_path)
-    status = json.loads(status)
-    assert [row["source"] for row in status] == ["bundled with gnss-citygml"] * 2
-    assert [row["path"] for row in status] == [str(BUNDLED_GRID_DIR / name) for name in GRIDS]
-    e, n, odn = map(np.array, json.loads(result))
-    assert np.hypot(e - os_points["e"], n - os_points["n"]).max() < 0.008  # as with grid_dir
-    assert np.abs(odn - os_points["odn"]).max() < 0.002
-
-
-def test_an_explicit_grid_dir_wins_over_the_bundled_copy(shared_data, tmp_path):
-    """grid_dir's copy is the one PROJ uses: a good copy there is reported and gives TP09; a
-    wrong geoid there (Malin Head's, under the GB geoid's name) is refused by the TP09 check,
-    never quietly replaced by the bundled copy."""
-    good, wrong = tmp_path / "good", tmp_path / "wrong"
-    for folder in (good, wrong):
-        folder.mkdir()
-        shutil.copy(BUNDLED_GRID_DIR / "uk_os_OSTN15_NTv2_OSGBtoETRS.tif", folder)
-    shutil.copy(BUNDLED_GRID_DIR / "uk_os_OSGM15_GB.tif", good)
-    shutil.copy(shared_data / "geodesy" / "uk_os_OSGM15_Malin.tif", wrong / "uk_os_OSGM15_GB.tif")
-    tp09 = "51.48936564950, -0.11992557180, 66.057"
-    code = f"""
-        from gnss_citygml.geodesy import to_osgb
-        from gnss_citygml.grids import GridError, grid_status
-        print(grid_status({str(good)!r}).to_json(orient="records"))
-        print(to_osgb({tp09}, grid_dir={str(good)!r})[2])
-    """
-    status, odn = _isolated(code, tmp_path / "1")
-    assert [row["path"] for row in json.loads(status)] == [str(good / name) for name in GRIDS]
-    assert {row["source"] for row in json.loads(status)} == {"grid_dir"}
-    assert float(odn) == pytest.approx(20.544, abs=2e-3)
-    code = f"""
-        from gnss_citygml.geodesy import to_osgb
-        from gnss_citygml.grids import GridError
-        try:
-            print(to_osgb({tp09}, grid_dir={str(wrong)!r})[2])
-        except GridError as error:
-            print(error)
-    """
-    (message,) = _isolated(code, tmp_path / "2")
-    assert message.startswith("the grids do not reproduce Ordnance Survey test point TP09")
-
-
-def test_missing_grids_name_the_files_and_how_to_get_them(grid_dir, unbundled, tmp_path):
-    """An install that lost its bundled grids: a run with the real grids first (so their
-    folder is on PROJ's search path), then an empty grid folder must still fail, naming both
-    files, instead of reusing the first."""
-    empty = tmp_path / "empty"
-    empty.mkdir()
-    code = f"""
-        from gnss_citygml.geodesy import to_osgb
-        from gnss_citygml.grids import GridError, grid_status
-        print(to_osgb(51.5, -0.12, 60.0, grid_dir={str(grid_dir)!r})[2])
-        print(grid_status({str(empty)!r}).to_json(orient="records"))
-        try:
-            to_osgb(51.5, -0.12, 60.0, grid_dir={str(empty)!r})
-        except GridError as error:
-            print(error)
-    """
-    first, status, message = _isolated(code, tmp_path, package=unbundled)
-    assert 14.0 < float(first) < 15.0  # ODN = 60 m - ~45.5 m of geoid in London
-    assert [row["found"] for row in json.loads(status)] == [False, False]
-    assert "missing PROJ grid(s) uk_os_OSTN15_NTv2_OSGBtoETRS.tif, uk_os_OSGM15_GB.tif" in message
-    assert str(empty) in message and str(tmp_path / "user") in message
-    assert f"{unbundled / 'gnss_citygml' / 'data' / 'grids'} (bundled with gnss-citygml)" in message
-    assert "reinstall gnss-citygml" in message and "gnss-citygml grids --fetch" in message
-    assert "projsync --file uk_os_OSGM15_GB.tif" in message
-
-
-def test_network_fetches_missing_grids_into_the_user_directory(grid_dir, unbundled, tmp_path):
-    code = """
-        from gnss_citygml.geodesy import to_osgb
-        from gnss_citygml.grids import grid_status
-        print(to_osgb(51.48936564950, -0.11992557180, 66.057, network=True)[2])
-        print(grid_status().to_json(orient="records"))
-    """
-    odn, status = _isolated(
-        code, tmp_path, endpoint=_fake_cdn(tmp_path, grid_dir), package=unbundled
-    )
-    assert float(odn) == pytest.approx(20.544, abs=2e-3)
-    assert {row["source"] for row in json.loads(status)} == {"pyproj user data directory"}
-    assert sorted(p.name for p in (tmp_path / "user").iterdir()) == sorted(GRIDS)
-
-
-def test_network_is_not_used_while_the_bundled_grids_are_there(tmp_path):
-    """network=True with the CDN unreachable: the bundled grids, no download, no error."""
-    code = """
-        from gnss_citygml.geodesy import to_osgb
-        print(to_osgb(51.48936564950, -0.11992557180, 66.057, network=True)[2])
-    """
-    (odn,) = _isolated(code, tmp_path, endpoint=(tmp_path / "offline").as_uri())
-    assert float(odn) == pytest.approx(20.544, abs=2e-3)
-    assert not (tmp_path / "user").exists() or not list((tmp_path / "user").iterdir())
-
-
-def test_network_unreachable_is_a_clear_error(unbundled, tmp_path):
-    code = """
-        from gnss_citygml.geodesy import to_osgb
-        from gnss_citygml.grids import GridError
-        try:
-            to_osgb(51.5, -0.12, 60.0, network=True)
-        except GridError as error:
-            print(error)
-    """
-    (message,) = _isolated(
-        code, tmp_path, endpoint=(tmp_path / "offline").as_uri(), package=unbundled
-    )
-    assert message.startswith("cannot read PROJ's grid catalogue")
-    assert "--grid-dir" in message
-
-
-def test_missing_grid_folder(tmp_path):
-    with pytest.raises(GridError, match="does not exist"):
-        to_osgb(51.5, -0.12, 60.0, grid_dir=tmp_path / "nowhere")
-
-
-def test_grid_status_from_the_environment(grid_dir, monkeypatch):
-    monkeypatch.setenv(GRID_DIR_ENV, str(grid_dir))
-    status = grid_status()
-    assert list(status["grid"]) == list(GRIDS)
-    assert status["found"].all()
-    assert set(status["source"]) == {f"${GRID_DIR_ENV}"}
-    assert to_osgb(51.48936564950, -0.11992557180, 66.057)[2] == pytest.approx(20.544, abs=2e-3)
-
-
-def _fake_cdn(tmp_path, grid_dir, checksums=None):
-    """A local 'CDN' (file:// URL): the catalogue plus links to the real grid files."""
-    cdn = tmp_path / "cdn"
-    cdn.mkdir()
-    features = []
-    for name in GRIDS:
-        (cdn / name).symlink_to(grid_dir / name)
-        sha = hashlib.sha256((grid_dir / name).read_bytes()).hexdigest()
-        sha = (checksums or {}).get(name, sha)
-        features.append({"type": "Feature", "properties": {"name": name, "sha256": sha}})
-    (cdn / "files.geojson").write_text(json.dumps({"features": features}))
-    return cdn.as_uri()
-
-
-def test_fetch_grids_downloads_and_checks(tmp_path, grid_dir):
-    target = tmp_path / "grids"
-    paths = fetch_grids(target, endpoint=_fake_cdn(tmp_path, grid_dir))
-    assert [p.name for p in paths] == list(GRIDS)
-    for path in paths:
-        assert path.read_bytes() == (grid_dir / path.name).read_bytes()
-    assert sorted(p.name for p in target.iterdir()) == sorted(GRIDS)  # no .part left
-    assert grid_status(target)["source"].eq("grid_dir").all()
-    assert to_osgb(51.48936564950, -0.11992557180, 66.057, grid_dir=target)[0] == pytest.approx(
-        530624.974, abs=2e-3
-    )
-
-
-def test_fetch_grids_refuses_a_bad_checksum(tmp_path, grid_dir):
-    endpoint = _fake_cdn(tmp_path, grid_dir, {"uk_os_OSGM15_GB.tif": "0" * 64})
-    with pytest.raises(GridError, match="uk_os_OSGM15_GB.tif does not match its SHA-256"):
-        fetch_grids(tmp_path / "grids", endpoint=endpoint)
-    assert not (tmp_path / "grids" / "uk_os_OSGM15_GB.tif").exists()
-    assert not (tmp_path / "grids" / "uk_os_OSGM15_GB.tif.part").exists()
-
-
-def test_fetch_grids_unreachable_is_a_clear_error(tmp_path):
-    with pytest.raises(GridError, match="cannot read PROJ's grid catalogue") as info:
-        fetch_grids(tmp_path / "grids", endpoint=(tmp_path / "offline").as_uri())
-    assert "--grid-dir" in str(info.value)
 
 
 def test_meridian_convergence_sign_with_a_point_due_north(grid_dir):
@@ -596,7 +301,7 @@ def test_read_footprints_in_other_crs_within_a_millimetre(city, grid_dir, unbund
             d = shapely.get_coordinates(got.geometry) - shapely.get_coordinates(bng.geometry)
             print(np.hypot(*d.T).max())
     """
-    message, *moved = _isolated(code, tmp_path, package=unbundled)
+    message, *moved = isolated(code, tmp_path, package=unbundled)
     assert message.startswith("missing PROJ grid(s) uk_os_OSTN15_NTv2_OSGBtoETRS.tif")
     assert str(empty) in message
     assert len(moved) == 3 and max(map(float, moved)) < 1e-3
@@ -607,7 +312,7 @@ def test_estimate_with_footprints_in_wgs84_gives_the_same_heights(city, grid_dir
     out = tmp_path / "heights.gpkg"
     args = ["estimate", CITY / "observations.parquet", city / "footprints_EPSG4326.gpkg",
             "--dem", CITY / "dem.tif", "-o", out, "--grid-dir", grid_dir, "-q"]  # fmt: skip
-    ((code, stdout, err),) = _commands([args], tmp_path)
+    ((code, stdout, err),) = commands([args], tmp_path)
     assert code == 0, err
     assert stdout.startswith("25 of 30 buildings have a height")
     got, want = gpd.read_file(out), gpd.read_file(city / "heights.gpkg")
@@ -638,7 +343,7 @@ def test_convert_and_export_footprints_in_other_crs_within_a_millimetre(city, gr
     fp = city / "footprints_EPSG4326.gpkg"
     runs.append(["export", city / "heights.csv", "--footprints", fp, "-o", outputs[-1]])
     references.append(city / "export.city.json")
-    results = _commands([[*args, "--grid-dir", grid_dir, "-q"] for args in runs], tmp_path)
+    results = commands([[*args, "--grid-dir", grid_dir, "-q"] for args in runs], tmp_path)
     for (code, _, err), got, want in zip(results, outputs, references, strict=True):
         assert code == 0, err
         (extent, vertices), (extent0, vertices0) = _model(got), _model(want)
@@ -658,7 +363,7 @@ def test_commands_without_the_grids_are_the_grid_error(city, unbundled, tmp_path
         ["export", city / "heights.csv", "--footprints", fp],
         ["estimate", CITY / "observations.parquet", fp, "--dem", CITY / "dem.tif"],
     ]
-    results = _commands(
+    results = commands(
         [[*a, "-o", out, "-q"] for a, out in zip(runs, outputs, strict=True)],
         tmp_path,
         package=unbundled,
@@ -668,20 +373,3 @@ def test_commands_without_the_grids_are_the_grid_error(city, unbundled, tmp_path
         assert err.startswith("error: missing PROJ grid(s) uk_os_OSTN15_NTv2_OSGBtoETRS.tif")
         assert "gnss-citygml grids --fetch" in err and len(err.splitlines()) == 1
         assert not out.exists()
-
-
-def test_grids_says_which_copy_is_used(unbundled, tmp_path):
-    """`gnss-citygml grids` for a user without grids (the bundled copy), with --grid-dir (that
-    folder's copy), and in an install without its bundled copy (exit 1, both missing)."""
-    copy, empty = tmp_path / "copy", tmp_path / "empty"
-    shutil.copytree(BUNDLED_GRID_DIR, copy)
-    empty.mkdir()
-    bundled, given = _commands([["grids"], ["grids", "--grid-dir", copy]], tmp_path / "1")
-    assert bundled[0] == given[0] == 0
-    for name, purpose in GRIDS.items():
-        line = f"{name}  {purpose}: {BUNDLED_GRID_DIR / name} (bundled with gnss-citygml)"
-        assert line in bundled[1].splitlines()
-        assert f"{name}  {purpose}: {copy / name} (grid_dir)" in given[1].splitlines()
-    ((code, out, err),) = _commands([["grids", "--grid-dir", empty]], tmp_path / "2", unbundled)
-    assert code == 1 and out.count("MISSING") == 2
-    assert "reinstall gnss-citygml" in err and "grids --fetch" in err

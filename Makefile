@@ -13,8 +13,8 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 lint: $(STAMP)
-	$(BIN)/ruff check gnss_citygml tests benchmarks
-	$(BIN)/ruff format --check gnss_citygml tests benchmarks
+	$(BIN)/ruff check gnss_citygml tests benchmarks tools
+	$(BIN)/ruff format --check gnss_citygml tests benchmarks tools
 	$(BIN)/mypy gnss_citygml
 
 test: lint

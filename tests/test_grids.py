@@ -5,9 +5,12 @@ Each search is checked in a fresh interpreter (conftest.isolated), as a user's r
 import hashlib
 import json
 import shutil
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
+import rasterio
 from conftest import commands, isolated
 
 from gnss_citygml.geodesy import to_osgb
@@ -20,6 +23,9 @@ from gnss_citygml.grids import (
     grid_status,
 )
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
+import pack_ostn15  # noqa: E402
+
 
 @pytest.fixture(scope="module")
 def grid_dir():
@@ -28,15 +34,56 @@ def grid_dir():
 
 
 def test_the_bundled_grids_are_the_reference_files(shared_data):
-    """PROJ-data's files, unchanged: the size and checksum their README gives, byte for byte
-    the reference data's; with Ordnance Survey's notice beside them."""
+    """PROJ-data's files: the size and checksum their README gives; the geoid byte for byte the
+    reference data's, the OSTN15 shifts exactly tools/pack_ostn15.py's steps of the reference
+    (same extent, CRS, bands, units), each within half a step; with Ordnance Survey's notice."""
     readme = (BUNDLED_GRID_DIR / "README.md").read_text()
     for name in GRIDS:
         data = (BUNDLED_GRID_DIR / name).read_bytes()
         assert f"`{name}` | {len(data)} | `{hashlib.sha256(data).hexdigest()}`" in readme
-        assert data == (shared_data / "geodesy" / name).read_bytes()
+        assert len(data) < 2_000_000
+    geoid = "uk_os_OSGM15_GB.tif"
+    assert (BUNDLED_GRID_DIR / geoid).read_bytes() == (shared_data / "geodesy" / geoid).read_bytes()
+    reference = shared_data / "geodesy" / pack_ostn15.NAME
+    steps, scales = pack_ostn15.quantised(reference)
+    with (
+        rasterio.open(BUNDLED_GRID_DIR / pack_ostn15.NAME) as ours,
+        rasterio.open(reference) as ref,
+    ):
+        assert np.array_equal(ours.read(), steps) and list(ours.scales) == scales
+        assert (ours.crs, ours.transform, ours.shape) == (ref.crs, ref.transform, ref.shape)
+        assert (ours.descriptions, ours.units) == (ref.descriptions, ref.units)
+        assert ours.tags()["TYPE"] == ref.tags()["TYPE"] == "HORIZONTAL_OFFSET"
+        shifts = ours.read(masked=False).astype(float) * np.array(scales)[:, None, None]
+        error = np.abs(shifts - ref.read()).max(axis=(1, 2))
+        assert (error <= np.array(scales) / 2 * (1 + 1e-6)).all()
     notice = (BUNDLED_GRID_DIR / "LICENSE").read_text()
     assert "Ordnance Survey Limited 2016" in notice and "2. Redistributions in binary" in notice
+
+
+_POSITIONS = """
+    import json, numpy as np
+    from pyproj import Transformer
+    from pyproj.datadir import append_data_dir
+    append_data_dir({folder!r})
+    t = Transformer.from_crs("EPSG:4258", "EPSG:27700", always_xy=True, allow_ballpark=False)
+    assert "uk_os_OSTN15_NTv2_OSGBtoETRS.tif" in t.definition
+    rng = np.random.default_rng(1)
+    lat, lon = np.sort(rng.uniform(49.5, 60.9, 200_000)), rng.uniform(-8.9, 1.9, 200_000)
+    print(json.dumps(np.column_stack(t.transform(lon, lat)).tolist()))
+"""
+
+
+def test_the_bundled_shifts_move_positions_by_under_a_fifth_of_a_millimetre(shared_data, tmp_path):
+    """Through PROJ (a fresh interpreter per grid: PROJ takes the first file of a name on its
+    path), 200,000 points over the grid's extent land within 0.2 mm of where PROJ-data's own
+    file puts them."""
+    moved = [
+        np.array(json.loads(isolated(_POSITIONS.format(folder=str(folder)), tmp_path / label)[0]))
+        for label, folder in (("ours", BUNDLED_GRID_DIR), ("ref", shared_data / "geodesy"))
+    ]
+    distance = np.hypot(*(moved[0] - moved[1]).T)
+    assert np.isfinite(distance).all() and distance.max() < 0.0002
 
 
 def test_a_user_without_grids_gets_the_bundled_copy(os_points, tmp_path):

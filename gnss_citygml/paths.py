@@ -22,7 +22,15 @@ from typing import TypeAlias
 
 from .errors import InputError
 
-__all__ = ["StrPath", "atomic_path", "check_output", "input_file", "stale_parts"]
+__all__ = [
+    "StrPath",
+    "atomic_path",
+    "check_output",
+    "check_output_folder",
+    "input_file",
+    "make_folder",
+    "stale_parts",
+]
 
 #: A file or folder a caller names: a string or any path-like object (:class:`~pathlib.Path`).
 StrPath: TypeAlias = str | os.PathLike[str]
@@ -141,6 +149,34 @@ def _alive(pid: int) -> bool:
     except OSError:  # e.g. another user's process: alive
         return True
     return True
+
+
+def check_output_folder(
+    folder: StrPath, files: list[Path], *, overwrite: bool, what: str = "output folder"
+) -> None:
+    """Check a folder that a command fills with ``files``, before the work: a file named as
+    the folder is an error; in an existing folder each file is checked (:func:`check_output`).
+    A missing folder is fine: :func:`make_folder` creates it when the writing starts."""
+    folder = Path(folder)
+    if folder.exists() and not folder.is_dir():
+        raise InputError(f"the {what} is a file", where=str(folder), fix="give a folder")
+    if folder.is_dir():
+        for path in files:
+            check_output(path, overwrite=overwrite)
+
+
+def make_folder(folder: StrPath) -> Path:
+    """``folder``, created with its parents if missing, or a one-line error saying why not."""
+    folder = Path(folder)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(
+            "cannot create the output folder",
+            where=str(folder),
+            fix=f"check the path and its permissions ({exc.strerror})",
+        ) from None
+    return folder
 
 
 @contextlib.contextmanager

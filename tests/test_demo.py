@@ -90,3 +90,14 @@ def test_demo_refuses_a_file_as_its_folder_and_an_existing_model(tmp_path, capsy
     assert code == 2 and out == "" and "output exists" in err and "city.gml" in err
     assert [p.name for p in (tmp_path / "out").iterdir()] == ["city.gml"]
     assert (tmp_path / "out" / "city.gml").read_text() == "mine"
+
+
+@pytest.mark.parametrize("command", [["demo"], ["simulate", "ucl"]])
+def test_a_folder_that_cannot_be_made_is_one_error_line(command, tmp_path, capsys):
+    """A folder under a file cannot be created: one line naming it, not an internal error."""
+    (tmp_path / "file").write_text("mine")
+    inside = tmp_path / "file" / "out"
+    code, out, err = run([*command, "-o", inside], capsys)
+    assert (code, out) == (2, "")
+    assert err.startswith(f"error: cannot create the output folder ({inside}): check the path")
+    assert err.count("\n") == 1 and (tmp_path / "file").read_text() == "mine"

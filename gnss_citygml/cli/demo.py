@@ -56,24 +56,11 @@ def demo(ctx, output_dir, overwrite, quiet):
 
 def _outputs(folder: Path, overwrite: bool) -> list[Path]:
     """The demo's output files in ``folder``, checked before any work (made if it is new)."""
-    from ..errors import InputError
-    from ..paths import check_output
+    from ..paths import check_output_folder, make_folder
 
-    if folder.exists() and not folder.is_dir():
-        raise InputError("the output folder is a file", where=str(folder), fix="give a folder")
     paths = [folder / name for name in OUTPUTS]
-    if folder.is_dir():
-        for path in paths:
-            check_output(path, overwrite=overwrite)
-        return paths
-    try:
-        folder.mkdir(parents=True)
-    except OSError as exc:
-        raise InputError(
-            "cannot create the output folder",
-            where=str(folder),
-            fix=f"check the path and its permissions ({exc.strerror})",
-        ) from None
+    check_output_folder(folder, paths, overwrite=overwrite)
+    make_folder(folder)
     return paths
 
 

@@ -17,10 +17,9 @@ import rasterio
 import shapely
 from rasterio.transform import from_origin
 
-from ..errors import InputError
 from ..geodesy import to_osgb
 from ..observations import OBSERVATION_COLUMNS, write_observations
-from ..paths import StrPath, atomic_path, check_output
+from ..paths import StrPath, atomic_path, check_output_folder, make_folder
 from ..tables import write_layer, write_table
 from . import Simulation, local_to_wgs84
 
@@ -48,11 +47,8 @@ def check_site(
     """The site's paths (:func:`site_paths`), checked before any work: without ``overwrite``
     none of them, nor of ``also`` (other files the caller writes there), may exist."""
     paths = site_paths(folder, fmt)
-    if Path(folder).exists() and not Path(folder).is_dir():
-        raise InputError("the site folder is a file", where=str(folder), fix="give a folder")
-    if Path(folder).is_dir():
-        for path in [*paths.values(), *also]:
-            check_output(path, overwrite=overwrite)
+    files = [*paths.values(), *map(Path, also)]
+    check_output_folder(folder, files, overwrite=overwrite, what="site folder")
     return paths
 
 
@@ -71,7 +67,7 @@ def write_site(
     any of the files already there is an error, raised before anything is written.
     """
     paths = check_site(folder, fmt, overwrite=overwrite)
-    Path(folder).mkdir(parents=True, exist_ok=True)
+    make_folder(folder)
     scene = sim.scene
     footprints = gpd.GeoDataFrame(
         {"id": [b.id for b in scene.buildings]},

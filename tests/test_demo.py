@@ -2,6 +2,10 @@
 the files left behind, and the table that compares every estimate with the simulator's truth."""
 
 import json
+import os
+import shlex
+import subprocess
+import sys
 
 import numpy as np
 import pandas as pd
@@ -101,3 +105,37 @@ def test_a_folder_that_cannot_be_made_is_one_error_line(command, tmp_path, capsy
     assert (code, out) == (2, "")
     assert err.startswith(f"error: cannot create the output folder ({inside}): check the path")
     assert err.count("\n") == 1 and (tmp_path / "file").read_text() == "mine"
+
+
+def test_demo_over_a_geopackage_with_other_layers(tmp_path, capsys):
+    """estimate keeps the GeoPackage's other layers: the demo converts its own `heights`
+    layer, not "several layers, choose one" halfway through."""
+    folder = tmp_path / "out"
+    folder.mkdir()
+    fp = pyogrio.read_dataframe(CITY / "footprints.gpkg")
+    pyogrio.write_dataframe(fp, folder / "heights.gpkg", layer="mine")
+    code, out, err = run(["demo", "-o", folder, "--overwrite", "-q"], capsys)
+    assert code == 0, err
+    assert sorted(pyogrio.list_layers(folder / "heights.gpkg")[:, 0]) == ["heights", "mine"]
+    assert sorted(p.name for p in folder.iterdir()) == sorted(OUTPUTS)
+
+
+def test_a_reader_that_stops_early_does_not_cut_the_job_short(tmp_path):
+    """`demo -o DIR | head -1`: every file is written before the first line is printed."""
+    folder = tmp_path / "out"
+    run_ = subprocess.run(
+        f"{shlex.quote(sys.executable)} -m gnss_citygml demo -o {shlex.quote(str(folder))} -q"
+        " | head -1",
+        shell=True,
+        capture_output=True,
+        text=True,
+        env={k: v for k, v in os.environ.items() if k != GRID_DIR_ENV},
+    )
+    assert run_.stdout.count("\n") == 1
+    assert sorted(p.name for p in folder.iterdir()) == sorted(OUTPUTS)
+
+
+def test_simulate_refuses_a_zero_interval(tmp_path, capsys):
+    code, out, err = run(["simulate", "ucl", "-o", tmp_path / "s", "--interval", "0"], capsys)
+    assert code == 2 and "--interval" in err and "internal error" not in err
+    assert not (tmp_path / "s").exists()

@@ -9,6 +9,8 @@ what it shows is what they do, and then compares every estimate with the simulat
 
 from __future__ import annotations
 
+import contextlib
+import io
 from pathlib import Path
 
 import click
@@ -39,17 +41,28 @@ def demo(ctx, output_dir, overwrite, quiet):
     from .estimate import estimate
 
     heights, cityjson, citygml = _outputs(output_dir, overwrite)
-    ctx.invoke(
-        estimate,
-        observations=CITY / "observations.parquet",
-        footprints=CITY / "footprints.gpkg",
-        dem=str(CITY / "dem.tif"),
-        output=heights,
-        overwrite=overwrite,
-        quiet=quiet,
-    )
-    for model in (cityjson, citygml):
-        ctx.invoke(convert, input_=heights, output=model, overwrite=overwrite, quiet=quiet)
+    # The steps' own lines are held back until every file is written: a reader that stops
+    # early (`demo -o DIR | head`) must not cut the job short.
+    with contextlib.redirect_stdout(io.StringIO()) as steps:
+        ctx.invoke(
+            estimate,
+            observations=CITY / "observations.parquet",
+            footprints=CITY / "footprints.gpkg",
+            dem=str(CITY / "dem.tif"),
+            output=heights,
+            overwrite=overwrite,
+            quiet=quiet,
+        )
+        for model in (cityjson, citygml):
+            ctx.invoke(
+                convert,
+                input_=heights,
+                layer="heights",
+                output=model,
+                overwrite=overwrite,
+                quiet=quiet,
+            )
+    click.echo(steps.getvalue(), nl=False)
     for line in _comparison(heights, CITY / "truth.csv"):
         click.echo(line)
 

@@ -23,7 +23,11 @@ from .options import GRID_DIR, OVERWRITE, SEED, output_dir
 )
 @SEED
 @click.option(
-    "--interval", type=float, default=1.0, show_default=True, help="Seconds between epochs."
+    "--interval",
+    type=click.FloatRange(min=0.0, min_open=True),
+    default=1.0,
+    show_default=True,
+    help="Seconds between epochs.",
 )
 @click.option(
     "--format", "fmt", type=click.Choice(["csv", "parquet"]), default="csv", show_default=True

@@ -52,7 +52,7 @@ from .geodesy import CrsError, OutsideExtentError, is_bng, to_bng
 from .ids import with_id_field
 from .paths import StrPath, input_file
 
-__all__ = ["check_bng", "check_polygonal", "read_footprints"]
+__all__ = ["check_polygonal", "read_footprints"]
 
 _BNG = "EPSG:27700"
 _ID_FIELDS = ("toid", "id", "fid")
@@ -359,40 +359,6 @@ def _to_bng(frame: gpd.GeoDataFrame, where: str, grid_dir) -> gpd.GeoDataFrame:
         raise type(exc)(exc.what, where=f"{where}: {exc.where}", fix=exc.fix) from None
     geoms = shapely.set_coordinates(geoms.copy(), np.column_stack([e, n]))
     return gpd.GeoDataFrame(frame.drop(columns=frame.geometry.name), geometry=geoms, crs=_BNG)
-
-
-def check_bng(frame: object, what: str = "buildings") -> None:
-    """Refuse a table that is not a GeoDataFrame in British National Grid, naming the CRS found.
-
-    Every stage after the reader works in EPSG:27700 (rays, ground, city models), where
-    footprints in another CRS lie far away or, after ``to_crs``, up to 2 m off (PROJ's Helmert
-    path): only :func:`read_footprints` converts, through OSTN15. ``what`` names the table in
-    the message (``footprints``, ``buildings``).
-    """
-    if not isinstance(frame, gpd.GeoDataFrame):
-        raise InputError(
-            f"the {what} must be a GeoDataFrame, not {type(frame).__name__}",
-            where=what,
-            fix="read them with read_footprints(path)",
-        )
-    crs = frame.crs
-    if crs is None:
-        raise InputError(
-            f"the {what} have no CRS",
-            where=what,
-            fix="read the file with read_footprints(path), or set the CRS of the coordinates, "
-            "e.g. gdf.set_crs('EPSG:27700') for British National Grid",
-        )
-    if not is_bng(crs):
-        authority = crs.to_authority()
-        found = crs.name + (f" ({':'.join(authority)})" if authority else "")
-        raise InputError(
-            f"the {what} are in {found}, not EPSG:27700 (British National Grid)",
-            where=what,
-            fix="read the file with read_footprints(path), which converts them with OSTN15 "
-            "(gdf.to_file('footprints.gpkg') first for a GeoDataFrame); not gdf.to_crs, which "
-            "may take PROJ's 2 m Helmert transformation",
-        )
 
 
 def check_polygonal(geoms: np.ndarray, ids: np.ndarray, where: str) -> None:

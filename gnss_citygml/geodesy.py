@@ -44,6 +44,7 @@ import os
 from collections.abc import Callable
 from typing import Any, TypeAlias
 
+import geopandas as gpd
 import numpy as np
 import numpy.typing as npt
 import pyproj
@@ -61,6 +62,7 @@ __all__ = [
     "OutsideExtentError",
     "from_osgb",
     "grid_bearing",
+    "check_bng",
     "is_bng",
     "meridian_convergence",
     "to_bng",
@@ -273,6 +275,40 @@ def is_bng(crs: CrsInput) -> bool:
     return crs.to_2d().to_epsg(min_confidence=70) == 27700  # type: ignore[union-attr]  # bound: has a source
 
 
+def check_bng(frame: object, what: str = "buildings") -> None:
+    """Refuse a table that is not a GeoDataFrame in British National Grid, naming the CRS found.
+
+    Every stage after the reader works in EPSG:27700 (rays, ground, city models), where
+    footprints in another CRS lie far away or, after ``to_crs``, up to 2 m off (PROJ's Helmert
+    path): only :func:`read_footprints` converts, through OSTN15. ``what`` names the table in
+    the message (``footprints``, ``buildings``).
+    """
+    if not isinstance(frame, gpd.GeoDataFrame):
+        raise InputError(
+            f"the {what} must be a GeoDataFrame, not {type(frame).__name__}",
+            where=what,
+            fix="read them with read_footprints(path)",
+        )
+    crs = frame.crs
+    if crs is None:
+        raise InputError(
+            f"the {what} have no CRS",
+            where=what,
+            fix="read the file with read_footprints(path), or set the CRS of the coordinates, "
+            "e.g. gdf.set_crs('EPSG:27700') for British National Grid",
+        )
+    if not is_bng(crs):
+        authority = crs.to_authority()
+        found = crs.name + (f" ({':'.join(authority)})" if authority else "")
+        raise InputError(
+            f"the {what} are in {found}, not EPSG:27700 (British National Grid)",
+            where=what,
+            fix="read the file with read_footprints(path), which converts them with OSTN15 "
+            "(gdf.to_file('footprints.gpkg') first for a GeoDataFrame); not gdf.to_crs, which "
+            "may take PROJ's 2 m Helmert transformation",
+        )
+
+
 def meridian_convergence(lat: npt.ArrayLike, lon: npt.ArrayLike) -> np.ndarray:
     """The meridian convergence of British National Grid (deg): grid bearing = azimuth - this.
 
@@ -368,10 +404,19 @@ def _name_points(bad, x, y, geographic, labels) -> str:
     """The first few bad points by label (one point per label) and coordinates."""
     index = np.flatnonzero(bad)
     if labels is None:
-        names = np.char.add("point ", index.astype(str))
+        names = np.array([f"point {i}" for i in index[:_LIST_POINTS]])
+    elif callable(labels):
+        names = np.asarray(labels(index), dtype=object).astype(str)
     else:
-        names = labels(index) if callable(labels) else np.asarray(labels, dtype=object).ravel()
-        names = np.asarray(names if callable(labels) else names[index], dtype=object).astype(str)
+        given = np.asarray(labels, dtype=object).ravel()
+        if given.size != bad.size:
+            raise InputError(
+                f"{given.size} labels for {bad.size} points",
+                where="labels",
+                fix="give one label per point, or none",
+            )
+        names = given[index].astype(str)
+    if labels is not None:
         _, first = np.unique(names, return_index=True)  # a footprint's vertices: one label
         index, names = index[np.sort(first)], names[np.sort(first)]
     if geographic:

@@ -29,7 +29,6 @@ from .errors import GnssCityGMLError
 from .paths import StrPath
 
 __all__ = [
-    "_APPENDED",
     "BUNDLED_GRID_DIR",
     "GRIDS",
     "GRID_DIR_ENV",

@@ -53,12 +53,12 @@ _SVIDS = (_PROPERTIES["svid"]["minimum"], _PROPERTIES["svid"]["maximum"])
 #: (lowest, highest, whether the highest is excluded) of each column of numbers with a range.
 _RANGES = {
     c: (
-        float(spec["minimum"]),
-        float(spec.get("maximum", spec.get("exclusiveMaximum"))),
+        float(spec.get("minimum", -np.inf)),
+        float(spec.get("maximum", spec.get("exclusiveMaximum", np.inf))),
         "exclusiveMaximum" in spec,
     )
     for c, spec in _PROPERTIES.items()
-    if c in _NUMBERS and "minimum" in spec
+    if c in _NUMBERS and {"minimum", "maximum", "exclusiveMaximum"} & spec.keys()
 }
 
 
@@ -138,8 +138,7 @@ def check_observations(
     ...
     gnss_citygml.errors.InputError: elevation 95 outside -90..90 (observations, row 0): ...
     """
-    names = [_name(c) for c in table.columns]
-    twice = sorted({c for c in names if names.count(c) > 1})
+    twice = sorted({_name(c) for c in table.columns[table.columns.duplicated()]})
     if twice:
         raise InputError(
             "column(s) " + ", ".join(f"'{c}'" for c in twice) + " more than once",
@@ -148,7 +147,7 @@ def check_observations(
         )
     missing = [c for c in _REQUIRED if c not in table.columns]
     if missing:
-        raise MissingColumnError(missing, where=where, have=names)
+        raise MissingColumnError(missing, where=where, have=[_name(c) for c in table.columns])
     out = table.copy()
     if "h" not in out.columns:
         out["h"] = np.nan

@@ -18,8 +18,7 @@ import shapely
 
 from .calibrate import calibrate_receivers
 from .errors import InputError
-from .footprints import check_bng
-from .geodesy import CrsInput, grid_bearing, to_osgb
+from .geodesy import CrsInput, check_bng, grid_bearing, to_osgb
 from .ids import id_field, source_named, with_id_field
 from .model.estimate import HEIGHTS_COLUMNS, estimate_heights
 from .observations import check_observations

@@ -39,17 +39,24 @@ def read_table(path: StrPath) -> pd.DataFrame:
     path = input_file(path)
     suffix = _suffix(path)
     try:
-        return pd.read_csv(path) if suffix == ".csv" else pd.read_parquet(path)
+        return pd.read_csv(path) if suffix == ".csv" else _read_parquet(path)
     except (ValueError, OSError, pd.errors.ParserError) as exc:
         raise InputError(
             f"cannot read the table: {first_line(exc)}",
             where=str(path),
             fix="give a well-formed CSV (with a header row) or Parquet file",
         ) from None
+
+
+def _read_parquet(path: Path) -> pd.DataFrame:
+    """A Parquet table; pyarrow's errors on damaged pandas metadata as an InputError."""
+    try:
+        return pd.read_parquet(path)
     except (KeyError, TypeError, IndexError, AttributeError) as exc:
         # pyarrow rebuilding the pandas columns from a Parquet file's damaged pandas metadata
         raise InputError(
-            f"cannot read the table: damaged pandas metadata ({type(exc).__name__} {exc})",
+            f"cannot read the table: damaged pandas metadata ({type(exc).__name__} "
+            f"{first_line(exc)})",
             where=str(path),
             fix="give a well-formed CSV (with a header row) or Parquet file",
         ) from None

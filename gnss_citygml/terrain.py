@@ -34,8 +34,8 @@ from rasterio.io import DatasetReader
 from rasterio.windows import Window
 
 from .errors import InputError, MissingColumnError, first_line, listing
-from .footprints import check_bng, check_polygonal
-from .geodesy import CrsInput, is_bng
+from .footprints import check_polygonal
+from .geodesy import CrsInput, check_bng, is_bng
 from .paths import StrPath
 
 __all__ = [
@@ -314,9 +314,9 @@ def building_ground(
             where="building_ground",
             fix="use one of " + ", ".join(STATISTICS),
         )
+    check_bng(buildings)
     if "id" not in buildings.columns:
         raise MissingColumnError(["id"], where="buildings", have=list(buildings.columns))
-    check_bng(buildings)
     out = buildings.copy()
     if buildings.empty:
         out["ground"] = np.array([], dtype=float)

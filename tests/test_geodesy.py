@@ -18,6 +18,7 @@ from conftest import commands, isolated
 from pyproj import Geod
 
 from gnss_citygml.cli import main
+from gnss_citygml.errors import InputError
 from gnss_citygml.footprints import read_footprints
 from gnss_citygml.geodesy import (
     CrsError,
@@ -129,6 +130,15 @@ def test_errors_name_points_by_the_callers_labels(grid_dir):
             [530000.0, np.nan], [180000.0, 180000.0], 0.0,
             grid_dir=grid_dir, labels=["receiver A at 10:00:00", "receiver B at 10:00:02"],
         )  # fmt: skip
+
+
+def test_labels_of_another_length_are_an_input_error(grid_dir):
+    """Labels that do not match the points one for one are the caller's mistake, said in one
+    line (was an IndexError); a few of many bad points are named, the others counted."""
+    with pytest.raises(InputError, match=r"^3 labels for 20 points \(labels\)"):
+        to_osgb(np.full(20, 48.0), np.full(20, -3.0), np.nan, grid_dir=grid_dir, labels=list("abc"))
+    with pytest.raises(OutsideExtentError, match=r"point 0 \(.*point 4 \(.* and 99995 more"):
+        to_osgb(np.full(100_000, 48.0), np.full(100_000, -3.0), np.nan, grid_dir=grid_dir)
 
 
 def test_non_finite_coordinates_are_an_error(grid_dir):

@@ -187,3 +187,10 @@ def test_a_column_name_with_a_line_end_stays_on_one_line(tmp_path, observations)
         read_observations(path)
     assert "\n" not in err.value.one_line()
     assert "the table has: time\\nutc, receiver," in err.value.fix
+
+
+def test_long_column_names_alike_in_their_first_40_characters_are_two_columns(observations):
+    """Duplicates are found on the real names, not on the names cut short for messages."""
+    stem = "multipath_indicator_from_the_receiver_raw_band_"
+    table = observations.head(3).assign(**{stem + "L1": 1, stem + "L5": 5})
+    assert list(check_observations(table).columns[-2:]) == [stem + "L1", stem + "L5"]

@@ -204,3 +204,5 @@ def test_other_bad_arguments(dem):
         building_ground(b, dem)
     with pytest.raises(InputError, match=r"in WGS 84 \(EPSG:4326\), not EPSG:27700"):
         building_ground(b.set_crs("EPSG:4326", allow_override=True), dem)
+    with pytest.raises(InputError, match=r"must be a GeoDataFrame, not list"):
+        building_ground([1, 2], dem)  # was an AttributeError

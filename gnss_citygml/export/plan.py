@@ -33,7 +33,7 @@ import shapely
 
 from ..contracts import HEIGHTS, load
 from ..errors import InputError, MissingColumnError, listing
-from ..footprints import check_bng
+from ..geodesy import check_bng
 from ..ids import id_field, id_named, with_id_field
 from ..paths import StrPath
 from ..validate import Report

@@ -86,6 +86,11 @@ def test_values_take_the_extensions_types(tmp_path):
         typed_model(tmp_path, n_signals=2.5)
     with pytest.raises(InputError, match=r"column 'relative_height' is not a number .*courtyard"):
         typed_model(tmp_path, relative_height="low")
+    with pytest.raises(InputError, match=r"'n_signals' is not a whole number .* is \(0 or more\)"):
+        typed_model(tmp_path, n_signals=-1)  # was an invalid output, "please report this bug"
+    big = 2**60 + 1  # beyond a float's whole numbers: written exactly
+    _, model = typed_model(tmp_path, iterations=np.int64(big))
+    assert model["CityObjects"]["courtyard"]["attributes"]["+iterations"] == big
     assert not list(tmp_path.glob("*.part*"))
 
 

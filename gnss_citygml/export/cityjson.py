@@ -68,6 +68,12 @@ _TYPED = {
     ]
     for name, spec in load(EXTENSION)["extraAttributes"]["Building"].items()
 }
+#: The least value of each column whose Extension attribute has a ``minimum``.
+_MINIMUM = {
+    name[1:]: float(spec["minimum"])
+    for name, spec in load(EXTENSION)["extraAttributes"]["Building"].items()
+    if "minimum" in spec
+}
 
 
 def write_cityjson(
@@ -307,22 +313,28 @@ def _typed_values(rows: pd.DataFrame, name: str) -> list:
         values = attribute_values(column, kind)
         bad = np.array([isinstance(v, list) for v in values], dtype=bool)
     else:
-        numbers = pd.to_numeric(column, errors="coerce").astype(float)
+        exact = kind == "int" and pd.api.types.is_integer_dtype(column)  # no float round trip
+        numbers = column.astype("Int64") if exact else pd.to_numeric(column, errors="coerce")
+        floats = numbers.astype(float).to_numpy()
         bad = (numbers.isna() & column.notna()).to_numpy()
         if kind == "int":
-            floats = numbers.to_numpy()
             bad = bad | (np.isfinite(floats) & (floats % 1 != 0))
+        if name in _MINIMUM:
+            bad = bad | (floats < _MINIMUM[name])
     if bad.any():
         what = {"int": "a whole number", "double": "a number", "string": "text"}[kind]
+        least = f" ({_MINIMUM[name]:g} or more)" if name in _MINIMUM else ""
         raise InputError(
-            f"column {name!r} is not {what} as the Extension's '+{name}' is "
+            f"column {name!r} is not {what} as the Extension's '+{name}' is{least} "
             f"(buildings {listing(rows['id'][bad].astype(str).tolist())})",
             where="buildings",
             fix="give it so, or write plain attributes",
         )
     if kind == "string":
         return values
-    numbers = numbers.where(np.isfinite(numbers))
+    if exact:
+        return attribute_values(numbers, kind)
+    numbers = numbers.astype(float).where(np.isfinite(floats))
     return attribute_values(numbers.astype("Int64") if kind == "int" else numbers, kind)
 
 

@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: test demo lint bench fuzz clean
+.PHONY: test test-qgis demo lint bench fuzz plugin screenshots clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -13,12 +13,27 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 lint: $(STAMP)
-	$(BIN)/ruff check gnss_citygml tests benchmarks tools
-	$(BIN)/ruff format --check gnss_citygml tests benchmarks tools
+	$(BIN)/ruff check gnss_citygml tests benchmarks tools qgis_plugin
+	$(BIN)/ruff format --check gnss_citygml tests benchmarks tools qgis_plugin
 	$(BIN)/mypy gnss_citygml
 
+# The library's tests, then the QGIS plugin's in a real headless QGIS (qgis_plugin/run-tests
+# makes their environment; without QGIS it says so loudly, and in CI it fails).
 test: lint
 	$(BIN)/python -m pytest
+	qgis_plugin/run-tests
+
+test-qgis:
+	qgis_plugin/run-tests
+
+# The README's QGIS pictures (docs/qgis-*.png), rendered headless in the QGIS tests' environment
+screenshots:
+	qgis_plugin/run-tests --setup
+	.venv-qgis/bin/python tools/qgis_screenshots.py
+
+# The QGIS plugin's installable zip: dist/gnss_citygml_qgis-VERSION.zip
+plugin: $(STAMP)
+	$(BIN)/python tools/build_plugin.py
 
 # The main job on the sample city bundled with the package (gnss_citygml/data/city, linked as
 # examples/city) and grids (unless `gnss-citygml grids` names another copy): heights, CityJSON,
@@ -42,4 +57,4 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/startup.py
 
 clean:
-	rm -rf $(VENV) demo-out .pytest_cache .ruff_cache .mypy_cache build *.egg-info
+	rm -rf $(VENV) .venv-qgis qgis_plugin/.qgis-settings demo-out dist .pytest_cache .ruff_cache .mypy_cache build *.egg-info

@@ -20,6 +20,7 @@ __all__ = [
     "ModelError",
     "escape_controls",
     "first_line",
+    "internal_error",
     "listing",
 ]
 
@@ -49,6 +50,18 @@ def listing(items: Iterable, shown: int = 10, *, total: int | None = None) -> st
     total = len(items) if total is None else total
     text = ", ".join(str(item) for item in items[:shown])
     return text + (f" and {total - shown} more" if total > shown else "")
+
+
+def internal_error(exc: BaseException) -> str:
+    """One line for an error that is not the user's (a bug): its type and the start of its
+    message, for the command line and the QGIS plugin to print the same way.
+
+    >>> internal_error(ZeroDivisionError("division by zero"))
+    'internal error, ZeroDivisionError: division by zero: please report it'
+    """
+    return (
+        f"internal error, {type(exc).__name__}: {escape_controls(str(exc))[:200]}: please report it"
+    )
 
 
 def first_line(exc: BaseException) -> str:

@@ -17,6 +17,7 @@ import pandas as pd
 from .errors import InputError, first_line
 from .ids import source_named
 from .paths import StrPath, atomic_path, check_output, input_file
+from .styles import save_default_style
 
 if TYPE_CHECKING:
     import geopandas as gpd
@@ -131,7 +132,12 @@ def _layers(path: Path) -> list[str]:
 
 
 def write_layer(
-    frame: gpd.GeoDataFrame, path: StrPath, layer: str, *, overwrite: bool = True
+    frame: gpd.GeoDataFrame,
+    path: StrPath,
+    layer: str,
+    *,
+    overwrite: bool = True,
+    style: str | None = None,
 ) -> None:
     """Write a GeoDataFrame as ``layer`` of ``path``, atomically, in the format its suffix names.
 
@@ -140,7 +146,12 @@ def write_layer(
     (``.parquet``) hold one layer: the file is replaced. List-valued attributes (OS
     MasterMap's ``descriptiveGroup``, read by GDAL as lists) are written as text joined by
     ``|``, which every GIS reads. The id is written under the name of its source's field
-    (e.g. ``toid``; :func:`gnss_citygml.ids.source_named`)."""
+    (e.g. ``toid``; :func:`gnss_citygml.ids.source_named`).
+
+    ``style`` (QGIS QML) is saved in a GeoPackage as the layer's default style
+    (:func:`gnss_citygml.styles.save_default_style`); the other formats have no place for it.
+    A new GeoPackage is version 1.2, which every GDAL since 2.2 (QGIS 3.22's too) reads
+    without a warning."""
     path = check_layer_output(path, layer, overwrite=overwrite)
     out = source_named(frame).copy()
     for column in out.columns.drop([out.geometry.name]):
@@ -153,5 +164,10 @@ def write_layer(
     with atomic_path(path, overwrite=overwrite or update, update=update) as tmp:
         if driver == "GeoParquet":
             out.to_parquet(tmp, index=False)
+        elif driver == "GPKG":
+            version = None if update else {"VERSION": "1.2"}
+            out.to_file(tmp, layer=layer, driver=driver, dataset_options=version)
+            if style is not None:
+                save_default_style(tmp, layer, style)
         else:
             out.to_file(tmp, layer=layer, driver=driver)

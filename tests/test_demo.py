@@ -116,7 +116,11 @@ def test_demo_over_a_geopackage_with_other_layers(tmp_path, capsys):
     pyogrio.write_dataframe(fp, folder / "heights.gpkg", layer="mine")
     code, out, err = run(["demo", "-o", folder, "--overwrite", "-q"], capsys)
     assert code == 0, err
-    assert sorted(pyogrio.list_layers(folder / "heights.gpkg")[:, 0]) == ["heights", "mine"]
+    assert sorted(pyogrio.list_layers(folder / "heights.gpkg")[:, 0]) == [
+        "heights",
+        "layer_styles",
+        "mine",
+    ]
     assert sorted(p.name for p in folder.iterdir()) == sorted(OUTPUTS)
 
 

@@ -262,7 +262,7 @@ def city(tmp_path_factory, grid_dir):
          CITY / "dem.tif", "-o", folder / "heights.gpkg", "--grid-dir", grid_dir, "-q"]
     )  # fmt: skip
     assert code == 0, err
-    heights = gpd.read_file(folder / "heights.gpkg")
+    heights = gpd.read_file(folder / "heights.gpkg", layer="heights")
     heights.drop(columns="geometry").to_csv(folder / "heights.csv", index=False)
     xy = shapely.get_coordinates(bng.geometry.to_numpy())
     for crs in ("EPSG:4326", "EPSG:4258", "EPSG:32630"):
@@ -325,7 +325,8 @@ def test_estimate_with_footprints_in_wgs84_gives_the_same_heights(city, grid_dir
     ((code, stdout, err),) = commands([args], tmp_path)
     assert code == 0, err
     assert stdout.startswith("25 of 30 buildings have a height")
-    got, want = gpd.read_file(out), gpd.read_file(city / "heights.gpkg")
+    got = gpd.read_file(out, layer="heights")
+    want = gpd.read_file(city / "heights.gpkg", layer="heights")
     assert got["id"].tolist() == want["id"].tolist()
     d = shapely.get_coordinates(got.geometry) - shapely.get_coordinates(want.geometry)
     assert np.hypot(*d.T).max() < 1e-3

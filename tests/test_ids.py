@@ -119,14 +119,17 @@ def test_estimate_writes_a_toid_column_in_every_layer_format(site, heights, tmp_
         code, out, err = run(estimate_args(site, layers[suffix], *extra), capsys)
         assert code == 0, err
     for suffix, path in layers.items():
-        table = gpd.read_parquet(path) if suffix == ".parquet" else gpd.read_file(path)
+        if suffix == ".parquet":
+            table = gpd.read_parquet(path)
+        else:
+            table = gpd.read_file(path, layer="heights")
         assert "id" not in table.columns, suffix
         assert sorted(table["toid"]) == sorted(TOIDS.values()), suffix
         assert table["converged"].sum() >= 1
 
 
 def converged_toids(heights):
-    table = gpd.read_file(heights)
+    table = gpd.read_file(heights, layer="heights")
     return sorted(table["toid"][table["converged"]])
 
 
@@ -192,7 +195,7 @@ def test_convert_with_a_dem_keeps_the_toid_attribute(site, heights, tmp_path, ca
 def test_export_joins_a_heights_table_by_toid(site, heights, tmp_path, capsys, name):
     """A heights table with the TOIDs in `toid` (estimate's layer as CSV) or in `id` (as
     `heights` writes them) joins to the footprints, and the model keeps the TOIDs."""
-    table = pd.DataFrame(gpd.read_file(heights).drop(columns="geometry"))
+    table = pd.DataFrame(gpd.read_file(heights, layer="heights").drop(columns="geometry"))
     want = expected_city_ids(heights, (tmp_path / name).suffix)
     for column, extra in (("toid", []), ("toid", ["--id-field", "toid"]), ("id", [])):
         csv = tmp_path / "h.csv"

@@ -61,14 +61,14 @@ def test_estimate_into_a_geopackage_keeps_its_other_layers(grid_args, tmp_path, 
     mine.to_file(target, layer="buildings", driver="GPKG")
     code, _, err = run(estimate(tmp_path, grid_args, "map.gpkg"), capsys)  # a new layer: no flag
     assert code == 0, err
-    assert sorted(pyogrio.list_layers(target)[:, 0]) == ["buildings", "heights"]
+    assert sorted(pyogrio.list_layers(target)[:, 0]) == ["buildings", "heights", "layer_styles"]
     first = gpd.read_file(target, layer="heights")
     assert len(first) == 30
     code, _, err = run(estimate(tmp_path, grid_args, "map.gpkg"), capsys)
     assert code == 2 and "output exists and has a layer 'heights'" in err
     code, _, err = run(estimate(tmp_path, grid_args, "map.gpkg", "--overwrite"), capsys)
     assert code == 0, err
-    assert sorted(pyogrio.list_layers(target)[:, 0]) == ["buildings", "heights"]
+    assert sorted(pyogrio.list_layers(target)[:, 0]) == ["buildings", "heights", "layer_styles"]
     kept = gpd.read_file(target, layer="buildings")
     pd.testing.assert_frame_equal(
         pd.DataFrame(kept.drop(columns="geometry")),

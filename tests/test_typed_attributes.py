@@ -164,7 +164,7 @@ def test_the_command_line(tmp_path, capsys):
 
     gml = tmp_path / "city.gml"
     code, _, err = run(["convert", str(source), "-o", str(gml), "--typed-attributes"], capsys)
-    assert code == 2 and "--typed-attributes is for CityJSON" in err
+    assert code == 2 and "typed attributes are for CityJSON" in err
     assert not gml.exists()
 
 

@@ -25,6 +25,7 @@ import pytest
 import gnss_citygml
 from gnss_citygml.contracts import SCHEMA_FOLDER
 from gnss_citygml.grids import BUNDLED_GRID_DIR, GRIDS
+from gnss_citygml.styles import heights_qml
 
 ROOT = Path(__file__).resolve().parents[1]
 CITY_FILES = ("observations.parquet", "footprints.gpkg", "dem.tif", "truth.csv")
@@ -111,6 +112,7 @@ def test_the_wheel_holds_the_grids_their_licence_the_city_and_the_command(wheel)
             assert data + "grids/" + name in names
         for name in CITY_FILES:
             assert data + "city/" + name in names
+        assert archive.read(data + "styles/heights.qml").decode() == heights_qml()  # QGIS style
         for name in SCHEMA_FOLDER.iterdir():  # the contracts: JSON Schemas, CityJSON Extension
             assert archive.read("gnss_citygml/schemas/" + name.name) == name.read_bytes()
         assert f"{info}/licenses/LICENSE" in names

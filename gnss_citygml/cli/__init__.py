@@ -23,7 +23,7 @@ from typing import NoReturn
 
 import click
 
-from ..errors import GnssCityGMLError, escape_controls
+from ..errors import GnssCityGMLError, escape_controls, internal_error
 
 __all__ = ["COMMANDS", "LazyGroup", "cli", "main"]
 
@@ -115,10 +115,9 @@ def main(argv: Sequence[str] | None = None) -> NoReturn:
     except Exception as exc:
         if os.environ.get("GNSS_CITYGML_DEBUG"):
             raise
-        first = escape_controls(str(exc))[:200]
         click.echo(
-            f"error: internal error, {type(exc).__name__}: {first}: please report it with the "
-            "command that caused it (GNSS_CITYGML_DEBUG=1 shows the traceback)",
+            f"error: {internal_error(exc)} with the command that caused it "
+            "(GNSS_CITYGML_DEBUG=1 shows the traceback)",
             err=True,
         )
         sys.exit(2)

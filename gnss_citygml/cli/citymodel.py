@@ -56,61 +56,39 @@ def _model_options(func):
     return func
 
 
-def _footprints(path, layer, id_field, dem, dem_crs, grid_dir):
-    """The footprints in EPSG:27700 (through the OSTN15/OSGM15 grids in ``grid_dir`` when in
-    another CRS), with their ground from the DEM when one is given."""
-    from ..footprints import read_footprints
-    from ..terrain import building_ground
+def _run(job: Callable[..., ExportResult], output: Path, quiet: bool, **options) -> None:
+    """Run ``job`` (a job of :mod:`gnss_citygml.jobs` writing a city model to the path it is
+    given first) with ``options``, for ``output``, with a progress bar; report what was
+    written and skipped."""
+    with _staged(output) as path, progress(100, "writing", quiet) as bar:
 
-    frame = read_footprints(path, layer=layer, id_field=id_field, grid_dir=grid_dir)
-    return frame if dem is None else building_ground(frame, dem, assume_crs=dem_crs)
+        def told(what: str, done: float) -> None:
+            bar.set_description(what)
+            bar.update(round(100 * done) - bar.n)
 
-
-def _model_writer(output, overwrite, typed_attributes):
-    """The writer for the format the output's name asks for (CityJSONSeq for standard
-    output), checked before any work (typed attributes are CityJSON's: CityGML's generic
-    attributes are typed already)."""
-    from ..export import write_citygml, write_cityjson, write_cityjsonseq
-    from ..paths import check_output
-
-    writers: dict[str, Callable[..., ExportResult]] = {
-        ".jsonl": write_cityjsonseq,
-        ".json": write_cityjson,
-    }
-    writers.update(dict.fromkeys((".gml", ".xml"), write_citygml))
-    if output == STDOUT:
-        writer = write_cityjsonseq
-    else:
-        check_output(output, overwrite=overwrite, suffixes=tuple(writers))
-        writer = writers[output.suffix.lower()]
-    if not typed_attributes:
-        return writer
-    if writer is write_citygml:
-        raise click.UsageError(
-            "--typed-attributes is for CityJSON (.city.json, .city.jsonl): CityGML's generic "
-            "attributes are typed already"
-        )
-    return functools.partial(writer, typed_attributes=True)
-
-
-def _write_model(frame, writer, output, overwrite, strict, no_validate, schema_dir, quiet):
-    """Write the buildings with ``writer`` (from :func:`_model_writer`); report skips."""
-    with _staged(output) as path, progress(len(frame), "writing", quiet) as bar:
-        result = writer(
-            frame,
-            path,
-            validate=not no_validate,
-            schema_dir=schema_dir,
-            overwrite=overwrite,
-            strict=strict,
-            progress=bar.update,
-        )
+        result = job(path, progress=told, **options)
     for building, reason in result.skipped.itertuples(index=False):
         click.echo(f"skipped {building}: {reason}", err=True)
-    checked = "" if result.report is None else ", valid (" + ", ".join(result.report.checks) + ")"
-    to = "standard output" if output == STDOUT else output
-    summary = f"{result.written} buildings, {len(result.skipped)} skipped -> {to}{checked}"
-    click.echo(summary, err=output == STDOUT)
+    to = "standard output" if output == STDOUT else str(output)
+    click.echo(result.summary(to), err=output == STDOUT)
+
+
+def _options(
+    layer, id_field, dem, dem_crs, grid_dir, overwrite, strict, no_validate, schema_dir, typed
+) -> dict:
+    """The options ``convert`` and ``export`` share, as the jobs name them."""
+    return {
+        "layer": layer,
+        "id_field": id_field,
+        "dem": dem,
+        "dem_crs": dem_crs,
+        "grid_dir": grid_dir,
+        "overwrite": overwrite,
+        "strict": strict,
+        "validate": not no_validate,
+        "schema_dir": schema_dir,
+        "typed_attributes": typed,
+    }
 
 
 @contextlib.contextmanager
@@ -183,16 +161,20 @@ def convert(
     INPUT is the heights layer of `estimate` or any polygon source with a height field (e.g.
     OS Building Height Attribute's abshmax, or relh2 with --relative).
     """
-    from ..export import buildings_with_heights
+    from ..jobs import convert_file
 
-    if ground_field is not None and dem is not None:
-        raise click.UsageError("give the ground with --ground-field or --dem, not both")
-    writer = _model_writer(output, overwrite, typed_attributes)
-    frame = _footprints(input_, layer, id_field, dem, dem_crs, grid_dir)
-    frame = buildings_with_heights(
-        frame, height_field, relative=relative, ground_field=ground_field
+    job = functools.partial(
+        convert_file,
+        input_,
+        height_field=height_field,
+        relative=relative,
+        ground_field=ground_field,
     )
-    _write_model(frame, writer, output, overwrite, strict, no_validate, schema_dir, quiet)
+    options = _options(
+        layer, id_field, dem, dem_crs, grid_dir, overwrite, strict, no_validate, schema_dir,
+        typed_attributes,
+    )  # fmt: skip
+    _run(job, output, quiet, **options)
 
 
 @click.command()
@@ -226,14 +208,14 @@ def export(
     quiet,
 ):
     """Write the city model of a heights table (CSV or Parquet, from `heights`)."""
-    from ..export import footprints_with_heights
-    from ..tables import read_table
+    from ..jobs import export_file
 
-    writer = _model_writer(output, overwrite, typed_attributes)
-    table = read_table(heights)
-    frame = _footprints(footprints, layer, id_field, dem, dem_crs, grid_dir)
-    frame = footprints_with_heights(frame, table, where=str(heights))
-    _write_model(frame, writer, output, overwrite, strict, no_validate, schema_dir, quiet)
+    job = functools.partial(export_file, heights, footprints)
+    options = _options(
+        layer, id_field, dem, dem_crs, grid_dir, overwrite, strict, no_validate, schema_dir,
+        typed_attributes,
+    )  # fmt: skip
+    _run(job, output, quiet, **options)
 
 
 @click.command()

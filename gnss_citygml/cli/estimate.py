@@ -116,41 +116,34 @@ def estimate(
     GeoPackage or any polygon layer, or OS MasterMap Topography GML. The output holds each
     footprint with its estimate; buildings with too little data have empty heights.
     """
-    from ..footprints import read_footprints
-    from ..observations import read_observations
+    from ..jobs import estimate_file
     from ..pipeline import STAGES
-    from ..pipeline import estimate as run
     from ..settings import Calibration, Estimator, PositionError
-    from ..tables import check_layer_output, write_layer
 
-    rays = Rays(min_elevation=min_elevation, max_elevation=max_elevation, max_range=max_range)
-    receiver_heights = ReceiverHeights(source=receiver_height, antenna_height=antenna_height)
-    estimator = Estimator(method=method, init_threshold=init_threshold)
-    position_error = PositionError(sd=position_sd, window=position_window)
-    calibration = Calibration(prior_sd=calibration_sd, window=calibration_window)
-    calibration.check_method(estimator)  # as the pipeline does, but before any file is read
-    check_layer_output(output, "heights", overwrite=overwrite)
-    obs = read_observations(observations)
-    fp = read_footprints(footprints, layer=layer, id_field=id_field, grid_dir=grid_dir)
     with progress(len(STAGES), "stages", quiet) as bar:
 
-        def stage(name):
+        def stage(name, done):
             bar.set_description(name)
-            bar.update(1)
+            bar.update(round(done * len(STAGES)) - bar.n)
 
-        heights = run(
-            obs,
-            fp,
+        heights = estimate_file(
+            observations,
+            footprints,
             dem,
-            rays=rays,
-            receiver_heights=receiver_heights,
-            estimator=estimator,
-            position_error=position_error,
-            calibration=calibration,
-            grid_dir=grid_dir,
+            output,
+            layer=layer,
+            id_field=id_field,
+            rays=Rays(
+                min_elevation=min_elevation, max_elevation=max_elevation, max_range=max_range
+            ),
+            receiver_heights=ReceiverHeights(source=receiver_height, antenna_height=antenna_height),
+            estimator=Estimator(method=method, init_threshold=init_threshold),
+            position_error=PositionError(sd=position_sd, window=position_window),
+            calibration=Calibration(prior_sd=calibration_sd, window=calibration_window),
             dem_crs=dem_crs,
+            grid_dir=grid_dir,
+            overwrite=overwrite,
             progress=stage,
         )
-    write_layer(heights, output, "heights", overwrite=overwrite)
     ok = int(heights["converged"].sum())
     click.echo(f"{ok} of {len(heights)} buildings have a height -> {output}")

@@ -47,6 +47,14 @@ class ExportResult:
     skipped: pd.DataFrame
     report: Report | None = None
 
+    def summary(self, to: str | None = None) -> str:
+        """One line: how many buildings went to ``to`` (default: the path), how many were
+        skipped, and the checks the file passed."""
+        checked = "" if self.report is None else ", valid (" + ", ".join(self.report.checks) + ")"
+        return (
+            f"{self.written} buildings, {len(self.skipped)} skipped -> {to or self.path}{checked}"
+        )
+
 
 def validated_output(
     tmp: StrPath, path: StrPath, validate: bool, schema_dir: StrPath | None

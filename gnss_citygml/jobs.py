@@ -1,0 +1,267 @@
+"""The jobs the command line and the QGIS plugin run: files in, one file out.
+
+Each job is what one command does, with its options as arguments and nothing about how they
+were asked for: ``gnss-citygml estimate`` and the plugin's "Estimate building heights" both
+call :func:`estimate_file`, so they give the same heights. Every output is checked before any
+work starts and written atomically. ``progress`` is told the name of what is being done and
+the share of the job done (0 to 1) as the job goes on; it may raise to stop the job (QGIS's
+cancel button), which leaves no output behind.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable
+from typing import TYPE_CHECKING
+
+from .errors import InputError
+from .paths import StrPath
+from .settings import Calibration, Estimator, PositionError, Rays, ReceiverHeights
+
+if TYPE_CHECKING:
+    import geopandas as gpd
+
+    from .export import ExportResult
+
+__all__ = [
+    "MODEL_FORMATS",
+    "Progress",
+    "convert_file",
+    "estimate_file",
+    "export_file",
+    "read_buildings",
+]
+
+#: A job's progress: what is being done, and the share of the job done (0 to 1).
+Progress = Callable[[str, float], None]
+
+#: City model formats by file suffix.
+MODEL_FORMATS = {
+    ".json": "CityJSON 2.0",
+    ".jsonl": "CityJSONSeq",
+    ".gml": "CityGML 2.0",
+    ".xml": "CityGML 2.0",
+}
+
+
+def _silent(what: str, done: float) -> None:
+    """The progress of a job nobody watches."""
+
+
+def estimate_file(
+    observations: StrPath,
+    footprints: StrPath,
+    dem: StrPath,
+    output: StrPath,
+    *,
+    layer: str | None = None,
+    id_field: str | None = None,
+    rays: Rays = Rays(),
+    receiver_heights: ReceiverHeights = ReceiverHeights(),
+    estimator: Estimator = Estimator(),
+    position_error: PositionError = PositionError(),
+    calibration: Calibration = Calibration(),
+    dem_crs: str | None = None,
+    grid_dir: StrPath | None = None,
+    overwrite: bool = False,
+    progress: Progress = _silent,
+) -> gpd.GeoDataFrame:
+    """Estimate the height of every footprint and write the layer ``heights`` to ``output``.
+
+    ``output`` is a GeoPackage (other layers of an existing one are kept; the layer gets the
+    toolkit's QGIS style as its default), a FlatGeobuf or a GeoParquet file. Returns the
+    heights written: every footprint with its attributes and the heights columns (see
+    :func:`gnss_citygml.pipeline.estimate` for the rest of the arguments)."""
+    from .footprints import read_footprints
+    from .observations import read_observations
+    from .pipeline import STAGES
+    from .pipeline import estimate as run
+    from .styles import heights_qml
+    from .tables import check_layer_output, write_layer
+
+    calibration.check_method(estimator)  # as the pipeline does, but before any file is read
+    check_layer_output(output, "heights", overwrite=overwrite)
+    stages = iter(range(len(STAGES)))
+
+    def stage(name: str) -> None:
+        progress(name, next(stages) / len(STAGES))
+
+    obs = read_observations(observations)
+    fp = read_footprints(footprints, layer=layer, id_field=id_field, grid_dir=grid_dir)
+    heights = run(
+        obs,
+        fp,
+        dem,
+        rays=rays,
+        receiver_heights=receiver_heights,
+        estimator=estimator,
+        position_error=position_error,
+        calibration=calibration,
+        grid_dir=grid_dir,
+        dem_crs=dem_crs,
+        progress=stage,
+    )
+    write_layer(heights, output, "heights", overwrite=overwrite, style=heights_qml())
+    progress("done", 1.0)
+    return heights
+
+
+def read_buildings(
+    path: StrPath,
+    *,
+    layer: str | None = None,
+    id_field: str | None = None,
+    dem: StrPath | None = None,
+    dem_crs: str | None = None,
+    grid_dir: StrPath | None = None,
+) -> gpd.GeoDataFrame:
+    """The footprints in EPSG:27700 (through the OSTN15/OSGM15 grids in ``grid_dir`` when in
+    another CRS), with their ground from the DEM when one is given."""
+    from .footprints import read_footprints
+    from .terrain import building_ground
+
+    frame = read_footprints(path, layer=layer, id_field=id_field, grid_dir=grid_dir)
+    return frame if dem is None else building_ground(frame, dem, assume_crs=dem_crs)
+
+
+def _model_writer(
+    output: StrPath, *, overwrite: bool = False, typed_attributes: bool = False
+) -> Callable[..., ExportResult]:
+    """The writer for the format ``output``'s suffix names (:data:`MODEL_FORMATS`), checked
+    before any work (typed attributes are CityJSON's: CityGML's generic attributes are typed
+    already)."""
+    from .export import write_citygml, write_cityjson, write_cityjsonseq
+    from .paths import check_output
+
+    path = check_output(output, overwrite=overwrite, suffixes=tuple(MODEL_FORMATS))
+    suffix = path.suffix.lower()
+    writer: Callable[..., ExportResult] = {
+        ".jsonl": write_cityjsonseq,
+        ".json": write_cityjson,
+    }.get(suffix, write_citygml)
+    if not typed_attributes:
+        return writer
+    if writer is write_citygml:
+        raise InputError(
+            "typed attributes are for CityJSON: CityGML's generic attributes are typed already",
+            where=str(output),
+            fix="write .city.json or .city.jsonl, or leave the typed attributes off",
+        )
+    return functools.partial(writer, typed_attributes=True)
+
+
+def _model_job(
+    output: StrPath,
+    buildings: Callable[[], gpd.GeoDataFrame],
+    overwrite: bool,
+    strict: bool,
+    validate: bool,
+    schema_dir: StrPath | None,
+    typed_attributes: bool,
+    progress: Progress,
+) -> ExportResult:
+    """Check the output, make the buildings (with ``ground`` and ``height``) with
+    ``buildings``, write them as the city model ``output`` (validated unless ``validate`` is
+    false); the result lists the buildings skipped and why."""
+    writer = _model_writer(output, overwrite=overwrite, typed_attributes=typed_attributes)
+    progress("reading", 0.0)
+    frame = buildings()
+    total = max(len(frame), 1)
+    written = 0
+
+    def counted(n: int) -> None:
+        nonlocal written
+        written += n
+        progress("writing", written / total)
+
+    result = writer(
+        frame,
+        output,
+        validate=validate,
+        schema_dir=schema_dir,
+        overwrite=overwrite,
+        strict=strict,
+        progress=counted,
+    )
+    progress("done", 1.0)  # (skipped buildings are not counted as they go)
+    return result
+
+
+def convert_file(
+    source: StrPath,
+    output: StrPath,
+    *,
+    layer: str | None = None,
+    id_field: str | None = None,
+    height_field: str = "height",
+    relative: bool = False,
+    ground_field: str | None = None,
+    dem: StrPath | None = None,
+    dem_crs: str | None = None,
+    grid_dir: StrPath | None = None,
+    overwrite: bool = False,
+    strict: bool = False,
+    validate: bool = True,
+    schema_dir: StrPath | None = None,
+    typed_attributes: bool = False,
+    progress: Progress = _silent,
+) -> ExportResult:
+    """Turn a polygon layer with a height field into a validated LOD1 city model.
+
+    The height is absolute (m ODN) unless ``relative``; the ground comes from
+    ``ground_field`` or from the ``dem`` (one of the two, or the layer's ``ground`` column as
+    the heights layer of :func:`estimate_file` has)."""
+    from .export import buildings_with_heights
+
+    if ground_field is not None and dem is not None:
+        raise InputError(
+            "the ground is given twice, by a field and by a DEM",
+            where=str(source),
+            fix="give the ground field or the DEM, not both",
+        )
+
+    def buildings() -> gpd.GeoDataFrame:
+        frame = read_buildings(
+            source, layer=layer, id_field=id_field, dem=dem, dem_crs=dem_crs, grid_dir=grid_dir
+        )
+        return buildings_with_heights(
+            frame, height_field, relative=relative, ground_field=ground_field
+        )
+
+    return _model_job(
+        output, buildings, overwrite, strict, validate, schema_dir, typed_attributes, progress
+    )
+
+
+def export_file(
+    heights: StrPath,
+    footprints: StrPath,
+    output: StrPath,
+    *,
+    layer: str | None = None,
+    id_field: str | None = None,
+    dem: StrPath | None = None,
+    dem_crs: str | None = None,
+    grid_dir: StrPath | None = None,
+    overwrite: bool = False,
+    strict: bool = False,
+    validate: bool = True,
+    schema_dir: StrPath | None = None,
+    typed_attributes: bool = False,
+    progress: Progress = _silent,
+) -> ExportResult:
+    """Write the city model of a heights table (CSV or Parquet) for the footprints it was
+    estimated for; the ground from the table's ``ground`` column or from the ``dem``."""
+    from .export import footprints_with_heights
+    from .tables import read_table
+
+    def buildings() -> gpd.GeoDataFrame:
+        table = read_table(heights)
+        frame = read_buildings(
+            footprints, layer=layer, id_field=id_field, dem=dem, dem_crs=dem_crs, grid_dir=grid_dir
+        )
+        return footprints_with_heights(frame, table, where=str(heights))
+
+    return _model_job(
+        output, buildings, overwrite, strict, validate, schema_dir, typed_attributes, progress
+    )

@@ -1,0 +1,132 @@
+"""Run one job of :mod:`gnss_citygml.jobs` for another program, in a process of its own.
+
+The QGIS plugin runs its algorithms here rather than inside QGIS. On Linux, QGIS has its own
+PROJ, GDAL and GEOS loaded into its process, and the compiled modules of the pyproj, rasterio,
+pyogrio and shapely wheels would bind to those libraries instead of their own copies (the
+dynamic linker looks in the process's global scope first): PROJ 9.1 refusing an option that
+the wheel's PROJ knows, at best; a crash, at worst. A child Python has only the wheels' own.
+
+``python -m gnss_citygml.worker`` reads one job as JSON on standard input::
+
+    {"job": "estimate" | "convert" | "validate", "args": {...}}
+
+``args`` are the job's keyword arguments; the settings of ``estimate`` (``rays``,
+``receiver_heights``, ``estimator``, ``position_error``, ``calibration``) are given as dicts of
+their fields. It answers in JSON lines on standard output, one object each::
+
+    {"progress": [what, done]}   {"warning": text}   {"result": {...}}   {"error": text}
+
+An error is the command line's one-line message. SIGINT (the host's Cancel) stops the job
+with ``{"error": "cancelled"}``, and like any failure leaves no output behind.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import warnings
+from collections.abc import Callable
+from typing import IO, Any
+
+from .errors import GnssCityGMLError, escape_controls, internal_error
+from .settings import Calibration, Estimator, PositionError, Rays, ReceiverHeights
+
+__all__ = ["CANCELLED", "JOBS", "main"]
+
+#: The error of a job stopped by SIGINT.
+CANCELLED = "cancelled"
+
+#: The settings objects of ``estimate``, made from the dicts the host sends.
+SETTINGS = {
+    "rays": Rays,
+    "receiver_heights": ReceiverHeights,
+    "estimator": Estimator,
+    "position_error": PositionError,
+    "calibration": Calibration,
+}
+
+Say = Callable[[dict[str, Any]], None]
+
+
+def _estimate(args: dict[str, Any], say: Say) -> dict[str, Any]:
+    from .jobs import estimate_file
+
+    settings = {name: kind(**args.pop(name, {})) for name, kind in SETTINGS.items()}
+    heights = estimate_file(**args, **settings, progress=_progress(say))
+    return {"buildings": len(heights), "converged": int(heights["converged"].sum())}
+
+
+def _convert(args: dict[str, Any], say: Say) -> dict[str, Any]:
+    from .jobs import convert_file
+
+    result = convert_file(**args, progress=_progress(say))
+    return {
+        "written": result.written,
+        "skipped": [[str(b), str(reason)] for b, reason in result.skipped.itertuples(index=False)],
+        "validated": result.report is not None,
+        "summary": result.summary(),
+    }
+
+
+def _validate(args: dict[str, Any], say: Say) -> dict[str, Any]:
+    from .validate import validate_file
+
+    report = validate_file(**args)
+    return {
+        "valid": report.valid,
+        "exit_code": report.exit_code,
+        "errors": [[i.object_id, i.rule, i.message, i.line()] for i in report.errors],
+        "rule_counts": report.rule_counts(),
+        "notes": [escape_controls(note) for note in report.notes],
+        "summary": report.summary(),
+    }
+
+
+#: The jobs a host can ask for.
+JOBS = {"estimate": _estimate, "convert": _convert, "validate": _validate}
+
+
+def _progress(say: Say) -> Callable[[str, float], None]:
+    return lambda what, done: say({"progress": [what, done]})
+
+
+def run(request: dict[str, Any], say: Say) -> int:
+    """Run the job ``request`` names, telling ``say`` its progress, warnings and outcome;
+    return the exit status (0, or the command line's for the error)."""
+
+    def warn(message, category, filename, lineno, file=None, line=None):
+        say({"warning": escape_controls(str(message))})
+
+    try:
+        job = JOBS[request["job"]]
+        with warnings.catch_warnings():
+            warnings.showwarning = warn
+            result = job(dict(request["args"]), say)
+    except GnssCityGMLError as exc:
+        say({"error": exc.one_line()})
+        return exc.exit_code
+    except KeyboardInterrupt:
+        say({"error": CANCELLED})
+        return 130
+    except Exception as exc:
+        say({"error": internal_error(exc)})
+        return 2
+    say({"result": result})
+    return 0
+
+
+def main(stdin: IO[str] = sys.stdin, stdout: IO[str] = sys.stdout) -> int:
+    """Read the job from ``stdin``, answer on ``stdout`` (anything else the libraries print
+    goes to standard error, so that every line of ``stdout`` is one JSON object)."""
+    answers = stdout
+    sys.stdout = sys.stderr
+
+    def say(message: dict[str, Any]) -> None:
+        answers.write(json.dumps(message) + "\n")
+        answers.flush()
+
+    return run(json.load(stdin), say)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,170 @@
+"""What the three algorithms share: group, icon, the library check, and running the library's
+job in a child Python with its progress, warnings, Cancel and one-line errors."""
+
+import functools
+import json
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+
+from qgis.core import (
+    QgsProcessingAlgorithm,
+    QgsProcessingException,
+    QgsProcessingParameterDefinition,
+    QgsProcessingParameterFile,
+)
+from qgis.PyQt.QtGui import QIcon
+
+from .library import install, interpreter, unavailable
+
+ICON = os.path.join(os.path.dirname(__file__), "icon.svg")
+
+
+def icon():
+    return QIcon(ICON)
+
+
+#: The child's error when Cancel stopped it (gnss_citygml.worker.CANCELLED).
+CANCELLED = "cancelled"
+
+#: The child in a process group of its own on Windows, where Cancel sends it CTRL_BREAK.
+_GROUP = {"creationflags": subprocess.CREATE_NEW_PROCESS_GROUP} if sys.platform == "win32" else {}
+
+
+def _interrupt(child):
+    """Ask the child to stop as Ctrl-C does: it cleans up what it was writing."""
+    if child.poll() is None:
+        child.send_signal(signal.CTRL_BREAK_EVENT if sys.platform == "win32" else signal.SIGINT)
+
+
+class Algorithm(QgsProcessingAlgorithm):
+    """A Processing algorithm that runs one job of the library.
+
+    Subclasses define ``initAlgorithm`` (from the library's own defaults) and ``run`` (parse
+    the parameters, call the job). Everything else is here, once.
+    """
+
+    def group(self):
+        return "GNSS 3D mapping"
+
+    def groupId(self):  # noqa: N802 (the name QGIS calls)
+        return "gnss3dmapping"
+
+    def icon(self):
+        return icon()
+
+    def createInstance(self):  # noqa: N802 (the name QGIS calls)
+        return type(self)()
+
+    def canExecute(self):  # noqa: N802 (the name QGIS calls)
+        problem = unavailable()
+        return problem is None, problem or ""
+
+    def checkParameterValues(self, parameters, context):  # noqa: N802 (the name QGIS calls)
+        problem = unavailable()
+        if problem is not None:
+            return False, problem
+        return super().checkParameterValues(parameters, context)
+
+    def initAlgorithm(self, config=None):  # noqa: N802 (the name QGIS calls)
+        if unavailable() is None:
+            self.define()
+
+    def define(self):
+        """Add the parameters and outputs (the library is installed)."""
+        raise NotImplementedError
+
+    def processAlgorithm(self, parameters, context, feedback):  # noqa: N802 (the name QGIS calls)
+        problem = unavailable()
+        if problem is not None:
+            raise QgsProcessingException(problem)
+        return self.job(parameters, context, feedback)
+
+    def job(self, parameters, context, feedback):
+        """Parse the parameters, run the job (:meth:`run_job`), return the outputs."""
+        raise NotImplementedError
+
+    def run_job(self, job, args, feedback):
+        """Run the library's ``job`` with ``args`` in a child Python (``gnss_citygml.worker``,
+        whose docstring says why not in QGIS's process): its progress and warnings go to
+        QGIS, Cancel interrupts it (it then removes what it was writing), and its error is
+        the command line's one-line message. Returns the job's result."""
+        python = interpreter()
+        with tempfile.TemporaryFile("w+", encoding="utf-8", errors="replace") as stderr:
+            try:
+                child = subprocess.Popen(
+                    [python, "-m", "gnss_citygml.worker"],
+                    stdin=subprocess.PIPE,
+                    stdout=subprocess.PIPE,
+                    stderr=stderr,
+                    text=True,
+                    encoding="utf-8",
+                    **_GROUP,
+                )
+            except OSError as exc:
+                raise QgsProcessingException(install(f"cannot start {python} ({exc})")) from None
+            interrupt = functools.partial(_interrupt, child)
+            feedback.canceled.connect(interrupt)
+            try:
+                with child:
+                    child.stdin.write(json.dumps({"job": job, "args": args}))
+                    child.stdin.close()
+                    if feedback.isCanceled():
+                        interrupt()
+                    outcome = self._follow(child, feedback)
+            finally:
+                feedback.canceled.disconnect(interrupt)
+            stderr.seek(0)
+            printed = stderr.read().strip()
+        if printed:
+            feedback.pushDebugInfo(printed)
+        if "result" in outcome:
+            return outcome["result"]
+        if outcome.get("error") == CANCELLED:
+            raise QgsProcessingException("cancelled: nothing was written")
+        if "error" in outcome:
+            raise QgsProcessingException(outcome["error"])
+        last = printed.splitlines()[-1] if printed else f"exit status {child.returncode}"
+        raise QgsProcessingException(install(f"{python} cannot run gnss-citygml ({last})"))
+
+    @staticmethod
+    def _follow(child, feedback):
+        """Pass the child's progress and warnings on to QGIS; return its last word."""
+        for line in child.stdout:
+            message = json.loads(line)
+            if "progress" in message:
+                what, done = message["progress"]
+                feedback.setProgressText(what)
+                feedback.setProgress(100.0 * done)
+            elif "warning" in message:
+                feedback.pushWarning("warning: " + message["warning"])
+            else:
+                return message
+        return {}
+
+    def optional_number(self, parameters, name, context):
+        """An optional number parameter: None when not given (not 0)."""
+        if parameters.get(name) in (None, ""):
+            return None
+        return self.parameterAsDouble(parameters, name, context)
+
+    def optional_text(self, parameters, name, context):
+        """An optional string, field or folder parameter: None when empty."""
+        return self.parameterAsString(parameters, name, context) or None
+
+
+def advanced(parameter):
+    """``parameter`` shown under "Advanced parameters"."""
+    parameter.setFlags(parameter.flags() | QgsProcessingParameterDefinition.FlagAdvanced)
+    return parameter
+
+
+def folder(name, description):
+    """An optional folder parameter (advanced)."""
+    return advanced(
+        QgsProcessingParameterFile(
+            name, description, behavior=QgsProcessingParameterFile.Folder, optional=True
+        )
+    )

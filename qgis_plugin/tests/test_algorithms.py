@@ -1,0 +1,229 @@
+"""The algorithms through QGIS's Processing framework, on simulated scenes: the plugin's
+heights are the command line's, its city models validate, its errors are the command line's
+one-line messages, Cancel stops it without an output, and its layer opens styled."""
+
+import geopandas as gpd
+import pandas as pd
+import pytest
+from conftest import assert_same_heights, cli, estimate_with_the_cli
+from qgis.core import (
+    QgsApplication,
+    QgsFillSymbol,
+    QgsProcessingContext,
+    QgsProcessingException,
+    QgsProcessingFeedback,
+    QgsProject,
+    QgsSingleSymbolRenderer,
+    QgsVectorLayer,
+)
+
+from gnss_citygml.validate import validate_file
+
+#: Options of `gnss-citygml estimate` and the plugin's parameters for them: the defaults,
+#: and a set that changes every option the plugin maps.
+OPTIONS = {
+    "defaults": ([], {}),
+    "changed": (
+        [
+            "--min-elevation",
+            "15",
+            "--max-elevation",
+            "80",
+            "--receiver-height",
+            "dem",
+            "--antenna-height",
+            "1.2",
+            "--init-threshold",
+            "28",
+            "--method",
+            "4PL",
+            "--max-range",
+            "250",
+            "--position-sd",
+            "1",
+        ],
+        {
+            "MIN_ELEVATION": 15,
+            "MAX_ELEVATION": 80,
+            "RECEIVER_HEIGHT": 0,
+            "ANTENNA_HEIGHT": 1.2,
+            "INIT_THRESHOLD": 28,
+            "METHOD": 1,
+            "MAX_RANGE": 250,
+            "POSITION_SD": 1,
+        },
+    ),
+}
+
+
+def _inputs(scene, output, **extra):
+    return {
+        "OBSERVATIONS": str(scene["observations"]),
+        "FOOTPRINTS": f"{scene['footprints']}|layername=footprints",
+        "DEM": str(scene["dem"]),
+        "OUTPUT": str(output),
+        **extra,
+    }
+
+
+@pytest.mark.parametrize("options", sorted(OPTIONS))
+def test_the_plugins_heights_are_the_clis(plugin, processing_framework, scene, options, tmp_path):
+    flags, parameters = OPTIONS[options]
+    theirs = estimate_with_the_cli(scene, tmp_path / "cli.gpkg", *flags)
+    result = processing_framework.run(
+        "gnsscitygml:estimate", _inputs(scene, tmp_path / "plugin.gpkg", **parameters)
+    )
+    assert result["OUTPUT"] == f"{tmp_path / 'plugin.gpkg'}|layername=heights"
+    ours = gpd.read_file(tmp_path / "plugin.gpkg", layer="heights")
+    assert result["BUILDINGS"] == len(ours) == len(theirs) > 0
+    assert result["CONVERGED"] == int(ours["converged"].sum())
+    assert_same_heights(ours, theirs)
+
+
+@pytest.mark.parametrize("suffix", [".city.json", ".city.jsonl", ".gml"])
+def test_convert_writes_what_validate_accepts(
+    plugin, processing_framework, scene, suffix, tmp_path
+):
+    estimated = processing_framework.run(
+        "gnsscitygml:estimate", _inputs(scene, tmp_path / "h.gpkg")
+    )
+    model = tmp_path / f"model{suffix}"
+    converted = processing_framework.run(
+        "gnsscitygml:convert", {"INPUT": estimated["OUTPUT"], "OUTPUT": str(model)}
+    )
+    assert converted["WRITTEN"] == estimated["CONVERGED"] > 0
+    assert converted["SKIPPED"] == estimated["BUILDINGS"] - estimated["CONVERGED"]
+    assert converted["VALIDATED"] and model.is_file()
+    checked = processing_framework.run(
+        "gnsscitygml:validate", {"INPUT": str(model), "ERRORS": "TEMPORARY_OUTPUT"}
+    )
+    assert checked["VALID"] and checked["N_ERRORS"] == 0
+    assert checked["ERRORS"].featureCount() == 0
+    assert cli("validate", model, check=False).returncode == 0  # and the command line agrees
+
+
+def test_validate_lists_the_errors_of_a_broken_model(plugin, processing_framework, tmp_path):
+    broken = tmp_path / "broken.city.json"
+    broken.write_text(
+        '{"type": "CityJSON", "version": "2.0", "transform": {"scale": [1, 1, 1], '
+        '"translate": [0, 0, 0]}, "CityObjects": {"b1": {"type": "Building", "geometry": '
+        '[{"type": "Solid", "lod": "1", "boundaries": [[[[0, 1, 9]]]]}]}}, "vertices": '
+        "[[0, 0, 0], [1, 0, 0]]}"
+    )
+    checked = processing_framework.run(
+        "gnsscitygml:validate", {"INPUT": str(broken), "ERRORS": "TEMPORARY_OUTPUT"}
+    )
+    assert not checked["VALID"] and checked["N_ERRORS"] > 0
+    rows = [f.attributes()[1:] for f in checked["ERRORS"].getFeatures()]
+    assert rows == [[i.rule, i.message] for i in validate_file(broken).errors]
+    assert cli("validate", broken, check=False).returncode == 1
+
+
+def test_errors_are_the_clis_one_line_messages(plugin, processing_framework, scene, tmp_path):
+    observations = tmp_path / "observations.csv"
+    table = (
+        pd.read_parquet(scene["observations"])
+        if scene["observations"].suffix == ".parquet"
+        else pd.read_csv(scene["observations"])
+    )
+    table.drop(columns="elevation").to_csv(observations, index=False)
+    bad = {**scene, "observations": observations}
+    message = (
+        cli(
+            "estimate",
+            observations,
+            scene["footprints"],
+            "--dem",
+            scene["dem"],
+            "-o",
+            tmp_path / "cli.gpkg",
+            check=False,
+        )
+        .stderr.strip()
+        .splitlines()[-1]
+    )
+    assert message.startswith("error: ") and "elevation" in message
+    with pytest.raises(QgsProcessingException) as raised:
+        processing_framework.run("gnsscitygml:estimate", _inputs(bad, tmp_path / "p.gpkg"))
+    assert str(raised.value) == message.removeprefix("error: ")
+    assert not (tmp_path / "p.gpkg").exists()
+
+
+class _CancelAfter(QgsProcessingFeedback):
+    """Presses Cancel once the job reports its ``n``-th stage."""
+
+    def __init__(self, n):
+        super().__init__()
+        self.n = n
+        self.stages = []
+
+    def setProgressText(self, text):  # noqa: N802 (QGIS's name)
+        self.stages.append(text)
+        if len(self.stages) == self.n:
+            self.cancel()
+        super().setProgressText(text)
+
+
+@pytest.mark.parametrize("n", [1, 4])
+def test_cancel_stops_the_job_and_writes_nothing(plugin, scene, n, tmp_path):
+    algorithm = QgsApplication.processingRegistry().createAlgorithmById("gnsscitygml:estimate")
+    feedback = _CancelAfter(n)
+    context = QgsProcessingContext()
+    output = tmp_path / "cancelled.gpkg"
+    with pytest.raises(QgsProcessingException, match="cancelled: nothing was written"):
+        algorithm.run(_inputs(scene, output), context, feedback, {}, False)
+    assert n <= len(feedback.stages) <= n + 1  # the child stops at once, or a stage later
+    assert not output.exists() and not list(tmp_path.iterdir())
+
+
+def test_the_layer_opens_styled(plugin, processing_framework, scene, tmp_path):
+    """From the plugin (loaded into the project) and from the CLI's file (opened in QGIS)."""
+    project = QgsProject.instance()
+    project.clear()
+    result = processing_framework.runAndLoadResults(
+        "gnsscitygml:estimate", _inputs(scene, tmp_path / "h.gpkg")
+    )
+    (layer,) = project.mapLayers().values()
+    assert layer.source() == result["OUTPUT"]
+    assert layer.featureCount() == result["BUILDINGS"]
+    _assert_styled(layer)
+    # the user styles it their way and saves that as the layer's default in the file: a rerun
+    # into the same file keeps theirs
+    layer.setRenderer(QgsSingleSymbolRenderer(QgsFillSymbol.createSimple({"color": "red"})))
+    assert layer.saveStyleToDatabase("mine", "", True, "") == ""
+    project.clear()
+    processing_framework.runAndLoadResults(
+        "gnsscitygml:estimate", _inputs(scene, tmp_path / "h.gpkg")
+    )
+    (layer,) = project.mapLayers().values()
+    assert layer.renderer().type() == "singleSymbol"
+    assert layer.renderer().symbol().color().name() == "#ff0000"
+    estimate_with_the_cli(scene, tmp_path / "cli.gpkg")
+    _assert_styled(QgsVectorLayer(f"{tmp_path / 'cli.gpkg'}|layername=heights", "cli", "ogr"))
+    project.clear()
+
+
+def _assert_styled(layer):
+    assert layer.isValid()
+    renderer = layer.renderer()
+    assert renderer.type() == "RuleRenderer"
+    filters = [rule.filterExpression() for rule in renderer.rootRule().children()]
+    assert any("relative_height" in f for f in filters) and 'NOT "converged"' in filters[-1]
+    assert layer.renderer3D() is not None and layer.renderer3D().type() == "vector"
+    assert not layer.labelsEnabled() and layer.labeling() is not None
+
+
+def test_a_python_without_the_library_is_named_with_the_fix(
+    plugin, processing_framework, scene, monkeypatch, tmp_path
+):
+    """$GNSS_CITYGML_PYTHON naming a Python that cannot import the library (Debian's own)."""
+    monkeypatch.setenv("GNSS_CITYGML_PYTHON", "/usr/bin/python3")
+    with pytest.raises(QgsProcessingException) as raised:
+        processing_framework.run("gnsscitygml:estimate", _inputs(scene, tmp_path / "h.gpkg"))
+    message = str(raised.value)
+    assert message.startswith("/usr/bin/python3 cannot run gnss-citygml (")
+    assert "No module named 'gnss_citygml'" in message
+    assert '"/usr/bin/python3" -m pip install --user --upgrade gnss-citygml' in message
+    monkeypatch.setenv("GNSS_CITYGML_PYTHON", str(tmp_path / "no-python"))
+    with pytest.raises(QgsProcessingException, match="cannot start .*no-python"):
+        processing_framework.run("gnsscitygml:estimate", _inputs(scene, tmp_path / "h.gpkg"))

@@ -1,0 +1,40 @@
+"""The QGIS plugin as a package (issue 12): `make plugin`'s zip, its metadata, and code that an
+older QGIS Python can still load to say what is missing. The plugin at work is tested in a real
+QGIS (qgis_plugin/tests, run by `make test`)."""
+
+import ast
+import configparser
+import sys
+import zipfile
+from pathlib import Path
+
+import gnss_citygml
+
+ROOT = Path(__file__).resolve().parents[1]
+PLUGIN = ROOT / "qgis_plugin" / "gnss_citygml_qgis"
+sys.path.insert(0, str(ROOT / "tools"))
+
+from build_plugin import build  # noqa: E402
+
+
+def test_the_zip_holds_the_plugin_folder_with_its_licence(tmp_path):
+    target = build(tmp_path)
+    assert target.name == f"gnss_citygml_qgis-{gnss_citygml.__version__}.zip"
+    names = set(zipfile.ZipFile(target).namelist())
+    expected = {f"gnss_citygml_qgis/{p.name}" for p in PLUGIN.iterdir() if p.is_file()}
+    assert names == expected | {"gnss_citygml_qgis/LICENSE"}
+    assert {"gnss_citygml_qgis/metadata.txt", "gnss_citygml_qgis/icon.svg"} <= names
+    assert not list(tmp_path.glob("*.part"))
+
+
+def test_metadata_version_is_the_librarys():
+    meta = configparser.ConfigParser()
+    meta.read(PLUGIN / "metadata.txt")
+    assert meta["general"]["version"] == gnss_citygml.__version__
+    assert meta["general"]["qgisMinimumVersion"] == "3.22"
+
+
+def test_the_plugin_parses_on_an_old_qgis_python():
+    """A QGIS on Python 3.7 must load the plugin far enough to say it needs a newer one."""
+    for path in PLUGIN.glob("*.py"):
+        ast.parse(path.read_text(), str(path), feature_version=(3, 7))

@@ -1,0 +1,135 @@
+"""The worker that runs the QGIS plugin's jobs in a child Python (issue 12), driven as the
+plugin drives it: JSON in, JSON lines out, SIGINT to cancel. The plugin itself is tested in a
+real QGIS (qgis_plugin/tests)."""
+
+import json
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import geopandas as gpd
+import pytest
+from test_cli import run
+
+CITY = Path(__file__).resolve().parents[1] / "examples" / "city"
+
+
+def child(request: dict) -> subprocess.Popen:
+    process = subprocess.Popen(
+        [sys.executable, "-m", "gnss_citygml.worker"],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    assert process.stdin is not None
+    process.stdin.write(json.dumps(request))
+    process.stdin.close()
+    return process
+
+
+def answers(process: subprocess.Popen) -> list[dict]:
+    assert process.stdout is not None
+    lines = [json.loads(line) for line in process.stdout]  # every line is one JSON object
+    process.wait()
+    return lines
+
+
+def estimate(output: Path, **extra) -> dict:
+    args = {
+        "observations": str(CITY / "observations.parquet"),
+        "footprints": str(CITY / "footprints.gpkg"),
+        "dem": str(CITY / "dem.tif"),
+        "output": str(output),
+        **extra,
+    }
+    return {"job": "estimate", "args": args}
+
+
+def test_estimate_reports_its_stages_and_writes_the_clis_heights(
+    grid_dir, grid_args, tmp_path, capsys
+):
+    grids = None if grid_dir is None else str(grid_dir)
+    request = estimate(tmp_path / "w.gpkg", rays={"min_elevation": 15}, grid_dir=grids)
+    process = child(request)
+    said = answers(process)
+    assert process.returncode == 0, process.stderr.read()
+    stages = [m["progress"][0] for m in said if "progress" in m]
+    assert stages == [
+        "observations",
+        "receivers",
+        "buildings",
+        "ray casting",
+        "height model",
+        "output",
+        "done",
+    ]
+    (result,) = [m["result"] for m in said if "result" in m]
+    ours = gpd.read_file(tmp_path / "w.gpkg", layer="heights")
+    assert result == {"buildings": len(ours), "converged": int(ours["converged"].sum())}
+    code, _, err = run(
+        [
+            "estimate",
+            str(CITY / "observations.parquet"),
+            str(CITY / "footprints.gpkg"),
+            "--dem",
+            str(CITY / "dem.tif"),
+            "--min-elevation",
+            "15",
+            "-o",
+            str(tmp_path / "cli.gpkg"),
+            *grid_args,
+            "-q",
+        ],
+        capsys,
+    )
+    assert code == 0, err
+    theirs = gpd.read_file(tmp_path / "cli.gpkg", layer="heights")
+    assert ours.drop(columns="geometry").equals(theirs.drop(columns="geometry"))
+
+
+def test_an_error_is_the_clis_one_line_message(tmp_path, capsys):
+    request = estimate(tmp_path / "w.gpkg")
+    request["args"]["observations"] = str(tmp_path / "none.parquet")
+    process = child(request)
+    said = answers(process)
+    assert process.returncode == 2
+    args = request["args"]
+    cli = [args["observations"], args["footprints"], "--dem", args["dem"], "-o", args["output"]]
+    code, _, err = run(["estimate", *cli], capsys)
+    assert code == 2 and said == [{"error": err.strip().removeprefix("error: ")}]
+    assert not (tmp_path / "w.gpkg").exists()
+
+
+def test_settings_are_checked_as_the_settings_objects_check_them(tmp_path):
+    said = answers(child(estimate(tmp_path / "w.gpkg", estimator={"method": "magic"})))
+    (error,) = [m["error"] for m in said]
+    assert "magic" in error and "4PL-B" in error
+
+
+def test_sigint_cancels_and_leaves_nothing(tmp_path):
+    process = child(estimate(tmp_path / "w.gpkg"))
+    assert process.stdout is not None
+    first = json.loads(process.stdout.readline())
+    assert first == {"progress": ["observations", 0.0]}
+    process.send_signal(signal.SIGINT)
+    said = [first, *answers(process)]
+    assert said[-1] == {"error": "cancelled"} and process.returncode == 130
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("suffix", [".city.json", ".gml"])
+def test_convert_and_validate(suffix, grid_dir, tmp_path):
+    heights = tmp_path / "h.gpkg"
+    grids = None if grid_dir is None else str(grid_dir)
+    assert answers(child(estimate(heights, grid_dir=grids)))[-1].keys() == {"result"}
+    model = tmp_path / f"m{suffix}"
+    request = {"job": "convert", "args": {"source": str(heights), "output": str(model)}}
+    said = answers(child(request))
+    result = said[-1]["result"]
+    assert result["validated"] and result["written"] > 0 and model.is_file()
+    assert said[-2] == {"progress": ["done", 1.0]}
+    said = answers(child({"job": "validate", "args": {"path": str(model)}}))
+    report = said[-1]["result"]
+    assert report["valid"] and report["errors"] == [] and report["exit_code"] == 0

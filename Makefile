@@ -55,6 +55,8 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/geodesy.py
 	$(BIN)/python benchmarks/paper_table.py
 	$(BIN)/python benchmarks/startup.py
+	if [ -x .venv-qgis/bin/python ]; then .venv-qgis/bin/python benchmarks/qgis_plugin.py; \
+	else echo "benchmarks/qgis_plugin.py: no .venv-qgis (qgis_plugin/run-tests --setup makes it)"; fi
 
 clean:
 	rm -rf $(VENV) .venv-qgis qgis_plugin/.qgis-settings demo-out dist .pytest_cache .ruff_cache .mypy_cache build *.egg-info

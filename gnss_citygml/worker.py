@@ -23,6 +23,7 @@ with ``{"error": "cancelled"}``, and like any failure leaves no output behind.
 from __future__ import annotations
 
 import json
+import signal
 import sys
 import warnings
 from collections.abc import Callable
@@ -120,6 +121,8 @@ def main(stdin: IO[str] = sys.stdin, stdout: IO[str] = sys.stdout) -> int:
     goes to standard error, so that every line of ``stdout`` is one JSON object)."""
     answers = stdout
     sys.stdout = sys.stderr
+    if hasattr(signal, "SIGBREAK"):  # Windows: the host's CTRL_BREAK stops the job as Ctrl-C
+        signal.signal(signal.SIGBREAK, signal.default_int_handler)
 
     def say(message: dict[str, Any]) -> None:
         answers.write(json.dumps(message) + "\n")

@@ -40,10 +40,9 @@ def main() -> int:
 
 
 def _shoot(folder: Path) -> int:
+    import gnss_citygml_qgis
     from processing.core.Processing import Processing
     from qgis._3d import Qgs3D
-
-    import gnss_citygml_qgis
 
     canvas = QgsMapCanvas()
     canvas.resize(QSize(900, 620))

@@ -42,8 +42,9 @@ def _interrupt(child):
 class Algorithm(QgsProcessingAlgorithm):
     """A Processing algorithm that runs one job of the library.
 
-    Subclasses define ``initAlgorithm`` (from the library's own defaults) and ``run`` (parse
-    the parameters, call the job). Everything else is here, once.
+    Subclasses define :meth:`define` (the parameters, with the library's own defaults) and
+    :meth:`job` (parse the parameters, :meth:`run_job`, the outputs). Everything else is here,
+    once.
     """
 
     def group(self):

@@ -39,7 +39,11 @@ def main() -> None:
     cli = [sys.executable, "-m", "gnss_citygml", "estimate", *map(str, files), "-q"]
 
     def command_line():
-        subprocess.run([*cli, "-o", str(folder / "cli.gpkg"), "--overwrite"], check=True)
+        subprocess.run(
+            [*cli, "-o", str(folder / "cli.gpkg"), "--overwrite"],
+            check=True,
+            stdout=subprocess.DEVNULL,
+        )
 
     from qgis.core import QgsApplication
 

@@ -11,6 +11,7 @@ from qgis.core import (
     QgsFillSymbol,
     QgsProcessingContext,
     QgsProcessingException,
+    QgsProcessingFeatureSourceDefinition,
     QgsProcessingFeedback,
     QgsProject,
     QgsSingleSymbolRenderer,
@@ -227,3 +228,21 @@ def test_a_python_without_the_library_is_named_with_the_fix(
     monkeypatch.setenv("GNSS_CITYGML_PYTHON", str(tmp_path / "no-python"))
     with pytest.raises(QgsProcessingException, match="cannot start .*no-python"):
         processing_framework.run("gnsscitygml:estimate", _inputs(scene, tmp_path / "h.gpkg"))
+
+
+def test_selected_features_only(plugin, processing_framework, scene, tmp_path):
+    """A selection in QGIS is what the analyst means: the source is exported for the job."""
+    footprints = QgsVectorLayer(f"{scene['footprints']}|layername=footprints", "fp", "ogr")
+    QgsProject.instance().addMapLayer(footprints)
+    try:
+        chosen = [f.id() for f in footprints.getFeatures()][:2]
+        footprints.selectByIds(chosen)
+        wanted = sorted(f["id"] for f in footprints.getSelectedFeatures())
+        source = QgsProcessingFeatureSourceDefinition(footprints.id(), True)
+        result = processing_framework.run(
+            "gnsscitygml:estimate", {**_inputs(scene, tmp_path / "h.gpkg"), "FOOTPRINTS": source}
+        )
+    finally:
+        QgsProject.instance().removeMapLayer(footprints.id())
+    heights = gpd.read_file(tmp_path / "h.gpkg", layer="heights")
+    assert result["BUILDINGS"] == len(wanted) == 2 and sorted(heights["id"]) == wanted

@@ -4,6 +4,7 @@ QGIS (qgis_plugin/tests, run by `make test`)."""
 
 import ast
 import configparser
+import subprocess
 import sys
 import zipfile
 from pathlib import Path
@@ -38,3 +39,16 @@ def test_the_plugin_parses_on_an_old_qgis_python():
     """A QGIS on Python 3.7 must load the plugin far enough to say it needs a newer one."""
     for path in PLUGIN.glob("*.py"):
         ast.parse(path.read_text(), str(path), feature_version=(3, 7))
+
+
+def test_what_the_plugin_imports_into_qgis_loads_no_compiled_geo_library():
+    """The plugin imports only the settings and the method names into QGIS's process (for the
+    defaults its dialogs show): no numpy, pandas or the wheels that bundle PROJ, GDAL, GEOS,
+    whose symbols would bind to QGIS's own libraries there (gnss_citygml/worker.py)."""
+    code = (
+        "import sys, gnss_citygml.settings, gnss_citygml.model; "
+        "print(sorted(m for m in ('numpy', 'pandas', 'pyproj', 'rasterio', 'pyogrio', "
+        "'shapely', 'scipy', 'geopandas') if m in sys.modules))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"

@@ -1,15 +1,17 @@
 """The stages composed: observations + footprints + DEM -> building heights.
 
-:func:`estimate` runs, in order: the observations' schema and elevation mask; the receivers in
-British National Grid + ODN (OSTN15/OSGM15) with grid bearings; each building's ground from the
-DEM; the rays cast against the footprints (:func:`intersections`); 4PL-B (or a baseline); and
-the heights joined back onto the footprints. ``progress`` is told the name of each stage as it
+:func:`run` (and :func:`estimate`, its heights only) runs, in order: the observations' schema
+and elevation mask; the receivers in British National Grid + ODN (OSTN15/OSGM15) with grid
+bearings; each building's ground from the DEM; the rays cast against the footprints
+(:func:`intersections`); 4PL-B (or a baseline); and the heights joined back onto the
+footprints. ``progress`` is told the name of each stage as it
 starts, so a command line or QGIS can show it.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import geopandas as gpd
 import numpy as np
@@ -20,6 +22,7 @@ from .calibrate import calibrate_receivers
 from .errors import InputError
 from .geodesy import CrsInput, check_bng, grid_bearing, to_osgb
 from .ids import id_field, source_named, with_id_field
+from .model.classifier import SignalClassifier
 from .model.estimate import HEIGHTS_COLUMNS, estimate_heights
 from .observations import check_observations
 from .paths import StrPath
@@ -28,7 +31,7 @@ from .recordings import recording_windows
 from .settings import Calibration, Estimator, PositionError, Rays, ReceiverHeights
 from .terrain import Dem, building_ground, sample_ground
 
-__all__ = ["STAGES", "estimate", "intersections", "receivers"]
+__all__ = ["STAGES", "Run", "estimate", "intersections", "receivers", "run"]
 
 #: The stages :func:`estimate` reports to ``progress``, in order.
 STAGES = ("observations", "receivers", "buildings", "ray casting", "height model", "output")
@@ -158,7 +161,36 @@ def intersections(
     )
 
 
+@dataclass(frozen=True)
+class Run:
+    """What one run of the pipeline saw and decided: the heights, and the evidence behind them
+    (for the report, :mod:`gnss_citygml.report`)."""
+
+    #: One row per footprint, as :func:`estimate` returns.
+    heights: gpd.GeoDataFrame
+    #: The observations inside the elevation mask, with the receiver columns (:func:`receivers`).
+    receivers: pd.DataFrame
+    #: One row per (signal, building its ray enters) (:func:`intersections`); ``signal`` is
+    #: the row of :attr:`receivers`.
+    intersections: pd.DataFrame
+    #: The buildings with their ``ground``.
+    buildings: gpd.GeoDataFrame
+    #: The final C/N0 signal classifier of 4PL-B or 4PL (None for the baselines).
+    classifier: SignalClassifier | None
+
+
 def estimate(
+    observations: pd.DataFrame,
+    footprints: gpd.GeoDataFrame,
+    dem: Dem | None = None,
+    **options,
+) -> gpd.GeoDataFrame:
+    """Building heights from observations, footprints and a DEM: the ``heights`` of
+    :func:`run`, which documents the arguments."""
+    return run(observations, footprints, dem, **options).heights
+
+
+def run(
     observations: pd.DataFrame,
     footprints: gpd.GeoDataFrame,
     dem: Dem | None = None,
@@ -171,8 +203,8 @@ def estimate(
     grid_dir: StrPath | None = None,
     dem_crs: CrsInput | None = None,
     progress: Callable[[str], None] | None = None,
-) -> gpd.GeoDataFrame:
-    """Building heights from observations, footprints and a DEM.
+) -> Run:
+    """Building heights from observations, footprints and a DEM, with the evidence.
 
     Parameters
     ----------
@@ -216,13 +248,14 @@ def estimate(
 
     Returns
     -------
-    geopandas.GeoDataFrame
-        One row per footprint: its geometry and attributes, ``ground``, the heights table
-        columns and ``relative_height`` (height - ground). Buildings no ray enters, or whose
-        estimate did not converge, have empty heights and ``converged = False`` with the
-        reason in ``status``: never a guess. The id column has the name of the footprints'
-        id field (``toid`` for footprints read with ``id_field="toid"``; ``attrs["id_field"]``,
-        see :mod:`gnss_citygml.ids`).
+    Run
+        ``heights``: one row per footprint: its geometry and attributes, ``ground``, the
+        heights table columns and ``relative_height`` (height - ground). Buildings no ray
+        enters, or whose estimate did not converge, have empty heights and ``converged =
+        False`` with the reason in ``status``: never a guess. The id column has the name of
+        the footprints' id field (``toid`` for footprints read with ``id_field="toid"``;
+        ``attrs["id_field"]``, see :mod:`gnss_citygml.ids`). With them, the receivers,
+        intersections, buildings and final signal classifier the heights came from.
 
     Raises
     ------
@@ -259,7 +292,14 @@ def estimate(
     say(STAGES[4])
     heights = estimate_heights(inter, estimator)
     say(STAGES[5])
-    return _join(buildings, heights, estimator.method, id_field(footprints))
+    fitted = heights.attrs.get("signal_classifier")
+    return Run(
+        heights=_join(buildings, heights, estimator.method, id_field(footprints)),
+        receivers=rx,
+        intersections=inter,
+        buildings=buildings,
+        classifier=None if fitted is None else SignalClassifier(**fitted),
+    )
 
 
 def _check_near(rx: pd.DataFrame, footprints: gpd.GeoDataFrame, max_range: float) -> None:

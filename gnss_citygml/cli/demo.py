@@ -78,47 +78,32 @@ def _outputs(folder: Path, overwrite: bool) -> list[Path]:
 
 
 def _comparison(heights, truth) -> list[str]:
-    """The lines comparing a heights layer (from ``estimate``) with a simulator's truth table.
-
-    One row per building: ``estimate`` (``relative_height``), ``range`` (``height_lower`` to
-    ``height_upper``, above the estimated ground), ``truth`` (the true roof above the true
-    ground), ``error`` (estimated minus true roof height, ODN) and ``status``; then the number
-    of converged buildings, their RMSE and how many of their ranges hold the true roof.
-    """
-    import numpy as np
+    """The lines comparing a heights layer (from ``estimate``) with a simulator's truth table
+    (:func:`gnss_citygml.compare.compare`): one row per building, then the summary line."""
     import pyogrio
 
+    from ..compare import compare, summary
     from ..tables import read_table
 
     est = pyogrio.read_dataframe(heights, layer="heights", read_geometry=False)
-    true = read_table(truth).set_index("id").reindex(est["id"].astype(str))
-    roof, ground = true["height"].to_numpy(), est["ground"].to_numpy()
-    lower, upper = est["height_lower"].to_numpy(), est["height_upper"].to_numpy()
-    error = est["height"].to_numpy() - roof
-    converged = est["converged"].to_numpy(dtype=bool, na_value=False)
+    table = compare(est, read_table(truth))
     rows = [("id", "estimate", "range", "truth", "error")]
-    for k, (bid, relative) in enumerate(zip(est["id"], est["relative_height"], strict=True)):
-        ok = converged[k]
+    for row in table.itertuples(index=False):
+        ok = row.converged
         rows.append(
             (
-                str(bid),
-                f"{relative:.2f}" if ok else "-",
-                f"{lower[k] - ground[k]:.2f}-{upper[k] - ground[k]:.2f}" if ok else "-",
-                f"{roof[k] - true['ground'].iloc[k]:.2f}",
-                f"{error[k]:+.2f}" if ok else "-",
+                str(row.id),
+                f"{row.estimate:.2f}" if ok else "-",
+                f"{row.lower:.2f}-{row.upper:.2f}" if ok else "-",
+                f"{row.truth:.2f}",
+                f"{row.error:+.2f}" if ok else "-",
             )
         )
     widths = [max(len(row[i]) for row in rows) for i in range(len(rows[0]))]
-    status = ["status", *est["status"].astype(str)]
+    status = ["status", *table["status"]]
     lines = ["heights above the ground (m); error = estimated - true roof height"]
     for row, words in zip(rows, status, strict=True):
         cells = [f"{c:{a}{w}}" for c, a, w in zip(row, "<>>>>", widths, strict=True)]
         lines.append("  ".join([*cells, words]))
-    n = int(converged.sum())
-    inside = int(np.sum(converged & (lower <= roof) & (roof <= upper)))
-    rmse = f"{np.sqrt(np.mean(error[converged] ** 2)):.2f} m" if n else "-"
-    lines.append(
-        f"{n} of {len(est)} buildings converged, RMSE {rmse}, truth inside the range for "
-        f"{inside} of {n}"
-    )
+    lines.append(summary(table))
     return lines

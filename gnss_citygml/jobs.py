@@ -52,8 +52,10 @@ def estimate_file(
     observations: StrPath,
     footprints: StrPath,
     dem: StrPath,
-    output: StrPath,
+    output: StrPath | None = None,
     *,
+    report: StrPath | None = None,
+    truth: StrPath | None = None,
     layer: str | None = None,
     id_field: str | None = None,
     rays: Rays = Rays(),
@@ -66,29 +68,39 @@ def estimate_file(
     overwrite: bool = False,
     progress: Progress = _silent,
 ) -> gpd.GeoDataFrame:
-    """Estimate the height of every footprint and write the layer ``heights`` to ``output``.
+    """Estimate the height of every footprint; write the layer ``heights`` to ``output`` and
+    the report of the run (:mod:`gnss_citygml.report`) into the folder ``report``.
 
     ``output`` is a GeoPackage (other layers of an existing one are kept; the layer gets the
-    toolkit's QGIS style as its default), a FlatGeobuf or a GeoParquet file. Returns the
-    heights written: every footprint with its attributes and the heights columns (see
-    :func:`gnss_citygml.pipeline.estimate` for the rest of the arguments)."""
+    toolkit's QGIS style as its default), a FlatGeobuf or a GeoParquet file. ``truth`` (a
+    simulator's truth table, CSV or Parquet) adds the true heights to the report. Returns the
+    heights: every footprint with its attributes and the heights columns (see
+    :func:`gnss_citygml.pipeline.run` for the rest of the arguments). Both outputs are
+    checked before any work; one of them must be given."""
     from .footprints import read_footprints
     from .observations import read_observations
-    from .pipeline import STAGES
-    from .pipeline import estimate as run
+    from .pipeline import STAGES, run
+    from .report import check_report, write_report
     from .styles import heights_qml
-    from .tables import check_layer_output, write_layer
+    from .tables import check_layer_output, read_table, write_layer
 
+    if output is None and report is None:
+        raise InputError("nothing to write", fix="give an output file or a report folder")
     calibration.check_method(estimator)  # as the pipeline does, but before any file is read
-    check_layer_output(output, "heights", overwrite=overwrite)
-    stages = iter(range(len(STAGES)))
+    if output is not None:
+        check_layer_output(output, "heights", overwrite=overwrite)
+    if report is not None:
+        check_report(report, overwrite=overwrite)
+    true = None if truth is None else read_table(truth)
+    steps = [*STAGES, "report"] if report is not None else list(STAGES)
+    stages = iter(range(len(steps)))
 
     def stage(name: str) -> None:
-        progress(name, next(stages) / len(STAGES))
+        progress(name, next(stages) / len(steps))
 
     obs = read_observations(observations)
     fp = read_footprints(footprints, layer=layer, id_field=id_field, grid_dir=grid_dir)
-    heights = run(
+    result = run(
         obs,
         fp,
         dem,
@@ -101,9 +113,13 @@ def estimate_file(
         dem_crs=dem_crs,
         progress=stage,
     )
-    write_layer(heights, output, "heights", overwrite=overwrite, style=heights_qml())
+    if output is not None:
+        write_layer(result.heights, output, "heights", overwrite=overwrite, style=heights_qml())
+    if report is not None:
+        stage("report")
+        write_report(result, report, truth=true, overwrite=overwrite)
     progress("done", 1.0)
-    return heights
+    return result.heights
 
 
 def read_buildings(

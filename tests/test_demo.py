@@ -13,7 +13,7 @@ import pyogrio
 import pytest
 
 from gnss_citygml.cli import main
-from gnss_citygml.cli.demo import CITY, OUTPUTS
+from gnss_citygml.cli.demo import CITY, OUTPUTS, REPORT_OUTPUTS
 from gnss_citygml.grids import GRID_DIR_ENV
 
 
@@ -29,7 +29,9 @@ def test_demo_writes_the_models_and_compares_with_the_truth(tmp_path, capsys, mo
     folder = tmp_path / "new" / "out"  # made by the demo
     code, out, err = run(["demo", "-o", folder, "--quiet"], capsys)
     assert code == 0, err
-    assert sorted(p.name for p in folder.iterdir()) == sorted(OUTPUTS)  # no temporary file left
+    assert sorted(p.name for p in folder.iterdir()) == sorted(
+        OUTPUTS + REPORT_OUTPUTS
+    )  # no temporary file left
     assert json.loads((folder / "city.city.json").read_text())["type"] == "CityJSON"
     assert "valid (json, structure, geometry)" in out and "valid (xml, xsd, geometry)" in out
     assert (folder / "city.gml").read_bytes().startswith(b"<?xml")
@@ -76,7 +78,7 @@ def test_demo_writes_the_models_and_compares_with_the_truth(tmp_path, capsys, mo
     assert {p.name: p.stat().st_mtime_ns for p in folder.iterdir()} == before
     code, out, _ = run(["demo", "-o", folder, "--overwrite", "-q"], capsys)
     assert code == 0 and out.splitlines()[-1] == lines[start + 31]
-    assert sorted(p.name for p in folder.iterdir()) == sorted(OUTPUTS)
+    assert sorted(p.name for p in folder.iterdir()) == sorted(OUTPUTS + REPORT_OUTPUTS)
 
 
 def test_demo_refuses_a_file_as_its_folder_and_an_existing_model(tmp_path, capsys):
@@ -121,7 +123,7 @@ def test_demo_over_a_geopackage_with_other_layers(tmp_path, capsys):
         "layer_styles",
         "mine",
     ]
-    assert sorted(p.name for p in folder.iterdir()) == sorted(OUTPUTS)
+    assert sorted(p.name for p in folder.iterdir()) == sorted(OUTPUTS + REPORT_OUTPUTS)
 
 
 def test_a_reader_that_stops_early_does_not_cut_the_job_short(tmp_path):
@@ -136,7 +138,7 @@ def test_a_reader_that_stops_early_does_not_cut_the_job_short(tmp_path):
         env={k: v for k, v in os.environ.items() if k != GRID_DIR_ENV},
     )
     assert run_.stdout.count("\n") == 1
-    assert sorted(p.name for p in folder.iterdir()) == sorted(OUTPUTS)
+    assert sorted(p.name for p in folder.iterdir()) == sorted(OUTPUTS + REPORT_OUTPUTS)
 
 
 def test_simulate_refuses_a_zero_interval(tmp_path, capsys):

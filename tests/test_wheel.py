@@ -23,6 +23,7 @@ from pathlib import Path
 import pytest
 
 import gnss_citygml
+from gnss_citygml.cli.demo import OUTPUTS, REPORT_OUTPUTS
 from gnss_citygml.contracts import SCHEMA_FOLDER
 from gnss_citygml.grids import BUNDLED_GRID_DIR, GRIDS
 from gnss_citygml.styles import heights_qml
@@ -153,6 +154,8 @@ def test_the_installed_wheel_runs_the_demo_offline(clean_venv, user_env, tmp_pat
     rows = lines[header + 1 : header + 31]
     assert len(rows) == 30 and all(row.startswith("city_") for row in rows)
     assert lines[header + 31].startswith("25 of 30 buildings converged, RMSE ")
+    # the report too (matplotlib, an extra, is among the developer's packages here)
+    assert sorted(p.name for p in (work / "OUT").iterdir()) == sorted(OUTPUTS + REPORT_OUTPUTS)
 
     # typed attributes: the installed package finds its CityJSON Extension to validate them
     args = ["convert", "OUT/heights.gpkg", "-o", "typed.city.json", "--typed-attributes"]

@@ -53,6 +53,10 @@ COMMANDS = {
         "observe",
         "Turn GnssLogger LOGS and satellite orbits into an observations table.",
     ),
+    "report": (
+        "estimate",
+        "Estimate as `estimate` does and write the report of the run: an HTML page and PNGs.",
+    ),
     "simulate": (
         "simulate",
         "Simulate a site and write the files a user brings to `estimate`: observations, "

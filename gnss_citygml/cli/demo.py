@@ -21,10 +21,14 @@ from .options import OVERWRITE, QUIET, output_dir
 CITY = Path(__file__).resolve().parents[1] / "data" / "city"
 #: The files the demo writes into its folder.
 OUTPUTS = ("heights.gpkg", "city.city.json", "city.gml")
+#: And, where matplotlib is installed, the report of the run (:mod:`gnss_citygml.report`).
+REPORT_OUTPUTS = ("report.html", "figures")
 
 
 @click.command()
-@output_dir("Folder for heights.gpkg, city.city.json and city.gml (created if needed).")
+@output_dir(
+    "Folder for heights.gpkg, city.city.json, city.gml and report.html (created if needed)."
+)
 @OVERWRITE
 @QUIET
 @click.pass_context
@@ -34,13 +38,16 @@ def demo(ctx, output_dir, overwrite, quiet):
     Estimates the heights of the 30 buildings of the simulated city (as `estimate` does, with
     the grids found as always: the copy bundled with gnss-citygml unless another is there),
     writes them to DIR/heights.gpkg and converts them to DIR/city.city.json and DIR/city.gml
-    (both validated). Ends with one row per building (estimate, range, the simulator's true
-    height, error, status; heights above the ground in metres) and a summary line.
+    (both validated), with the report of the run, the true heights included, in
+    DIR/report.html (where matplotlib is installed). Ends with one row per building (estimate,
+    range, the simulator's true height, error, status; heights above the ground in metres)
+    and a summary line.
     """
     from .citymodel import convert
     from .estimate import estimate
 
     heights, cityjson, citygml = _outputs(output_dir, overwrite)
+    report = output_dir if _can_plot() else None
     # The steps' own lines are held back until every file is written: a reader that stops
     # early (`demo -o DIR | head`) must not cut the job short.
     with contextlib.redirect_stdout(io.StringIO()) as steps:
@@ -50,6 +57,8 @@ def demo(ctx, output_dir, overwrite, quiet):
             footprints=CITY / "footprints.gpkg",
             dem=str(CITY / "dem.tif"),
             output=heights,
+            report=report,
+            truth=CITY / "truth.csv",
             overwrite=overwrite,
             quiet=quiet,
         )
@@ -63,8 +72,22 @@ def demo(ctx, output_dir, overwrite, quiet):
                 quiet=quiet,
             )
     click.echo(steps.getvalue(), nl=False)
+    if report is None:
+        click.echo(
+            "note: no report.html: the report needs matplotlib (pip install 'gnss-citygml[plot]')",
+            err=True,
+        )
     for line in _comparison(heights, CITY / "truth.csv"):
         click.echo(line)
+
+
+def _can_plot() -> bool:
+    """Whether matplotlib, an extra the report needs, can be imported."""
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError:
+        return False
+    return True
 
 
 def _outputs(folder: Path, overwrite: bool) -> list[Path]:

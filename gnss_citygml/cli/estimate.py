@@ -1,4 +1,5 @@
-"""The ``estimate`` subcommand: observations + footprints + DEM -> building heights."""
+"""The ``estimate`` and ``report`` subcommands: observations + footprints + DEM -> building
+heights, and the report of the run (HTML and PNGs)."""
 
 from __future__ import annotations
 
@@ -23,74 +24,135 @@ from .options import (
     progress,
 )
 
+#: The options of the run, which ``estimate`` and ``report`` share.
+_RUN_OPTIONS = [
+    click.argument("observations", type=click.Path(dir_okay=False, path_type=Path)),
+    click.argument("footprints", type=click.Path(path_type=Path)),
+    dem_file("DEM raster in EPSG:27700 (GeoTIFF, ASCII grid, zip://...!/tile.asc).", required=True),
+    LAYER,
+    ID_FIELD,
+    MIN_ELEVATION,
+    MAX_ELEVATION,
+    click.option(
+        "--receiver-height",
+        type=click.Choice(list(RECEIVER_HEIGHTS)),
+        default=ReceiverHeights.source,
+        show_default=True,
+        help="Antenna height from the DEM (+ --antenna-height) or from the observations' h.",
+    ),
+    click.option(
+        "--antenna-height",
+        type=float,
+        default=ReceiverHeights.antenna_height,
+        show_default=True,
+        help="Metres.",
+    ),
+    THRESHOLD,
+    METHOD,
+    click.option(
+        "--max-range", type=float, default=Rays.max_range, show_default=True, help="Ray length (m)."
+    ),
+    click.option(
+        "--position-sd",
+        type=click.FloatRange(min=0.0, min_open=True),
+        help="How far the receiver positions may be off (m per axis; about 1 for points placed "
+        "by hand): the fits model the height errors that follow and the ranges widen. Not for "
+        "phone fixes, whose errors drift: use --calibration-sd. Default: positions taken as "
+        "exact, as in the paper.",
+    ),
+    click.option(
+        "--position-window",
+        type=click.FloatRange(min=0.0, min_open=True),
+        help="With --position-sd: one position error lasts this many seconds of a recording "
+        "(e.g. 30 for a walker's traced path). Default: a whole recording, as a point placed by "
+        "hand.",
+    ),
+    click.option(
+        "--calibration-sd",
+        type=click.FloatRange(min=0.0, min_open=True),
+        help="Self-calibrate one position offset per recording with this prior (m per axis; "
+        "about 1 for hand-placed points, 5 for phone fixes; method 4PL-B only). Off by default.",
+    ),
+    click.option(
+        "--calibration-window",
+        type=click.FloatRange(min=0.0, min_open=True),
+        help="With --calibration-sd: one offset per this many seconds of a recording (about 30 "
+        "for phone fixes, whose errors drift) instead of one per recording.",
+    ),
+    click.option(
+        "--truth",
+        type=click.Path(dir_okay=False, path_type=Path),
+        help="For the report: a truth table (id, height, ground in m ODN; a simulator's "
+        "truth.csv), to show the true heights and the errors.",
+    ),
+    DEM_CRS,
+    GRID_DIR,
+    OVERWRITE,
+    QUIET,
+]
+
+
+def _run_options(func):
+    for option in reversed(_RUN_OPTIONS):
+        func = option(func)
+    return func
+
 
 @click.command()
-@click.argument("observations", type=click.Path(dir_okay=False, path_type=Path))
-@click.argument("footprints", type=click.Path(path_type=Path))
-@dem_file("DEM raster in EPSG:27700 (GeoTIFF, ASCII grid, zip://...!/tile.asc).", required=True)
 @output_file(
     "Output layer 'heights': a GeoPackage (.gpkg; other layers of an existing one are kept), "
     "FlatGeobuf (.fgb) or GeoParquet (.parquet)."
 )
-@LAYER
-@ID_FIELD
-@MIN_ELEVATION
-@MAX_ELEVATION
 @click.option(
-    "--receiver-height",
-    type=click.Choice(list(RECEIVER_HEIGHTS)),
-    default=ReceiverHeights.source,
-    show_default=True,
-    help="Antenna height from the DEM (+ --antenna-height) or from the observations' h.",
+    "--report",
+    type=click.Path(file_okay=False, path_type=Path),
+    help="Also write the report of the run into this folder: report.html and figures/*.png "
+    "(needs matplotlib: pip install 'gnss-citygml[plot]').",
 )
+@_run_options
+def estimate(output, report, **options):
+    """Estimate the height of every footprint from GNSS OBSERVATIONS.
+
+    OBSERVATIONS is the observations table (CSV or Parquet: time_utc, receiver, lat, lon, h,
+    constellation, svid, azimuth, elevation, cn0 with empty = blocked). FOOTPRINTS is a
+    GeoPackage or any polygon layer, or OS MasterMap Topography GML. The output holds each
+    footprint with its estimate; buildings with too little data have empty heights.
+    """
+    heights = _run(output, report, **options)
+    ok = int(heights["converged"].sum())
+    click.echo(f"{ok} of {len(heights)} buildings have a height -> {output}")
+    if report is not None:
+        click.echo(f"report -> {report / 'report.html'}")
+
+
+@click.command()
 @click.option(
-    "--antenna-height",
-    type=float,
-    default=ReceiverHeights.antenna_height,
-    show_default=True,
-    help="Metres.",
+    "--output-dir",
+    "-o",
+    "report",
+    type=click.Path(file_okay=False, path_type=Path),
+    required=True,
+    help="Folder for report.html and figures/*.png (created if needed).",
 )
-@THRESHOLD
-@METHOD
-@click.option(
-    "--max-range", type=float, default=Rays.max_range, show_default=True, help="Ray length (m)."
-)
-@click.option(
-    "--position-sd",
-    type=click.FloatRange(min=0.0, min_open=True),
-    help="How far the receiver positions may be off (m per axis; about 1 for points placed by "
-    "hand): the fits model the height errors that follow and the ranges widen. Not for phone "
-    "fixes, whose errors drift: use --calibration-sd. Default: positions taken as exact, as "
-    "in the paper.",
-)
-@click.option(
-    "--position-window",
-    type=click.FloatRange(min=0.0, min_open=True),
-    help="With --position-sd: one position error lasts this many seconds of a recording "
-    "(e.g. 30 for a walker's traced path). Default: a whole recording, as a point placed by "
-    "hand.",
-)
-@click.option(
-    "--calibration-sd",
-    type=click.FloatRange(min=0.0, min_open=True),
-    help="Self-calibrate one position offset per recording with this prior (m per axis; "
-    "about 1 for hand-placed points, 5 for phone fixes; method 4PL-B only). Off by default.",
-)
-@click.option(
-    "--calibration-window",
-    type=click.FloatRange(min=0.0, min_open=True),
-    help="With --calibration-sd: one offset per this many seconds of a recording (about 30 "
-    "for phone fixes, whose errors drift) instead of one per recording.",
-)
-@DEM_CRS
-@GRID_DIR
-@OVERWRITE
-@QUIET
-def estimate(
+@_run_options
+def report(report, **options):
+    """Estimate as `estimate` does and write the report of the run: an HTML page and PNGs.
+
+    A map of the buildings by height (those without one hatched by their status) with the
+    receivers' tracks; the ranges; the height fits of the worst, best and sampled buildings;
+    skyplots; C/N0 by final label with the signal classifier; a table of every building.
+    Needs matplotlib (pip install 'gnss-citygml[plot]').
+    """
+    _run(None, report, **options)
+    click.echo(f"report -> {report / 'report.html'}")
+
+
+def _run(
+    output,
+    report,
     observations,
     footprints,
     dem,
-    output,
     layer,
     id_field,
     min_elevation,
@@ -104,33 +166,32 @@ def estimate(
     position_window,
     calibration_sd,
     calibration_window,
+    truth,
     dem_crs,
     grid_dir,
     overwrite,
     quiet,
 ):
-    """Estimate the height of every footprint from GNSS OBSERVATIONS.
-
-    OBSERVATIONS is the observations table (CSV or Parquet: time_utc, receiver, lat, lon, h,
-    constellation, svid, azimuth, elevation, cn0 with empty = blocked). FOOTPRINTS is a
-    GeoPackage or any polygon layer, or OS MasterMap Topography GML. The output holds each
-    footprint with its estimate; buildings with too little data have empty heights.
-    """
+    """Build the settings from the options and run :func:`gnss_citygml.jobs.estimate_file`
+    with a progress bar over its stages."""
     from ..jobs import estimate_file
     from ..pipeline import STAGES
     from ..settings import Calibration, Estimator, PositionError
 
-    with progress(len(STAGES), "stages", quiet) as bar:
+    steps = len(STAGES) + (report is not None)
+    with progress(steps, "stages", quiet) as bar:
 
         def stage(name, done):
             bar.set_description(name)
-            bar.update(round(done * len(STAGES)) - bar.n)
+            bar.update(round(done * steps) - bar.n)
 
-        heights = estimate_file(
+        return estimate_file(
             observations,
             footprints,
             dem,
             output,
+            report=report,
+            truth=truth,
             layer=layer,
             id_field=id_field,
             rays=Rays(
@@ -145,5 +206,3 @@ def estimate(
             overwrite=overwrite,
             progress=stage,
         )
-    ok = int(heights["converged"].sum())
-    click.echo(f"{ok} of {len(heights)} buildings have a height -> {output}")

@@ -1,0 +1,487 @@
+"""The report of a run: what the estimator did, as figures a GNSS or GIS person reads at a glance.
+
+:func:`write_report` writes one self-contained HTML page (``report.html``, the images embedded)
+and the same figures as PNGs (``figures/``) into a folder:
+
+- a map of the buildings coloured by height above the ground, those without a height hatched
+  by their status, with the receivers' positions and tracks;
+- the range widths (the uncertainty): a map and a histogram;
+- per building, the height 4PL over the binned share of open signals, with the estimate and
+  its range marked, as the paper's figures: the worst, the best and a sample, not every one;
+- a skyplot per receiver (the busiest ones): signals open, closed (received, but by the
+  signal classifier not on a clear line of sight) and blocked (not received);
+- the C/N0 of the received signals by their final label (open where the ray clears every
+  fitted roof line) with the fitted signal classifier;
+- a table of every building (with the truth, for simulated data), and the counts by status.
+
+matplotlib is an extra (``pip install 'gnss-citygml[plot]'``); without it the report is a
+one-line error saying so. The figures' data (:func:`signal_states`, :func:`fit_sample`,
+:func:`binned_open`) are plain tables, tested without matplotlib.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+from collections.abc import Callable
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import pandas as pd
+
+from .errors import InputError
+from .ids import id_named
+from .model.fourpl import logistic4
+from .paths import StrPath, atomic_path, check_output_folder, make_folder
+
+if TYPE_CHECKING:
+    from .pipeline import Run
+
+__all__ = [
+    "REPORT",
+    "binned_open",
+    "blocked_by_others",
+    "check_report",
+    "fit_sample",
+    "signal_states",
+    "write_report",
+]
+
+#: The page's name in the report folder.
+REPORT = "report.html"
+
+#: Per-building fit plots: this many of the worst, of the best and of a sample.
+FITS_EACH = 4
+
+#: Skyplots: the receivers with the most signals, at most this many.
+SKYPLOTS = 12
+
+#: Width (m) of the intersection-height bins of the fit plots.
+HEIGHT_BIN = 1.0
+
+#: The fit plots show intersection heights this far (m) either side of the roof line ``c``:
+#: rays that pass high over a building say little about where its roof is.
+FIT_WINDOW = 25.0
+
+#: Colours of the signal states (open, closed, blocked) and of the two final labels.
+STATE_COLOURS = {"open": "#21918c", "closed": "#fde725", "blocked": "#440154"}
+
+#: Hatches of the buildings without a height, one per status.
+HATCHES = ["////", "\\\\\\\\", "xxxx", "....", "oo", "++", "--", "||"]
+
+
+def signal_states(run: Run) -> pd.DataFrame:
+    """Every signal of the run (a row of ``run.receivers``) with ``state``: ``open`` (received
+    and labelled open by the final signal classifier), ``closed`` (received, labelled closed)
+    or ``blocked`` (not received); and ``map_open``: whether its ray clears every roof line the
+    fits placed (``c`` of each building with a fit), the label the classifier was taught."""
+    rx = run.receivers
+    cn0 = rx["cn0"].to_numpy(float)
+    received = ~np.isnan(cn0)
+    if run.classifier is not None:
+        open_ = run.classifier.label(cn0)
+    else:
+        open_ = received
+    state = np.where(~received, "blocked", np.where(open_, "open", "closed"))
+    heights = id_named(run.heights).set_index("id")
+    inter = run.intersections
+    roof = heights["c"].reindex(inter["building"].astype(str)).to_numpy(float)
+    below = inter["height"].to_numpy(float) <= roof  # NaN roof (no fit): not below
+    hidden = np.zeros(len(rx), dtype=bool)
+    hidden[inter["signal"].to_numpy()[below]] = True
+    return pd.DataFrame(
+        {
+            "receiver": rx["receiver"].astype(str).to_numpy(),
+            "azimuth": rx["azimuth"].to_numpy(float),
+            "elevation": rx["elevation"].to_numpy(float),
+            "cn0": cn0,
+            "state": state,
+            "map_open": ~hidden,
+        }
+    )
+
+
+def blocked_by_others(intersections: pd.DataFrame, roofs: pd.Series) -> np.ndarray:
+    """For each intersection, whether its ray passes below the fitted roof line (``roofs``:
+    ``c`` by building id) of another building it crosses: such a signal says nothing about
+    this building, and the fits' visibility model leaves it out, so the fit plots do too."""
+    roof = roofs.reindex(intersections["building"].astype(str)).to_numpy(float)
+    below = intersections["height"].to_numpy(float) <= roof  # (no fit: NaN, not below)
+    signal = intersections["signal"].to_numpy()
+    n_below = np.bincount(signal, weights=below.astype(float), minlength=signal.max(initial=-1) + 1)
+    return (n_below[signal] - below) > 0
+
+
+def fit_sample(heights: pd.DataFrame, each: int = FITS_EACH, seed: int = 0) -> pd.DataFrame:
+    """The buildings whose fit the report draws, with ``why``: the ``each`` worst (converged
+    with the widest ranges, or, with an ``error`` column, the largest errors), the ``each``
+    best (the narrowest ranges or smallest errors) and ``each`` drawn at random (``seed``) from
+    the rest of those with a fit, not-converged ones included."""
+    table = id_named(heights)
+    table = table[np.isfinite(table["c"].to_numpy(float))]
+    if "error" in table:
+        score = table["error"].abs()
+    else:
+        score = table["height_upper"] - table["height_lower"]
+    ranked = table.assign(score=score.to_numpy()).dropna(subset=["score"])
+    ranked = ranked[ranked["converged"].astype(bool)].sort_values("score", kind="stable")
+    worst = ranked.tail(each).iloc[::-1]
+    best = ranked.head(each)
+    best = best[~best["id"].isin(worst["id"])]
+    rest = table[~table["id"].isin(pd.concat([worst["id"], best["id"]]))]
+    sample = rest.sample(min(each, len(rest)), random_state=seed) if len(rest) else rest
+    parts = [(worst, "worst"), (best, "best"), (sample, "sample")]
+    return pd.concat([part.assign(why=why) for part, why in parts], ignore_index=True)
+
+
+def binned_open(heights: np.ndarray, open_: np.ndarray, width: float = HEIGHT_BIN) -> pd.DataFrame:
+    """The share of open signals in bins of intersection height (``width`` m): ``height``
+    (the bin's middle), ``share`` and ``n``.
+
+    >>> binned_open(np.array([0.2, 0.7, 1.5]), np.array([True, False, True]))
+       height  share  n
+    0     0.5    0.5  2
+    1     1.5    1.0  1
+    """
+    if heights.size == 0:
+        return pd.DataFrame({"height": [], "share": [], "n": []})
+    key = np.floor(heights / width).astype(np.int64)
+    keys, inverse, n = np.unique(key, return_inverse=True, return_counts=True)
+    k = np.bincount(inverse, weights=open_.astype(float))
+    return pd.DataFrame({"height": (keys + 0.5) * width, "share": k / n, "n": n})
+
+
+def check_report(folder: StrPath, *, overwrite: bool) -> None:
+    """Check, before the work starts, that a report can be written to ``folder`` (its files
+    are new, or ``overwrite``) and that matplotlib is there to draw it."""
+    folder = Path(folder)
+    check_output_folder(folder, [folder / REPORT], overwrite=overwrite, what="report folder")
+    pngs = [folder / "figures" / f"{name}.png" for name, _, _ in _FIGURES]
+    check_output_folder(folder / "figures", pngs, overwrite=overwrite, what="figures folder")
+    _pyplot()
+
+
+def write_report(
+    run: Run,
+    folder: StrPath,
+    *,
+    truth: pd.DataFrame | None = None,
+    title: str = "gnss-citygml report",
+    overwrite: bool = True,
+    progress: Callable[[str], None] | None = None,
+) -> Path:
+    """Write the report of ``run`` (:func:`gnss_citygml.pipeline.run`) into ``folder``:
+    ``report.html`` and ``figures/*.png``, each file written atomically; returns the page.
+
+    ``truth`` (a simulator's truth table: ``id``, ``height``, ``ground``) adds the true
+    heights and the errors to the table, and the worst and best fits are then those with the
+    largest and smallest errors. ``progress`` is told the name of each figure as it starts.
+    Without ``overwrite``, existing report files are an error (:func:`check_report`)."""
+    check_report(folder, overwrite=overwrite)
+    plt = _pyplot()
+    folder = make_folder(folder)
+    figures = make_folder(Path(folder) / "figures")
+    say = progress or (lambda what: None)
+    table = _table(run, truth)
+    states = signal_states(run)
+    sections = []
+    for name, heading, draw in _FIGURES:
+        say(name)
+        figure = draw(plt, run, table, states)
+        png = _png(plt, figure)
+        with atomic_path(figures / f"{name}.png", overwrite=overwrite) as tmp:
+            tmp.write_bytes(png)
+        sections.append((heading, name, png))
+    say("page")
+    page = _page(title, run, table, sections)
+    with atomic_path(Path(folder) / REPORT, overwrite=overwrite) as tmp:
+        tmp.write_text(page, encoding="utf-8")
+    return Path(folder) / REPORT
+
+
+def _pyplot() -> Any:
+    """matplotlib's pyplot on a file-only backend, or the one-line error naming the extra."""
+    try:
+        import matplotlib
+    except ImportError:
+        raise InputError(
+            "the report needs matplotlib, which is not installed",
+            fix="pip install 'gnss-citygml[plot]' (or matplotlib)",
+        ) from None
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _table(run: Run, truth: pd.DataFrame | None) -> pd.DataFrame:
+    """Every building: id, heights above the ground, range, n_signals, converged, status (and
+    with a truth table its true height, error and whether the range holds it)."""
+    heights = id_named(run.heights)
+    ground = heights["ground"].to_numpy(float)
+    table = pd.DataFrame(
+        {
+            "id": heights["id"].astype(str),
+            "height": heights["relative_height"],
+            "lower": heights["height_lower"] - ground,
+            "upper": heights["height_upper"] - ground,
+            "n_signals": heights["n_signals"],
+            "converged": heights["converged"].astype(bool),
+            "status": heights["status"].astype(str),
+            "c": heights["c"],
+        }
+    )
+    if truth is not None:
+        from .compare import compare
+
+        compared = compare(run.heights, truth)
+        table["truth"] = compared["truth"].to_numpy()
+        table["error"] = compared["error"].to_numpy()
+        table["inside"] = compared["inside"].to_numpy()
+    return table
+
+
+def _png(plt: Any, figure: Any) -> bytes:
+    buffer = io.BytesIO()
+    figure.savefig(buffer, format="png", dpi=110, bbox_inches="tight")
+    plt.close(figure)
+    return buffer.getvalue()
+
+
+def _map(plt: Any, run: Run, table: pd.DataFrame, states: pd.DataFrame) -> Any:
+    """Buildings by height above the ground; the rest hatched by status; receivers' tracks."""
+    from matplotlib.patches import Patch
+
+    figure, ax = plt.subplots(figsize=(9, 7.5))
+    buildings = run.heights.assign(_status=table["status"].to_numpy())
+    converged = table["converged"].to_numpy()
+    if converged.any():
+        buildings[converged].plot(
+            column="relative_height",
+            cmap="viridis",
+            ax=ax,
+            edgecolor="#303030",
+            linewidth=0.3,
+            legend=True,
+            legend_kwds={"label": "height above the ground (m)", "shrink": 0.6},
+        )
+    handles = []
+    groups = buildings[~converged].groupby("_status")
+    for k, (status, group) in enumerate(groups):
+        hatch = HATCHES[k % len(HATCHES)]
+        group.plot(ax=ax, facecolor="#e0e0e0", edgecolor="#707070", hatch=hatch, linewidth=0.3)
+        label = f"{status} ({len(group)})"
+        handles.append(Patch(facecolor="#e0e0e0", edgecolor="#707070", hatch=hatch, label=label))
+    _tracks(ax, run.receivers)
+    if handles:
+        ax.legend(handles=handles, title="no height", loc="upper left", fontsize=7)
+    ax.set_title(f"{int(converged.sum())} of {len(table)} buildings with a height")
+    _axes_bng(ax)
+    return figure
+
+
+def _tracks(ax: Any, receivers: pd.DataFrame) -> None:
+    """Each receiver's positions in time order, as a thin line with a dot where it starts."""
+    from matplotlib.collections import LineCollection
+
+    positions = receivers[["receiver", "time_utc", "e", "n"]].drop_duplicates(
+        ["receiver", "time_utc"]
+    )
+    positions = positions.sort_values(["receiver", "time_utc"], kind="stable")
+    lines = [group[["e", "n"]].to_numpy() for _, group in positions.groupby("receiver", sort=False)]
+    ax.add_collection(LineCollection(lines, colors="#c0392b", linewidths=0.8, alpha=0.8))
+    starts = np.array([line[0] for line in lines])
+    ax.scatter(starts[:, 0], starts[:, 1], s=8, color="#c0392b", zorder=3, label="receivers")
+
+
+def _axes_bng(ax: Any) -> None:
+    ax.set_xlabel("easting (m, EPSG:27700)")
+    ax.set_ylabel("northing (m)")
+    ax.set_aspect("equal")
+    ax.ticklabel_format(useOffset=False, style="plain")
+    ax.tick_params(axis="x", labelrotation=30)
+
+
+def _ranges(plt: Any, run: Run, table: pd.DataFrame, states: pd.DataFrame) -> Any:
+    """The width of each converged building's range: a map and a histogram."""
+    figure, (left, right) = plt.subplots(1, 2, figsize=(12, 5), width_ratios=[1.3, 1])
+    width = (table["upper"] - table["lower"]).to_numpy()
+    converged = table["converged"].to_numpy()
+    if converged.any():
+        buildings = run.heights.assign(_width=width)
+        buildings[converged].plot(
+            column="_width",
+            cmap="magma_r",
+            ax=left,
+            edgecolor="#303030",
+            linewidth=0.3,
+            legend=True,
+            legend_kwds={"label": "range width (m)", "shrink": 0.7},
+        )
+        right.hist(
+            width[converged], bins=min(30, max(5, int(converged.sum()) // 3)), color="#31688e"
+        )
+        right.yaxis.get_major_locator().set_params(integer=True)
+    run.heights[~converged].plot(ax=left, facecolor="none", edgecolor="#b0b0b0", linewidth=0.3)
+    _axes_bng(left)
+    left.set_title("range width (the uncertainty)")
+    right.set_xlabel("range width (m)")
+    right.set_ylabel("buildings")
+    median = np.nanmedian(width[converged]) if converged.any() else float("nan")
+    right.set_title(f"median {median:.2f} m over {int(converged.sum())} buildings")
+    return figure
+
+
+def _fits(plt: Any, run: Run, table: pd.DataFrame, states: pd.DataFrame) -> Any:
+    """The height 4PL of the worst, best and sampled buildings over their binned data (the
+    ``FIT_WINDOW`` m either side of the roof line), the estimate a line, the range shaded."""
+    chosen = fit_sample(table.assign(height_lower=table["lower"], height_upper=table["upper"]))
+    heights = id_named(run.heights).set_index("id")
+    inter = run.intersections
+    codes = inter["building"].astype(str).to_numpy()
+    open_ = states["state"].to_numpy()[inter["signal"].to_numpy()] == "open"
+    shown = ~blocked_by_others(inter, heights["c"])
+    n = max(len(chosen), 1)
+    cols = min(4, n)
+    rows = -(-n // cols)
+    figure, axes = plt.subplots(rows, cols, figsize=(3.6 * cols, 3 * rows), squeeze=False)
+    for ax in axes.flat[len(chosen) :]:
+        ax.set_visible(False)
+    for ax, row in zip(axes.flat, chosen.itertuples(index=False), strict=False):
+        fit = heights.loc[str(row.id)]
+        mine = (codes == row.id) & shown
+        height = inter["height"].to_numpy(float)[mine]
+        a, b, c, d = heights.loc[str(row.id), ["a", "b", "c", "d"]].to_numpy(float)
+        low, high = c - FIT_WINDOW, c + FIT_WINDOW  # the roof line, not the sky
+        keep = (height >= low) & (height <= high)
+        bins = binned_open(height[keep], open_[mine][keep])
+        ax.scatter(bins["height"], bins["share"], s=6 + 40 * bins["n"] / bins["n"].max(),
+                   color="#31688e", alpha=0.7)  # fmt: skip
+        x = np.linspace(low, high, 200)
+        ax.plot(x, logistic4(x, a, b, c, d), color="#c0392b")
+        if bool(fit["converged"]):
+            ax.axvspan(fit["height_lower"], fit["height_upper"], color="#fde725", alpha=0.35)
+            ax.axvline(fit["height"], color="#303030", linewidth=1)
+        ax.set_ylim(-0.05, 1.05)
+        ax.set_title(f"{row.why}: {row.id}\nn = {fit['n_signals']}, {fit['status']}"[:70],
+                     fontsize=8)  # fmt: skip
+        ax.set_xlabel("intersection height (m ODN)", fontsize=8)
+        ax.set_ylabel("share open", fontsize=8)
+        ax.tick_params(labelsize=7)
+    figure.tight_layout()
+    return figure
+
+
+def _skyplots(plt: Any, run: Run, table: pd.DataFrame, states: pd.DataFrame) -> Any:
+    """Azimuth/elevation of every signal of the busiest receivers, by state."""
+    busiest = states["receiver"].value_counts().index[:SKYPLOTS]
+    cols = min(4, max(len(busiest), 1))
+    rows = -(-max(len(busiest), 1) // cols)
+    figure, axes = plt.subplots(
+        rows, cols, figsize=(3.3 * cols, 3.4 * rows), subplot_kw={"projection": "polar"},
+        squeeze=False,
+    )  # fmt: skip
+    for ax in axes.flat[len(busiest) :]:
+        ax.set_visible(False)
+    for ax, receiver in zip(axes.flat, busiest, strict=False):
+        mine = states[states["receiver"] == receiver]
+        for state, colour in STATE_COLOURS.items():
+            part = mine[mine["state"] == state]
+            ax.scatter(np.radians(part["azimuth"]), 90 - part["elevation"], s=2, color=colour,
+                       label=state)  # fmt: skip
+        ax.set_theta_zero_location("N")
+        ax.set_theta_direction(-1)
+        ax.set_ylim(0, 90)
+        ax.set_yticks([30, 60])
+        ax.set_yticklabels(["60°", "30°"], fontsize=6)
+        ax.tick_params(labelsize=6)
+        ax.set_title(f"{receiver} ({len(mine)})"[:40], fontsize=8)
+    axes.flat[0].legend(loc="lower left", bbox_to_anchor=(-0.25, -0.2), fontsize=7, markerscale=3)
+    figure.tight_layout()
+    return figure
+
+
+def _cn0(plt: Any, run: Run, table: pd.DataFrame, states: pd.DataFrame) -> Any:
+    """C/N0 of the received signals by final label, with the signal classifier's Pr(open)."""
+    figure, ax = plt.subplots(figsize=(8, 4.5))
+    received = states[np.isfinite(states["cn0"])]
+    cn0 = received["cn0"].to_numpy()
+    bins = np.arange(
+        np.floor(cn0.min()) if cn0.size else 0, (np.ceil(cn0.max()) if cn0.size else 50) + 1
+    )
+    for label, mask, colour in (
+        ("ray clears every roof (open)", received["map_open"].to_numpy(), STATE_COLOURS["open"]),
+        ("ray below a roof (closed)", ~received["map_open"].to_numpy(), STATE_COLOURS["blocked"]),
+    ):
+        ax.hist(cn0[mask], bins=bins, alpha=0.6, color=colour, label=f"{label}: {int(mask.sum())}")
+    ax.set_xlabel("C/N0 (dB-Hz)")
+    ax.set_ylabel("received signals")
+    if run.classifier is not None:
+        twin = ax.twinx()
+        x = np.linspace(bins[0], bins[-1], 200)
+        twin.plot(x, run.classifier.prob(x), color="#c0392b", label="Pr(open | C/N0)")
+        twin.axvline(run.classifier.threshold, color="#c0392b", linestyle="--", linewidth=0.8)
+        twin.set_ylim(0, 1)
+        twin.set_ylabel("signal classifier: Pr(open)")
+        ax.set_title(f"final signal classifier: 50 % at {run.classifier.threshold:.1f} dB-Hz")
+        twin.legend(loc="upper right", fontsize=8)
+    ax.legend(loc="upper left", fontsize=8)
+    return figure
+
+
+#: The figures, in the page's order: file name, heading, drawing function.
+_FIGURES: list[tuple[str, str, Callable[..., Any]]] = [
+    ("map", "Buildings and receivers", _map),
+    ("ranges", "Uncertainty: the range of each height", _ranges),
+    ("fits", "Height fits: the worst, the best and a sample", _fits),
+    ("skyplots", "Skyplots of the busiest receivers", _skyplots),
+    ("cn0", "C/N0 by final label, and the signal classifier", _cn0),
+]
+
+
+def _page(title: str, run: Run, table: pd.DataFrame, sections: list) -> str:
+    """The HTML page: a summary, the figures (embedded), the counts by status and the table."""
+    converged = int(table["converged"].sum())
+    lines = [
+        f"{len(table)} buildings, {converged} with a height; {len(run.receivers)} signals from "
+        f"{run.receivers['receiver'].nunique()} receivers, {len(run.intersections)} "
+        "intersections."
+    ]
+    if "error" in table:
+        from .compare import summary
+
+        lines.append(summary(table))
+    parts = [
+        "<!doctype html>",
+        '<html lang="en"><head><meta charset="utf-8">',
+        f"<title>{html.escape(title)}</title>",
+        f"<style>{_STYLE}</style></head><body>",
+        f"<h1>{html.escape(title)}</h1>",
+        *(f"<p>{html.escape(line)}</p>" for line in lines),
+    ]
+    for heading, name, png in sections:
+        data = base64.b64encode(png).decode("ascii")
+        parts.append(
+            f'<h2>{html.escape(heading)}</h2><img alt="{name}" src="data:image/png;base64,{data}">'
+        )
+    counts = table.groupby("status").size().rename("buildings").reset_index()
+    parts.append("<h2>Buildings by status</h2>")
+    parts.append(counts.to_html(index=False, border=0))
+    parts.append("<h2>Every building</h2><p>Heights above the ground (m).</p>")
+    shown = table.drop(columns="c")
+    parts.append(
+        shown.to_html(index=False, border=0, float_format=lambda v: f"{v:.2f}", na_rep="-")
+    )
+    parts.append("</body></html>")
+    return "\n".join(parts)
+
+
+_STYLE = (
+    "body{font-family:sans-serif;max-width:1100px;margin:2em auto;color:#222}"
+    "img{max-width:100%;border:1px solid #ddd}"
+    "table{border-collapse:collapse;font-size:13px}"
+    "td,th{padding:2px 8px;border-bottom:1px solid #eee;text-align:right}"
+    "h2{margin-top:2em}"
+)

@@ -26,10 +26,12 @@ test: lint
 test-qgis:
 	qgis_plugin/run-tests
 
-# The README's QGIS pictures (docs/qgis-*.png), rendered headless in the QGIS tests' environment
-screenshots:
+# The README's pictures (docs/*.png): QGIS's, and the demo's report page, rendered headless in
+# the QGIS tests' environment
+screenshots: demo
 	qgis_plugin/run-tests --setup
 	.venv-qgis/bin/python tools/qgis_screenshots.py
+	.venv-qgis/bin/python tools/report_screenshot.py demo-out/report.html docs/report-page.png
 
 # The QGIS plugin's installable zip: dist/gnss_citygml_qgis-VERSION.zip
 plugin: $(STAMP)
@@ -55,6 +57,7 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/geodesy.py
 	$(BIN)/python benchmarks/paper_table.py
 	$(BIN)/python benchmarks/startup.py
+	$(BIN)/python benchmarks/report.py
 	if [ -x .venv-qgis/bin/python ]; then .venv-qgis/bin/python benchmarks/qgis_plugin.py; \
 	else echo "benchmarks/qgis_plugin.py: no .venv-qgis (qgis_plugin/run-tests --setup makes it)"; fi
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import geopandas as gpd
 import numpy as np
@@ -183,7 +184,7 @@ def estimate(
     observations: pd.DataFrame,
     footprints: gpd.GeoDataFrame,
     dem: Dem | None = None,
-    **options,
+    **options: Any,
 ) -> gpd.GeoDataFrame:
     """Building heights from observations, footprints and a DEM: the ``heights`` of
     :func:`run`, which documents the arguments."""

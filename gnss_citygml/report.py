@@ -276,7 +276,8 @@ def _map(plt: Any, run: Run, table: pd.DataFrame, states: pd.DataFrame) -> Any:
         handles.append(Patch(facecolor="#e0e0e0", edgecolor="#707070", hatch=hatch, label=label))
     _tracks(ax, run.receivers)
     if handles:
-        ax.legend(handles=handles, title="no height", loc="upper left", fontsize=7)
+        ax.legend(handles=handles, title="no height", loc="upper center", fontsize=7,
+                  bbox_to_anchor=(0.5, -0.16))  # fmt: skip
     ax.set_title(f"{int(converged.sum())} of {len(table)} buildings with a height")
     _axes_bng(ax)
     return figure

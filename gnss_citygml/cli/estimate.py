@@ -20,6 +20,7 @@ from .options import (
     QUIET,
     THRESHOLD,
     dem_file,
+    output_dir,
     output_file,
     progress,
 )
@@ -126,16 +127,9 @@ def estimate(output, report, **options):
 
 
 @click.command()
-@click.option(
-    "--output-dir",
-    "-o",
-    "report",
-    type=click.Path(file_okay=False, path_type=Path),
-    required=True,
-    help="Folder for report.html and figures/*.png (created if needed).",
-)
+@output_dir("Folder for report.html and figures/*.png (created if needed).")
 @_run_options
-def report(report, **options):
+def report(output_dir, **options):
     """Estimate as `estimate` does and write the report of the run: an HTML page and PNGs.
 
     A map of the buildings by height (those without one hatched by their status) with the
@@ -143,8 +137,8 @@ def report(report, **options):
     skyplots; C/N0 by final label with the signal classifier; a table of every building.
     Needs matplotlib (pip install 'gnss-citygml[plot]').
     """
-    _run(None, report, **options)
-    click.echo(f"report -> {report / 'report.html'}")
+    _run(None, output_dir, **options)
+    click.echo(f"report -> {output_dir / 'report.html'}")
 
 
 def _run(

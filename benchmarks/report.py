@@ -24,7 +24,7 @@ import shapely
 
 from gnss_citygml.model.classifier import SignalClassifier
 from gnss_citygml.model.estimate import estimate_heights
-from gnss_citygml.pipeline import Run, _join
+from gnss_citygml.pipeline import Run, join_heights
 from gnss_citygml.report import write_report
 from gnss_citygml.settings import Estimator
 
@@ -74,7 +74,7 @@ def synthetic_run(n_buildings: int, seed: int = 0) -> Run:
     )
     heights = estimate_heights(intersections, Estimator())
     classifier = SignalClassifier(**heights.attrs["signal_classifier"])
-    joined = _join(buildings, heights, "4PL-B", "id")
+    joined = join_heights(buildings, heights, "4PL-B", "id")
     return Run(joined, receivers, intersections, buildings, classifier)
 
 

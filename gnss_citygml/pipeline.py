@@ -32,7 +32,16 @@ from .recordings import recording_windows
 from .settings import Calibration, Estimator, PositionError, Rays, ReceiverHeights
 from .terrain import Dem, building_ground, sample_ground
 
-__all__ = ["STAGES", "Run", "estimate", "intersections", "receivers", "run"]
+__all__ = [
+    "STAGES",
+    "Run",
+    "estimate",
+    "in_mask",
+    "intersections",
+    "join_heights",
+    "receivers",
+    "run",
+]
 
 #: The stages :func:`estimate` reports to ``progress``, in order.
 STAGES = ("observations", "receivers", "buildings", "ray casting", "height model", "output")
@@ -268,9 +277,7 @@ def run(
     check_bng(footprints, "footprints")
     say = progress or (lambda stage: None)
     say(STAGES[0])
-    obs = check_observations(observations)
-    obs = obs[obs["elevation"].between(rays.min_elevation, rays.max_elevation)]
-    obs = obs.reset_index(drop=True)
+    obs = in_mask(observations, rays)
     if obs.empty:
         raise InputError(
             f"no observations between {rays.min_elevation:g} and {rays.max_elevation:g} deg "
@@ -295,12 +302,20 @@ def run(
     say(STAGES[5])
     fitted = heights.attrs.get("signal_classifier")
     return Run(
-        heights=_join(buildings, heights, estimator.method, id_field(footprints)),
+        heights=join_heights(buildings, heights, estimator.method, id_field(footprints)),
         receivers=rx,
         intersections=inter,
         buildings=buildings,
         classifier=None if fitted is None else SignalClassifier(**fitted),
     )
+
+
+def in_mask(observations: pd.DataFrame, rays: Rays = Rays()) -> pd.DataFrame:
+    """The observations (checked: :func:`~gnss_citygml.observations.check_observations`)
+    inside the elevation mask of ``rays``, numbered from 0."""
+    obs = check_observations(observations)
+    obs = obs[obs["elevation"].between(rays.min_elevation, rays.max_elevation)]
+    return obs.reset_index(drop=True)
 
 
 def _check_near(rx: pd.DataFrame, footprints: gpd.GeoDataFrame, max_range: float) -> None:
@@ -321,7 +336,7 @@ def _check_near(rx: pd.DataFrame, footprints: gpd.GeoDataFrame, max_range: float
         )
 
 
-def _join(
+def join_heights(
     buildings: gpd.GeoDataFrame, heights: pd.DataFrame, method: str, name: str
 ) -> gpd.GeoDataFrame:
     """Every footprint with its estimate; those no ray entered get an explicit status. The id

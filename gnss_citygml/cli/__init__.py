@@ -62,6 +62,10 @@ COMMANDS = {
         "Simulate a site and write the files a user brings to `estimate`: observations, "
         "footprints.gpkg and dem.tif (EPSG:27700), plus the intersections and the true heights.",
     ),
+    "update": (
+        "update",
+        "Update a GeoPackage MAP's building heights with new GNSS observations, safely.",
+    ),
     "validate": (
         "citymodel",
         "Check a CityGML 2.0, CityJSON or CityJSONSeq file: exit 0 valid, 1 invalid, 2 error.",

@@ -1,0 +1,111 @@
+"""The ``update`` subcommand: new observations -> the estimate columns of a GeoPackage map."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from ..settings import Estimator
+from .options import (
+    DEM_CRS,
+    GRID_DIR,
+    ID_FIELD,
+    LAYER,
+    METHOD,
+    QUIET,
+    THRESHOLD,
+    dem_file,
+    progress,
+)
+
+
+@click.command()
+@click.argument("map_", metavar="MAP", type=click.Path(dir_okay=False, path_type=Path))
+@click.option(
+    "--observations",
+    "observations",
+    multiple=True,
+    required=True,
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="An observations table (CSV or Parquet); give it once per file.",
+)
+@dem_file("DEM raster in EPSG:27700 (GeoTIFF, ASCII grid, zip://...!/tile.asc).", required=True)
+@LAYER
+@ID_FIELD
+@click.option(
+    "--min-signals",
+    type=click.IntRange(min=1),
+    default=1,
+    show_default=True,
+    help="A building gets values when the evidence holds at least this many of its signals.",
+)
+@click.option(
+    "--threshold",
+    type=click.FloatRange(min=0.0),
+    default=0.5,
+    show_default=True,
+    help="List the buildings whose height changes by more than this (m).",
+)
+@click.option("--dry-run", is_flag=True, help="Say what would change; write nothing.")
+@click.option("--no-backup", is_flag=True, help="Do not keep the map as it was in MAP.bak.")
+@THRESHOLD
+@METHOD
+@DEM_CRS
+@GRID_DIR
+@QUIET
+def update(
+    map_,
+    observations,
+    dem,
+    layer,
+    id_field,
+    min_signals,
+    threshold,
+    dry_run,
+    no_backup,
+    init_threshold,
+    method,
+    dem_crs,
+    grid_dir,
+    quiet,
+):
+    """Update a GeoPackage MAP's building heights with new GNSS observations, safely.
+
+    Adds or updates height_gnss, height_lower, height_upper, n_signals, converged, method,
+    status_gnss and updated_utc on the footprint layer; every other column, feature, layer and
+    style is kept, and so are the feature ids. The evidence (every intersection cast) is kept
+    in the table gnss_evidence: a later update casts only what is new and refits on all of
+    it. The map is written as a whole at the end (MAP.bak keeps it as it was), so a failure
+    or Ctrl-C leaves it untouched; running again with the same data changes nothing.
+    """
+    from ..update import update_map
+
+    with progress(100, "update", quiet) as bar:
+
+        def told(what, done):
+            bar.set_description(what)
+            bar.update(round(100 * done) - bar.n)
+
+        result = update_map(
+            map_,
+            observations,
+            dem,
+            layer=layer,
+            id_field=id_field,
+            min_signals=min_signals,
+            threshold=threshold,
+            dry_run=dry_run,
+            backup=not no_backup,
+            estimator=Estimator(method=method, init_threshold=init_threshold),
+            grid_dir=grid_dir,
+            dem_crs=dem_crs,
+            progress=told,
+        )
+    for line in result.lines():
+        click.echo(line)
+    if dry_run:
+        click.echo("dry run: nothing written")
+    elif result.written:
+        kept = f" (as it was: {result.backup})" if result.backup else ""
+        click.echo(f"updated -> {map_}{kept}")

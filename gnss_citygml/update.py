@@ -1,0 +1,414 @@
+"""Batch updates of a GeoPackage map as new GNSS data arrives, without ever risking the map.
+
+:func:`update_map` adds or updates the estimate columns (:data:`COLUMNS`) of a footprint layer
+of a GeoPackage, for the buildings with enough signals. Every other column, feature, layer and
+style of the file is kept, and the layer's feature ids do not change: the columns are written
+with SQL on the layer's own table, by building id.
+
+- **Never a damaged map.** The work is done on a copy beside the map, which is renamed over it
+  only when complete (:func:`gnss_citygml.paths.atomic_path`); the map as it was is kept as
+  ``MAP.gpkg.bak`` (unless ``backup=False``). A crash, Ctrl-C or ``kill -9`` at any moment
+  leaves the map byte-identical. A map that another program is writing to (a write lock, or
+  a write-ahead log that is not empty: QGIS editing a layer) is refused.
+- **Evidence kept.** Every intersection cast so far (signal, building, height, C/N0, ...) is
+  kept in the table ``gnss_evidence`` of the GeoPackage, keyed by its signal (receiver, time,
+  satellite). A later update casts only the observations not in it yet, and refits the
+  model on all of the evidence, so its result is that of one run over all the observations.
+  The model is refitted whole, not only for the buildings the new signals touch: 4PL-B
+  co-trains one signal classifier on every building's signals, so new signals anywhere move
+  the labels, and with them the fits, everywhere.
+- **Idempotent.** The same observations again add no evidence and change no value; a
+  building's ``updated_utc`` changes only when one of its values does, and a run that
+  changes nothing writes nothing.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import datetime as dt
+import shutil
+import sqlite3
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from .errors import InputError
+from .paths import StrPath, atomic_path, input_file
+from .settings import Estimator, Rays, ReceiverHeights
+
+__all__ = ["CAST", "COLUMNS", "EVIDENCE", "UpdateResult", "update_map"]
+
+#: The table of the GeoPackage that keeps the evidence.
+EVIDENCE = "gnss_evidence"
+
+#: The table of the keys of every signal cast so far (most enter no footprint: they leave no
+#: evidence, but are not cast again).
+CAST = "gnss_cast"
+
+#: The columns written on the layer, with their GeoPackage types.
+COLUMNS = {
+    "height_gnss": "REAL",
+    "height_lower": "REAL",
+    "height_upper": "REAL",
+    "n_signals": "INTEGER",
+    "converged": "BOOLEAN",
+    "method": "TEXT",
+    "status_gnss": "TEXT",
+    "updated_utc": "DATETIME",
+}
+
+#: The estimate's columns each of them is taken from.
+_FROM = {
+    "height_gnss": "height",
+    "height_lower": "height_lower",
+    "height_upper": "height_upper",
+    "n_signals": "n_signals",
+    "converged": "converged",
+    "method": "method",
+    "status_gnss": "status",
+}
+
+#: The evidence's columns (the intersections table's, the signal by its key).
+_EVIDENCE_COLUMNS = ["signal_key", "building", "height", "distance", "order", "cn0", "receiver"]
+
+
+@dataclass
+class UpdateResult:
+    """What an update did (or, with ``dry_run``, would do)."""
+
+    #: Observations cast this time (those not in the evidence yet), and the evidence rows
+    #: they added.
+    new_signals: int
+    new_evidence: int
+    #: Every building: ``id``, the height before and after (m ODN, NaN for none), whether
+    #: its values changed, and why it was skipped (empty if it was not).
+    buildings: pd.DataFrame
+    #: The height change (m) above which a building is listed as changed.
+    threshold: float
+    #: Whether the map was written (False for a dry run or when nothing changed).
+    written: bool = False
+    backup: Path | None = None
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def updated(self) -> pd.DataFrame:
+        return self.buildings[self.buildings["changed"]]
+
+    @property
+    def skipped(self) -> pd.DataFrame:
+        return self.buildings[self.buildings["skipped"] != ""]
+
+    def lines(self) -> list[str]:
+        """The change report: counts, the buildings that moved by more than the threshold,
+        the skipped ones by reason."""
+        table = self.buildings
+        delta = (table["after"] - table["before"]).abs()
+        moved = table[table["changed"] & (delta > self.threshold)]
+        gained = table[table["changed"] & table["before"].isna() & table["after"].notna()]
+        lost = table[table["changed"] & table["before"].notna() & table["after"].isna()]
+        lines = [
+            f"{self.new_signals} new signals cast, {self.new_evidence} new intersections; "
+            f"{len(self.updated)} of {len(table)} buildings updated, {len(moved)} by more "
+            f"than {self.threshold:g} m, {len(gained)} with a first height, {len(lost)} "
+            "without one now"
+        ]
+        for row in moved.itertuples(index=False):
+            lines.append(f"  {row.id}: {row.before:.2f} -> {row.after:.2f} m")
+        for reason, n in self.skipped["skipped"].value_counts().items():
+            lines.append(f"skipped {n}: {reason}")
+        return lines + self.notes
+
+
+def update_map(
+    path: StrPath,
+    observations: Sequence[StrPath],
+    dem: StrPath,
+    *,
+    layer: str | None = None,
+    id_field: str | None = None,
+    min_signals: int = 1,
+    threshold: float = 0.5,
+    dry_run: bool = False,
+    backup: bool = True,
+    rays: Rays = Rays(),
+    receiver_heights: ReceiverHeights = ReceiverHeights(),
+    estimator: Estimator = Estimator(),
+    grid_dir: StrPath | None = None,
+    dem_crs: str | None = None,
+    progress: Callable[[str, float], None] | None = None,
+) -> UpdateResult:
+    """Update the estimate columns of ``layer`` of the GeoPackage ``path`` with new
+    ``observations`` (observations tables, CSV or Parquet); see the module's notes.
+
+    A building gets values when it has at least ``min_signals`` signals in the evidence;
+    ``threshold`` (m) is the height change above which it is listed in the change report.
+    """
+    from .footprints import read_footprints
+    from .ids import id_field as source_id_field
+    from .model.estimate import estimate_heights
+    from .observations import read_observations
+    from .pipeline import in_mask, intersections, join_heights, receivers
+    from .terrain import building_ground
+
+    say = progress or (lambda what, done: None)
+    path = _check_map(path, dry_run)
+    if min_signals < 1:
+        raise InputError(f"min_signals must be 1 or more, not {min_signals}", fix="give N >= 1")
+    say("reading", 0.0)
+    footprints = read_footprints(path, layer=layer, id_field=id_field, grid_dir=grid_dir)
+    name = _layer_name(path, layer)
+    id_column = source_id_field(footprints)
+    buildings = building_ground(footprints, dem, assume_crs=dem_crs)
+    stored = _read_evidence(path)
+    obs = in_mask(pd.concat([read_observations(p) for p in observations], ignore_index=True), rays)
+    keys = _keys(obs)
+    unseen = ~keys.isin(_read_cast(path)).to_numpy()
+    new = obs[unseen].reset_index(drop=True)
+    new_keys = keys[unseen].drop_duplicates()
+    fresh = stored.iloc[:0]
+    if len(new):
+        say("casting", 0.25)
+        rx = receivers(new, dem, heights=receiver_heights, grid_dir=grid_dir, dem_crs=dem_crs)
+        cast = intersections(rx, buildings, rays=rays)
+        fresh = cast.assign(
+            signal_key=_keys(rx).to_numpy()[cast["signal"].to_numpy()],
+            building=cast["building"].astype(str),
+        )[_EVIDENCE_COLUMNS]
+    evidence = pd.concat([stored, fresh], ignore_index=True)
+    if evidence.empty:
+        raise InputError(
+            "no evidence: no signal's ray enters a footprint of the map",
+            where=str(path),
+            fix="give observations made among the map's buildings",
+        )
+    say("fitting", 0.5)
+    model = evidence.assign(
+        signal=pd.factorize(evidence["signal_key"])[0],
+        building=pd.Categorical(evidence["building"], categories=buildings["id"].astype(str)),
+    ).drop(columns="signal_key")
+    heights = estimate_heights(model, estimator)
+    estimate = join_heights(buildings, heights, estimator.method, "id")
+    current = _current_values(path, name, id_column, buildings["id"])
+    values, table = _new_values(estimate, current, min_signals)
+    result = UpdateResult(len(new), len(fresh), table, threshold)
+    if dry_run or (new_keys.empty and not table["changed"].any()):
+        if not dry_run:
+            result.notes.append("nothing changed: the map is untouched")
+        return result
+    say("writing", 0.75)
+    with atomic_path(path, overwrite=True, update=True) as tmp:
+        if len(fresh):
+            _append(tmp, EVIDENCE, fresh)
+        if len(new_keys):
+            _append(tmp, CAST, pd.DataFrame({"signal_key": new_keys.to_numpy()}))
+        _write_columns(tmp, name, id_column, values[table["changed"].to_numpy()])
+        if backup:
+            result.backup = _backup(path)
+    result.written = True
+    say("done", 1.0)
+    return result
+
+
+def _check_map(path: StrPath, dry_run: bool) -> Path:
+    """The map: an existing GeoPackage that no other program is writing to."""
+    path = input_file(path, "map")
+    if path.suffix.lower() != ".gpkg":
+        raise InputError(
+            "the map must be a GeoPackage (.gpkg): only there can the evidence and the columns "
+            "be added in place",
+            where=str(path),
+            fix="convert it first (ogr2ogr -f GPKG map.gpkg ...)",
+        )
+    wal = path.with_name(path.name + "-wal")
+    if wal.exists() and wal.stat().st_size > 0:
+        raise InputError(
+            f"the map is open in another program, with changes in its write-ahead log ({wal.name})",
+            where=str(path),
+            fix="close it there (QGIS: stop editing and remove the layer), then run again",
+        )
+    try:
+        with contextlib.closing(sqlite3.connect(path, timeout=0.1)) as db:
+            db.execute("BEGIN IMMEDIATE")  # a write lock: fails while another one holds it
+            db.rollback()
+    except sqlite3.DatabaseError as exc:
+        raise InputError(
+            f"the map cannot be locked for writing ({exc})",
+            where=str(path),
+            fix="another program is writing to it: let it finish or close it, then run again",
+        ) from None
+    return path
+
+
+def _layer_name(path: Path, layer: str | None) -> str:
+    """The footprint layer's table: ``layer``, or the file's only polygon layer."""
+    import pyogrio
+
+    if layer is not None:
+        return layer
+    layers = pyogrio.list_layers(path)
+    polygons = [str(n) for n, kind in layers if kind and "Polygon" in str(kind)]
+    return polygons[0]  # (read_footprints has refused a file with several)
+
+
+def _keys(rows: pd.DataFrame) -> pd.Series:
+    """Each observation's signal key: receiver, time (ns since 1970, UTC) and satellite."""
+    time = pd.to_datetime(rows["time_utc"], utc=True).astype("int64").astype(str)
+    satellite = rows["constellation"].astype(str) + rows["svid"].astype(str)
+    return rows["receiver"].astype(str) + "|" + time + "|" + satellite
+
+
+def _read_evidence(path: Path) -> pd.DataFrame:
+    import pyogrio
+
+    if EVIDENCE not in {str(n) for n in pyogrio.list_layers(path)[:, 0]}:
+        empty = {c: pd.Series(dtype=float) for c in _EVIDENCE_COLUMNS}
+        return pd.DataFrame(empty).astype({"signal_key": str, "building": str, "receiver": str})
+    table = pyogrio.read_dataframe(path, layer=EVIDENCE, read_geometry=False)
+    return table[_EVIDENCE_COLUMNS]
+
+
+def _read_cast(path: Path) -> pd.Series:
+    import pyogrio
+
+    if CAST not in {str(n) for n in pyogrio.list_layers(path)[:, 0]}:
+        return pd.Series(dtype=str)
+    return pyogrio.read_dataframe(path, layer=CAST, read_geometry=False)["signal_key"]
+
+
+def _append(path: Path, layer: str, rows: pd.DataFrame) -> None:
+    """Append ``rows`` to the attribute table ``layer`` of the GeoPackage (made if new)."""
+    import pyogrio
+
+    pyogrio.write_dataframe(rows, path, layer=layer, driver="GPKG", append=True)
+
+
+def _current_values(path: Path, layer: str, id_column: str, ids: pd.Series) -> pd.DataFrame:
+    """The layer's estimate columns now, by building id (NaN/None where absent)."""
+    with contextlib.closing(sqlite3.connect(path)) as db:
+        have = {row[1] for row in db.execute(f"PRAGMA table_info({_quoted(layer)})")}
+        key = _key_column(db, layer, id_column)
+        present = [c for c in COLUMNS if c in have]
+        query = ", ".join(_quoted(c) for c in [key, *present])
+        rows = db.execute(f"SELECT {query} FROM {_quoted(layer)}").fetchall()
+    table = pd.DataFrame(rows, columns=["id", *present]).astype({"id": str}).set_index("id")
+    return table.reindex(ids.astype(str), columns=list(COLUMNS))
+
+
+def _new_values(
+    estimate: pd.DataFrame, current: pd.DataFrame, min_signals: int
+) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """The values to write (every column of :data:`COLUMNS`, by id) and the per-building
+    table of :class:`UpdateResult`."""
+    ids = estimate["id"].astype(str).to_numpy()
+    new = pd.DataFrame({col: estimate[src].to_numpy() for col, src in _FROM.items()}, index=ids)
+    enough = new["n_signals"].to_numpy() >= min_signals
+    old = current.reindex(pd.Index(ids))
+    same = np.ones(len(ids), dtype=bool)
+    for column in _FROM:
+        same &= _equal(old[column].to_numpy(), new[column].to_numpy(), column)
+    changed = enough & ~same
+    now = dt.datetime.now(dt.UTC)
+    stamp = now.strftime("%Y-%m-%dT%H:%M:%S.") + f"{now.microsecond // 1000:03d}Z"  # GeoPackage
+    new["updated_utc"] = np.where(changed, stamp, old["updated_utc"].to_numpy(dtype=object))
+    skipped = np.where(enough, "", f"fewer than {min_signals} signals")
+    before = pd.to_numeric(old["height_gnss"], errors="coerce").to_numpy(float)
+    after = np.where(changed, new["height_gnss"].to_numpy(float), before)
+    table = pd.DataFrame(
+        {"id": ids, "before": before, "after": after, "changed": changed, "skipped": skipped}
+    )
+    return new.reset_index(names="id"), table
+
+
+def _equal(old: np.ndarray, new: np.ndarray, column: str) -> np.ndarray:
+    """Element-wise: the layer's value equals the new one (NaN/None equal to each other)."""
+    kind = COLUMNS[column]
+    if kind == "REAL":
+        a, b = pd.to_numeric(old, errors="coerce").astype(float), new.astype(float)
+        return (a == b) | (np.isnan(a) & np.isnan(b))
+    if kind in ("INTEGER", "BOOLEAN"):
+        a = pd.to_numeric(old, errors="coerce").astype(float)
+        return a == new.astype(float)
+    return np.array([o == n for o, n in zip(old, new, strict=True)])
+
+
+def _write_columns(path: Path, layer: str, id_column: str, values: pd.DataFrame) -> None:
+    """Add the missing columns to the layer's table and write ``values`` by building id."""
+    with contextlib.closing(_geopackage(path)) as db, db:
+        info = {row[1]: row[2] for row in db.execute(f"PRAGMA table_info({_quoted(layer)})")}
+        for column, kind in COLUMNS.items():
+            if column not in info:
+                db.execute(f"ALTER TABLE {_quoted(layer)} ADD COLUMN {_quoted(column)} {kind}")
+            elif info[column].upper() != kind:
+                raise InputError(
+                    f"the layer has a column {column!r} of type {info[column]}, not {kind}",
+                    where=f"{path.name}, layer {layer}",
+                    fix=f"rename that column: the update writes its {column} there",
+                )
+        key = _key_column(db, layer, id_column)
+        columns = list(COLUMNS)
+        assignments = ", ".join(f"{_quoted(c)} = ?" for c in columns)
+        rows = [[_sql(row[c]) for c in columns] + [row["id"]] for row in values.to_dict("records")]
+        db.executemany(f"UPDATE {_quoted(layer)} SET {assignments} WHERE {_quoted(key)} = ?", rows)
+        db.execute(
+            "UPDATE gpkg_contents SET last_change = strftime('%Y-%m-%dT%H:%M:%fZ', 'now') "
+            "WHERE table_name = ?",
+            (layer,),
+        )
+
+
+def _geopackage(path: Path) -> sqlite3.Connection:
+    """A connection to a GeoPackage with the SQL functions its R-tree triggers call
+    (``ST_IsEmpty``, ``ST_MinX`` ...), which GDAL defines and plain SQLite lacks: an UPDATE of
+    the layer's table compiles those triggers even when no geometry changes."""
+    db = sqlite3.connect(path)
+    db.create_function("ST_IsEmpty", 1, _is_empty, deterministic=True)
+    for k, name in enumerate(("ST_MinX", "ST_MinY", "ST_MaxX", "ST_MaxY")):
+        db.create_function(name, 1, lambda blob, k=k: _bounds(blob)[k], deterministic=True)
+    return db
+
+
+def _is_empty(blob: bytes | None) -> int | None:
+    """GeoPackage geometry blob: its header's empty flag (bit 4 of the flags byte)."""
+    return None if blob is None else int(bool(blob[3] & 0x10))
+
+
+def _bounds(blob: bytes | None) -> tuple[float, ...]:
+    """The bounds of a GeoPackage geometry blob (its WKB after the header and envelope)."""
+    import shapely
+
+    if blob is None:
+        return (float("nan"),) * 4
+    envelope = (0, 32, 48, 48, 64)[(blob[3] >> 1) & 0x07]
+    return tuple(shapely.from_wkb(bytes(blob[8 + envelope :])).bounds)
+
+
+def _key_column(db: sqlite3.Connection, layer: str, id_column: str) -> str:
+    """The table column holding the building ids: the id field, or the primary key (fid)."""
+    info = {row[1]: row[5] for row in db.execute(f"PRAGMA table_info({_quoted(layer)})")}
+    if id_column in info:
+        return id_column
+    return next(name for name, pk in info.items() if pk)
+
+
+def _sql(value):
+    """A value as SQLite takes it (numpy scalars, NaN -> NULL)."""
+    if value is None or (isinstance(value, float) and np.isnan(value)):
+        return None
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def _quoted(name: str) -> str:
+    return '"' + name.replace('"', '""') + '"'
+
+
+def _backup(path: Path) -> Path:
+    """``MAP.gpkg.bak``: the map as it was, written atomically beside it."""
+    target = path.with_name(path.name + ".bak")
+    with atomic_path(target, overwrite=True) as tmp:
+        shutil.copyfile(path, tmp)
+    return target

@@ -8,7 +8,7 @@ the wheel's PROJ knows, at best; a crash, at worst. A child Python has only the 
 
 ``python -m gnss_citygml.worker`` reads one job as JSON on standard input::
 
-    {"job": "estimate" | "convert" | "validate", "args": {...}}
+    {"job": "estimate" | "convert" | "validate" | "update", "args": {...}}
 
 ``args`` are the job's keyword arguments; the settings of ``estimate`` (``rays``,
 ``receiver_heights``, ``estimator``, ``position_error``, ``calibration``) are given as dicts of
@@ -83,8 +83,22 @@ def _validate(args: dict[str, Any], say: Say) -> dict[str, Any]:
     }
 
 
+def _update(args: dict[str, Any], say: Say) -> dict[str, Any]:
+    from .update import update_map
+
+    estimator = Estimator(**args.pop("estimator", {}))
+    result = update_map(**args, estimator=estimator, progress=_progress(say))
+    return {
+        "lines": result.lines(),
+        "written": result.written,
+        "backup": None if result.backup is None else str(result.backup),
+        "updated": len(result.updated),
+        "new_signals": result.new_signals,
+    }
+
+
 #: The jobs a host can ask for.
-JOBS = {"estimate": _estimate, "convert": _convert, "validate": _validate}
+JOBS = {"estimate": _estimate, "convert": _convert, "validate": _validate, "update": _update}
 
 
 def _progress(say: Say) -> Callable[[str, float], None]:

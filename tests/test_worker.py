@@ -133,3 +133,23 @@ def test_convert_and_validate(suffix, grid_dir, tmp_path):
     said = answers(child({"job": "validate", "args": {"path": str(model)}}))
     report = said[-1]["result"]
     assert report["valid"] and report["errors"] == [] and report["exit_code"] == 0
+
+
+def test_update(grid_dir, tmp_path):
+    import shutil
+
+    shutil.copy(CITY / "footprints.gpkg", tmp_path / "map.gpkg")
+    args = {
+        "path": str(tmp_path / "map.gpkg"),
+        "observations": [str(CITY / "observations.parquet")],
+        "dem": str(CITY / "dem.tif"),
+        "grid_dir": None if grid_dir is None else str(grid_dir),
+        "estimator": {"init_threshold": 30.0},
+    }
+    said = answers(child({"job": "update", "args": args}))
+    result = said[-1]["result"]
+    assert result["written"] and result["updated"] == 30 and result["new_signals"] > 0
+    assert result["lines"][0].startswith(f"{result['new_signals']} new signals cast")
+    assert [m["progress"][0] for m in said if "progress" in m][-1] == "done"
+    again = answers(child({"job": "update", "args": args}))[-1]["result"]
+    assert not again["written"] and again["new_signals"] == 0

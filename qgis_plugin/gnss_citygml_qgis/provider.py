@@ -6,6 +6,7 @@ from .algorithm import icon
 from .convert import ConvertAlgorithm
 from .estimate import EstimateAlgorithm
 from .library import TITLE, version
+from .update import UpdateAlgorithm
 from .validate import ValidateAlgorithm
 
 
@@ -23,7 +24,13 @@ class GnssCityGMLProvider(QgsProcessingProvider):
         return icon()
 
     def loadAlgorithms(self):  # noqa: N802 (the name QGIS calls)
-        for algorithm in (EstimateAlgorithm(), ConvertAlgorithm(), ValidateAlgorithm()):
+        algorithms = (
+            EstimateAlgorithm(),
+            ConvertAlgorithm(),
+            ValidateAlgorithm(),
+            UpdateAlgorithm(),
+        )
+        for algorithm in algorithms:
             self.addAlgorithm(algorithm)
 
     def supportedOutputVectorLayerExtensions(self):  # noqa: N802 (the name QGIS calls)

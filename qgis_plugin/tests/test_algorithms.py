@@ -2,7 +2,10 @@
 heights are the command line's, its city models validate, its errors are the command line's
 one-line messages, Cancel stops it without an output, and its layer opens styled."""
 
+import shutil
+
 import geopandas as gpd
+import numpy as np
 import pandas as pd
 import pytest
 from conftest import assert_same_heights, cli, estimate_with_the_cli
@@ -246,3 +249,34 @@ def test_selected_features_only(plugin, processing_framework, scene, tmp_path):
         QgsProject.instance().removeMapLayer(footprints.id())
     heights = gpd.read_file(tmp_path / "h.gpkg", layer="heights")
     assert result["BUILDINGS"] == len(wanted) == 2 and sorted(heights["id"]) == wanted
+
+
+def test_update_a_map_in_the_project_as_the_cli_does(plugin, processing_framework, scene, tmp_path):
+    """The map layer open in QGIS is updated in place, then reloaded: it shows the new columns;
+    the values are the command line's on a twin of the map."""
+
+    ours, twin = tmp_path / "ours.gpkg", tmp_path / "twin.gpkg"
+    shutil.copy(scene["footprints"], ours)
+    shutil.copy(scene["footprints"], twin)
+    layer = QgsVectorLayer(f"{ours}|layername=footprints", "map", "ogr")
+    QgsProject.instance().addMapLayer(layer)
+    try:
+        result = processing_framework.run(
+            "gnsscitygml:update",
+            {
+                "MAP": layer.id(),
+                "OBSERVATIONS": [str(scene["observations"])],
+                "DEM": str(scene["dem"]),
+            },
+        )
+        assert result["WRITTEN"] and result["UPDATED"] > 0
+        assert "height_gnss" in layer.fields().names()  # reloaded from the new file
+        shown = {f["id"]: f["height_gnss"] for f in layer.getFeatures()}
+    finally:
+        QgsProject.instance().removeMapLayer(layer.id())
+    cli("update", twin, "--observations", scene["observations"], "--dem", scene["dem"], "-q")
+    theirs = gpd.read_file(twin, layer="footprints").set_index("id")["height_gnss"]
+    mine = gpd.read_file(ours, layer="footprints").set_index("id")["height_gnss"]
+    np.testing.assert_allclose(mine.loc[theirs.index], theirs, atol=1e-3, equal_nan=True)
+    assert len(shown) == len(theirs)
+    assert (tmp_path / "ours.gpkg.bak").is_file()

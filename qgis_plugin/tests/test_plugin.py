@@ -11,7 +11,12 @@ from qgis.PyQt.QtGui import QIcon
 
 import gnss_citygml
 
-ALGORITHMS = ["gnsscitygml:convert", "gnsscitygml:estimate", "gnsscitygml:validate"]
+ALGORITHMS = [
+    "gnsscitygml:convert",
+    "gnsscitygml:estimate",
+    "gnsscitygml:update",
+    "gnsscitygml:validate",
+]
 
 
 def test_metadata_has_what_the_plugin_repository_asks_for():

@@ -17,6 +17,8 @@ from pathlib import Path
 
 import pandas as pd
 
+from .geopackage import has_table
+
 __all__ = ["HEIGHTS_STYLE", "heights_qml", "save_default_style"]
 
 #: The style of the heights layer (QGIS QML).
@@ -42,7 +44,7 @@ def save_default_style(path: Path, layer: str, qml: str, *, description: str = "
     import pyogrio
 
     with contextlib.closing(sqlite3.connect(path)) as db, db:
-        if _has_table(db, "layer_styles"):
+        if has_table(db, "layer_styles"):
             db.execute(
                 "DELETE FROM layer_styles WHERE f_table_name = ? AND styleName = ?",
                 (layer, STYLE_NAME),
@@ -75,8 +77,3 @@ def save_default_style(path: Path, layer: str, qml: str, *, description: str = "
     pyogrio.write_dataframe(
         row, path, layer="layer_styles", driver="GPKG", append=True, layer_options={"FID": "id"}
     )
-
-
-def _has_table(db: sqlite3.Connection, name: str) -> bool:
-    query = "SELECT count(*) FROM sqlite_master WHERE type = 'table' AND name = ?"
-    return bool(db.execute(query, (name,)).fetchone()[0])

@@ -58,7 +58,7 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/paper_table.py
 	$(BIN)/python benchmarks/startup.py
 	$(BIN)/python benchmarks/report.py
-	cd benchmarks && ../$(BIN)/python update.py
+	$(BIN)/python benchmarks/update.py
 	if [ -x .venv-qgis/bin/python ]; then .venv-qgis/bin/python benchmarks/qgis_plugin.py; \
 	else echo "benchmarks/qgis_plugin.py: no .venv-qgis (qgis_plugin/run-tests --setup makes it)"; fi
 

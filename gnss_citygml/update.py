@@ -80,6 +80,9 @@ _FROM = {
 #: The evidence's columns (the intersections table's, the signal by its key).
 _EVIDENCE_COLUMNS = ["signal_key", "building", "height", "distance", "order", "cn0", "receiver"]
 
+#: What the evidence keeps of every signal cast: for the report's skyplots and tracks.
+_SIGNAL_COLUMNS = ["signal_key", "receiver", "time_utc", "e", "n", "azimuth", "elevation", "cn0"]
+
 #: The types of the evidence's columns (for an empty table).
 _DTYPES = {
     "signal_key": "int64",
@@ -89,6 +92,11 @@ _DTYPES = {
     "order": "int64",
     "cn0": "float64",
     "receiver": "object",
+    "time_utc": "datetime64[ns, UTC]",
+    "e": "float64",
+    "n": "float64",
+    "azimuth": "float64",
+    "elevation": "float64",
 }
 
 
@@ -155,6 +163,8 @@ def update_map(
     estimator: Estimator = Estimator(),
     grid_dir: StrPath | None = None,
     dem_crs: str | None = None,
+    report: StrPath | None = None,
+    truth: StrPath | None = None,
     progress: Callable[[str, float], None] | None = None,
 ) -> UpdateResult:
     """Update the estimate columns of ``layer`` of the GeoPackage ``path`` with new
@@ -162,6 +172,8 @@ def update_map(
 
     A building gets values when it has at least ``min_signals`` signals in the evidence;
     ``threshold`` (m) is the height change above which it is listed in the change report.
+    ``report`` is a folder for the report of the fit over all the evidence
+    (:mod:`gnss_citygml.report`; ``truth``, a simulator's truth table, adds the true heights).
     """
     from .footprints import read_footprints
     from .ids import id_field as source_id_field
@@ -172,6 +184,10 @@ def update_map(
 
     say = progress or (lambda what, done: None)
     path = _check_map(path, dry_run)
+    if report is not None:
+        from .report import check_report
+
+        check_report(report, overwrite=True)
     if min_signals < 1:
         raise InputError(f"min_signals must be 1 or more, not {min_signals}", fix="give N >= 1")
     say("reading", 0.0)
@@ -184,16 +200,17 @@ def update_map(
     keys = _keys(obs)
     unseen = ~keys.isin(_read_evidence(path, CAST, ["signal_key"])["signal_key"]).to_numpy()
     new = obs[unseen].reset_index(drop=True)
-    new_keys = keys[unseen].drop_duplicates()
-    fresh = stored.iloc[:0]
+    fresh, signals = stored.iloc[:0], pd.DataFrame(columns=_SIGNAL_COLUMNS)
     if len(new):
         say("casting", 0.25)
         rx = receivers(new, dem, heights=receiver_heights, grid_dir=grid_dir, dem_crs=dem_crs)
+        rx["signal_key"] = _keys(rx).to_numpy()
         cast = intersections(rx, buildings, rays=rays)
         fresh = cast.assign(
-            signal_key=_keys(rx).to_numpy()[cast["signal"].to_numpy()],
+            signal_key=rx["signal_key"].to_numpy()[cast["signal"].to_numpy()],
             building=cast["building"].astype(str),
         )[_EVIDENCE_COLUMNS]
+        signals = rx.drop_duplicates("signal_key")[_SIGNAL_COLUMNS]
     evidence = pd.concat([stored, fresh], ignore_index=True)
     if evidence.empty:
         raise InputError(
@@ -208,10 +225,17 @@ def update_map(
     ).drop(columns="signal_key")
     heights = estimate_heights(model, estimator)
     estimate = join_heights(buildings, heights, estimator.method, "id")
+    estimate.attrs.update(heights.attrs)
     current = _current_values(path, name, id_column, buildings["id"])
     values, table = _new_values(estimate, current, min_signals)
     result = UpdateResult(len(new), len(fresh), table, threshold)
-    if dry_run or (new_keys.empty and not table["changed"].any()):
+    if report is not None:
+        say("report", 0.6)
+        everything = pd.concat(
+            [_read_evidence(path, CAST, _SIGNAL_COLUMNS), signals], ignore_index=True
+        )
+        _report(report, estimate, model, evidence, everything, buildings, id_column, truth)
+    if dry_run or (signals.empty and not table["changed"].any()):
         if not dry_run:
             result.notes.append("nothing changed: the map is untouched")
         return result
@@ -219,14 +243,35 @@ def update_map(
     with atomic_path(path, overwrite=True, update=True) as tmp:
         if len(fresh):
             _append_evidence(tmp, INTERSECTIONS, fresh)
-        if len(new_keys):
-            _append_evidence(tmp, CAST, pd.DataFrame({"signal_key": new_keys.to_numpy()}))
+        if len(signals):
+            _append_evidence(tmp, CAST, signals)
         _write_columns(tmp, name, id_column, values[table["changed"].to_numpy()])
         if backup:
             result.backup = _backup(path)
     result.written = True
     say("done", 1.0)
     return result
+
+
+def _report(folder, estimate, model, evidence, signals, buildings, id_column, truth) -> None:
+    """The report (:func:`gnss_citygml.report.write_report`) of the fit over all the evidence:
+    every signal cast so far, the intersections, the final classifier."""
+    from .ids import with_id_field
+    from .model.classifier import SignalClassifier
+    from .pipeline import Run
+    from .report import write_report
+    from .tables import read_table
+
+    index = pd.Index(signals["signal_key"]).get_indexer(evidence["signal_key"])
+    fitted = estimate.attrs.get("signal_classifier")
+    run = Run(
+        heights=with_id_field(estimate, id_column),
+        receivers=signals.reset_index(drop=True),
+        intersections=model.assign(signal=index, building=evidence["building"].to_numpy()),
+        buildings=buildings,
+        classifier=None if fitted is None else SignalClassifier(**fitted),
+    )
+    write_report(run, folder, truth=None if truth is None else read_table(truth))
 
 
 def _check_map(path: StrPath, dry_run: bool) -> Path:
@@ -296,7 +341,7 @@ def _read_evidence(path: Path, kind: str, columns: list[str]) -> pd.DataFrame:
         ).fetchall()
     if not blobs:
         return pd.DataFrame({c: pd.Series(dtype=_DTYPES[c]) for c in columns})
-    tables = [pq.read_table(pa.BufferReader(blob)) for (blob,) in blobs]
+    tables = [pq.read_table(pa.BufferReader(blob), columns=columns) for (blob,) in blobs]
     return pa.concat_tables(tables).to_pandas()[columns]
 
 

@@ -213,3 +213,22 @@ def _content(path: Path) -> tuple:
     evidence = evidence.drop(columns="created_utc")
     values = table.drop(columns="updated_utc").to_csv()
     return values, evidence.to_csv(), table["updated_utc"].notna().all()
+
+
+def test_the_report_of_two_updates_is_that_of_one_run(city_map, halves, grid_dir, tmp_path):
+    """The evidence keeps every signal cast: the report after two updates shows the same
+    buildings, errors and signals as one run over all the observations."""
+    from gnss_citygml.compare import compare, summary
+    from gnss_citygml.pipeline import run
+
+    truth = CITY / "truth.csv"
+    update_map(city_map, [halves[0]], DEM, layer="buildings", grid_dir=grid_dir)
+    update_map(city_map, [halves[1]], DEM, layer="buildings", grid_dir=grid_dir,
+               report=tmp_path / "r", truth=truth)  # fmt: skip
+    page = (tmp_path / "r" / "report.html").read_text()
+    obs = pd.concat([pd.read_parquet(h) for h in halves], ignore_index=True)
+    import gnss_citygml as gc
+
+    one = run(obs, gc.read_footprints(CITY / "footprints.gpkg"), DEM, grid_dir=grid_dir)
+    assert summary(compare(one.heights, pd.read_csv(truth))) in page
+    assert f"{len(one.receivers)} signals from 8 receivers" in page

@@ -18,7 +18,9 @@ from .options import (
     MIN_ELEVATION,
     OVERWRITE,
     QUIET,
+    REPORT,
     THRESHOLD,
+    TRUTH,
     dem_file,
     output_dir,
     output_file,
@@ -80,12 +82,7 @@ _RUN_OPTIONS = [
         help="With --calibration-sd: one offset per this many seconds of a recording (about 30 "
         "for phone fixes, whose errors drift) instead of one per recording.",
     ),
-    click.option(
-        "--truth",
-        type=click.Path(dir_okay=False, path_type=Path),
-        help="For the report: a truth table (id, height, ground in m ODN; a simulator's "
-        "truth.csv), to show the true heights and the errors.",
-    ),
+    TRUTH,
     DEM_CRS,
     GRID_DIR,
     OVERWRITE,
@@ -104,12 +101,7 @@ def _run_options(func):
     "Output layer 'heights': a GeoPackage (.gpkg; other layers of an existing one are kept), "
     "FlatGeobuf (.fgb) or GeoParquet (.parquet)."
 )
-@click.option(
-    "--report",
-    type=click.Path(file_okay=False, path_type=Path),
-    help="Also write the report of the run into this folder: report.html and figures/*.png "
-    "(needs matplotlib: pip install 'gnss-citygml[plot]').",
-)
+@REPORT
 @_run_options
 def estimate(output, report, **options):
     """Estimate the height of every footprint from GNSS OBSERVATIONS.

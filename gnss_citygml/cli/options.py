@@ -28,10 +28,12 @@ __all__ = [
     "MODEL_OUTPUT",
     "OVERWRITE",
     "QUIET",
+    "REPORT",
     "SCHEMA_DIR",
     "SEED",
     "STDOUT",
     "THRESHOLD",
+    "TRUTH",
     "TYPED_ATTRIBUTES",
     "dem_file",
     "output_dir",
@@ -99,6 +101,19 @@ THRESHOLD = click.option(
     default=Estimator.init_threshold,
     show_default=True,
     help="C/N0 (dB-Hz) where the initial signal classifier gives 50 %.",
+)
+
+REPORT = click.option(
+    "--report",
+    type=click.Path(file_okay=False, path_type=Path),
+    help="Also write the report of the fit (report.html, figures/*.png) into this folder; "
+    "needs matplotlib (pip install 'gnss-citygml[plot]').",
+)
+TRUTH = click.option(
+    "--truth",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="For the report: a truth table (id, height, ground in m ODN; a simulator's "
+    "truth.csv), to show the true heights and the errors.",
 )
 
 TYPED_ATTRIBUTES = click.option(

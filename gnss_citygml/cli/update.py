@@ -14,7 +14,9 @@ from .options import (
     LAYER,
     METHOD,
     QUIET,
+    REPORT,
     THRESHOLD,
+    TRUTH,
     dem_file,
     progress,
 )
@@ -49,6 +51,8 @@ from .options import (
 )
 @click.option("--dry-run", is_flag=True, help="Say what would change; write nothing.")
 @click.option("--no-backup", is_flag=True, help="Do not keep the map as it was in MAP.bak.")
+@REPORT
+@TRUTH
 @THRESHOLD
 @METHOD
 @DEM_CRS
@@ -64,6 +68,8 @@ def update(
     threshold,
     dry_run,
     no_backup,
+    report,
+    truth,
     init_threshold,
     method,
     dem_crs,
@@ -100,10 +106,14 @@ def update(
             estimator=Estimator(method=method, init_threshold=init_threshold),
             grid_dir=grid_dir,
             dem_crs=dem_crs,
+            report=report,
+            truth=truth,
             progress=told,
         )
     for line in result.lines():
         click.echo(line)
+    if report is not None:
+        click.echo(f"report -> {report / 'report.html'}")
     if dry_run:
         click.echo("dry run: nothing written")
     elif result.written:

@@ -113,6 +113,8 @@ class UpdateResult:
     buildings: pd.DataFrame
     #: The height change (m) above which a building is listed as changed.
     threshold: float
+    #: The buildings the new signals' rays enter.
+    touched: frozenset[str] = frozenset()
     #: Whether the map was written (False for a dry run or when nothing changed).
     written: bool = False
     backup: Path | None = None
@@ -135,7 +137,8 @@ class UpdateResult:
         gained = table[table["changed"] & table["before"].isna() & table["after"].notna()]
         lost = table[table["changed"] & table["before"].notna() & table["after"].isna()]
         lines = [
-            f"{self.new_signals} new signals cast, {self.new_evidence} new intersections; "
+            f"{self.new_signals} new signals cast, {self.new_evidence} new intersections in "
+            f"{len(self.touched)} buildings; "
             f"{len(self.updated)} of {len(table)} buildings updated, {len(moved)} by more "
             f"than {self.threshold:g} m, {len(gained)} with a first height, {len(lost)} "
             "without one now"
@@ -228,7 +231,9 @@ def update_map(
     estimate.attrs.update(heights.attrs)
     current = _current_values(path, name, id_column, buildings["id"])
     values, table = _new_values(estimate, current, min_signals)
-    result = UpdateResult(len(new), len(fresh), table, threshold)
+    result = UpdateResult(
+        len(new), len(fresh), table, threshold, frozenset(fresh["building"].astype(str))
+    )
     if report is not None:
         say("report", 0.6)
         everything = pd.concat(

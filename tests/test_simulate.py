@@ -134,3 +134,25 @@ def test_start_time_moves_the_satellites():
     b = simulate("ucl", interval=120.0, start="2024-06-01T15:00:00Z")
     assert b.observations["time_utc"].iloc[0] == pd.Timestamp("2024-06-01T15:00:00Z")
     assert not np.allclose(a.observations["azimuth"].iloc[:5], b.observations["azimuth"].iloc[:5])
+
+
+def test_the_physics_can_be_changed_and_does_what_it_says():
+    """Issue 14 judges the estimator across the physics: each knob moves what it names, and
+    the defaults are the simulator's constants (the bundled sample city is unchanged)."""
+
+    def run(**physics):
+        sim = simulate("goodchild", interval=10.0, seed=3, physics=SignalModel(**physics))
+        return sim.observations
+
+    base = run()
+    pd.testing.assert_frame_equal(base, simulate("goodchild", interval=10.0, seed=3).observations)
+    weak, strong = run(reflection_loss=15.0), run(reflection_loss=3.0)
+    blocked = ~base["los"]
+    assert strong.loc[blocked, "cn0"].median() > weak.loc[blocked, "cn0"].median() + 6.0
+    assert run(reflected_facade=0.0, reflected_open=0.0).loc[blocked, "cn0"].isna().mean() > (
+        base.loc[blocked, "cn0"].isna().mean() + 0.2
+    )
+    assert run(tracking_threshold=20.0)["cn0"].min() >= 20.0
+    assert run(body_loss=6.0)["cn0"].median() < base["cn0"].median() - 4.0
+    off = run(manual_sd=0.0)
+    assert np.allclose(off["e"], off["e_true"]) and not np.allclose(base["e"], base["e_true"])

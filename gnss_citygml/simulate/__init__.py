@@ -61,6 +61,7 @@ def simulate(
     interval: float = 1.0,
     max_range: float = 500.0,
     start: str | pd.Timestamp = EPOCH,
+    physics: SignalModel = SignalModel(),
 ) -> Simulation:
     """Simulate a preset site.
 
@@ -79,6 +80,9 @@ def simulate(
         Horizontal range (m) of the rays cast for the intersections.
     start
         UTC time of the scene's first recording; the satellites move on from there.
+    physics
+        The signals' and positions' physics (:class:`~.signals.SignalModel`): reflection
+        losses and shares, device and body losses, tracking threshold, manual position error.
 
     Returns
     -------
@@ -112,7 +116,8 @@ def simulate(
         parts=np.array([p for p, _ in parts], dtype=object),
         tops=np.array([t for _, t in parts]),
         footprints=np.array([b.footprint for b in scene.buildings], dtype=object),
-        device=rng.normal(0.0, SignalModel.device_sd),
+        device=rng.normal(0.0, physics.device_sd),
+        physics=physics,
         start=pd.Timestamp(start),
     )
     frames = [_session(rng, site, s, locations, interval) for s in scene.sessions]
@@ -140,6 +145,7 @@ class _Site:
     footprints: np.ndarray  # one per building
     device: float  # C/N0 offset of the phone (dB)
     start: pd.Timestamp
+    physics: SignalModel
 
 
 def _session(rng, site: _Site, session: Session, locations, interval):
@@ -165,12 +171,13 @@ def _session(rng, site: _Site, session: Session, locations, interval):
     np.maximum.at(loss, ray, diffraction_loss(clearance, dist, s_el[ray]))
 
     # C/N0 of the direct (possibly diffracted) and reflected components.
-    m = SignalModel
+    m = site.physics
     base = (
         m.zenith_cn0
         - m.horizon_loss * (1.0 - np.sin(np.radians(s_el)))
         + site.device
         + rng.normal(0.0, m.session_sd)
+        - m.body_loss
     )
     direct = base - loss + rng.normal(0.0, m.fading_sd, ep.size)
     behind, _, _, _ = footprint_entries(
@@ -178,7 +185,8 @@ def _session(rng, site: _Site, session: Session, locations, interval):
     )
     facade = np.zeros(ep.size, dtype=bool)
     facade[behind] = True
-    reflects = blocked & (rng.random(ep.size) < np.where(facade, 0.75, 0.25))
+    share = np.where(facade, m.reflected_facade, m.reflected_open)
+    reflects = blocked & (rng.random(ep.size) < share)
     reflected = np.where(
         reflects, base - rng.normal(m.reflection_loss, m.reflection_sd, ep.size), -np.inf
     )
@@ -190,9 +198,9 @@ def _session(rng, site: _Site, session: Session, locations, interval):
     # The positions the user has.
     if locations == "manual":
         if session.walking:
-            err = ar1(rng, n_ep, interval, 30.0, 1.0, (2,))
+            err = ar1(rng, n_ep, interval, 30.0, m.manual_sd, (2,))
         else:
-            err = np.tile(rng.normal(0.0, 1.0, 2), (n_ep, 1))
+            err = np.tile(rng.normal(0.0, m.manual_sd, 2), (n_ep, 1))
     else:
         rec, nl, c = np.zeros(az.shape, bool), np.zeros(az.shape, bool), np.full(az.shape, np.nan)
         rec[ep, sat], nl[ep, sat], c[ep, sat] = received, nlos, cn0

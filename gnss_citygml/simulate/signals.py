@@ -20,6 +20,8 @@ Positions
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 import numpy.typing as npt
 from scipy.signal import lfilter
@@ -30,17 +32,26 @@ __all__ = ["SignalModel", "ar1", "diffraction_loss", "gnss_fix_errors"]
 WAVELENGTH = 0.1903
 
 
+@dataclass(frozen=True)
 class SignalModel:
-    """Constants of the C/N0 model (dB-Hz, dB), from smartphone measurement literature."""
+    """The physics of the simulated signals and positions (dB-Hz, dB, m). The defaults are
+    from smartphone measurement literature; ``benchmarks/scenes.py`` draws others, so that the
+    estimator is judged across the physics and not on one simulator's constants."""
 
-    zenith_cn0 = 45.0  # strong clear signal on a phone
-    horizon_loss = 8.0  # antenna gain loss from zenith to the horizon
-    fading_sd = 3.0  # LOS fading and body loss, per signal
-    device_sd = 2.0  # offset of one device (dataset) against another
-    session_sd = 1.0  # offset of one recording session (pocket, hand, orientation)
-    reflection_loss = 12.0  # mean loss of a reflected path relative to LOS
-    reflection_sd = 4.0
-    tracking_threshold = 12.0  # below this nothing is tracked
+    zenith_cn0: float = 45.0  # strong clear signal on a phone
+    horizon_loss: float = 8.0  # antenna gain loss from zenith to the horizon
+    fading_sd: float = 3.0  # LOS fading and body loss, per signal
+    device_sd: float = 2.0  # offset of one device (dataset) against another
+    session_sd: float = 1.0  # offset of one recording session (pocket, hand, orientation)
+    body_loss: float = 0.0  # mean loss of every signal of a session (a body, a pocket)
+    reflection_loss: float = 12.0  # mean loss of a reflected path relative to LOS
+    reflection_sd: float = 4.0
+    #: Share of the blocked signals that arrive reflected, with a facade behind the receiver
+    #: (within 60 m, opposite the satellite) and without one.
+    reflected_facade: float = 0.75
+    reflected_open: float = 0.25
+    tracking_threshold: float = 12.0  # below this nothing is tracked
+    manual_sd: float = 1.0  # error of a position placed by hand (m per axis, per session)
 
 
 def diffraction_loss(

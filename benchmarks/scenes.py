@@ -7,7 +7,12 @@ and estimated with the initial thresholds 20, 30 and 40 dB-Hz; one line per scen
 locations, then the totals. The constants of the estimator are the paper's and the physics';
 none was chosen on these scenes or on the presets.
 
-    python benchmarks/scenes.py [--scenes 8] [--position-sd [--position-window 30]]
+With ``--physics``, each scene also draws its physics (issue 14) from the ranges of
+:data:`PHYSICS`: reflection losses of 3-15 dB, the share of blocked signals that arrive
+reflected, device offsets, tracking thresholds of 10-20 dB-Hz, body losses of 0-8 dB and
+manual position errors of 0.3-2 m; each line says which.
+
+    python benchmarks/scenes.py [--scenes 8] [--physics] [--position-sd [--position-window 30]]
 """
 
 from __future__ import annotations
@@ -21,8 +26,20 @@ from accuracy import site_tables
 from gnss_citygml import Estimator, PositionError, estimate_heights
 from gnss_citygml.simulate import EPOCH, LOCATIONS, simulate
 from gnss_citygml.simulate.scenes import city_scene
+from gnss_citygml.simulate.signals import SignalModel
 
 THRESHOLDS = (20.0, 30.0, 40.0)
+
+#: The ranges (uniform) the physics of a scene is drawn from with --physics.
+PHYSICS = {
+    "reflection_loss": (3.0, 15.0),
+    "reflected_facade": (0.3, 0.9),
+    "reflected_open": (0.05, 0.4),
+    "device_sd": (1.0, 4.0),
+    "tracking_threshold": (10.0, 20.0),
+    "body_loss": (0.0, 8.0),
+    "manual_sd": (0.3, 2.0),
+}
 #: Position error (m per axis) the fits are told with --position-sd, as in paper_table.py.
 POSITION_SD = {"manual": 1.0, "gnss": 5.0}
 
@@ -35,6 +52,21 @@ def random_scene(k: int):
     scene = city_scene(rng, columns, rows, walkers, seconds)
     start = EPOCH + pd.Timedelta(days=int(rng.integers(0, 300)), hours=float(rng.uniform(0, 24)))
     return scene, start, f"{columns}x{rows} blocks, {walkers} walkers x {seconds:.0f} s"
+
+
+def random_physics(k: int) -> SignalModel:
+    """The physics of scene ``k``: every constant of :data:`PHYSICS` drawn in its range."""
+    rng = np.random.default_rng(1000 + k)
+    return SignalModel(**{name: float(rng.uniform(*bounds)) for name, bounds in PHYSICS.items()})
+
+
+def _physics_text(physics: SignalModel) -> str:
+    return (
+        f"reflection -{physics.reflection_loss:.0f} dB, "
+        f"{physics.reflected_facade:.0%}/{physics.reflected_open:.0%} reflected, "
+        f"tracking {physics.tracking_threshold:.0f} dB-Hz, body -{physics.body_loss:.0f} dB, "
+        f"manual {physics.manual_sd:.1f} m"
+    )
 
 
 def main():
@@ -51,6 +83,9 @@ def main():
         default=None,
         help="with --position-sd: one position error per this many seconds of a walk",
     )
+    parser.add_argument(
+        "--physics", action="store_true", help="draw each scene's physics too (PHYSICS)"
+    )
     args = parser.parse_args()
     runs, totals = [], dict.fromkeys(LOCATIONS, 0)
     header = "converged | RMSE | median abs. error | worst | RMSE of c | range covers truth |"
@@ -58,8 +93,11 @@ def main():
     print("|---|---|---|---|---|---|---|---|---|")
     for k in range(args.scenes):
         scene, start, layout = random_scene(k)
+        physics = random_physics(k) if args.physics else SignalModel()
+        if args.physics:
+            layout = f"{layout}; {_physics_text(physics)}"
         for locations in LOCATIONS:
-            sim = simulate(scene, locations=locations, seed=k, start=start)
+            sim = simulate(scene, locations=locations, seed=k, start=start, physics=physics)
             error = PositionError()
             if args.position_sd:
                 error = PositionError(sd=POSITION_SD[locations], window=args.position_window)

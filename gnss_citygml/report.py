@@ -181,21 +181,20 @@ def write_report(
     Without ``overwrite``, existing report files are an error (:func:`check_report`)."""
     check_report(folder, overwrite=overwrite)
     plt = _pyplot()
-    folder = make_folder(folder)
-    figures = make_folder(Path(folder) / "figures")
     say = progress or (lambda what: None)
     table = _table(run, truth)
     states = signal_states(run)
     sections = []
-    for name, heading, draw in _FIGURES:
+    for name, heading, draw in _FIGURES:  # every figure drawn before any file is written
         say(name)
-        figure = draw(plt, run, table, states)
-        png = _png(plt, figure)
-        with atomic_path(figures / f"{name}.png", overwrite=overwrite) as tmp:
-            tmp.write_bytes(png)
-        sections.append((heading, name, png))
+        sections.append((heading, name, _png(plt, draw(plt, run, table, states))))
     say("page")
     page = _page(title, run, table, sections)
+    folder = make_folder(folder)
+    figures = make_folder(Path(folder) / "figures")
+    for _, name, png in sections:
+        with atomic_path(figures / f"{name}.png", overwrite=overwrite) as tmp:
+            tmp.write_bytes(png)
     with atomic_path(Path(folder) / REPORT, overwrite=overwrite) as tmp:
         tmp.write_text(page, encoding="utf-8")
     return Path(folder) / REPORT
@@ -309,7 +308,7 @@ def _ranges(plt: Any, run: Run, table: pd.DataFrame, states: pd.DataFrame) -> An
     """The width of each converged building's range: a map and a histogram."""
     figure, (left, right) = plt.subplots(1, 2, figsize=(12, 5), width_ratios=[1.3, 1])
     width = (table["upper"] - table["lower"]).to_numpy()
-    converged = table["converged"].to_numpy()
+    converged = table["converged"].to_numpy() & np.isfinite(width)  # (baselines: no range)
     if converged.any():
         buildings = run.heights.assign(_width=width)
         buildings[converged].plot(

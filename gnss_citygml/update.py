@@ -194,13 +194,18 @@ def update_map(
     if min_signals < 1:
         raise InputError(f"min_signals must be 1 or more, not {min_signals}", fix="give N >= 1")
     say("reading", 0.0)
+    read_at = _stamp(path)
     footprints = read_footprints(path, layer=layer, id_field=id_field, grid_dir=grid_dir)
     name = _layer_name(path, layer)
     id_column = source_id_field(footprints)
     buildings = building_ground(footprints, dem, assume_crs=dem_crs)
+    key = _key_column(path, name, [id_column, id_field, "fid"], buildings["id"])
+    current = _current_values(path, name, key, buildings["id"])  # (checks our columns' types)
     stored = _read_evidence(path, INTERSECTIONS, _EVIDENCE_COLUMNS)
     obs = in_mask(pd.concat([read_observations(p) for p in observations], ignore_index=True), rays)
     keys = _keys(obs)
+    repeated = keys.duplicated().to_numpy()
+    obs, keys = obs[~repeated].reset_index(drop=True), keys[~repeated].reset_index(drop=True)
     unseen = ~keys.isin(_read_evidence(path, CAST, ["signal_key"])["signal_key"]).to_numpy()
     new = obs[unseen].reset_index(drop=True)
     fresh, signals = stored.iloc[:0], pd.DataFrame(columns=_SIGNAL_COLUMNS)
@@ -229,11 +234,12 @@ def update_map(
     heights = estimate_heights(model, estimator)
     estimate = join_heights(buildings, heights, estimator.method, "id")
     estimate.attrs.update(heights.attrs)
-    current = _current_values(path, name, id_column, buildings["id"])
     values, table = _new_values(estimate, current, min_signals)
     result = UpdateResult(
         len(new), len(fresh), table, threshold, frozenset(fresh["building"].astype(str))
     )
+    if repeated.any():
+        result.notes.append(f"{int(repeated.sum())} repeated observations counted once")
     if report is not None:
         say("report", 0.6)
         everything = pd.concat(
@@ -245,12 +251,18 @@ def update_map(
             result.notes.append("nothing changed: the map is untouched")
         return result
     say("writing", 0.75)
+    if _stamp(path) != read_at:  # (from here on, atomic_path watches the file)
+        raise InputError(
+            "the map changed while this update ran (another update?)",
+            where=str(path),
+            fix="run again once the other program has finished with it",
+        )
     with atomic_path(path, overwrite=True, update=True) as tmp:
         if len(fresh):
             _append_evidence(tmp, INTERSECTIONS, fresh)
         if len(signals):
             _append_evidence(tmp, CAST, signals)
-        _write_columns(tmp, name, id_column, values[table["changed"].to_numpy()])
+        _write_columns(tmp, name, key, values[table["changed"].to_numpy()])
         if backup:
             result.backup = _backup(path)
     result.written = True
@@ -289,13 +301,17 @@ def _check_map(path: StrPath, dry_run: bool) -> Path:
             where=str(path),
             fix="convert it first (ogr2ogr -f GPKG map.gpkg ...)",
         )
-    wal = path.with_name(path.name + "-wal")
-    if wal.exists() and wal.stat().st_size > 0:
-        raise InputError(
-            f"the map is open in another program, with changes in its write-ahead log ({wal.name})",
-            where=str(path),
-            fix="close it there (QGIS: stop editing and remove the layer), then run again",
-        )
+    for suffix in ("-wal", "-shm"):
+        side = path.with_name(path.name + suffix)
+        if side.exists():
+            raise InputError(
+                f"the map is open in another program ({side.name} is beside it: SQLite's "
+                "write-ahead log of an open connection, whose later writes would damage the "
+                "updated file)",
+                where=str(path),
+                fix="close it there (QGIS: remove the layer from the project, or quit), then "
+                "run again",
+            )
     try:
         with contextlib.closing(sqlite3.connect(path, timeout=0.1)) as db:
             db.execute("BEGIN IMMEDIATE")  # a write lock: fails while another one holds it
@@ -309,6 +325,12 @@ def _check_map(path: StrPath, dry_run: bool) -> Path:
     return path
 
 
+def _stamp(path: Path) -> tuple[int, int, int]:
+    """The file's inode, size and modification time: what changes when it is written."""
+    info = path.stat()
+    return info.st_ino, info.st_size, info.st_mtime_ns
+
+
 def _layer_name(path: Path, layer: str | None) -> str:
     """The footprint layer's table: ``layer``, or the file's only polygon layer."""
     import pyogrio
@@ -316,8 +338,9 @@ def _layer_name(path: Path, layer: str | None) -> str:
     if layer is not None:
         return layer
     layers = pyogrio.list_layers(path)
-    polygons = [str(n) for n, kind in layers if kind and "Polygon" in str(kind)]
-    return polygons[0]  # (read_footprints has refused a file with several)
+    spatial = [str(n) for n, kind in layers if kind is not None]
+    polygons = [n for n, kind in layers if kind and "Polygon" in str(kind)]
+    return str((polygons or spatial)[0])  # (read_footprints has refused a file with several)
 
 
 def _keys(rows: pd.DataFrame) -> pd.Series:
@@ -377,16 +400,65 @@ def _append_evidence(path: Path, kind: str, rows: pd.DataFrame) -> None:
         )
 
 
-def _current_values(path: Path, layer: str, id_column: str, ids: pd.Series) -> pd.DataFrame:
+def _column_types(db: sqlite3.Connection, layer: str) -> dict[str, str]:
+    """The layer's columns (lower case, as SQLite compares them) and their types; a column of
+    ours that is there with another type is a one-line error."""
+    info = {row[1].lower(): row[2] for row in db.execute(f"PRAGMA table_info({quoted(layer)})")}
+    for column, kind in COLUMNS.items():
+        if column in info and info[column].upper() != kind:
+            raise InputError(
+                f"the layer has a column {column!r} of type {info[column]}, not {kind}",
+                where=f"layer {layer}",
+                fix=f"rename that column: the update writes its {column} there",
+            )
+    return info
+
+
+def _current_values(path: Path, layer: str, key: str, ids: pd.Series) -> pd.DataFrame:
     """The layer's estimate columns now, by building id (NaN/None where absent)."""
     with contextlib.closing(sqlite3.connect(path)) as db:
-        have = {row[1] for row in db.execute(f"PRAGMA table_info({quoted(layer)})")}
-        key = _key_column(db, layer, id_column)
+        have = _column_types(db, layer)
         present = [c for c in COLUMNS if c in have]
         query = ", ".join(quoted(c) for c in [key, *present])
         rows = db.execute(f"SELECT {query} FROM {quoted(layer)}").fetchall()
-    table = pd.DataFrame(rows, columns=["id", *present]).astype({"id": str}).set_index("id")
-    return table.reindex(ids.astype(str), columns=list(COLUMNS))
+    table = pd.DataFrame(rows, columns=["id", *present])
+    table["id"] = _id_texts(table["id"])
+    return table.set_index("id").reindex(ids.astype(str), columns=list(COLUMNS))
+
+
+def _id_texts(values: pd.Series) -> pd.Series:
+    """Ids as :func:`~gnss_citygml.footprints.read_footprints` writes them: whole numbers
+    stored as REAL without their ``.0``."""
+    numbers = pd.to_numeric(values, errors="coerce")
+    if numbers.notna().all() and np.all(np.mod(numbers.to_numpy(float), 1) == 0):
+        return numbers.astype(np.int64).astype(str)
+    return values.astype(str)
+
+
+def _key_column(path: Path, layer: str, candidates: list, ids: pd.Series) -> str:
+    """The column of the layer's table that holds the building ids: the first of
+    ``candidates`` (the id field, as read and as asked for; GDAL's ``fid``, the primary key)
+    whose values are the buildings' ids. None is a one-line error, never a silent update of
+    nothing."""
+    with contextlib.closing(sqlite3.connect(path)) as db:
+        info = list(db.execute(f"PRAGMA table_info({quoted(layer)})"))
+        columns = {row[1].lower(): row[1] for row in info}
+        primary = next((row[1] for row in info if row[5]), None)
+        wanted = set(ids.astype(str))
+        for name in candidates:
+            column = columns.get(str(name).lower()) if name else None
+            if column is None and name == "fid":
+                column = primary
+            if column is None:
+                continue
+            values = [row[0] for row in db.execute(f"SELECT {quoted(column)} FROM {quoted(layer)}")]
+            if set(_id_texts(pd.Series(values))) == wanted:
+                return column
+    raise InputError(
+        "cannot find the column of the layer that holds the building ids",
+        where=f"{path.name}, layer {layer}",
+        fix="name it with --id-field",
+    )
 
 
 def _new_values(
@@ -426,37 +498,30 @@ def _equal(old: np.ndarray, new: np.ndarray, column: str) -> np.ndarray:
     return np.array([o == n for o, n in zip(old, new, strict=True)])
 
 
-def _write_columns(path: Path, layer: str, id_column: str, values: pd.DataFrame) -> None:
+def _write_columns(path: Path, layer: str, key: str, values: pd.DataFrame) -> None:
     """Add the missing columns to the layer's table and write ``values`` by building id."""
     with contextlib.closing(connect(path)) as db, db:
-        info = {row[1]: row[2] for row in db.execute(f"PRAGMA table_info({quoted(layer)})")}
+        info = _column_types(db, layer)
         for column, kind in COLUMNS.items():
             if column not in info:
                 db.execute(f"ALTER TABLE {quoted(layer)} ADD COLUMN {quoted(column)} {kind}")
-            elif info[column].upper() != kind:
-                raise InputError(
-                    f"the layer has a column {column!r} of type {info[column]}, not {kind}",
-                    where=f"{path.name}, layer {layer}",
-                    fix=f"rename that column: the update writes its {column} there",
-                )
-        key = _key_column(db, layer, id_column)
         columns = list(COLUMNS)
         assignments = ", ".join(f"{quoted(c)} = ?" for c in columns)
         rows = [[_sql(row[c]) for c in columns] + [row["id"]] for row in values.to_dict("records")]
-        db.executemany(f"UPDATE {quoted(layer)} SET {assignments} WHERE {quoted(key)} = ?", rows)
+        done = db.executemany(
+            f"UPDATE {quoted(layer)} SET {assignments} WHERE {quoted(key)} = ?", rows
+        ).rowcount
+        if done != len(rows):  # (the key column was checked: a bug if this happens)
+            raise InputError(
+                f"{len(rows)} buildings to update, {done} rows found by {key!r}",
+                where=f"layer {layer}",
+                fix="check that the ids are unique, or name the id column with --id-field",
+            )
         db.execute(
             "UPDATE gpkg_contents SET last_change = strftime('%Y-%m-%dT%H:%M:%fZ', 'now') "
             "WHERE table_name = ?",
             (layer,),
         )
-
-
-def _key_column(db: sqlite3.Connection, layer: str, id_column: str) -> str:
-    """The table column holding the building ids: the id field, or the primary key (fid)."""
-    info = {row[1]: row[5] for row in db.execute(f"PRAGMA table_info({quoted(layer)})")}
-    if id_column in info:
-        return id_column
-    return next(name for name, pk in info.items() if pk)
 
 
 def _sql(value):

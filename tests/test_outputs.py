@@ -91,6 +91,19 @@ def test_estimate_writes_the_format_its_name_says(suffix, driver, grid_args, tmp
         table = gpd.read_parquet(path)
     assert len(table) == 30 and table.crs.to_epsg() == 27700
     assert {"id", "height", "height_lower", "height_upper", "converged"} <= set(table.columns)
+    if driver is None:  # the GeoParquet layer is a heights table `export` takes, geometry and all
+        model = tmp_path / "m.city.json"
+        args = [
+            "export",
+            str(path),
+            "--footprints",
+            str(CITY / "footprints.gpkg"),
+            "-o",
+            str(model),
+        ]
+        code, _, err = run([*args, *grid_args, "-q"], capsys)
+        assert code == 0, err
+        assert validate_file(model).valid
 
 
 @pytest.mark.parametrize(

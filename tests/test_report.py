@@ -164,3 +164,14 @@ def test_without_matplotlib_one_line_says_what_to_install(grid_args, tmp_path):
     assert done.returncode == 0, done.stderr
     assert "note: no report.html: the report needs matplotlib" in done.stderr
     assert sorted(p.name for p in (tmp_path / "d").iterdir()) == sorted(OUTPUTS)
+
+
+@pytest.mark.parametrize("method", ["hinge", "bayes"])
+def test_a_baseline_without_ranges_has_a_report(method, grid_dir, tmp_path):
+    """The baselines give heights without a range: the range figure says so, no crash."""
+    obs = gc.read_observations(CITY / "observations.parquet")
+    footprints = gc.read_footprints(CITY / "footprints.gpkg")
+    baseline = run(obs, footprints, CITY / "dem.tif", grid_dir=grid_dir,
+                   estimator=gc.Estimator(method=method))  # fmt: skip
+    page = write_report(baseline, tmp_path)
+    assert page.is_file() and len(list((tmp_path / "figures").iterdir())) == len(FIGURES)

@@ -172,11 +172,14 @@ def test_a_map_another_program_is_writing_is_refused(city_map, halves, grid_dir)
         with pytest.raises(InputError, match="cannot be locked for writing"):
             update_map(city_map, [halves[0]], DEM, layer="buildings", grid_dir=grid_dir)
         other.rollback()
-    wal = Path(str(city_map) + "-wal")
-    wal.write_bytes(b"\0" * 100)  # an editor's write-ahead log, not yet in the file
-    with pytest.raises(InputError, match="open in another program"):
-        update_map(city_map, [halves[0]], DEM, layer="buildings", grid_dir=grid_dir)
-    wal.unlink()
+    for side, size in (("-wal", 100), ("-wal", 0), ("-shm", 0)):
+        # an open connection's write-ahead log, even empty: its later writes would be
+        # applied to the new file, and damage it
+        extra = Path(str(city_map) + side)
+        extra.write_bytes(b"\0" * size)
+        with pytest.raises(InputError, match=f"open in another program \\(map.gpkg{side}"):
+            update_map(city_map, [halves[0]], DEM, layer="buildings", grid_dir=grid_dir)
+        extra.unlink()
     assert digest(city_map) == original
 
 
@@ -232,3 +235,60 @@ def test_the_report_of_two_updates_is_that_of_one_run(city_map, halves, grid_dir
     one = run(obs, gc.read_footprints(CITY / "footprints.gpkg"), DEM, grid_dir=grid_dir)
     assert summary(compare(one.heights, pd.read_csv(truth))) in page
     assert f"{len(one.receivers)} signals from 8 receivers" in page
+
+
+def test_repeated_observations_count_once(city_map, halves, grid_dir, tmp_path):
+    twin = tmp_path / "twin.gpkg"
+    twin.write_bytes(city_map.read_bytes())
+    once = update_map(twin, [halves[0]], DEM, layer="buildings", grid_dir=grid_dir)
+    twice = update_map(city_map, [halves[0], halves[0]], DEM, layer="buildings", grid_dir=grid_dir)
+    assert twice.new_signals == once.new_signals
+    assert any("repeated observations counted once" in line for line in twice.lines())
+    read = [
+        pyogrio.read_dataframe(p, layer="buildings", read_geometry=False) for p in (twin, city_map)
+    ]
+    pd.testing.assert_frame_equal(*(t.drop(columns="updated_utc") for t in read))
+
+
+@pytest.mark.parametrize("kind", ["ogc_fid key, text fid", "real ids", "integer fid only"])
+def test_the_id_column_is_found_or_named(kind, halves, grid_dir, tmp_path):
+    """Whatever holds the ids (a text column named fid beside another primary key, whole
+    numbers stored as REAL, GDAL's fid itself), the rows written are the right ones, and a
+    second run with the same data changes nothing."""
+    footprints = pyogrio.read_dataframe(CITY / "footprints.gpkg")
+    path = tmp_path / "m.gpkg"
+    args = {}
+    if kind == "ogc_fid key, text fid":
+        footprints = footprints.rename(columns={"id": "fid"})
+        pyogrio.write_dataframe(footprints, path, layer_options={"FID": "ogc_fid"})
+    elif kind == "real ids":
+        footprints["ref"] = np.arange(len(footprints), dtype=float) + 100.0
+        pyogrio.write_dataframe(footprints.drop(columns="id"), path)
+        args = {"id_field": "ref"}
+    else:
+        pyogrio.write_dataframe(footprints.drop(columns="id"), path)
+    result = update_map(path, [halves[0]], DEM, grid_dir=grid_dir, **args)
+    layer = pyogrio.list_layers(path)[0][0]
+    table = pyogrio.read_dataframe(path, layer=layer, read_geometry=False)
+    assert table["height_gnss"].notna().sum() == (~result.buildings["after"].isna()).sum() > 10
+    again = update_map(path, [halves[0]], DEM, grid_dir=grid_dir, **args)
+    assert not again.written and again.updated.empty
+
+
+def test_a_layer_of_unknown_geometry_type(halves, grid_dir, tmp_path):
+    path = tmp_path / "m.gpkg"
+    footprints = pyogrio.read_dataframe(CITY / "footprints.gpkg")
+    pyogrio.write_dataframe(footprints, path, geometry_type="Unknown")
+    assert update_map(path, [halves[0]], DEM, grid_dir=grid_dir).written
+
+
+def test_a_column_of_ours_in_another_case_or_type_is_refused_before_the_work(
+    city_map, halves, grid_dir
+):
+    with contextlib.closing(sqlite3.connect(city_map)) as db, db:
+        db.execute('ALTER TABLE buildings ADD COLUMN "Method" INTEGER')
+    stages = []
+    with pytest.raises(InputError, match="column 'method' of type INTEGER, not TEXT"):
+        update_map(city_map, [halves[0]], DEM, layer="buildings", grid_dir=grid_dir,
+                   progress=lambda what, done: stages.append(what))  # fmt: skip
+    assert stages == ["reading"]  # refused before casting and fitting

@@ -109,6 +109,10 @@ def footprints_with_heights(
         )
     if "ground" in footprints.columns:
         table = table.drop(columns=["ground"], errors="ignore")
+    # a table with its own geometry (estimate's GeoParquet layer): the footprints' is the one
+    table = pd.DataFrame(table).drop(
+        columns=["geometry", footprints.geometry.name], errors="ignore"
+    )
     unknown = ~table["id"].isin(footprints["id"])
     if unknown.any():
         raise InputError(

@@ -6,12 +6,38 @@ true roof, m ODN) and ``ground`` (the true ground, m ODN).
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pandas as pd
 
 from .ids import id_named
 
-__all__ = ["compare", "summary"]
+__all__ = ["check_truth", "compare", "summary"]
+
+
+def check_truth(truth: pd.DataFrame, where: str) -> pd.DataFrame:
+    """The truth table, checked before any work: ``id``, ``height`` and ``ground`` there, the
+    heights numbers, every id once."""
+    from .errors import InputError, MissingColumnError, listing
+
+    missing = [c for c in ("id", "height", "ground") if c not in truth.columns]
+    if missing:
+        raise MissingColumnError(missing, where=where, have=list(truth.columns))
+    ids = truth["id"].astype(str)
+    repeated = pd.unique(ids[ids.duplicated()])
+    if repeated.size:
+        raise InputError(
+            f"{repeated.size} building id(s) more than once: {listing(repeated)}",
+            where=where,
+            fix="keep one row per building",
+        )
+    for column in ("height", "ground"):
+        if not pd.api.types.is_numeric_dtype(truth[column]):
+            raise InputError(
+                f"the column {column!r} is not numbers", where=where, fix="give heights in m"
+            )
+    return truth
 
 
 def compare(heights: pd.DataFrame, truth: pd.DataFrame) -> pd.DataFrame:
@@ -23,6 +49,8 @@ def compare(heights: pd.DataFrame, truth: pd.DataFrame) -> pd.DataFrame:
     heights = id_named(heights)
     ids = heights["id"].astype(str)
     true = truth.assign(id=truth["id"].astype(str)).set_index("id").reindex(ids)
+    if true["height"].isna().all():
+        warnings.warn("the truth table's ids match none of the buildings", stacklevel=2)
     roof, ground = true["height"].to_numpy(float), heights["ground"].to_numpy(float)
     lower, upper = heights["height_lower"].to_numpy(float), heights["height_upper"].to_numpy(float)
     converged = heights["converged"].to_numpy(dtype=bool, na_value=False)

@@ -77,6 +77,7 @@ def estimate_file(
     heights: every footprint with its attributes and the heights columns (see
     :func:`gnss_citygml.pipeline.run` for the rest of the arguments). Both outputs are
     checked before any work; one of them must be given."""
+    from .compare import check_truth
     from .footprints import read_footprints
     from .observations import read_observations
     from .pipeline import STAGES, run
@@ -91,7 +92,7 @@ def estimate_file(
         check_layer_output(output, "heights", overwrite=overwrite)
     if report is not None:
         check_report(report, overwrite=overwrite)
-    true = None if truth is None else read_table(truth)
+    true = None if truth is None else check_truth(read_table(truth), str(truth))
     steps = [*STAGES, "report"] if report is not None else list(STAGES)
     stages = iter(range(len(steps)))
 

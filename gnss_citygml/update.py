@@ -7,7 +7,7 @@ with SQL on the layer's own table, by building id.
 
 - **Never a damaged map.** The work is done on a copy beside the map, which is renamed over it
   only when complete (:func:`gnss_citygml.paths.atomic_path`); the map as it was is kept as
-  ``MAP.gpkg.bak`` (unless ``backup=False``). A crash, Ctrl-C or ``kill -9`` at any moment
+  ``MAP.bak.gpkg`` (unless ``backup=False``). A crash, Ctrl-C or ``kill -9`` at any moment
   leaves the map byte-identical. A map that another program is writing to (a write lock, or
   a write-ahead log that is not empty: QGIS editing a layer) is refused.
 - **Evidence kept.** Every intersection cast so far (signal, building, height, C/N0, ...) is
@@ -187,10 +187,14 @@ def update_map(
 
     say = progress or (lambda what, done: None)
     path = _check_map(path, dry_run)
+    true = None
     if report is not None:
+        from .compare import check_truth
         from .report import check_report
+        from .tables import read_table
 
         check_report(report, overwrite=True)
+        true = None if truth is None else check_truth(read_table(truth), str(truth))
     if min_signals < 1:
         raise InputError(f"min_signals must be 1 or more, not {min_signals}", fix="give N >= 1")
     say("reading", 0.0)
@@ -199,14 +203,18 @@ def update_map(
     name = _layer_name(path, layer)
     id_column = source_id_field(footprints)
     buildings = building_ground(footprints, dem, assume_crs=dem_crs)
+    outlines = _outlines(buildings)
     key = _key_column(path, name, [id_column, id_field, "fid"], buildings["id"])
     current = _current_values(path, name, key, buildings["id"])  # (checks our columns' types)
-    stored = _read_evidence(path, INTERSECTIONS, _EVIDENCE_COLUMNS)
+    stored = _read_evidence(path, name, INTERSECTIONS, _EVIDENCE_COLUMNS)
+    gone = ~stored["building"].isin(buildings["id"].astype(str)).to_numpy()
+    stored = stored[~gone].reset_index(drop=True)  # footprints deleted since: their evidence
     obs = in_mask(pd.concat([read_observations(p) for p in observations], ignore_index=True), rays)
     keys = _keys(obs)
     repeated = keys.duplicated().to_numpy()
     obs, keys = obs[~repeated].reset_index(drop=True), keys[~repeated].reset_index(drop=True)
-    unseen = ~keys.isin(_read_evidence(path, CAST, ["signal_key"])["signal_key"]).to_numpy()
+    cast_before = _read_evidence(path, name, CAST, ["signal_key"])["signal_key"]
+    unseen = ~keys.isin(cast_before).to_numpy()
     new = obs[unseen].reset_index(drop=True)
     fresh, signals = stored.iloc[:0], pd.DataFrame(columns=_SIGNAL_COLUMNS)
     if len(new):
@@ -240,12 +248,22 @@ def update_map(
     )
     if repeated.any():
         result.notes.append(f"{int(repeated.sum())} repeated observations counted once")
+    if gone.any():
+        result.notes.append(
+            f"{int(gone.sum())} intersections with footprints no longer in the layer left out"
+        )
+    if _last_outlines(path, name) not in (None, outlines):
+        result.notes.append(
+            "the footprints changed since the evidence was cast; signals cast before are "
+            "not cast again against new or edited outlines (to cast everything again, delete "
+            f"the table {EVIDENCE})"
+        )
     if report is not None:
         say("report", 0.6)
         everything = pd.concat(
-            [_read_evidence(path, CAST, _SIGNAL_COLUMNS), signals], ignore_index=True
+            [_read_evidence(path, name, CAST, _SIGNAL_COLUMNS), signals], ignore_index=True
         )
-        _report(report, estimate, model, evidence, everything, buildings, id_column, truth)
+        _report(report, estimate, model, evidence, everything, buildings, id_column, true)
     if dry_run or (signals.empty and not table["changed"].any()):
         if not dry_run:
             result.notes.append("nothing changed: the map is untouched")
@@ -259,9 +277,9 @@ def update_map(
         )
     with atomic_path(path, overwrite=True, update=True) as tmp:
         if len(fresh):
-            _append_evidence(tmp, INTERSECTIONS, fresh)
+            _append_evidence(tmp, name, INTERSECTIONS, fresh, outlines)
         if len(signals):
-            _append_evidence(tmp, CAST, signals)
+            _append_evidence(tmp, name, CAST, signals, outlines)
         _write_columns(tmp, name, key, values[table["changed"].to_numpy()])
         if backup:
             result.backup = _backup(path)
@@ -277,7 +295,6 @@ def _report(folder, estimate, model, evidence, signals, buildings, id_column, tr
     from .model.classifier import SignalClassifier
     from .pipeline import Run
     from .report import write_report
-    from .tables import read_table
 
     index = pd.Index(signals["signal_key"]).get_indexer(evidence["signal_key"])
     fitted = estimate.attrs.get("signal_classifier")
@@ -288,7 +305,7 @@ def _report(folder, estimate, model, evidence, signals, buildings, id_column, tr
         buildings=buildings,
         classifier=None if fitted is None else SignalClassifier(**fitted),
     )
-    write_report(run, folder, truth=None if truth is None else read_table(truth))
+    write_report(run, folder, truth=truth)
 
 
 def _check_map(path: StrPath, dry_run: bool) -> Path:
@@ -325,6 +342,35 @@ def _check_map(path: StrPath, dry_run: bool) -> Path:
     return path
 
 
+def _outlines(buildings: pd.DataFrame) -> str:
+    """A digest of the footprints' ids and outlines, kept with the evidence cast against them."""
+    import hashlib
+
+    import shapely
+
+    order = np.argsort(buildings["id"].astype(str).to_numpy(), kind="stable")
+    digest = hashlib.sha256()
+    for building, wkb in zip(
+        buildings["id"].astype(str).to_numpy()[order],
+        shapely.to_wkb(buildings.geometry.to_numpy()[order]),
+        strict=True,
+    ):
+        digest.update(building.encode() + b"\0" + wkb)
+    return digest.hexdigest()
+
+
+def _last_outlines(path: Path, layer: str) -> str | None:
+    """The footprints' digest the last evidence of ``layer`` was cast against (None: none)."""
+    with contextlib.closing(sqlite3.connect(path)) as db:
+        if not has_table(db, EVIDENCE):
+            return None
+        row = db.execute(
+            f"SELECT footprints FROM {EVIDENCE} WHERE layer = ? ORDER BY id DESC LIMIT 1",
+            (layer,),
+        ).fetchone()
+    return None if row is None else str(row[0])
+
+
 def _stamp(path: Path) -> tuple[int, int, int]:
     """The file's inode, size and modification time: what changes when it is written."""
     info = path.stat()
@@ -356,7 +402,7 @@ def _keys(rows: pd.DataFrame) -> pd.Series:
     return pd.Series(hashed.to_numpy().view(np.int64), index=rows.index)
 
 
-def _read_evidence(path: Path, kind: str, columns: list[str]) -> pd.DataFrame:
+def _read_evidence(path: Path, layer: str, kind: str, columns: list[str]) -> pd.DataFrame:
     """Every row of one kind of evidence, in the order the updates added them."""
     import pyarrow as pa
     import pyarrow.parquet as pq
@@ -365,7 +411,7 @@ def _read_evidence(path: Path, kind: str, columns: list[str]) -> pd.DataFrame:
         if not has_table(db, EVIDENCE):
             return pd.DataFrame({c: pd.Series(dtype=_DTYPES[c]) for c in columns})
         blobs = db.execute(
-            f"SELECT data FROM {EVIDENCE} WHERE kind = ? ORDER BY id", (kind,)
+            f"SELECT data FROM {EVIDENCE} WHERE layer = ? AND kind = ? ORDER BY id", (layer, kind)
         ).fetchall()
     if not blobs:
         return pd.DataFrame({c: pd.Series(dtype=_DTYPES[c]) for c in columns})
@@ -373,7 +419,7 @@ def _read_evidence(path: Path, kind: str, columns: list[str]) -> pd.DataFrame:
     return pa.concat_tables(tables).to_pandas()[columns]
 
 
-def _append_evidence(path: Path, kind: str, rows: pd.DataFrame) -> None:
+def _append_evidence(path: Path, layer: str, kind: str, rows: pd.DataFrame, outlines: str) -> None:
     """Add ``rows`` of one kind of evidence to the GeoPackage (the table made if new, as an
     attribute table that GDAL and QGIS list)."""
     import pyarrow as pa
@@ -385,7 +431,8 @@ def _append_evidence(path: Path, kind: str, rows: pd.DataFrame) -> None:
         if not has_table(db, EVIDENCE):
             db.execute(
                 f"CREATE TABLE {EVIDENCE} (id INTEGER PRIMARY KEY AUTOINCREMENT NOT NULL, "
-                "kind TEXT NOT NULL, created_utc DATETIME, n_rows INTEGER, data BLOB)"
+                "layer TEXT NOT NULL, kind TEXT NOT NULL, footprints TEXT, created_utc DATETIME, "
+                "n_rows INTEGER, data BLOB)"
             )
             db.execute(
                 "INSERT INTO gpkg_contents (table_name, data_type, identifier, description, "
@@ -394,9 +441,9 @@ def _append_evidence(path: Path, kind: str, rows: pd.DataFrame) -> None:
                 (EVIDENCE, EVIDENCE, "gnss-citygml update: the evidence, as Parquet"),
             )
         db.execute(
-            f"INSERT INTO {EVIDENCE} (kind, created_utc, n_rows, data) VALUES "
-            "(?, strftime('%Y-%m-%dT%H:%M:%fZ', 'now'), ?, ?)",
-            (kind, len(rows), buffer.getvalue().to_pybytes()),
+            f"INSERT INTO {EVIDENCE} (layer, kind, footprints, created_utc, n_rows, data) "
+            "VALUES (?, ?, ?, strftime('%Y-%m-%dT%H:%M:%fZ', 'now'), ?, ?)",
+            (layer, kind, outlines, len(rows), buffer.getvalue().to_pybytes()),
         )
 
 
@@ -534,8 +581,8 @@ def _sql(value):
 
 
 def _backup(path: Path) -> Path:
-    """``MAP.gpkg.bak``: the map as it was, written atomically beside it."""
-    target = path.with_name(path.name + ".bak")
+    """``MAP.bak.gpkg``: the map as it was, written atomically beside it."""
+    target = path.with_name(path.stem + ".bak" + path.suffix)  # a GeoPackage QGIS opens
     with atomic_path(target, overwrite=True) as tmp:
         shutil.copyfile(path, tmp)
     return target

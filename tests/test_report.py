@@ -175,3 +175,17 @@ def test_a_baseline_without_ranges_has_a_report(method, grid_dir, tmp_path):
                    estimator=gc.Estimator(method=method))  # fmt: skip
     page = write_report(baseline, tmp_path)
     assert page.is_file() and len(list((tmp_path / "figures").iterdir())) == len(FIGURES)
+
+
+def test_a_bad_truth_table_is_refused_before_the_work(grid_args, tmp_path, capsys):
+    bad = tmp_path / "truth.csv"
+    pd.read_csv(CITY / "truth.csv").drop(columns="ground").to_csv(bad, index=False)
+    files = [str(CITY / "observations.parquet"), str(CITY / "footprints.gpkg")]
+    args = ["report", *files, "--dem", str(CITY / "dem.tif"), *grid_args, "-q"]
+    code, _, err = run_cli([*args, "-o", str(tmp_path / "r"), "--truth", str(bad)], capsys)
+    assert code == 2 and "'ground'" in err and not (tmp_path / "r").exists()
+    twice = tmp_path / "twice.csv"
+    table = pd.read_csv(CITY / "truth.csv")
+    pd.concat([table, table.iloc[:2]]).to_csv(twice, index=False)
+    code, _, err = run_cli([*args, "-o", str(tmp_path / "r"), "--truth", str(twice)], capsys)
+    assert code == 2 and "2 building id(s) more than once" in err

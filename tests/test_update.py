@@ -106,12 +106,12 @@ def test_two_updates_equal_one_run_over_all_observations(city_map, halves, grid_
 
 def test_the_same_data_again_changes_nothing(city_map, halves, grid_dir, capsys):
     update_map(city_map, [halves[0]], DEM, layer="buildings", grid_dir=grid_dir)
-    Path(str(city_map) + ".bak").unlink()
+    city_map.with_name("map.bak.gpkg").unlink()
     first = digest(city_map)
     stamps = pyogrio.read_dataframe(city_map, layer="buildings", read_geometry=False)
     result = update_map(city_map, [halves[0]], DEM, layer="buildings", grid_dir=grid_dir)
     assert result.new_signals == 0 and not result.written and result.updated.empty
-    assert digest(city_map) == first and not Path(str(city_map) + ".bak").exists()
+    assert digest(city_map) == first and not city_map.with_name("map.bak.gpkg").exists()
     # a new half updates only the buildings it changes; the others keep their time
     update_map(city_map, [halves[1]], DEM, layer="buildings", grid_dir=grid_dir)
     later = pyogrio.read_dataframe(city_map, layer="buildings", read_geometry=False)
@@ -133,7 +133,7 @@ def test_dry_run_and_no_backup(city_map, halves, grid_dir, capsys):
     ]
     code, out, err = run([*args, *grids, "--no-backup"], capsys)
     assert code == 0, err
-    assert digest(city_map) != original and not Path(str(city_map) + ".bak").exists()
+    assert digest(city_map) != original and not city_map.with_name("map.bak.gpkg").exists()
     assert out.rstrip().endswith(f"updated -> {city_map}")
 
 
@@ -292,3 +292,33 @@ def test_a_column_of_ours_in_another_case_or_type_is_refused_before_the_work(
         update_map(city_map, [halves[0]], DEM, layer="buildings", grid_dir=grid_dir,
                    progress=lambda what, done: stages.append(what))  # fmt: skip
     assert stages == ["reading"]  # refused before casting and fitting
+
+
+def test_each_layer_keeps_its_own_evidence(halves, grid_dir, tmp_path):
+    """Two footprint layers in one GeoPackage: an update of one does not feed the other."""
+    path = tmp_path / "two.gpkg"
+    footprints = pyogrio.read_dataframe(CITY / "footprints.gpkg")
+    pyogrio.write_dataframe(footprints, path, layer="footprints")
+    pyogrio.write_dataframe(footprints.iloc[:5], path, layer="other")
+    update_map(path, [halves[0]], DEM, layer="other", grid_dir=grid_dir)
+    result = update_map(path, [halves[0]], DEM, layer="footprints", grid_dir=grid_dir)
+    assert result.new_signals > 0 and result.skipped.empty
+    table = pyogrio.read_dataframe(path, layer="footprints", read_geometry=False)
+    alone = tmp_path / "alone.gpkg"
+    pyogrio.write_dataframe(footprints, alone, layer="footprints")
+    update_map(alone, [halves[0]], DEM, grid_dir=grid_dir)
+    expected = pyogrio.read_dataframe(alone, layer="footprints", read_geometry=False)
+    pd.testing.assert_series_equal(table["height_gnss"], expected["height_gnss"])
+
+
+def test_footprints_edited_between_updates(city_map, halves, grid_dir):
+    """A footprint deleted: its evidence is left out; an outline added: the note says the old
+    signals were not cast against it."""
+    update_map(city_map, [halves[0]], DEM, layer="buildings", grid_dir=grid_dir)
+    with contextlib.closing(sqlite3.connect(city_map)) as db, db:
+        db.execute("DELETE FROM buildings WHERE id = 'city_0_0'")
+    result = update_map(city_map, [halves[1]], DEM, layer="buildings", grid_dir=grid_dir)
+    assert result.written and "city_0_0" not in set(result.buildings["id"])
+    lines = result.lines()
+    assert any("with footprints no longer in the layer left out" in line for line in lines)
+    assert any(line.startswith("the footprints changed since the evidence") for line in lines)

@@ -50,7 +50,7 @@ from .options import (
     help="List the buildings whose height changes by more than this (m).",
 )
 @click.option("--dry-run", is_flag=True, help="Say what would change; write nothing.")
-@click.option("--no-backup", is_flag=True, help="Do not keep the map as it was in MAP.gpkg.bak.")
+@click.option("--no-backup", is_flag=True, help="Do not keep the map as it was in MAP.bak.gpkg.")
 @REPORT
 @TRUTH
 @THRESHOLD
@@ -82,7 +82,7 @@ def update(
     status_gnss and updated_utc on the footprint layer; every other column, feature, layer and
     style is kept, and so are the feature ids. The evidence (every intersection cast) is kept
     in the table gnss_evidence: a later update casts only what is new and refits on all of
-    it. The map is written as a whole at the end (MAP.gpkg.bak keeps it as it was), so a failure
+    it. The map is written as a whole at the end (MAP.bak.gpkg keeps it as it was), so a failure
     or Ctrl-C leaves it untouched; running again with the same data changes nothing.
     """
     from ..update import update_map

@@ -30,7 +30,7 @@ so are the feature ids.
 The evidence (every intersection cast so far) is kept in the GeoPackage: an update casts only \
 the new observations and refits on all of them, so it equals one run over all the data, and \
 running again with the same data changes nothing. The map is written as a whole when the \
-update is complete, with a backup (MAP.gpkg.bak) of the map as it was: a failure or Cancel \
+update is complete, with a backup (MAP.bak.gpkg) of the map as it was: a failure or Cancel \
 leaves it untouched. A map that another program (or this QGIS, in editing mode) is writing to \
 is refused.
 
@@ -89,7 +89,7 @@ class UpdateAlgorithm(Algorithm):
             QgsProcessingParameterBoolean("DRY_RUN", "Dry run: say what would change", False)
         )
         self.addParameter(
-            QgsProcessingParameterBoolean("BACKUP", "Keep the map as it was (MAP.gpkg.bak)", True)
+            QgsProcessingParameterBoolean("BACKUP", "Keep the map as it was (MAP.bak.gpkg)", True)
         )
         self.addParameter(
             advanced(

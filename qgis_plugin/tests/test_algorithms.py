@@ -294,4 +294,4 @@ def test_update_a_map_in_the_project_as_the_cli_does(plugin, processing_framewor
     mine = gpd.read_file(ours, layer="footprints").set_index("id")["height_gnss"]
     np.testing.assert_allclose(mine.loc[theirs.index], theirs, atol=1e-3, equal_nan=True)
     assert len(shown) == len(theirs)
-    assert (tmp_path / "ours.gpkg.bak").is_file()
+    assert (tmp_path / "ours.bak.gpkg").is_file()

@@ -269,6 +269,8 @@ def _with_ids(
     if id_field is None:
         lower = {str(c).lower(): c for c in reversed(columns)}
         id_field = next((lower[name] for name in _ID_FIELDS if name in lower), None)
+    elif id_field not in columns and id_field.lower() == "fid":
+        id_field = None  # GDAL's feature id itself (QGIS lists it as a field "fid")
     elif id_field not in columns:
         raise MissingColumnError([id_field], where=where, have=columns)
     ids = frame.index.to_series() if id_field is None else frame[id_field]

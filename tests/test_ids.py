@@ -230,3 +230,18 @@ def test_a_heights_table_without_the_id_names_it(site, tmp_path, capsys):
     args = ["export", str(csv), "--footprints", str(site[0] / "toids.gpkg")]
     code, _, err = run([*args, "-o", str(tmp_path / "c.city.json")], capsys)
     assert code == 2 and "missing column(s) 'toid'" in err
+
+
+def test_id_field_fid_is_the_feature_id(tmp_path):
+    """QGIS lists a GeoPackage's feature id as a field "fid": naming it is the feature id."""
+    from pathlib import Path
+
+    from gnss_citygml.footprints import read_footprints
+
+    frame = pyogrio.read_dataframe(
+        Path(__file__).resolve().parents[1] / "examples/city/footprints.gpkg"
+    )
+    pyogrio.write_dataframe(frame.drop(columns="id"), tmp_path / "f.gpkg")
+    named = read_footprints(tmp_path / "f.gpkg", id_field="fid")
+    assert named["id"].tolist() == read_footprints(tmp_path / "f.gpkg")["id"].tolist()
+    assert named["id"].iloc[0] == "1"

@@ -12,7 +12,12 @@ With ``--physics``, each scene also draws its physics (issue 14) from the ranges
 reflected, device offsets, tracking thresholds of 10-20 dB-Hz, body losses of 0-8 dB and
 manual position errors of 0.3-2 m; each line says which.
 
-    python benchmarks/scenes.py [--scenes 8] [--physics] [--position-sd [--position-window 30]]
+With ``--regimes``, the scenes are streets instead (:func:`street_scene`), drawn in each of
+the regimes of :data:`REGIMES` (a narrow canyon with receivers 3-8 m from the wall, a street,
+a square), with their physics drawn too; the totals are then per regime and locations.
+
+    python benchmarks/scenes.py [--scenes 8] [--physics | --regimes]
+                                [--position-sd [--position-window 30]]
 """
 
 from __future__ import annotations
@@ -25,10 +30,17 @@ from accuracy import site_tables
 
 from gnss_citygml import Estimator, PositionError, estimate_heights
 from gnss_citygml.simulate import EPOCH, LOCATIONS, simulate
-from gnss_citygml.simulate.scenes import city_scene
+from gnss_citygml.simulate.scenes import city_scene, street_scene
 from gnss_citygml.simulate.signals import SignalModel
 
 THRESHOLDS = (20.0, 30.0, 40.0)
+
+#: Street width and receivers' distance from the nearest wall (m, uniform) of each regime.
+REGIMES = {
+    "narrow street": ((8.0, 15.0), (3.0, 8.0)),
+    "street": ((15.0, 40.0), (5.0, 20.0)),
+    "square": ((80.0, 240.0), (40.0, 120.0)),
+}
 
 #: The ranges (uniform) the physics of a scene is drawn from with --physics.
 PHYSICS = {
@@ -52,6 +64,23 @@ def random_scene(k: int):
     scene = city_scene(rng, columns, rows, walkers, seconds)
     start = EPOCH + pd.Timedelta(days=int(rng.integers(0, 300)), hours=float(rng.uniform(0, 24)))
     return scene, start, f"{columns}x{rows} blocks, {walkers} walkers x {seconds:.0f} s"
+
+
+def regime_scene(k: int, regime: str):
+    """Street scene ``k`` of ``regime``, its start time and a description."""
+    rng = np.random.default_rng(5000 + 97 * k + sorted(REGIMES).index(regime))
+    (w0, w1), (o0, o1) = REGIMES[regime]
+    width = float(rng.uniform(w0, w1))
+    offset = float(min(rng.uniform(o0, o1), width / 2))
+    walking = bool(rng.random() < 0.5)
+    scene = street_scene(rng, width, offset, walkers=int(rng.integers(3, 7)), walking=walking)
+    start = EPOCH + pd.Timedelta(days=int(rng.integers(0, 300)), hours=float(rng.uniform(0, 24)))
+    kind = "walking" if walking else "static"
+    return (
+        scene,
+        start,
+        f"{regime}: {width:.0f} m wide, receivers {offset:.0f} m from the wall, {kind}",
+    )
 
 
 def random_physics(k: int) -> SignalModel:
@@ -86,15 +115,21 @@ def main():
     parser.add_argument(
         "--physics", action="store_true", help="draw each scene's physics too (PHYSICS)"
     )
+    parser.add_argument(
+        "--regimes", action="store_true", help="street scenes in each regime (REGIMES)"
+    )
     args = parser.parse_args()
-    runs, totals = [], dict.fromkeys(LOCATIONS, 0)
+    runs, totals = [], {}
     header = "converged | RMSE | median abs. error | worst | RMSE of c | range covers truth |"
     print(f"| scene | layout | locations | {header}")
     print("|---|---|---|---|---|---|---|---|---|")
-    for k in range(args.scenes):
-        scene, start, layout = random_scene(k)
-        physics = random_physics(k) if args.physics else SignalModel()
-        if args.physics:
+    if args.regimes:
+        drawn = [(k, r, *regime_scene(k, r)) for k in range(args.scenes) for r in REGIMES]
+    else:
+        drawn = [(k, None, *random_scene(k)) for k in range(args.scenes)]
+    for k, regime, scene, start, layout in drawn:
+        physics = random_physics(k) if args.physics or args.regimes else SignalModel()
+        if args.physics or args.regimes:
             layout = f"{layout}; {_physics_text(physics)}"
         for locations in LOCATIONS:
             sim = simulate(scene, locations=locations, seed=k, start=start, physics=physics)
@@ -121,17 +156,16 @@ def main():
                 )
             err = pd.concat(errors)
             n_runs = len(truth) * len(THRESHOLDS)
-            runs.append(err.assign(locations=locations))
-            totals[locations] += n_runs
+            group = locations if regime is None else f"{regime}, {locations}"
+            runs.append(err.assign(group=group))
+            totals[group] = totals.get(group, 0) + n_runs
             print(f"| {k} | {layout} | {locations} | {_cells(err, n_runs)} |", flush=True)
     every = pd.concat(runs)
     print("\nAll scenes, thresholds 20/30/40:\n")
-    print(f"| locations | {header}")
+    print(f"| {'regime, locations' if args.regimes else 'locations'} | {header}")
     print("|---|---|---|---|---|---|---|")
-    for locations in LOCATIONS:
-        print(
-            f"| {locations} | {_cells(every[every['locations'] == locations], totals[locations])} |"
-        )
+    for group, n_runs in totals.items():
+        print(f"| {group} | {_cells(every[every['group'] == group], n_runs)} |")
 
 
 def _cells(err: pd.DataFrame, n_runs: int) -> str:

@@ -156,3 +156,19 @@ def test_the_physics_can_be_changed_and_does_what_it_says():
     assert run(body_loss=6.0)["cn0"].median() < base["cn0"].median() - 4.0
     off = run(manual_sd=0.0)
     assert np.allclose(off["e"], off["e_true"]) and not np.allclose(base["e"], base["e_true"])
+
+
+def test_street_scene_has_the_width_and_offset_asked_for():
+    from gnss_citygml.simulate.scenes import street_scene
+
+    scene = street_scene(np.random.default_rng(5), 12.0, 4.0, walkers=2)
+    south = [b for b in scene.buildings if b.id.startswith("street_s")]
+    north = [b for b in scene.buildings if b.id.startswith("street_n")]
+    assert len(south) == len(north) == 6
+    assert max(b.footprint.bounds[3] for b in south) == pytest.approx(0.0)
+    assert min(b.footprint.bounds[1] for b in north) == pytest.approx(12.0)
+    assert {point[1] for s in scene.sessions for point in s.path} == {4.0}
+    sim = simulate(scene, interval=20.0, seed=1)
+    assert 0.0 < sim.observations["los"].mean() < 0.6  # a canyon: most signals blocked
+    with pytest.raises(ValueError, match="inside the street"):
+        street_scene(np.random.default_rng(5), 12.0, 15.0)

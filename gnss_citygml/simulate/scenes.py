@@ -22,7 +22,7 @@ import shapely
 from shapely.geometry import Polygon, box
 from shapely.geometry.base import BaseGeometry
 
-__all__ = ["PRESETS", "Building", "Scene", "Session", "city_scene", "make_scene"]
+__all__ = ["PRESETS", "Building", "Scene", "Session", "city_scene", "make_scene", "street_scene"]
 
 
 @dataclass(frozen=True)
@@ -242,6 +242,62 @@ def city_scene(
             path = [(x, y) for y in _stretch(rng, ends, walk_length)]
         sessions.append(Session(f"walker_{k}", 1500.0 * k, walk_seconds, tuple(path), True))
     return Scene("city", 51.5200, -0.1000, g, tuple(buildings), tuple(sessions), 10.0, 85.0, ())
+
+
+def street_scene(
+    rng: np.random.Generator,
+    width: float,
+    offset: float,
+    *,
+    buildings: int = 6,
+    walkers: int = 4,
+    walk_seconds: float = 300.0,
+    walking: bool = True,
+) -> Scene:
+    """A straight street ``width`` m wide between two rows of ``buildings`` each (8-25 m wide
+    frontages, 15-30 m deep, 8-45 m high; flat, pitched or stepped roofs), and ``walkers``
+    receivers ``offset`` m from the south row's wall (inside the street): walking the street's
+    length, or standing at points along it (``walking=False``).
+
+    For judging an estimator across regimes (issue 14): a narrow canyon (receivers 3-8 m from
+    a wall), a wide street, a square (a street 80-240 m wide)."""
+    if not 0.0 < offset < width:
+        raise ValueError(f"the receivers must be inside the street: 0 < offset {offset} < {width}")
+    g = 20.0
+    placed = []
+    for side, (y0, y1) in (("s", (-rng.uniform(15, 30), 0.0)), ("n", (width, width + 25.0))):
+        x = 0.0
+        for k in range(buildings):
+            w = float(rng.uniform(8.0, 25.0))
+            bid = f"street_{side}{k}"
+            rel = float(rng.uniform(8.0, 45.0))
+            kind = rng.choice(["flat", "flat", "pitched", "stepped"])
+            if kind == "flat":
+                placed.append(flat(bid, box(x, y0, x + w, y1), g, rel))
+            elif kind == "pitched":
+                rel = min(rel, 16.0)
+                placed.append(pitched(bid, x, y0, x + w, y1, g, rel - 1.5, rel + 1.5))
+            else:  # a setback: the street side lower than the back
+                mid = 0.5 * (y0 + y1)
+                front = (
+                    (box(x, mid, x + w, y1), rel) if side == "s" else (box(x, y0, x + w, mid), rel)
+                )
+                back = (
+                    (box(x, y0, x + w, mid), rel + 6)
+                    if side == "s"
+                    else (box(x, mid, x + w, y1), rel + 6)
+                )
+                placed.append(multipart(bid, [front, back], g))
+            x += w + float(rng.uniform(0.0, 3.0))
+    length, y = x, float(offset)
+    sessions = []
+    for k in range(walkers):
+        if walking:
+            path = ((5.0, y), (length - 5.0, y)) if k % 2 == 0 else ((length - 5.0, y), (5.0, y))
+        else:
+            path = ((float(rng.uniform(5.0, length - 5.0)), y),)
+        sessions.append(Session(f"street_{k}", 900.0 * k, walk_seconds, path, walking))
+    return Scene("street", 51.5200, -0.1000, g, tuple(placed), tuple(sessions), 10.0, 85.0, ())
 
 
 def _stretch(rng, ends, length):

@@ -6,8 +6,6 @@ from __future__ import annotations
 
 import sqlite3
 
-import shapely
-
 from .paths import StrPath
 
 __all__ = ["connect", "has_table", "quoted"]
@@ -46,6 +44,8 @@ def _is_empty(blob: bytes | None) -> int | None:
 
 def _bounds(blob: bytes | None) -> tuple[float, ...]:
     """The bounds of a GeoPackage geometry blob (its WKB after the header and envelope)."""
+    import shapely
+
     if blob is None:
         return (float("nan"),) * 4
     envelope = (0, 32, 48, 48, 64)[(blob[3] >> 1) & 0x07]

@@ -24,7 +24,7 @@ if TYPE_CHECKING:
     from .export import ExportResult
 
 __all__ = [
-    "MODEL_FORMATS",
+    "MODEL_SUFFIXES",
     "Progress",
     "convert_file",
     "estimate_file",
@@ -35,13 +35,8 @@ __all__ = [
 #: A job's progress: what is being done, and the share of the job done (0 to 1).
 Progress = Callable[[str, float], None]
 
-#: City model formats by file suffix.
-MODEL_FORMATS = {
-    ".json": "CityJSON 2.0",
-    ".jsonl": "CityJSONSeq",
-    ".gml": "CityGML 2.0",
-    ".xml": "CityGML 2.0",
-}
+#: The city model formats, by file suffix: CityJSON 2.0, CityJSONSeq, CityGML 2.0 (twice).
+MODEL_SUFFIXES = (".json", ".jsonl", ".gml", ".xml")
 
 
 def _silent(what: str, done: float) -> None:
@@ -87,6 +82,12 @@ def estimate_file(
 
     if output is None and report is None:
         raise InputError("nothing to write", fix="give an output file or a report folder")
+    if truth is not None and report is None:
+        raise InputError(
+            "a truth table is for the report, and no report was asked for",
+            where=str(truth),
+            fix="give a report folder too (--report DIR), or leave the truth out",
+        )
     calibration.check_method(estimator)  # as the pipeline does, but before any file is read
     if output is not None:
         check_layer_output(output, "heights", overwrite=overwrite)
@@ -144,13 +145,13 @@ def read_buildings(
 def _model_writer(
     output: StrPath, *, overwrite: bool = False, typed_attributes: bool = False
 ) -> Callable[..., ExportResult]:
-    """The writer for the format ``output``'s suffix names (:data:`MODEL_FORMATS`), checked
+    """The writer for the format ``output``'s suffix names (:data:`MODEL_SUFFIXES`), checked
     before any work (typed attributes are CityJSON's: CityGML's generic attributes are typed
     already)."""
     from .export import write_citygml, write_cityjson, write_cityjsonseq
     from .paths import check_output
 
-    path = check_output(output, overwrite=overwrite, suffixes=tuple(MODEL_FORMATS))
+    path = check_output(output, overwrite=overwrite, suffixes=MODEL_SUFFIXES)
     suffix = path.suffix.lower()
     writer: Callable[..., ExportResult] = {
         ".jsonl": write_cityjsonseq,

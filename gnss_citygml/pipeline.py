@@ -36,6 +36,7 @@ __all__ = [
     "STAGES",
     "Run",
     "estimate",
+    "fit_heights",
     "in_mask",
     "intersections",
     "join_heights",
@@ -297,17 +298,27 @@ def run(
     if calibration.on:
         rx = calibrate_receivers(rx, buildings, calibration, estimator=estimator, rays=rays)
     inter = intersections(rx, buildings, rays=rays, position_error=position_error)
+    heights, classifier = fit_heights(inter, buildings, estimator, id_field(footprints), say)
+    return Run(heights, rx, inter, buildings, classifier)
+
+
+def fit_heights(
+    intersections: pd.DataFrame,
+    buildings: gpd.GeoDataFrame,
+    estimator: Estimator = Estimator(),
+    name: str = "id",
+    progress: Callable[[str], None] | None = None,
+) -> tuple[gpd.GeoDataFrame, SignalClassifier | None]:
+    """The height model's stage: the heights of every building (:func:`join_heights`, the id
+    named ``name``) from the intersections, and the final signal classifier (None for the
+    baselines). ``progress`` is told the model's stage and the output's."""
+    say = progress or (lambda stage: None)
     say(STAGES[4])
-    heights = estimate_heights(inter, estimator)
+    heights = estimate_heights(intersections, estimator)
     say(STAGES[5])
     fitted = heights.attrs.get("signal_classifier")
-    return Run(
-        heights=join_heights(buildings, heights, estimator.method, id_field(footprints)),
-        receivers=rx,
-        intersections=inter,
-        buildings=buildings,
-        classifier=None if fitted is None else SignalClassifier(**fitted),
-    )
+    classifier = None if fitted is None else SignalClassifier(**fitted)
+    return join_heights(buildings, heights, estimator.method, name), classifier
 
 
 def in_mask(observations: pd.DataFrame, rays: Rays = Rays()) -> pd.DataFrame:

@@ -85,10 +85,8 @@ def signal_states(run: Run) -> pd.DataFrame:
     else:
         open_ = received
     state = np.where(~received, "blocked", np.where(open_, "open", "closed"))
-    heights = id_named(run.heights).set_index("id")
     inter = run.intersections
-    roof = heights["c"].reindex(inter["building"].astype(str)).to_numpy(float)
-    below = inter["height"].to_numpy(float) <= roof  # NaN roof (no fit): not below
+    below = _below_roofs(inter, id_named(run.heights).set_index("id")["c"])
     hidden = np.zeros(len(rx), dtype=bool)
     hidden[inter["signal"].to_numpy()[below]] = True
     return pd.DataFrame(
@@ -107,11 +105,17 @@ def blocked_by_others(intersections: pd.DataFrame, roofs: pd.Series) -> np.ndarr
     """For each intersection, whether its ray passes below the fitted roof line (``roofs``:
     ``c`` by building id) of another building it crosses: such a signal says nothing about
     this building, and the fits' visibility model leaves it out, so the fit plots do too."""
-    roof = roofs.reindex(intersections["building"].astype(str)).to_numpy(float)
-    below = intersections["height"].to_numpy(float) <= roof  # (no fit: NaN, not below)
+    below = _below_roofs(intersections, roofs)
     signal = intersections["signal"].to_numpy()
     n_below = np.bincount(signal, weights=below.astype(float), minlength=signal.max(initial=-1) + 1)
     return (n_below[signal] - below) > 0
+
+
+def _below_roofs(intersections: pd.DataFrame, roofs: pd.Series) -> np.ndarray:
+    """For each intersection, whether its ray passes below its building's fitted roof line
+    (``roofs``: ``c`` by building id; a building without a fit has none to pass below)."""
+    roof = roofs.reindex(intersections["building"].astype(str)).to_numpy(float)
+    return intersections["height"].to_numpy(float) <= roof  # (NaN roof: False)
 
 
 def fit_sample(heights: pd.DataFrame, each: int = FITS_EACH, seed: int = 0) -> pd.DataFrame:
@@ -257,14 +261,8 @@ def _map(plt: Any, run: Run, table: pd.DataFrame, states: pd.DataFrame) -> Any:
     buildings = run.heights.assign(_status=table["status"].to_numpy())
     converged = table["converged"].to_numpy()
     if converged.any():
-        buildings[converged].plot(
-            column="relative_height",
-            cmap="viridis",
-            ax=ax,
-            edgecolor="#303030",
-            linewidth=0.3,
-            legend=True,
-            legend_kwds={"label": "height above the ground (m)", "shrink": 0.6},
+        _coloured(
+            ax, buildings[converged], "relative_height", "viridis", "height above the ground (m)"
         )
     handles = []
     groups = buildings[~converged].groupby("_status")
@@ -280,6 +278,19 @@ def _map(plt: Any, run: Run, table: pd.DataFrame, states: pd.DataFrame) -> Any:
     ax.set_title(f"{int(converged.sum())} of {len(table)} buildings with a height")
     _axes_bng(ax)
     return figure
+
+
+def _coloured(ax: Any, buildings: pd.DataFrame, column: str, cmap: str, label: str) -> None:
+    """Footprints filled by ``column`` on ``cmap``, with a colour bar saying ``label``."""
+    buildings.plot(
+        column=column,
+        cmap=cmap,
+        ax=ax,
+        edgecolor="#303030",
+        linewidth=0.3,
+        legend=True,
+        legend_kwds={"label": label, "shrink": 0.65},
+    )
 
 
 def _tracks(ax: Any, receivers: pd.DataFrame) -> None:
@@ -311,15 +322,7 @@ def _ranges(plt: Any, run: Run, table: pd.DataFrame, states: pd.DataFrame) -> An
     converged = table["converged"].to_numpy() & np.isfinite(width)  # (baselines: no range)
     if converged.any():
         buildings = run.heights.assign(_width=width)
-        buildings[converged].plot(
-            column="_width",
-            cmap="magma_r",
-            ax=left,
-            edgecolor="#303030",
-            linewidth=0.3,
-            legend=True,
-            legend_kwds={"label": "range width (m)", "shrink": 0.7},
-        )
+        _coloured(left, buildings[converged], "_width", "magma_r", "range width (m)")
         right.hist(
             width[converged], bins=min(30, max(5, int(converged.sum()) // 3)), color="#31688e"
         )

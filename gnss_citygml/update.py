@@ -178,19 +178,25 @@ def update_map(
     ``report`` is a folder for the report of the fit over all the evidence
     (:mod:`gnss_citygml.report`; ``truth``, a simulator's truth table, adds the true heights).
     """
-    from .footprints import read_footprints
     from .ids import id_field as source_id_field
-    from .model.estimate import estimate_heights
+    from .jobs import read_buildings
     from .observations import read_observations
-    from .pipeline import in_mask, intersections, join_heights, receivers
-    from .terrain import building_ground
+    from .pipeline import fit_heights, in_mask, intersections, receivers
 
     say = progress or (lambda what, done: None)
-    path = _check_map(path, dry_run)
+    path = _check_map(path)
+    if truth is not None and report is None:
+        raise InputError(
+            "a truth table is for the report, and no report was asked for",
+            where=str(truth),
+            fix="give a report folder too (--report DIR), or leave the truth out",
+        )
     true = None
     if report is not None:
         from .compare import check_truth
-        from .report import check_report
+        from .ids import with_id_field
+        from .pipeline import Run
+        from .report import check_report, write_report
         from .tables import read_table
 
         check_report(report, overwrite=True)
@@ -199,10 +205,11 @@ def update_map(
         raise InputError(f"min_signals must be 1 or more, not {min_signals}", fix="give N >= 1")
     say("reading", 0.0)
     read_at = _stamp(path)
-    footprints = read_footprints(path, layer=layer, id_field=id_field, grid_dir=grid_dir)
+    buildings = read_buildings(
+        path, layer=layer, id_field=id_field, dem=dem, dem_crs=dem_crs, grid_dir=grid_dir
+    )
     name = _layer_name(path, layer)
-    id_column = source_id_field(footprints)
-    buildings = building_ground(footprints, dem, assume_crs=dem_crs)
+    id_column = source_id_field(buildings)
     outlines = _outlines(buildings)
     key = _key_column(path, name, [id_column, id_field, "fid"], buildings["id"])
     current = _current_values(path, name, key, buildings["id"])  # (checks our columns' types)
@@ -213,8 +220,8 @@ def update_map(
     keys = _keys(obs)
     repeated = keys.duplicated().to_numpy()
     obs, keys = obs[~repeated].reset_index(drop=True), keys[~repeated].reset_index(drop=True)
-    cast_before = _read_evidence(path, name, CAST, ["signal_key"])["signal_key"]
-    unseen = ~keys.isin(cast_before).to_numpy()
+    cast_before = _read_evidence(path, name, CAST, _SIGNAL_COLUMNS if report else ["signal_key"])
+    unseen = ~keys.isin(cast_before["signal_key"]).to_numpy()
     new = obs[unseen].reset_index(drop=True)
     fresh, signals = stored.iloc[:0], pd.DataFrame(columns=_SIGNAL_COLUMNS)
     if len(new):
@@ -239,9 +246,7 @@ def update_map(
         signal=pd.factorize(evidence["signal_key"])[0],
         building=pd.Categorical(evidence["building"], categories=buildings["id"].astype(str)),
     ).drop(columns="signal_key")
-    heights = estimate_heights(model, estimator)
-    estimate = join_heights(buildings, heights, estimator.method, "id")
-    estimate.attrs.update(heights.attrs)
+    estimate, classifier = fit_heights(model, buildings, estimator)
     values, table = _new_values(estimate, current, min_signals)
     result = UpdateResult(
         len(new), len(fresh), table, threshold, frozenset(fresh["building"].astype(str))
@@ -260,10 +265,18 @@ def update_map(
         )
     if report is not None:
         say("report", 0.6)
-        everything = pd.concat(
-            [_read_evidence(path, name, CAST, _SIGNAL_COLUMNS), signals], ignore_index=True
+        everything = pd.concat([cast_before, signals], ignore_index=True)
+        run = Run(
+            heights=with_id_field(estimate, id_column),
+            receivers=everything,
+            intersections=model.assign(
+                signal=pd.Index(everything["signal_key"]).get_indexer(evidence["signal_key"]),
+                building=evidence["building"].to_numpy(),
+            ),
+            buildings=buildings,
+            classifier=classifier,
         )
-        _report(report, estimate, model, evidence, everything, buildings, id_column, true)
+        write_report(run, report, truth=true)
     if dry_run or (signals.empty and not table["changed"].any()):
         if not dry_run:
             result.notes.append("nothing changed: the map is untouched")
@@ -288,27 +301,7 @@ def update_map(
     return result
 
 
-def _report(folder, estimate, model, evidence, signals, buildings, id_column, truth) -> None:
-    """The report (:func:`gnss_citygml.report.write_report`) of the fit over all the evidence:
-    every signal cast so far, the intersections, the final classifier."""
-    from .ids import with_id_field
-    from .model.classifier import SignalClassifier
-    from .pipeline import Run
-    from .report import write_report
-
-    index = pd.Index(signals["signal_key"]).get_indexer(evidence["signal_key"])
-    fitted = estimate.attrs.get("signal_classifier")
-    run = Run(
-        heights=with_id_field(estimate, id_column),
-        receivers=signals.reset_index(drop=True),
-        intersections=model.assign(signal=index, building=evidence["building"].to_numpy()),
-        buildings=buildings,
-        classifier=None if fitted is None else SignalClassifier(**fitted),
-    )
-    write_report(run, folder, truth=truth)
-
-
-def _check_map(path: StrPath, dry_run: bool) -> Path:
+def _check_map(path: StrPath) -> Path:
     """The map: an existing GeoPackage that no other program is writing to."""
     path = input_file(path, "map")
     if path.suffix.lower() != ".gpkg":

@@ -189,3 +189,13 @@ def test_a_bad_truth_table_is_refused_before_the_work(grid_args, tmp_path, capsy
     pd.concat([table, table.iloc[:2]]).to_csv(twice, index=False)
     code, _, err = run_cli([*args, "-o", str(tmp_path / "r"), "--truth", str(twice)], capsys)
     assert code == 2 and "2 building id(s) more than once" in err
+
+
+def test_a_truth_table_without_a_report_is_refused(grid_args, tmp_path, capsys):
+    """The truth is only shown in the report: given alone, it would be read and then ignored."""
+    files = [str(CITY / "observations.parquet"), str(CITY / "footprints.gpkg")]
+    args = ["estimate", *files, "--dem", str(CITY / "dem.tif"), *grid_args, "-q"]
+    code, _, err = run_cli(
+        [*args, "-o", str(tmp_path / "h.gpkg"), "--truth", str(CITY / "truth.csv")], capsys
+    )
+    assert code == 2 and "no report was asked for" in err and not (tmp_path / "h.gpkg").exists()

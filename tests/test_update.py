@@ -322,3 +322,11 @@ def test_footprints_edited_between_updates(city_map, halves, grid_dir):
     lines = result.lines()
     assert any("with footprints no longer in the layer left out" in line for line in lines)
     assert any(line.startswith("the footprints changed since the evidence") for line in lines)
+
+
+def test_a_truth_table_without_a_report_is_refused(city_map, halves, grid_dir):
+    original = digest(city_map)
+    with pytest.raises(InputError, match="no report was asked for"):
+        update_map(city_map, [halves[0]], DEM, layer="buildings", grid_dir=grid_dir,
+                   truth=CITY / "truth.csv")  # fmt: skip
+    assert digest(city_map) == original

@@ -58,7 +58,7 @@ def demo(ctx, output_dir, overwrite, quiet):
             dem=str(CITY / "dem.tif"),
             output=heights,
             report=report,
-            truth=CITY / "truth.csv",
+            truth=None if report is None else CITY / "truth.csv",
             overwrite=overwrite,
             quiet=quiet,
         )

@@ -18,6 +18,7 @@ a square), with their physics drawn too; the totals are then per regime and loca
 
     python benchmarks/scenes.py [--scenes 8] [--physics | --regimes]
                                 [--position-sd [--position-window 30]]
+                                [--weighting looks]
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ import pandas as pd
 from accuracy import site_tables
 
 from gnss_citygml import Estimator, PositionError, estimate_heights
+from gnss_citygml.settings import WEIGHTINGS
 from gnss_citygml.simulate import EPOCH, LOCATIONS, simulate
 from gnss_citygml.simulate.scenes import city_scene, street_scene
 from gnss_citygml.simulate.signals import SignalModel
@@ -116,6 +118,9 @@ def main():
         "--physics", action="store_true", help="draw each scene's physics too (PHYSICS)"
     )
     parser.add_argument(
+        "--weighting", choices=WEIGHTINGS, default="none", help="weighting of the height fits"
+    )
+    parser.add_argument(
         "--regimes", action="store_true", help="street scenes in each regime (REGIMES)"
     )
     args = parser.parse_args()
@@ -140,7 +145,8 @@ def main():
             truth = sim.truth.set_index("id")["height"]
             errors = []
             for threshold in THRESHOLDS:
-                out = estimate_heights(intersections, Estimator(init_threshold=threshold))
+                estimator = Estimator(init_threshold=threshold, weighting=args.weighting)
+                out = estimate_heights(intersections, estimator)
                 out = out.set_index("id")
                 ok = out["converged"].astype(bool)
                 true = truth.reindex(out.index)[ok]

@@ -30,6 +30,7 @@ __all__ = [
     "CONSTELLATIONS",
     "OBSERVATION_COLUMNS",
     "check_observations",
+    "satellites",
     "read_observations",
     "write_observations",
 ]
@@ -93,6 +94,20 @@ def _csv_line(path, row: int) -> int | None:
         except csv.Error:
             return None
     return None
+
+
+def satellites(table: pd.DataFrame) -> pd.Categorical:
+    """Each row's satellite as ``G05``, ``E21``...: its ``constellation`` letter and ``svid``.
+
+    One satellite seen by one recording is one *track*: its rows look at a building from
+    nearly the same place, so the height fits count them as one look per height
+    (:func:`~gnss_citygml.model.fourplb.height_weights`).
+    """
+    codes, pairs = pd.MultiIndex.from_arrays(
+        [table["constellation"].astype(str), table["svid"].astype(int)]
+    ).factorize()
+    names = [f"{letter}{number:02d}" for letter, number in pairs]
+    return pd.Categorical.from_codes(codes, categories=pd.Index(names, dtype=object))
 
 
 def write_observations(table: pd.DataFrame, path: StrPath, *, overwrite: bool = True) -> None:

@@ -25,7 +25,7 @@ from .geodesy import CrsInput, check_bng, grid_bearing, to_osgb
 from .ids import id_field, source_named, with_id_field
 from .model.classifier import SignalClassifier
 from .model.estimate import HEIGHTS_COLUMNS, estimate_heights
-from .observations import check_observations
+from .observations import check_observations, satellites
 from .paths import StrPath
 from .raycast import footprint_entries
 from .recordings import recording_windows
@@ -151,6 +151,8 @@ def intersections(
     if position_error.sd is not None:
         spread = np.tan(elevation) / np.maximum(incidence, MIN_INCIDENCE)
         extra["height_sd"] = position_error.sd * spread
+    if {"constellation", "svid"} <= set(receivers.columns):
+        extra["satellite"] = satellites(receivers)[ray]
     if position_error.window is not None:
         extra["recording"] = recording_windows(receivers, position_error.window)[ray]
     return pd.DataFrame(

@@ -39,7 +39,7 @@ __all__ = [
 ]
 
 #: Reweighting schemes of the 4PL height fit (:func:`~gnss_citygml.model.fourplb.height_weights`).
-WEIGHTINGS = ("none", "height", "balanced")
+WEIGHTINGS = ("none", "height", "balanced", "looks")
 
 #: Where receiver heights come from: the DEM plus an antenna height, or the log's own heights.
 RECEIVER_HEIGHTS = ("dem", "log")
@@ -138,7 +138,8 @@ class Acceptance:
         open probability by that much. (The paper's classifier, trained at one site and applied
         to others, still had a - d of about 0.4.)
     max_uncertainty
-        Widest height range (c, c + 3/b), with position errors widened by the position margin,
+        Widest height range (c_lo, c_hi + 3/b) (c over its likelihood-ratio interval), with
+        position errors widened by the position margin,
         in metres, of a converged estimate. The default, 10 m, keeps the estimate within 5 m of
         both ends of its range: CityGML's accuracy class for LOD1, the benchmark the paper
         measures itself against.

@@ -78,7 +78,16 @@ _FROM = {
 }
 
 #: The evidence's columns (the intersections table's, the signal by its key).
-_EVIDENCE_COLUMNS = ["signal_key", "building", "height", "distance", "order", "cn0", "receiver"]
+_EVIDENCE_COLUMNS = [
+    "signal_key",
+    "building",
+    "height",
+    "distance",
+    "order",
+    "cn0",
+    "receiver",
+    "satellite",
+]
 
 #: What the evidence keeps of every signal cast: for the report's skyplots and tracks.
 _SIGNAL_COLUMNS = ["signal_key", "receiver", "time_utc", "e", "n", "azimuth", "elevation", "cn0"]
@@ -92,6 +101,7 @@ _DTYPES = {
     "order": "int64",
     "cn0": "float64",
     "receiver": "object",
+    "satellite": "object",
     "time_utc": "datetime64[ns, UTC]",
     "e": "float64",
     "n": "float64",
@@ -232,6 +242,7 @@ def update_map(
         fresh = cast.assign(
             signal_key=rx["signal_key"].to_numpy()[cast["signal"].to_numpy()],
             building=cast["building"].astype(str),
+            satellite=cast["satellite"].astype(str),
         )[_EVIDENCE_COLUMNS]
         signals = rx.drop_duplicates("signal_key")[_SIGNAL_COLUMNS]
     evidence = pd.concat([stored, fresh], ignore_index=True)
@@ -408,8 +419,19 @@ def _read_evidence(path: Path, layer: str, kind: str, columns: list[str]) -> pd.
         ).fetchall()
     if not blobs:
         return pd.DataFrame({c: pd.Series(dtype=_DTYPES[c]) for c in columns})
-    tables = [pq.read_table(pa.BufferReader(blob), columns=columns) for (blob,) in blobs]
+    tables = [_columns(pq.read_table(pa.BufferReader(blob)), columns) for (blob,) in blobs]
     return pa.concat_tables(tables).to_pandas()[columns]
+
+
+def _columns(table, columns: list[str]):
+    """``columns`` of a stored table; a column that an earlier version did not store (the
+    satellite, in evidence kept before it was) is empty."""
+    import pyarrow as pa
+
+    for name in columns:
+        if name not in table.column_names:
+            table = table.append_column(name, pa.nulls(len(table), pa.string()))
+    return table.select(columns)
 
 
 def _append_evidence(path: Path, layer: str, kind: str, rows: pd.DataFrame, outlines: str) -> None:

@@ -12,6 +12,8 @@ from gnss_citygml import (
     ModelError,
     estimate_heights,
 )
+from gnss_citygml.model.estimate import _tracks
+from gnss_citygml.model.fourplb import height_weights
 
 
 @pytest.mark.parametrize("method", ["4PL-B", "4PL", "hinge", "bayes"])
@@ -45,8 +47,9 @@ def test_4plb_is_robust_to_the_initial_threshold(rng, threshold):
 def test_height_is_c_plus_1_5_over_b(rng):
     row = estimate_heights(synthetic_intersections(rng)).iloc[0]
     assert row["height"] == pytest.approx(row["c"] + 1.5 / row["b"])
-    assert row["height_lower"] == pytest.approx(row["c"])
-    assert row["height_upper"] == pytest.approx(row["c"] + 3.0 / row["b"])
+    # the paper's range (c, c + 3/b), widened by where else the data would put c
+    assert row["height_lower"] <= row["c"] and row["c"] + 3.0 / row["b"] <= row["height_upper"]
+    assert row["height_upper"] - row["height_lower"] < 3.0 / row["b"] + 1.0
 
 
 @pytest.mark.parametrize(
@@ -227,3 +230,34 @@ def test_bad_height_sd_is_refused(rng):
     table.loc[[3, 7], "height_sd"] = [-1.0, np.nan]
     with pytest.raises(InputError, match=r"height_sd must be.*rows 3, 7"):
         estimate_heights(table)
+
+
+def test_looks_count_a_tracks_repeated_epochs_once_per_metre():
+    # one satellite seen for 300 epochs from one place, and 30 others seen once each
+    table = pd.DataFrame(
+        {
+            "building": "b",
+            "height": np.r_[np.full(300, 36.2), np.linspace(20.0, 49.0, 30)],
+            "receiver": "r",
+            "satellite": ["G01"] * 300 + [f"E{k:02d}" for k in range(30)],
+        }
+    )
+    track = _tracks(table)
+    weights = height_weights(table["height"], np.zeros(330, int), 1, "looks", track=track)
+    assert weights[:300] == pytest.approx(1 / 300) and weights[300:] == pytest.approx(1.0)
+    assert weights.sum() == pytest.approx(31.0)  # the building was looked at 31 times
+    # without satellites, a recording's rows within one metre are one look
+    alone = height_weights(table["height"], np.zeros(330, int), 1, "looks")
+    assert alone.sum() == pytest.approx(30.0)  # 36.2 falls in the metre of one of the others
+
+
+def test_the_range_holds_where_the_data_leave_the_roof_line(rng):
+    # signals only at 20-30 m (closed) and 50-60 m (open): the roof is somewhere between
+    h = np.r_[rng.uniform(20.0, 30.0, 3000), rng.uniform(50.0, 60.0, 3000)]
+    table = pd.DataFrame({"building": "b", "height": h, "cn0": np.where(h > 40.0, 42.0, np.nan)})
+    wide = estimate_heights(table).iloc[0]
+    assert not wide["converged"] and wide["status"] == "height range wider than 10 m"
+    lax = Estimator(acceptance=Acceptance(max_uncertainty=30.0))
+    row = estimate_heights(table, lax).iloc[0]
+    assert row["converged"]
+    assert row["height_lower"] <= 30.5 and row["height_upper"] >= 49.5

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 from conftest import draw_4pl
 
-from gnss_citygml.model.fourpl import fit_4pl, log_likelihood, logistic4
+from gnss_citygml.model.fourpl import c_interval, fit_4pl, log_likelihood, logistic4
 
 
 def test_logistic4_shape():
@@ -125,3 +125,28 @@ def test_zero_errors_are_the_plain_fit(rng):
     x, y = draw_4pl(rng, 3000, 0.85, 0.5, 25.0, 0.1)
     plain, eiv = fit_4pl(x, y), fit_4pl(x, y, sd=np.zeros(x.size))
     np.testing.assert_allclose(eiv.params, plain.params, rtol=1e-9)
+
+
+def test_c_interval_spans_a_gap_in_the_data():
+    # closed signals up to 30 m and open ones from 50 m: any roof line in between fits them
+    x = np.r_[np.linspace(20.0, 30.0, 200), np.linspace(50.0, 60.0, 200)]
+    y = (x > 40.0).astype(float)
+    fit = fit_4pl(x, y)
+    lower, upper = c_interval(fit, x, y, np.zeros(x.size, dtype=int), reach=30.0)
+    assert 30.0 <= fit.c[0] <= 50.0
+    assert lower[0] <= 30.5 and upper[0] >= 49.5  # the gap, to the grid's 0.5 m
+    assert upper[0] - lower[0] < 21.0
+
+
+def test_c_interval_narrows_with_the_data():
+    rng = np.random.default_rng(7)
+    widths = []
+    for n in (200, 20000):
+        x = rng.uniform(0.0, 40.0, n)
+        y = (rng.random(n) < logistic4(x, 0.9, 1.0, 20.0, 0.1)).astype(float)
+        fit = fit_4pl(x, y)
+        lower, upper = c_interval(fit, x, y, np.zeros(n, dtype=int))
+        assert lower[0] < 20.0 < upper[0]
+        widths.append(upper[0] - lower[0])
+    # about 1/sqrt(n): 100 times the data, a tenth of the width (to the grid's steps)
+    assert widths[1] < 0.25 * widths[0]

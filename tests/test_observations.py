@@ -9,6 +9,7 @@ from gnss_citygml.observations import (
     OBSERVATION_COLUMNS,
     check_observations,
     read_observations,
+    satellites,
     write_observations,
 )
 from gnss_citygml.simulate import simulate
@@ -194,3 +195,10 @@ def test_long_column_names_alike_in_their_first_40_characters_are_two_columns(ob
     stem = "multipath_indicator_from_the_receiver_raw_band_"
     table = observations.head(3).assign(**{stem + "L1": 1, stem + "L5": 5})
     assert list(check_observations(table).columns[-2:]) == [stem + "L1", stem + "L5"]
+
+
+def test_satellites_name_each_rows_satellite():
+    table = pd.DataFrame({"constellation": ["G", "E", "G", "R"], "svid": [5, 21, 5, 3]})
+    names = satellites(table)
+    assert list(names) == ["G05", "E21", "G05", "R03"]
+    assert list(names.categories) == ["G05", "E21", "R03"]  # each satellite once

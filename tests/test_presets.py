@@ -65,10 +65,13 @@ def test_city_with_walkers(sims, threshold):
     truth = sim.truth.set_index("id")["height"]
     out = estimate_heights(sim.intersections, Estimator(init_threshold=threshold)).set_index("id")
     ok = out["converged"]
-    err = (out["height"] - truth.reindex(out.index))[ok]
-    assert ok.mean() >= 0.7
+    true = truth.reindex(out.index)
+    err = (out["height"] - true)[ok]
+    inside = ((out["height_lower"] <= true) & (true <= out["height_upper"]))[ok]
+    assert ok.mean() >= 0.55  # the rest with a status: their data leave a range over 10 m
     assert np.median(np.abs(err)) < 2.0
     assert np.abs(err).max() < 10.0
+    assert inside.mean() >= 0.75
 
 
 def test_baselines_depend_on_the_threshold_where_4plb_does_not(sims):

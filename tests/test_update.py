@@ -330,3 +330,14 @@ def test_a_truth_table_without_a_report_is_refused(city_map, halves, grid_dir):
         update_map(city_map, [halves[0]], DEM, layer="buildings", grid_dir=grid_dir,
                    truth=CITY / "truth.csv")  # fmt: skip
     assert digest(city_map) == original
+
+
+def test_evidence_kept_without_satellites_reads_as_empty_satellites():
+    import pyarrow as pa
+
+    from gnss_citygml.update import _columns
+
+    older = pa.table({"signal_key": [1, 2], "building": ["a", "b"]})
+    table = _columns(older, ["signal_key", "satellite", "building"])
+    assert table.column_names == ["signal_key", "satellite", "building"]
+    assert table.column("satellite").null_count == 2

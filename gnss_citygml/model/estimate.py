@@ -63,8 +63,10 @@ def estimate_heights(
     -------
     pandas.DataFrame
         The heights table, one row per building in order of first appearance: ``id``,
-        ``height`` (c + 1.5/b for the 4PL methods), ``height_lower`` (c), ``height_upper``
-        (c + 3/b; with ``height_sd`` both moved out by twice the standard error of ``c`` from
+        ``height`` (c + 1.5/b for the 4PL methods), ``height_lower`` and ``height_upper``
+        (4PL-B: the paper's range (c, c + 3/b) stretched over the 95 % likelihood-ratio interval
+        of ``c``, :func:`~gnss_citygml.model.fourpl.c_interval`; 4PL: (c, c + 3/b); with
+        ``height_sd`` both moved out by twice the standard error of ``c`` from
         position errors), ``a``, ``b``, ``c``, ``d``, ``n_signals``, ``iterations``, ``converged``,
         ``method`` and ``status``. A building whose estimate is not to be trusted has
         ``converged = False``, empty heights and the reason in ``status``. For 4PL-B,
@@ -100,6 +102,7 @@ def estimate_heights(
             order=order,
             height_sd=height_sd,
             receiver=_recordings(table, height_sd),
+            track=_tracks(table),
         )
         columns = {name: getattr(fits, name) for name in HEIGHTS_COLUMNS[1:] if name != "method"}
     else:
@@ -185,6 +188,17 @@ def _recordings(table, height_sd) -> np.ndarray | None:
         if column in table.columns:
             return table[column].to_numpy()
     return None
+
+
+def _tracks(table) -> np.ndarray | None:
+    """Which rows are one look along a satellite's track: one recording (``recording``, else
+    ``receiver``) and one ``satellite``; None without a ``satellite`` column."""
+    if "satellite" not in table.columns:
+        return None
+    recording = next((c for c in ("recording", "receiver") if c in table.columns), None)
+    if recording is None:
+        return table["satellite"].to_numpy()
+    return pd.MultiIndex.from_arrays([table[recording], table["satellite"]]).factorize()[0]
 
 
 def _height_sd(table) -> np.ndarray | None:

@@ -33,7 +33,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.special import expit
 
-__all__ = ["B_BOUNDS", "FourPLFit", "fit_4pl", "log_likelihood", "logistic4"]
+__all__ = ["B_BOUNDS", "FourPLFit", "c_interval", "fit_4pl", "log_likelihood", "logistic4"]
 
 #: Default bounds of the slope b (1/unit of x): the upper bound is where separable data stop
 #: (a transition 3/b = 3 cm wide for heights in metres), the lower where a curve is flat.
@@ -42,6 +42,8 @@ B_BOUNDS = (1e-3, 1e2)
 _LOGIT_BOUND = 9.0
 #: Probabilities are clipped to this distance from 0 and 1 inside logarithms.
 _EPS = 1e-12
+#: Log-likelihood drop of a 95 % likelihood-ratio interval of one parameter: chi2(1, 0.95) / 2.
+LR_DROP = 1.92
 
 
 #: A 4PL parameter: one value, or one per sample.
@@ -254,6 +256,60 @@ def fit_4pl(
         v[empty] = np.nan
     separable = ~empty & (theta[:, 1] >= box_hi[:, 1] - 1e-9)
     return FourPLFit(a, b, c, d, ll, converged & ~empty, n_iter, separable)
+
+
+def c_interval(
+    fit: FourPLFit,
+    x: npt.ArrayLike,
+    y: npt.ArrayLike,
+    groups: npt.ArrayLike,
+    *,
+    weights: npt.ArrayLike | None = None,
+    sd: npt.ArrayLike | None = None,
+    reach: float = 12.0,
+    drop: float = LR_DROP,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Likelihood-ratio interval of each group's inflection point ``c``, the other parameters
+    held at their fit: the ``c`` whose log-likelihood is within ``drop`` of the fit's.
+
+    A fit says where its data put the transition only as far as the data reach: samples on
+    one side of a gap in ``x`` (a building seen at a few heights by a few satellites) are fitted
+    as well by any ``c`` in the gap, and a separable fit (``b`` on its bound) chooses one at
+    random. The interval spans that gap. ``c`` is tried on a grid of offsets out to ``reach``
+    (finer near the fit); an end that is still within ``drop`` at ``reach`` is returned there,
+    so an interval as wide as the grid means "at least that wide".
+
+    Returns
+    -------
+    (numpy.ndarray, numpy.ndarray)
+        Lower and upper ends per group (NaN for a group without a fit).
+    """
+    x = np.asarray(x, dtype=float)
+    y = np.asarray(y, dtype=float)
+    g = np.asarray(groups, dtype=np.intp)
+    w = np.ones_like(x) if weights is None else np.asarray(weights, dtype=float)
+    v = np.zeros_like(x) if sd is None else np.asarray(sd, dtype=float) ** 2
+    n_groups = fit.c.size
+    if np.any(g[1:] < g[:-1]):
+        order = np.argsort(g, kind="stable")
+        x, y, w, g, v = x[order], y[order], w[order], g[order], v[order]
+    theta = np.nan_to_num(_to_theta(fit.params))
+    everyone = np.ones(n_groups, dtype=bool)
+    best = _evaluate(theta, x, y, w, g, v, n_groups, everyone, ll_only=True)[0]
+    steps = np.unique(
+        np.r_[
+            np.arange(0.1, 1.0, 0.1), np.arange(1.0, 3.0, 0.25), np.arange(3.0, reach + 1e-9, 0.5)
+        ]
+    )
+    lower, upper = fit.c.copy(), fit.c.copy()
+    for sign, end in ((-1.0, lower), (1.0, upper)):
+        for step in steps:
+            shifted = theta.copy()
+            shifted[:, 2] += sign * step
+            ll = _evaluate(shifted, x, y, w, g, v, n_groups, everyone, ll_only=True)[0]
+            inside = ll >= best - drop
+            end[inside] = fit.c[inside] + sign * step
+    return lower, upper
 
 
 #: The samples' x, y, w, g and v of :func:`_evaluate`.

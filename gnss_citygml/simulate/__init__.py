@@ -26,6 +26,7 @@ import pandas as pd
 from pyproj import Transformer
 
 from ..errors import InputError
+from ..observations import satellites
 from ..raycast import footprint_entries
 from .constellations import satellite_ecef, sky
 from .scenes import PRESETS, Scene, Session, make_scene
@@ -296,5 +297,6 @@ def _intersections(obs: pd.DataFrame, scene: Scene, footprints, max_range):
             "order": np.arange(ray.size) - start,
             "cn0": obs["cn0"].to_numpy()[ray],
             "receiver": obs["receiver"].to_numpy()[ray],
+            "satellite": satellites(obs)[ray],
         }
     )

@@ -13,7 +13,7 @@ from gnss_citygml import (
     estimate_heights,
 )
 from gnss_citygml.model.estimate import _tracks
-from gnss_citygml.model.fourplb import height_weights
+from gnss_citygml.model.fourplb import height_weights, look_ids
 
 
 @pytest.mark.parametrize("method", ["4PL-B", "4PL", "hinge", "bayes"])
@@ -242,8 +242,8 @@ def test_looks_count_a_tracks_repeated_epochs_once_per_metre():
             "satellite": ["G01"] * 300 + [f"E{k:02d}" for k in range(30)],
         }
     )
-    track = _tracks(table)
-    weights = height_weights(table["height"], np.zeros(330, int), 1, "looks", track=track)
+    looks = look_ids(table["height"], np.zeros(330, int), _tracks(table))
+    weights = height_weights(table["height"], np.zeros(330, int), 1, "looks", looks=looks)
     assert weights[:300] == pytest.approx(1 / 300) and weights[300:] == pytest.approx(1.0)
     assert weights.sum() == pytest.approx(31.0)  # the building was looked at 31 times
     # without satellites, a recording's rows within one metre are one look

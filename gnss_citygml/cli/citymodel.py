@@ -34,12 +34,13 @@ from .options import (
     TYPED_ATTRIBUTES,
     dem_file,
     progress,
+    together,
 )
 
 if TYPE_CHECKING:
     from ..export import ExportResult
 
-_MODEL_OPTIONS = [
+_MODEL_OPTIONS = together(
     MODEL_OUTPUT,
     OVERWRITE,
     click.option("--strict", is_flag=True, help="Stop if a building has no usable height."),
@@ -47,13 +48,7 @@ _MODEL_OPTIONS = [
     SCHEMA_DIR,
     TYPED_ATTRIBUTES,
     QUIET,
-]
-
-
-def _model_options(func):
-    for option in reversed(_MODEL_OPTIONS):
-        func = option(func)
-    return func
+)
 
 
 def _run(job: Callable[..., ExportResult], output: Path, quiet: bool, **options) -> None:
@@ -137,7 +132,7 @@ def _copy_to_stdout(path: Path) -> None:
 @dem_file("DEM for the ground under each footprint (instead of --ground-field).")
 @DEM_CRS
 @GRID_DIR
-@_model_options
+@_MODEL_OPTIONS
 def convert(
     input_,
     layer,
@@ -190,7 +185,7 @@ def convert(
 @dem_file("DEM for the ground, when the heights table has no ground column.")
 @DEM_CRS
 @GRID_DIR
-@_model_options
+@_MODEL_OPTIONS
 def export(
     heights,
     footprints,

@@ -25,10 +25,11 @@ from .options import (
     output_dir,
     output_file,
     progress,
+    together,
 )
 
 #: The options of the run, which ``estimate`` and ``report`` share.
-_RUN_OPTIONS = [
+_RUN_OPTIONS = together(
     click.argument("observations", type=click.Path(dir_okay=False, path_type=Path)),
     click.argument("footprints", type=click.Path(path_type=Path)),
     dem_file("DEM raster in EPSG:27700 (GeoTIFF, ASCII grid, zip://...!/tile.asc).", required=True),
@@ -87,13 +88,7 @@ _RUN_OPTIONS = [
     GRID_DIR,
     OVERWRITE,
     QUIET,
-]
-
-
-def _run_options(func):
-    for option in reversed(_RUN_OPTIONS):
-        func = option(func)
-    return func
+)
 
 
 @click.command()
@@ -102,7 +97,7 @@ def _run_options(func):
     "FlatGeobuf (.fgb) or GeoParquet (.parquet)."
 )
 @REPORT
-@_run_options
+@_RUN_OPTIONS
 def estimate(output, report, **options):
     """Estimate the height of every footprint from GNSS OBSERVATIONS.
 
@@ -120,7 +115,7 @@ def estimate(output, report, **options):
 
 @click.command()
 @output_dir("Folder for report.html and figures/*.png (created if needed).")
-@_run_options
+@_RUN_OPTIONS
 def report(output_dir, **options):
     """Estimate as `estimate` does and write the report of the run: an HTML page and PNGs.
 

@@ -125,6 +125,18 @@ TYPED_ATTRIBUTES = click.option(
 )
 
 
+def together(*options: Callable[[FC], FC]) -> Callable[[FC], FC]:
+    """One decorator for options that several commands share, listed top to bottom as they
+    appear in ``--help``."""
+
+    def apply(func: FC) -> FC:
+        for option in reversed(options):
+            func = option(func)
+        return func
+
+    return apply
+
+
 def dem_file(help_text: str, required: bool = False) -> Callable[[FC], FC]:
     """The ``--dem`` option: a raster GDAL reads, for what ``help_text`` says."""
     return click.option("--dem", type=click.Path(path_type=str), required=required, help=help_text)

@@ -296,11 +296,7 @@ def c_interval(
     theta = np.nan_to_num(_to_theta(fit.params))
     everyone = np.ones(n_groups, dtype=bool)
     best = _evaluate(theta, x, y, w, g, v, n_groups, everyone, ll_only=True)[0]
-    steps = np.unique(
-        np.r_[
-            np.arange(0.1, 1.0, 0.1), np.arange(1.0, 3.0, 0.25), np.arange(3.0, reach + 1e-9, 0.5)
-        ]
-    )
+    steps = _offsets(reach)
     lower, upper = fit.c.copy(), fit.c.copy()
     for sign, end in ((-1.0, lower), (1.0, upper)):
         for step in steps:
@@ -310,6 +306,16 @@ def c_interval(
             inside = ll >= best - drop
             end[inside] = fit.c[inside] + sign * step
     return lower, upper
+
+
+def _offsets(reach: float) -> np.ndarray:
+    """The offsets of ``c`` that :func:`c_interval` tries, out to ``reach``: 0.1 m steps to
+    1 m, 0.25 m to 3 m, 0.5 m to 12 m (beyond a converged range's 10 m), then 5 % longer each,
+    so that a long reach costs a few dozen passes over the data, not thousands."""
+    fine = np.r_[np.arange(0.1, 1.0, 0.1), np.arange(1.0, 3.0, 0.25), np.arange(3.0, 12.01, 0.5)]
+    n_far = int(np.ceil(np.log(max(reach, 12.0) / 12.0) / np.log(1.05)))
+    steps = np.r_[fine, 12.0 * 1.05 ** np.arange(1, n_far + 1)]
+    return np.r_[steps[steps < reach], reach]
 
 
 #: The samples' x, y, w, g and v of :func:`_evaluate`.

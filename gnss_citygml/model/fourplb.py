@@ -43,7 +43,7 @@ from ..settings import WEIGHTINGS, Estimator
 from .classifier import SignalClassifier
 from .fourpl import B_BOUNDS, FourPLFit, c_interval, fit_4pl, group_range
 
-__all__ = ["BuildingFits", "fourplb", "height_weights", "position_margin"]
+__all__ = ["BuildingFits", "fourplb", "height_weights", "look_ids", "position_margin"]
 
 #: With the visibility model, at least this fraction of the signals crossing a building below
 #: its fitted roof line must be unblocked by other buildings; otherwise the lower edge of the
@@ -79,7 +79,7 @@ def height_weights(
     scheme: str,
     c: np.ndarray | None = None,
     mask: np.ndarray | None = None,
-    track: np.ndarray | None = None,
+    looks: np.ndarray | None = None,
 ) -> np.ndarray:
     """Sample weights of the height fit, normalised to a mean of 1 within each building
     (``looks``: to its number of looks).
@@ -96,35 +96,42 @@ def height_weights(
     ``balanced``
         Signals above and below the current inflection point ``c`` carry equal total weight.
     ``looks``
-        Each *look* counts once: a building's rows of one ``track`` (one recording's view of
-        one satellite) within one :data:`HEIGHT_BIN`. A phone logging at 1 Hz repeats the same
-        ray geometry, and the same position error, for minutes: 300 epochs of one satellite
-        from one standing point are one piece of geometric evidence, not 300, and counted as
-        300 they make a wrong corner-clipping ray or one reflection outweigh the rest and the
-        likelihood interval of ``c`` far too narrow. Without ``track``, a building's rows
-        within one metre of height are one look.
+        Each *look* counts once (``looks``: each row's look, :func:`look_ids`; default: a
+        building's rows within one :data:`HEIGHT_BIN` are one look).
     """
     height = np.asarray(height, dtype=float)
     groups = np.asarray(groups, dtype=np.intp)
     mask = np.ones(height.size, dtype=bool) if mask is None else np.asarray(mask, dtype=bool)
     out = np.zeros(height.size)
     if scheme == "looks":
-        out[mask] = _looks(height[mask], groups[mask], None if track is None else track[mask])
+        ids = look_ids(height, groups) if looks is None else np.asarray(looks)
+        rows = np.bincount(ids[mask])
+        out[mask] = 1.0 / rows[ids[mask]]
         return out
     out[mask] = _weights(height[mask], groups[mask], n_groups, scheme, c)
     return out
 
 
-def _looks(height, groups, track):
-    """Weight 1 / rows of each look: a building's rows of one track (a recording's view of one
-    satellite) within one :data:`HEIGHT_BIN`."""
-    if height.size == 0:
-        return np.ones(0)
-    bins = np.floor(height / HEIGHT_BIN).astype(np.int64)
-    track = np.zeros(height.size, dtype=np.int64) if track is None else track.astype(np.int64)
-    key = np.column_stack([groups.astype(np.int64), track, bins])
-    _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
-    return 1.0 / counts[inverse.ravel()]
+def look_ids(
+    height: np.ndarray, groups: np.ndarray, track: npt.ArrayLike | None = None
+) -> np.ndarray:
+    """Each row's *look* (a code from 0): a building's rows of one ``track`` (one recording's
+    view of one satellite, any hashable codes; default: all rows one track) within one
+    :data:`HEIGHT_BIN` of height.
+
+    A phone logging at 1 Hz repeats the same ray geometry, and the same position error, for
+    minutes: 300 epochs of one satellite from one standing point are one piece of geometric
+    evidence, not 300. Counted as 300, a ray clipping a footprint's corner or one reflection
+    outweighs the rest, and the likelihood interval of ``c`` is far too narrow.
+    """
+    bins = np.floor(np.asarray(height, dtype=float) / HEIGHT_BIN).astype(np.int64)
+    bins -= bins.min(initial=0)
+    tracks = np.zeros(bins.size, np.int64) if track is None else pd.factorize(np.asarray(track))[0]
+    # codes of (track, bin), then of (building, that): each below the number of rows, so the
+    # int64 keys cannot overflow, and hashing one int64 column is fast
+    pair = pd.factorize(tracks * (int(bins.max(initial=0)) + 1) + bins)[0]
+    building = np.asarray(groups, dtype=np.int64)
+    return pd.factorize(building * (int(pair.max(initial=0)) + 1) + pair)[0]
 
 
 def _weights(height, groups, n_groups, scheme, c):
@@ -222,8 +229,9 @@ def fourplb(
         sig = None
     if order is not None:
         order = np.asarray(order)[by_group]
-    if track is not None:
-        track = pd.factorize(np.asarray(track)[by_group])[0]
+    looks = None
+    if estimator.weighting == "looks":  # once: a row's look does not change as 4PL-B iterates
+        looks = look_ids(h, g, None if track is None else np.asarray(track)[by_group])
     occlusion = estimator.visibility and sig is not None
     seen = np.ones(h.size, dtype=bool)
     if occlusion and order is not None:
@@ -235,7 +243,7 @@ def fourplb(
     for iterations in range(1, (estimator.max_iter if bootstrap else 1) + 1):
         c_now = None if fit is None else fit.c
         weights = height_weights(
-            h, g, n_groups, estimator.weighting, c=c_now, mask=seen, track=track
+            h, g, n_groups, estimator.weighting, c=c_now, mask=seen, looks=looks
         )
         fit_labels, fit_seen, fit_weights = labels, seen, weights
         # every building's map classifier, a 4PL in intersection height, fitted at once
@@ -275,14 +283,13 @@ def fourplb(
     assert fit is not None  # max_iter >= 1: the loop fitted at least once
     c_range = None
     if bootstrap:  # the paper's 4PL keeps the paper's range
-        use = fit_weights > 0
         c_range = c_interval(
             fit,
-            h[use],
-            fit_labels[use],
-            g[use],
-            weights=fit_weights[use],
-            sd=None if sd is None else sd[use],
+            h[fit_seen],
+            fit_labels[fit_seen],
+            g[fit_seen],
+            weights=fit_weights[fit_seen],
+            sd=None if sd is None else sd[fit_seen],
             reach=accept.max_uncertainty,
         )
     margin = np.zeros(n_groups)
@@ -402,9 +409,9 @@ def _judge(
     lo, hi = group_range(h, g, n_groups)
     n_open = np.bincount(g, weights=labels.astype(float), minlength=n_groups)
     n_below = np.bincount(g, h < c[g], minlength=n_groups)
-    c_lo, c_hi = (c, c) if c_range is None else c_range
-    lower = np.minimum(c, c_lo) - margin
-    upper = np.maximum(c, c_hi) + 3.0 / b + margin
+    c_lo, c_hi = (c, c) if c_range is None else c_range  # c_interval's ends hold c
+    lower = c_lo - margin
+    upper = c_hi + 3.0 / b + margin
     status = np.full(n_groups, "ok", dtype=object)
     plausibility = [
         (change >= label_tol, f"labels still changing after {iterations} iterations"),

@@ -23,13 +23,15 @@ from gnss_citygml.model import METHODS
 from gnss_citygml.model.estimate import estimate_heights
 from gnss_citygml.observations import read_observations
 from gnss_citygml.pipeline import intersections, receivers
-from gnss_citygml.settings import Calibration, Estimator, PositionError
+from gnss_citygml.settings import POSITION_WINDOW, Calibration, Estimator, PositionError
 from gnss_citygml.simulate import simulate
 from gnss_citygml.simulate.files import write_site
 
 __all__ = [
     "PAPER_THRESHOLDS",
+    "POSITION_ERRORS",
     "POSITIONS",
+    "position_error",
     "markdown_table",
     "run_accuracy",
     "site_tables",
@@ -47,6 +49,25 @@ PAPER_THRESHOLDS = tuple(float(t) for t in range(20, 41))
 #: the information floor of a site's data; ``true`` the floor of the estimator itself.
 POSITIONS = ("reported", "common", "true")
 
+#: What the fits are told of the receivers' position errors: what the observations say (the
+#: toolkit's default: a phone's reported accuracy; 1 m for points placed by hand, which say
+#: nothing), nothing (``exact``, as in the paper), or the sizes of :data:`POSITION_SD`.
+POSITION_ERRORS = ("data", "exact", "fixed")
+#: Position error (m per axis) of ``fixed``: hand-placed points "below 2 m" (the paper),
+#: smartphone fixes several metres.
+POSITION_SD = {"manual": 1.0, "gnss": 5.0}
+
+
+def position_error(kind: str, locations: str, window: float = POSITION_WINDOW) -> PositionError:
+    """The :class:`~gnss_citygml.settings.PositionError` of ``kind`` (one of
+    :data:`POSITION_ERRORS`) for positions of ``locations``."""
+    if kind not in POSITION_ERRORS:
+        raise ValueError(
+            f"position errors must be one of {', '.join(POSITION_ERRORS)}, not {kind!r}"
+        )
+    sd = {"data": None, "exact": 0.0, "fixed": POSITION_SD[locations]}[kind]
+    return PositionError(sd=sd, window=window)
+
 
 def run_accuracy(
     presets,
@@ -58,8 +79,8 @@ def run_accuracy(
     interval=1.0,
     progress=None,
     pipeline_grids=None,
-    position_sd=None,
-    position_window=None,
+    position_errors="data",
+    position_window=POSITION_WINDOW,
     calibration_sd=None,
     calibration_window=None,
     positions="reported",
@@ -69,10 +90,9 @@ def run_accuracy(
 
     ``options`` are the 4PL methods' :class:`~gnss_citygml.settings.Estimator` settings
     (e.g. ``weighting``).
-    ``position_sd`` (a mapping from locations to metres per axis, e.g. ``{"manual": 1,
-    "gnss": 5}``) makes the 4PL fits model the height errors of position errors that size
-    (``height_sd`` of :func:`~gnss_citygml.pipeline.intersections`), one error per recording
-    or, with ``position_window`` (s), per window of it. ``calibration_sd`` (a
+    ``position_errors`` (one of :data:`POSITION_ERRORS`) is what the 4PL fits are told of the
+    position errors (``height_sd`` of :func:`~gnss_citygml.pipeline.intersections`), a moving
+    receiver's lasting ``position_window`` seconds. ``calibration_sd`` (a
     mapping alike) turns on the self-calibration of receiver offsets
     (:mod:`gnss_citygml.calibrate`) for 4PL-B with that prior, run for each initial threshold,
     with one offset per recording or, with ``calibration_window`` (s), per window of it; the
@@ -90,11 +110,8 @@ def run_accuracy(
     for preset in presets:
         for loc in locations:
             sim = simulate(preset, locations=loc, seed=seed, interval=interval)
-            sd = None if position_sd is None else position_sd[loc]
-            position_error = PositionError(sd=sd, window=position_window)
-            rays, footprints, inter_all = site_tables(
-                sim, pipeline_grids, positions, position_error
-            )
+            errors = position_error(position_errors, loc, position_window)
+            rays, footprints, inter_all = site_tables(sim, pipeline_grids, positions, errors)
             truth = sim.truth.set_index("id")
             targets = truth.index[truth["target"]]
             for method in methods:
@@ -110,7 +127,7 @@ def run_accuracy(
                         fixed = calibrate_receivers(
                             rays, footprints, calibration, estimator=estimator
                         )
-                        inter = _recast(fixed, footprints, position_error)
+                        inter = _recast(fixed, footprints, errors)
                     out = estimate_heights(inter, estimator)
                     seconds = time.perf_counter() - start
                     out = out.set_index("id").reindex(targets)
@@ -152,16 +169,10 @@ def site_tables(
     have the ``height_sd`` (and ``recording``) of :func:`~gnss_citygml.pipeline.intersections`."""
     _check_positions(positions, grid_dir)
     if grid_dir is None:
-        rays = sim.observations.assign(bearing=sim.observations["azimuth"])
-        footprints = pd.DataFrame(
-            {
-                "id": [b.id for b in sim.scene.buildings],
-                "geometry": [b.footprint for b in sim.scene.buildings],
-            }
-        )
+        rays, footprints = sim.rays, sim.buildings
         if positions != "reported":
             rays = _oracle_rays(rays, positions)
-        if positions == "reported" and position_error == PositionError():
+        if positions == "reported" and position_error.exact:
             return rays, footprints, sim.intersections
         return rays, footprints, _recast(rays, footprints, position_error)
     with tempfile.TemporaryDirectory() as folder:

@@ -17,7 +17,7 @@ the regimes of :data:`REGIMES` (a narrow canyon with receivers 3-8 m from the wa
 a square), with their physics drawn too; the totals are then per regime and locations.
 
     python benchmarks/scenes.py [--scenes 8] [--physics | --regimes]
-                                [--position-sd [--position-window 30]]
+                                [--position-errors data|exact|fixed] [--position-window 30]
                                 [--weighting looks]
 """
 
@@ -27,10 +27,10 @@ import argparse
 
 import numpy as np
 import pandas as pd
-from accuracy import site_tables
+from accuracy import POSITION_ERRORS, position_error, site_tables
 
-from gnss_citygml import Estimator, PositionError, estimate_heights
-from gnss_citygml.settings import WEIGHTINGS
+from gnss_citygml import Estimator, estimate_heights
+from gnss_citygml.settings import POSITION_WINDOW, WEIGHTINGS
 from gnss_citygml.simulate import EPOCH, LOCATIONS, simulate
 from gnss_citygml.simulate.scenes import city_scene, street_scene
 from gnss_citygml.simulate.signals import SignalModel
@@ -54,8 +54,6 @@ PHYSICS = {
     "body_loss": (0.0, 8.0),
     "manual_sd": (0.3, 2.0),
 }
-#: Position error (m per axis) the fits are told with --position-sd, as in paper_table.py.
-POSITION_SD = {"manual": 1.0, "gnss": 5.0}
 
 
 def random_scene(k: int):
@@ -104,15 +102,17 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scenes", type=int, default=8, help="number of random scenes")
     parser.add_argument(
-        "--position-sd",
-        action="store_true",
-        help="the fits model position errors (manual 1 m, phone fixes 5 m per axis)",
+        "--position-errors",
+        choices=POSITION_ERRORS,
+        default="data",
+        help="what the fits are told of the position errors: the observations' (default), "
+        "none (exact, as the paper) or fixed sizes (manual 1 m, phone fixes 5 m per axis)",
     )
     parser.add_argument(
         "--position-window",
         type=float,
-        default=None,
-        help="with --position-sd: one position error per this many seconds of a walk",
+        default=POSITION_WINDOW,
+        help="seconds one position error of a moving receiver lasts",
     )
     parser.add_argument(
         "--physics", action="store_true", help="draw each scene's physics too (PHYSICS)"
@@ -125,7 +125,9 @@ def main():
     )
     args = parser.parse_args()
     runs, totals = [], {}
-    header = "converged | RMSE | median abs. error | worst | RMSE of c | range covers truth |"
+    header = (
+        "converged | RMSE | median abs. error | worst | RMSE of c + 1.5/b | range covers truth |"
+    )
     print(f"| scene | layout | locations | {header}")
     print("|---|---|---|---|---|---|---|---|---|")
     if args.regimes:
@@ -138,9 +140,7 @@ def main():
             layout = f"{layout}; {_physics_text(physics)}"
         for locations in LOCATIONS:
             sim = simulate(scene, locations=locations, seed=k, start=start, physics=physics)
-            error = PositionError()
-            if args.position_sd:
-                error = PositionError(sd=POSITION_SD[locations], window=args.position_window)
+            error = position_error(args.position_errors, locations, args.position_window)
             intersections = site_tables(sim, position_error=error)[2]
             truth = sim.truth.set_index("id")["height"]
             errors = []
@@ -155,7 +155,7 @@ def main():
                     pd.DataFrame(
                         {
                             "error": out["height"][ok] - true,
-                            "c_error": out["c"][ok] - true,
+                            "paper_error": out["height_paper"][ok] - true,
                             "covered": (lower <= true) & (true <= upper),
                         }
                     )
@@ -178,9 +178,10 @@ def _cells(err: pd.DataFrame, n_runs: int) -> str:
     if err.empty:
         return f"0/{n_runs} | - | - | - | - | -"
     rmse = np.sqrt(np.mean(err["error"] ** 2))
-    c_rmse = np.sqrt(np.mean(err["c_error"] ** 2))
+    paper_rmse = np.sqrt(np.mean(err["paper_error"] ** 2))
     a = err["error"].abs()
-    cells = [f"{len(err)}/{n_runs}", *(f"{v:.2f} m" for v in (rmse, a.median(), a.max(), c_rmse))]
+    figures = (rmse, a.median(), a.max(), paper_rmse)
+    cells = [f"{len(err)}/{n_runs}", *(f"{v:.2f} m" for v in figures)]
     cells.append(f"{err['covered'].mean():.0%}")
     return " | ".join(cells)
 

@@ -14,7 +14,7 @@ the published contract and the checks cannot drift apart:
   the CityJSON writers' ``typed_attributes`` option writes them, and the validator checks a file
   that declares it (:mod:`gnss_citygml.validate.extensions`).
 
-The ``$id`` and ``url`` of each file (``https://gnss-citygml.org/schemas/1.0/...``) name it;
+The ``$id`` and ``url`` of each file (``https://gnss-citygml.org/schemas/1.1/...``) name it;
 nothing is fetched from them.
 """
 

@@ -3,8 +3,9 @@
 This is the toolkit's interchange format (DESIGN.md): ``time_utc``, ``receiver``, ``lat``,
 ``lon`` (deg, ETRS89/WGS84), ``h`` (ellipsoidal height, m; may be empty when the DEM gives
 the receiver height), ``constellation`` (RINEX letter), ``svid``, ``azimuth`` (deg from TRUE
-north), ``elevation`` (deg) and ``cn0`` (dB-Hz; empty = above the horizon but not received,
-i.e. blocked). :func:`check_observations` turns any table a user hands in into that schema or
+north), ``elevation`` (deg), ``cn0`` (dB-Hz; empty = above the horizon but not received,
+i.e. blocked) and ``position_sd`` (m per axis: how far the reported position may be off; may be
+empty when unknown). :func:`check_observations` turns any table a user hands in into that schema or
 says exactly which row is wrong and why.
 
 The columns, which of them are required, their types, the constellation letters and the ranges
@@ -45,8 +46,10 @@ OBSERVATION_COLUMNS = list(_PROPERTIES)
 CONSTELLATIONS = tuple(_PROPERTIES["constellation"]["enum"])
 
 _REQUIRED = list(_SCHEMA["required"])
-#: Columns of numbers, in column order (lat, lon, h, azimuth, elevation, cn0); those that may
-#: be empty (null in the schema: h, cn0).
+#: Columns a table may leave out (h, position_sd): added empty.
+_OPTIONAL = [c for c in OBSERVATION_COLUMNS if c not in _REQUIRED]
+#: Columns of numbers, in column order (lat, lon, h, azimuth, elevation, cn0, position_sd); those
+#: that may be empty (null in the schema: h, cn0, position_sd).
 _NUMBERS = [c for c, spec in _PROPERTIES.items() if "number" in types(spec)]
 _MAY_BE_EMPTY = [c for c in _NUMBERS if "null" in types(_PROPERTIES[c])]
 #: The satellite numbers RINEX has (larger ones are no satellite and would overflow int64).
@@ -126,7 +129,8 @@ def check_observations(
     Parameters
     ----------
     table
-        A table with at least the columns of :data:`OBSERVATION_COLUMNS` except ``h``.
+        A table with at least the columns of :data:`OBSERVATION_COLUMNS` except the optional
+        ``h`` and ``position_sd``.
     where
         What to call the table in error messages (a file name).
     line_of
@@ -136,7 +140,8 @@ def check_observations(
     Returns
     -------
     DataFrame
-        The columns of :data:`OBSERVATION_COLUMNS` first (``h`` added as NaN when absent),
+        The columns of :data:`OBSERVATION_COLUMNS` first (``h`` and ``position_sd`` added as
+        NaN when absent),
         other columns after them untouched; ``time_utc`` as UTC timestamps, numbers as float,
         ``svid`` as int, ``receiver`` and ``constellation`` as str.
 
@@ -164,8 +169,9 @@ def check_observations(
     if missing:
         raise MissingColumnError(missing, where=where, have=[_name(c) for c in table.columns])
     out = table.copy()
-    if "h" not in out.columns:
-        out["h"] = np.nan
+    for column in _OPTIONAL:
+        if column not in out.columns:
+            out[column] = np.nan
 
     def locate(row: int) -> str:
         line = None if line_of is None else line_of(row)
@@ -208,6 +214,7 @@ _RANGE_FIX = {
     "azimuth": "give azimuths in degrees clockwise from true north, 0 <= azimuth < 360",
     "elevation": "give elevations in degrees above the horizon",
     "cn0": "give C/N0 in dB-Hz, leaving it empty for satellites not received",
+    "position_sd": "give the position error in metres per axis, or leave it empty when unknown",
 }
 
 

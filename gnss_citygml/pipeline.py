@@ -28,8 +28,15 @@ from .model.estimate import HEIGHTS_COLUMNS, estimate_heights
 from .observations import check_observations, satellites
 from .paths import StrPath
 from .raycast import footprint_entries
-from .recordings import recording_windows
-from .settings import Calibration, Estimator, PositionError, Rays, ReceiverHeights
+from .recordings import position_groups
+from .settings import (
+    DEFAULT_POSITION_SD,
+    Calibration,
+    Estimator,
+    PositionError,
+    Rays,
+    ReceiverHeights,
+)
 from .terrain import Dem, building_ground, sample_ground
 
 __all__ = [
@@ -40,6 +47,7 @@ __all__ = [
     "in_mask",
     "intersections",
     "join_heights",
+    "position_sds",
     "receivers",
     "run",
 ]
@@ -124,15 +132,17 @@ def intersections(
     fall of the ground away from the ray's tangent plane (``d^2 (1 - k) / 2R`` with the
     standard refraction coefficient k = 0.13: 2 cm at 500 m). Rays reach ``rays.max_range``.
 
-    With ``position_error.sd`` (m per axis: how far the receiver positions may be off), a
-    column ``height_sd``: the standard deviation of each height that follows, ``sd *
-    tan(elevation) / cos(incidence)`` (a position error across the entry wall lengthens or
-    shortens the ray's way to it by itself over the cosine of the angle of incidence; along
-    the wall it changes nothing), with the cosine floored at :data:`MIN_INCIDENCE`. With
-    ``position_error.window`` (s; needs ``time_utc``), a column ``recording`` too: rows of one
-    receiver within one window of that many seconds share one position error
-    (:func:`~gnss_citygml.recordings.recording_windows`: a walker's traced path drifts; by
-    default a whole recording shares one, as a point placed by hand).
+    Unless the positions are taken as exact (``position_error.sd`` 0), two more columns model
+    how far the receiver positions may be off (:class:`~gnss_citygml.settings.PositionError`:
+    by default each row's ``position_sd``, m per axis, and
+    :data:`~gnss_citygml.settings.DEFAULT_POSITION_SD` where it is empty or missing):
+    ``height_sd``, the standard deviation of each height that follows, ``sd * tan(elevation) /
+    cos(incidence)`` (a position error across the entry wall lengthens or shortens the ray's
+    way to it by itself over the cosine of the angle of incidence; along the wall it changes
+    nothing), with the cosine floored at :data:`MIN_INCIDENCE`; and ``recording``, which rows
+    share one position error (:func:`~gnss_citygml.recordings.position_groups`: a receiver
+    standing still shares one over its stay, a moving one over windows of
+    ``position_error.window`` seconds; needs ``time_utc``).
     """
     ray, fp, dist, incidence = footprint_entries(
         receivers["e"].to_numpy(),
@@ -148,13 +158,12 @@ def intersections(
     first = np.r_[True, ray[1:] != ray[:-1]]
     start = np.maximum.accumulate(np.where(first, np.arange(ray.size), 0))
     extra = {}
-    if position_error.sd is not None:
+    if not position_error.exact:
         spread = np.tan(elevation) / np.maximum(incidence, MIN_INCIDENCE)
-        extra["height_sd"] = position_error.sd * spread
+        extra["height_sd"] = position_sds(receivers, position_error)[ray] * spread
+        extra["recording"] = _recordings(receivers, position_error.window)[ray]
     if {"constellation", "svid"} <= set(receivers.columns):
         extra["satellite"] = satellites(receivers)[ray]
-    if position_error.window is not None:
-        extra["recording"] = recording_windows(receivers, position_error.window)[ray]
     return pd.DataFrame(
         {
             "signal": receivers.index.to_numpy()[ray],
@@ -172,6 +181,30 @@ def intersections(
             **extra,
         }
     )
+
+
+def _recordings(receivers: pd.DataFrame, window: float) -> pd.Categorical:
+    """Each row's position group (:func:`~gnss_citygml.recordings.position_groups`) named by
+    its receiver and first epoch (``phone1 2020-02-11T08:49:00Z``): a name that another run
+    over more observations gives the same group (``update`` keeps it with its evidence)."""
+    codes = position_groups(receivers, window)
+    first = receivers["time_utc"].groupby(codes).min()
+    who = receivers["receiver"].groupby(codes).first()
+    utc = pd.to_datetime(first, utc=True).dt.strftime("%Y-%m-%dT%H:%M:%S.%fZ")
+    names = who.astype(str) + " " + utc
+    return pd.Categorical.from_codes(codes, categories=pd.Index(names.to_numpy(), dtype=object))
+
+
+def position_sds(receivers: pd.DataFrame, position_error: PositionError) -> np.ndarray:
+    """Each row's position error (m per axis): ``position_error.sd`` if given, else the row's
+    ``position_sd``, and :data:`~gnss_citygml.settings.DEFAULT_POSITION_SD` where that is empty
+    or the table has no such column."""
+    if position_error.sd is not None:
+        return np.full(len(receivers), float(position_error.sd))
+    if "position_sd" not in receivers.columns:
+        return np.full(len(receivers), DEFAULT_POSITION_SD)
+    sd = pd.to_numeric(receivers["position_sd"], errors="coerce").to_numpy(dtype=float)
+    return np.where(np.isnan(sd), DEFAULT_POSITION_SD, sd)
 
 
 @dataclass(frozen=True)
@@ -241,11 +274,11 @@ def run(
         The height estimator and its settings (:class:`~gnss_citygml.settings.Estimator`; see
         :func:`~gnss_citygml.model.estimate.estimate_heights`).
     position_error
-        How far the receiver positions may be off, e.g. ``PositionError(sd=1)`` for points
-        placed by hand on a map (:class:`~gnss_citygml.settings.PositionError`): the height
-        fits then model each signal's resulting height error (``height_sd`` of
-        :func:`intersections`) and the ranges carry the roof line's position uncertainty.
-        Default: the positions are taken as exact, as in the paper.
+        How far the receiver positions may be off (:class:`~gnss_citygml.settings.PositionError`;
+        default: each observation's ``position_sd``, 1 m where it is empty): the height fits
+        model each signal's resulting height error (``height_sd`` of :func:`intersections`)
+        and the ranges carry the roof line's position uncertainty. ``PositionError(sd=0)``
+        takes the positions as exact, as in the paper.
     calibration
         With ``Calibration(prior_sd=...)`` (m per axis, the prior of the offsets), 4PL-B first
         estimates one position offset per recording (or per ``window`` seconds of it) jointly

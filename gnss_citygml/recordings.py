@@ -2,9 +2,10 @@
 
 A recording is one ``receiver``'s rows of the observations table. A position error (a point
 placed by hand, a phone's fix biased by the street around it) is shared by the rows of a
-recording, or, when it drifts, by the rows of one time window of it. Both the modelled position
-errors (:func:`gnss_citygml.pipeline.intersections`) and the self-calibrated offsets
-(:func:`gnss_citygml.calibrate.calibrate_receivers`) group rows by :func:`recording_windows`.
+recording, or, when it drifts, by the rows of one time window of it. The self-calibrated offsets
+(:func:`gnss_citygml.calibrate.calibrate_receivers`) group rows by :func:`recording_windows`;
+the modelled position errors (:func:`gnss_citygml.pipeline.intersections`) by
+:func:`position_groups`, which tells a receiver standing still from one moving from the data.
 
 A recording's windows start at its own first epoch: they cut a recording the same way whichever
 other recordings are in the run (adding a second phone's log, or one that started earlier, does
@@ -19,7 +20,7 @@ import pandas as pd
 
 from .errors import InputError
 
-__all__ = ["recording_windows"]
+__all__ = ["position_groups", "recording_windows"]
 
 
 def recording_windows(rows: pd.DataFrame, window: float | None = None) -> np.ndarray:
@@ -54,9 +55,65 @@ def recording_windows(rows: pd.DataFrame, window: float | None = None) -> np.nda
             "a time window of each recording needs the observations' time_utc",
             fix="give every observation its time, or leave out the window",
         )
-    utc = pd.to_datetime(rows["time_utc"], utc=True).dt.tz_convert(None)
-    ns = utc.astype("datetime64[ns]").astype(np.int64)
+    ns = _nanoseconds(rows)
     receiver = rows["receiver"].to_numpy()
     since_start = (ns - ns.groupby(receiver).transform("min")).to_numpy()
     slot = since_start // max(round(window * 1e9), 1)
     return pd.factorize(pd.MultiIndex.from_arrays([receiver, slot]))[0].astype(np.intp)
+
+
+def position_groups(rows: pd.DataFrame, window: float) -> np.ndarray:
+    """Which rows share one position error: a stay, or a window of a moving recording.
+
+    A receiver whose reported position (``e``, ``n``) stays exactly the same for at least
+    ``window`` seconds is standing at a point placed by hand or surveyed: that point's one
+    error lasts as long as the stay. Anywhere else (a walker's traced path, a phone's fixes,
+    which move a little every epoch even on a phone lying still) the error drifts, and the
+    rows of one ``window`` of the recording share one (:func:`recording_windows`).
+
+    Parameters
+    ----------
+    rows
+        A table with ``receiver``, ``time_utc``, ``e`` and ``n`` (m), e.g. the receivers.
+    window
+        Seconds, e.g. :data:`~gnss_citygml.settings.POSITION_WINDOW`.
+
+    Returns
+    -------
+    numpy.ndarray
+        One code (intp) per row, ``0 .. n - 1`` in order of first appearance.
+
+    Examples
+    --------
+    >>> t = pd.to_datetime([f"2020-01-01T10:00:{s:02d}" for s in (0, 20, 40, 0, 20, 40)])
+    >>> rows = pd.DataFrame({"receiver": ["still"] * 3 + ["walker"] * 3, "time_utc": t,
+    ...                      "e": [5.0, 5.0, 5.0, 0.0, 1.0, 2.0], "n": 0.0})
+    >>> position_groups(rows, 30.0)
+    array([0, 0, 0, 1, 1, 2])
+    """
+    if "time_utc" not in rows.columns:
+        raise InputError(
+            "the receivers' position errors need the observations' time_utc (which rows share "
+            "one error)",
+            fix="give every observation its time, or take the positions as exact (--position-sd 0)",
+        )
+    windows = recording_windows(rows, window)
+    t = _nanoseconds(rows).to_numpy()
+    receiver = pd.factorize(rows["receiver"])[0]
+    e, n = rows["e"].to_numpy(dtype=float), rows["n"].to_numpy(dtype=float)
+    by_time = np.lexsort((t, receiver))
+    r, e, n, t = receiver[by_time], e[by_time], n[by_time], t[by_time]
+    moved = np.r_[True, (r[1:] != r[:-1]) | (e[1:] != e[:-1]) | (n[1:] != n[:-1])]
+    stay = np.cumsum(moved) - 1
+    first = np.flatnonzero(moved)
+    last = np.r_[first[1:], r.size] - 1
+    still = (t[last] - t[first] >= round(window * 1e9))[stay]
+    key = np.empty(r.size, dtype=np.int64)
+    key[by_time] = np.where(still, stay, -1 - windows[by_time])
+    return pd.factorize(key)[0].astype(np.intp)
+
+
+def _nanoseconds(rows: pd.DataFrame) -> pd.Series:
+    """Each row's ``time_utc`` as nanoseconds since 1970 (int64), whatever its time zone."""
+    utc = pd.to_datetime(rows["time_utc"], utc=True).dt.tz_convert(None)
+    return utc.astype("datetime64[ns]").astype(np.int64)

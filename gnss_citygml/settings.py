@@ -28,6 +28,9 @@ from .errors import InputError, ModelError
 from .model import METHODS
 
 __all__ = [
+    "DEFAULT_POSITION_SD",
+    "HEIGHT_RULES",
+    "POSITION_WINDOW",
     "RECEIVER_HEIGHTS",
     "WEIGHTINGS",
     "Acceptance",
@@ -41,8 +44,23 @@ __all__ = [
 #: Reweighting schemes of the 4PL height fit (:func:`~gnss_citygml.model.fourplb.height_weights`).
 WEIGHTINGS = ("none", "height", "balanced", "looks")
 
+#: How a 4PL's height is read off it: its inflection point c, or the paper's c + 1.5/b. Both
+#: are measured in the README (benchmarks/scenes.py: c was nearer the truth in every regime);
+#: both are in every output (``c`` and ``height_paper``).
+HEIGHT_RULES = ("inflection", "paper")
+
 #: Where receiver heights come from: the DEM plus an antenna height, or the log's own heights.
 RECEIVER_HEIGHTS = ("dem", "log")
+
+#: Position error (m per axis) of an observation that does not say (its ``position_sd`` empty):
+#: a point placed by hand on a large-scale map, as the paper's receivers were ("an estimated
+#: location error of below 2 metres", taken as two standard deviations).
+DEFAULT_POSITION_SD = 1.0
+
+#: How long (s) one position error of a moving receiver lasts: a phone's fix and a walker's
+#: traced path wander with the multipath and the hand-tracing of the street around them, which
+#: change over tens of seconds at walking pace.
+POSITION_WINDOW = 30.0
 
 
 def _finite(value) -> bool:
@@ -138,11 +156,11 @@ class Acceptance:
         open probability by that much. (The paper's classifier, trained at one site and applied
         to others, still had a - d of about 0.4.)
     max_uncertainty
-        Widest height range (c_lo, c_hi + 3/b) (c over its likelihood-ratio interval), with
-        position errors widened by the position margin,
-        in metres, of a converged estimate. The default, 10 m, keeps the estimate within 5 m of
-        both ends of its range: CityGML's accuracy class for LOD1, the benchmark the paper
-        measures itself against.
+        Widest height range, in metres, of a converged estimate: the roof line's transition
+        3/b wide, over the likelihood-ratio interval of ``c`` and widened by the position
+        margin (:func:`~gnss_citygml.model.fourplb.fourplb`). The default, 10 m, keeps the
+        estimate within 5 m of both ends of its range: CityGML's accuracy class for LOD1, the
+        benchmark the paper measures itself against.
     """
 
     label_tol: float = 0.01
@@ -191,6 +209,11 @@ class Estimator:
         the current estimates is left out for this one.
     max_iter
         Most iterations of 4PL-B's loop.
+    height_rule
+        How the height is read off a building's 4PL, one of :data:`HEIGHT_RULES`:
+        ``inflection`` (default), its inflection point ``c``, where the chance that a signal is
+        received is halfway between its values below and above the roof line; ``paper``,
+        ``c + 1.5/b``. The range is the 3/b-wide transition centred on the height.
     acceptance
         What an estimate must satisfy to count as converged.
 
@@ -203,6 +226,7 @@ class Estimator:
     weighting: str = "none"
     visibility: bool = True
     max_iter: int = 10
+    height_rule: str = "inflection"
     acceptance: Acceptance = field(default_factory=Acceptance)
 
     def __post_init__(self):
@@ -214,6 +238,11 @@ class Estimator:
             raise ModelError(
                 f"unknown weighting {self.weighting!r}", fix="use one of " + ", ".join(WEIGHTINGS)
             )
+        if self.height_rule not in HEIGHT_RULES:
+            raise ModelError(
+                f"unknown height rule {self.height_rule!r}",
+                fix="use one of " + ", ".join(HEIGHT_RULES),
+            )
         if not _finite(self.init_threshold):
             raise ModelError("init_threshold must be a finite C/N0 in dB-Hz", fix="e.g. 30")
         if not _count(self.max_iter):
@@ -224,7 +253,7 @@ class Estimator:
             plain = Estimator(acceptance=Acceptance(min_signals=self.acceptance.min_signals))
             unused = [
                 name
-                for name in ("weighting", "visibility", "max_iter", "acceptance")
+                for name in ("weighting", "visibility", "max_iter", "height_rule", "acceptance")
                 if getattr(self, name) != getattr(plain, name)
             ]
             if unused:
@@ -243,39 +272,44 @@ class Estimator:
 class PositionError:
     """How far the receiver positions may be off, for the height fits to model.
 
+    By default the errors come from the data: each observation's ``position_sd`` (a phone
+    fix's accuracy, a surveyed point's ``sd``), :data:`DEFAULT_POSITION_SD` where it is empty.
+    The fits then model each signal's resulting height error, and the ranges carry the roof
+    line's position uncertainty (:func:`~gnss_citygml.pipeline.intersections`).
+
     Parameters
     ----------
     sd
-        Metres per axis, e.g. 1 for points placed by hand on a map: the fits model each
-        signal's resulting height error and the ranges carry the roof line's position
-        uncertainty. ``None`` (default): the positions are taken as exact, as in the paper.
+        Metres per axis for every position, overriding the data's, e.g. 1 for points placed by
+        hand on a map. ``0``: the positions are taken as exact, as in the paper (no error is
+        modelled). ``None`` (default): from the data.
     window
-        With ``sd``: how long (s) one position error lasts, e.g. 30 for a walker's traced path
-        (windows of each recording from its own first epoch, see
-        :func:`~gnss_citygml.recordings.recording_windows`). ``None``: a whole recording shares
-        one error, as a point placed by hand.
+        How long (s) one error of a moving receiver lasts: a walker's traced path or a phone's
+        fix drifts, so its rows share an error within windows of this length (windows of each
+        recording from its own first epoch). A receiver whose reported position stays put for
+        at least this long (a point placed by hand) shares one error over the whole stay
+        (:func:`~gnss_citygml.recordings.position_groups`).
     """
 
     sd: float | None = None
-    window: float | None = None
+    window: float = POSITION_WINDOW
 
     def __post_init__(self):
-        if self.sd is not None and not _positive(self.sd):
+        if self.sd is not None and not (_finite(self.sd) and self.sd >= 0):
             raise InputError(
-                f"the position error must be a positive number of metres, not {self.sd}",
-                fix="give --position-sd, e.g. 1 m for points placed by hand",
+                f"the position error must be a number of metres, 0 or more, not {self.sd}",
+                fix="give --position-sd, e.g. 1 m for points placed by hand (0: exact positions)",
             )
-        if self.window is not None and self.sd is None:
-            raise InputError(
-                "a position window without a position error",
-                fix="give the position error (--position-sd) too, e.g. 1 m for points placed "
-                "by hand",
-            )
-        if self.window is not None and not _positive(self.window):
+        if not _positive(self.window):
             raise InputError(
                 f"the position window must be a positive number of seconds, not {self.window}",
                 fix="give --position-window, e.g. 30 for a walker's traced path",
             )
+
+    @property
+    def exact(self) -> bool:
+        """Whether the positions are taken as exact (``sd=0``): no error is modelled."""
+        return self.sd == 0
 
 
 @dataclass(frozen=True)

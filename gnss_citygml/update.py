@@ -10,7 +10,8 @@ with SQL on the layer's own table, by building id.
   ``MAP.bak.gpkg`` (unless ``backup=False``). A crash, Ctrl-C or ``kill -9`` at any moment
   leaves the map byte-identical. A map that another program is writing to (a write lock, or
   a write-ahead log that is not empty: QGIS editing a layer) is refused.
-- **Evidence kept.** Every intersection cast so far (signal, building, height, C/N0, ...) is
+- **Evidence kept.** Every intersection cast so far (signal, building, height, C/N0, the
+  height error that its receiver's position error gives and which rows share that error, ...) is
   kept in the table ``gnss_evidence`` of the GeoPackage, keyed by its signal (receiver, time,
   satellite). A later update casts only the observations not in it yet, and refits the
   model on all of the evidence, so its result is that of one run over all the observations.
@@ -87,6 +88,8 @@ _EVIDENCE_COLUMNS = [
     "cn0",
     "receiver",
     "satellite",
+    "height_sd",
+    "recording",
 ]
 
 #: What the evidence keeps of every signal cast: for the report's skyplots and tracks.
@@ -102,6 +105,8 @@ _DTYPES = {
     "cn0": "float64",
     "receiver": "object",
     "satellite": "object",
+    "height_sd": "float64",
+    "recording": "object",
     "time_utc": "datetime64[ns, UTC]",
     "e": "float64",
     "n": "float64",
@@ -243,6 +248,7 @@ def update_map(
             signal_key=rx["signal_key"].to_numpy()[cast["signal"].to_numpy()],
             building=cast["building"].astype(str),
             satellite=cast["satellite"].astype(str),
+            recording=cast["recording"].astype(str),
         )[_EVIDENCE_COLUMNS]
         signals = rx.drop_duplicates("signal_key")[_SIGNAL_COLUMNS]
     evidence = pd.concat([stored, fresh], ignore_index=True)
@@ -424,13 +430,22 @@ def _read_evidence(path: Path, layer: str, kind: str, columns: list[str]) -> pd.
 
 
 def _columns(table, columns: list[str]):
-    """``columns`` of a stored table; a column that an earlier version did not store (the
-    satellite, in evidence kept before it was) is empty."""
+    """``columns`` of a stored table. A column that an earlier version did not store is filled
+    as that version fitted: the satellite empty; the height error 0 and the recording the
+    receiver (evidence kept before position errors were modelled by default counts as cast
+    from exact positions)."""
     import pyarrow as pa
 
     for name in columns:
-        if name not in table.column_names:
-            table = table.append_column(name, pa.nulls(len(table), pa.string()))
+        if name in table.column_names:
+            continue
+        if name == "height_sd":
+            column = pa.array(np.zeros(len(table)))
+        elif name == "recording":
+            column = table.column("receiver")
+        else:
+            column = pa.nulls(len(table), pa.string())
+        table = table.append_column(name, column)
     return table.select(columns)
 
 

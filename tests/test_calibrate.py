@@ -1,6 +1,5 @@
 """Self-calibration of receiver offsets on a simulated street canyon."""
 
-import geopandas as gpd
 import numpy as np
 import pytest
 
@@ -14,12 +13,7 @@ from gnss_citygml.simulate import simulate
 @pytest.fixture(scope="module")
 def canyon():
     sim = simulate("goodchild", locations="manual", seed=1, interval=5.0)
-    rx = sim.observations.assign(bearing=sim.observations["azimuth"])
-    buildings = gpd.GeoDataFrame(
-        {"id": [b.id for b in sim.scene.buildings]},
-        geometry=[b.footprint for b in sim.scene.buildings],
-    )
-    return rx, buildings
+    return sim.rays, sim.buildings
 
 
 def _cross_street_error(rx):

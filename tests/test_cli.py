@@ -156,8 +156,8 @@ def test_estimate_with_position_errors(grid_args, tmp_path, capsys):
     assert code == 2 and "--position-sd" in err
     code, _, err = run([*estimate_args(tmp_path, grid_args), "--calibration-window", "30"], capsys)
     assert code == 2 and "--calibration-sd" in err
-    code, _, err = run([*estimate_args(tmp_path, grid_args), "--position-window", "30"], capsys)
-    assert code == 2 and "--position-sd" in err
+    code, _, err = run([*estimate_args(tmp_path, grid_args), "--position-window", "0"], capsys)
+    assert code == 2 and "--position-window" in err
     # self-calibration fits 4PL-B's roof lines: with another method it is refused, not ignored
     calibrated_hinge = ["--calibration-sd", "5", "--method", "hinge"]
     code, _, err = run([*estimate_args(tmp_path, grid_args), *calibrated_hinge], capsys)
@@ -165,14 +165,18 @@ def test_estimate_with_position_errors(grid_args, tmp_path, capsys):
     assert err.startswith("error: self-calibration needs method 4PL-B, not hinge: ")
     assert "--calibration-sd" in err
     assert not (tmp_path / "heights.gpkg").exists()
-    code, _, err = run([*estimate_args(tmp_path, grid_args), "--position-sd", "1"], capsys)
-    assert code == 0, err
-    row = gpd.read_file(tmp_path / "heights.gpkg", layer="heights").set_index("id")
-    row = row.loc["hermitage_terrace"]
-    assert row["converged"]
-    # the range carries the roof line's position uncertainty beyond the paper's (c, c + 3/b)
-    assert row["height_lower"] < row["c"]
-    assert row["height_upper"] > row["c"] + 3.0 / row["b"]
+    ranges = {}
+    for sd in ("0", "1", "3"):  # 0: exact positions, as in the paper
+        args = [*estimate_args(tmp_path, grid_args), "--position-sd", sd, "--overwrite"]
+        code, _, err = run(args, capsys)
+        assert code == 0, err
+        row = gpd.read_file(tmp_path / "heights.gpkg", layer="heights").set_index("id")
+        row = row.loc["hermitage_terrace"]
+        assert row["converged"]
+        ranges[sd] = (row["height_lower"], row["height_upper"])
+    # the range carries the roof line's position uncertainty: wider, the further off
+    width = {sd: upper - lower for sd, (lower, upper) in ranges.items()}
+    assert width["0"] < width["1"] < width["3"]
 
 
 def test_estimate_bad_observation_names_its_line(grid_args, tmp_path, capsys):

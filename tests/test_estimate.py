@@ -44,12 +44,28 @@ def test_4plb_is_robust_to_the_initial_threshold(rng, threshold):
     assert 20 < out.attrs["signal_classifier"]["c"] < 40
 
 
-def test_height_is_c_plus_1_5_over_b(rng):
-    row = estimate_heights(synthetic_intersections(rng)).iloc[0]
-    assert row["height"] == pytest.approx(row["c"] + 1.5 / row["b"])
-    # the paper's range (c, c + 3/b), widened by where else the data would put c
-    assert row["height_lower"] <= row["c"] and row["c"] + 3.0 / row["b"] <= row["height_upper"]
+def test_the_height_rules(rng):
+    table = synthetic_intersections(rng)
+    row = estimate_heights(table).iloc[0]
+    # by default the inflection point c, in the transition 3/b wide centred on it, widened by
+    # where else the data would put c
+    assert row["height"] == row["c"]
+    half = 1.5 / row["b"]
+    assert row["height_lower"] <= row["c"] - half and row["c"] + half <= row["height_upper"]
     assert row["height_upper"] - row["height_lower"] < 3.0 / row["b"] + 1.0
+    # the paper's rule c + 1.5/b, with the paper's range (c, c + 3/b) widened alike; the
+    # paper's height is in the table whichever rule gave the height
+    paper = estimate_heights(table, Estimator(height_rule="paper")).iloc[0]
+    assert paper["height"] == pytest.approx(paper["c"] + 1.5 / paper["b"])
+    assert paper["height"] == row["height_paper"] == paper["height_paper"]
+    assert paper[["c", "b"]].tolist() == row[["c", "b"]].tolist()
+    assert paper["height_lower"] == pytest.approx(row["height_lower"] + half)
+    assert paper["height_upper"] == pytest.approx(row["height_upper"] + half)
+    with pytest.raises(ModelError, match="unknown height rule 'top'"):
+        Estimator(height_rule="top")
+    with pytest.raises(ModelError, match="height_rule not used by method hinge"):
+        Estimator(method="hinge", height_rule="paper")
+    assert np.isnan(estimate_heights(table, Estimator(method="hinge"))["height_paper"]).all()
 
 
 @pytest.mark.parametrize(
@@ -193,11 +209,10 @@ def test_position_errors_are_modelled_and_widen_the_range(rng):
     row = estimate_heights(table).iloc[0]
     assert row["converged"], row["status"]
     assert row["b"] > 1.5 * plain["b"]  # the roof line's own sharpness, not the blur's
-    assert row["height"] == pytest.approx(row["c"] + 1.5 / row["b"])
-    assert row["c"] == pytest.approx(45.0, abs=0.5)
-    margin = row["c"] - row["height_lower"]
+    assert row["height"] == row["c"] == pytest.approx(45.0, abs=0.5)
+    margin = row["c"] - 1.5 / row["b"] - row["height_lower"]
     assert margin > 0.1
-    assert row["height_upper"] == pytest.approx(row["c"] + 3.0 / row["b"] + margin)
+    assert row["height_upper"] == pytest.approx(row["c"] + 1.5 / row["b"] + margin)
 
 
 def test_recordings_share_position_errors(rng):
@@ -206,8 +221,8 @@ def test_recordings_share_position_errors(rng):
     table = _blurred_by_positions(rng)
     four = estimate_heights(table).iloc[0]
     one = estimate_heights(table.assign(recording=0)).iloc[0]
-    margin_four = four["c"] - four["height_lower"]
-    margin_one = one["c"] - one["height_lower"]
+    margin_four = four["c"] - 1.5 / four["b"] - four["height_lower"]
+    margin_one = one["c"] - 1.5 / one["b"] - one["height_lower"]
     assert margin_one == pytest.approx(2.0 * margin_four, rel=0.1)
 
 

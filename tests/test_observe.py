@@ -13,6 +13,7 @@ from gnss_citygml.gnss.gnsslogger import read_gnsslogger
 from gnss_citygml.gnss.gpstime import gps_to_utc
 from gnss_citygml.gnss.observe import observe
 from gnss_citygml.gnss.orbits import OrbitSpanError, load_orbits
+from gnss_citygml.gnss.positions import ACCURACY_PER_SD
 from gnss_citygml.gnss.sky import azimuth_elevation
 from gnss_citygml.observations import OBSERVATION_COLUMNS, check_observations
 
@@ -95,6 +96,10 @@ def test_observations_of_a_real_log(repo_data, demo_observations):
     np.testing.assert_array_equal(merged["cn0"], merged["cn0_raw"])
     assert obs["cn0"].isna().sum() > 0
     assert obs["receiver"].unique().tolist() == [DEMO_2016.removesuffix(".txt")]
+    # how far each position may be off: the phone's own accuracy of its fix, per axis
+    fixes = log.fixes[log.fixes["provider"] == "gps"]
+    assert obs["position_sd"].notna().all()
+    assert obs["position_sd"].isin(fixes["accuracy"] / ACCURACY_PER_SD).all()
 
 
 def test_mask_changes_the_rows(repo_data, demo_observations):

@@ -182,14 +182,21 @@ def test_height_errors_of_position_errors():
             "elevation": 45.0,
             "cn0": 40.0,
             "receiver": "r",
+            "time_utc": pd.Timestamp("2020-02-11T10:00:00Z"),
         }
     )
-    plain = intersections(rx, wall)
-    assert "height_sd" not in plain
+    exact = intersections(rx, wall, position_error=PositionError(sd=0.0))
+    assert "height_sd" not in exact and "recording" not in exact
     out = intersections(rx, wall, position_error=PositionError(sd=2.0))
-    np.testing.assert_allclose(out["height"], plain["height"])
+    np.testing.assert_allclose(out["height"], exact["height"])
     # tan 45 = 1; 1 / cos 60 = 2; grazing (cos 3 deg from the wall = 0.05) capped at 10
     np.testing.assert_allclose(out["height_sd"], [2.0, 4.0, 20.0])
+    # by default each row's own position_sd, 1 m where it is empty or missing
+    np.testing.assert_allclose(intersections(rx, wall)["height_sd"], [1.0, 2.0, 10.0])
+    given = rx.assign(position_sd=[0.5, np.nan, 3.0])
+    np.testing.assert_allclose(intersections(given, wall)["height_sd"], [0.5, 2.0, 30.0])
+    overridden = intersections(given, wall, position_error=PositionError(sd=2.0))
+    np.testing.assert_allclose(overridden["height_sd"], [2.0, 4.0, 20.0])
 
 
 def test_position_errors_shared_per_window():
@@ -199,7 +206,7 @@ def test_position_errors_shared_per_window():
         {
             "time_utc": start + pd.to_timedelta([0, 10, 40, 0], unit="s"),
             "receiver": ["a", "a", "a", "b"],
-            "e": 0.0,
+            "e": [0.0, 1.0, 2.0, 0.0],  # a walks
             "n": 0.0,
             "z": 1.0,
             "bearing": 90.0,
@@ -211,5 +218,5 @@ def test_position_errors_shared_per_window():
     out = intersections(rx, wall, position_error=walker)
     rec = out["recording"].to_numpy()
     assert rec[0] == rec[1] and len({rec[0], rec[2], rec[3]}) == 3
-    with pytest.raises(InputError, match="time_utc"):
-        intersections(rx.drop(columns="time_utc"), wall, position_error=walker)
+    with pytest.raises(InputError, match="position errors need the observations' time_utc"):
+        intersections(rx.drop(columns="time_utc"), wall)

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from gnss_citygml import Estimator, estimate_heights
+from gnss_citygml.pipeline import intersections
 from gnss_citygml.simulate import simulate
 
 THRESHOLDS = (20.0, 30.0, 40.0)
@@ -36,15 +37,18 @@ def _target(sim, threshold, method="4PL-B"):
 def test_open_sites_are_recovered_within_their_range(sims, preset, locations, threshold):
     row, truth = _target(sims(preset, locations), threshold)
     assert row["converged"], row["status"]
-    # GNSS fixes err by metres: the transition widens and c + 1.5/b drifts above the roof.
-    assert row["height"] == pytest.approx(truth, abs=1.5 if locations == "manual" else 3.0)
+    # GNSS fixes err by metres: the transition widens. UCL's truth is one part of a roof of
+    # several levels and a dome (the entrance hall, as the paper adopted it): the roof line the
+    # signals see, c, is 2 m under it; the paper's c + 1.5/b is nearer there.
+    tolerance = 3.0 if locations == "gnss" else {"ucl": 2.5, "hermitage": 1.5}[preset]
+    assert row["height"] == pytest.approx(truth, abs=tolerance)
     assert row["height_lower"] - 1.0 <= truth <= row["height_upper"] + 1.0
 
 
 @pytest.mark.parametrize("threshold", THRESHOLDS)
 def test_canyon_roof_line_is_found_with_manual_positions(sims, threshold):
     # In the canyon, position errors blur the transition (3/b of several metres) and the paper's
-    # point estimate c + 1.5/b sits above the roof; the inflection point c finds it.
+    # point estimate c + 1.5/b sits above the roof; the inflection point c (the height) finds it.
     row, truth = _target(sims("goodchild", "manual"), threshold)
     assert row["converged"], row["status"]
     assert row["c"] == pytest.approx(truth, abs=3.5)
@@ -61,17 +65,21 @@ def test_canyon_with_gnss_fixes_is_reported_not_guessed(sims, threshold):
 
 @pytest.mark.parametrize("threshold", THRESHOLDS)
 def test_city_with_walkers(sims, threshold):
+    # cast as the pipeline does by default: each position 1 m off (placed by hand), the
+    # walkers' errors shared over 30 s
     sim = sims("city", "manual")
     truth = sim.truth.set_index("id")["height"]
-    out = estimate_heights(sim.intersections, Estimator(init_threshold=threshold)).set_index("id")
+    cast = intersections(sim.rays, sim.buildings)
+    out = estimate_heights(cast, Estimator(init_threshold=threshold)).set_index("id")
     ok = out["converged"]
     true = truth.reindex(out.index)
     err = (out["height"] - true)[ok]
     inside = ((out["height_lower"] <= true) & (true <= out["height_upper"]))[ok]
-    assert ok.mean() >= 0.55  # the rest with a status: their data leave a range over 10 m
-    assert np.median(np.abs(err)) < 2.0
-    assert np.abs(err).max() < 10.0
-    assert inside.mean() >= 0.75
+    # half of the buildings or more; the rest with a status: their data leave a range over 10 m
+    assert ok.mean() >= 0.5
+    assert np.median(np.abs(err)) < 1.0
+    assert np.abs(err).max() < 6.0
+    assert inside.mean() >= 0.85
 
 
 def test_baselines_depend_on_the_threshold_where_4plb_does_not(sims):

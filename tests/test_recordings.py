@@ -7,7 +7,7 @@ import shapely
 
 from gnss_citygml.errors import InputError
 from gnss_citygml.pipeline import intersections
-from gnss_citygml.recordings import recording_windows
+from gnss_citygml.recordings import position_groups, recording_windows
 from gnss_citygml.settings import PositionError
 
 START = pd.Timestamp("2020-02-11T10:00:00Z")
@@ -53,8 +53,25 @@ def test_windows_need_times():
 
 def test_the_pipelines_position_errors_share_the_windows():
     wall = gpd.GeoDataFrame({"id": ["w"]}, geometry=[shapely.box(10, -50, 20, 50)])
-    table = rows(["a", "a", "a", "b", "b", "b"], [0, 10, 40, 25, 50, 60]).assign(
-        e=0.0, n=0.0, z=1.0, bearing=90.0, elevation=30.0, cn0=40.0
+    walkers = rows(["a", "a", "a", "b", "b", "b"], [0, 10, 40, 25, 50, 60]).assign(
+        e=[0.0, 1.0, 2.0, 0.0, 1.0, 2.0], n=0.0, z=1.0, bearing=90.0, elevation=30.0, cn0=40.0
     )
-    out = intersections(table, wall, position_error=PositionError(sd=1.0, window=30.0))
+    out = intersections(walkers, wall, position_error=PositionError(sd=1.0, window=30.0))
     assert groups(out["recording"].tolist()) == [[0, 1], [2], [3, 4], [5]]
+    # named by receiver and first epoch, so another run over more rows names them alike
+    assert out["recording"][3] == "b 2020-02-11T10:00:25.000000Z"
+
+
+def test_a_receiver_standing_still_shares_one_error_over_its_stay():
+    # a: placed by hand at one point for 60 s, then at another for 20 s (shorter than a
+    # window: a pause of a walk, cut by the windows); b: a phone's fixes, a little off
+    # every epoch
+    table = rows(["a"] * 5 + ["b"] * 4, [0, 30, 60, 80, 100, 0, 10, 40, 70]).assign(
+        e=[5.0, 5.0, 5.0, 9.0, 9.0, 0.0, 0.3, 0.1, 0.2], n=0.0
+    )
+    assert groups(position_groups(table, 30.0)) == [[0, 1, 2], [3], [4], [5, 6], [7], [8]]
+    # a stay at least a window long is one group, however long
+    assert groups(position_groups(table, 10.0)) == [[0, 1, 2], [3, 4], [5], [6], [7], [8]]
+    # the order of the rows does not matter (row i is now row 8 - i)
+    backwards = table.iloc[::-1].reset_index(drop=True)
+    assert groups(position_groups(backwards, 30.0)) == [[0], [1], [2, 3], [4], [5], [6, 7, 8]]

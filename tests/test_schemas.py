@@ -24,7 +24,7 @@ from gnss_citygml.model.estimate import HEIGHTS_COLUMNS, estimate_heights
 from gnss_citygml.observations import OBSERVATION_COLUMNS, check_observations
 
 ROOT = Path(__file__).resolve().parents[1]
-BASE = "https://gnss-citygml.org/schemas/1.0/"
+BASE = "https://gnss-citygml.org/schemas/1.1/"
 OBS = load(OBSERVATIONS)
 #: A row every check accepts, as JSON.
 ROW = {
@@ -85,7 +85,7 @@ def test_the_readme_names_every_file_with_its_id():
     assert files == sorted([OBSERVATIONS, HEIGHTS, EXTENSION])
     for name in files:
         assert f"| `{name}` |" in readme and f"`{BASE}{name}`" in readme
-    assert "version **1.0**" in readme and "are **names**, not addresses to fetch" in readme
+    assert "version **1.1**" in readme and "are **names**, not addresses to fetch" in readme
 
 
 # --- observations -------------------------------------------------------------------------------
@@ -94,7 +94,7 @@ def test_the_readme_names_every_file_with_its_id():
 def test_the_reader_takes_its_columns_from_the_schema():
     assert OBSERVATION_COLUMNS == list(OBS["properties"])
     assert OBSERVATION_COLUMNS[:4] == ["time_utc", "receiver", "lat", "lon"]
-    assert set(OBSERVATION_COLUMNS) - set(OBS["required"]) == {"h"}
+    assert set(OBSERVATION_COLUMNS) - set(OBS["required"]) == {"h", "position_sd"}
 
 
 def test_rows_the_checks_accept_validate(tmp_path):

@@ -21,7 +21,10 @@ def test_defaults_are_the_papers():
         method="4PL-B", init_threshold=30.0, weighting="none", visibility=True, max_iter=10
     )
     assert Estimator().acceptance == Acceptance(0.01, 10, 0.3, 10.0)
-    assert PositionError().sd is None and not Calibration().on
+    # position errors from the data by default; sd=0 takes positions as exact, as the paper
+    assert PositionError() == PositionError(sd=None, window=30.0)
+    assert not PositionError().exact and PositionError(sd=0).exact
+    assert not Calibration().on
     assert Calibration(prior_sd=5.0).rounds == 3
 
 
@@ -38,8 +41,8 @@ def test_settings_are_frozen():
         (lambda: Rays(max_range=0.0), "max_range"),
         (lambda: ReceiverHeights(source="gps"), "unknown receiver height source 'gps'"),
         (lambda: ReceiverHeights(antenna_height=float("inf")), "antenna_height"),
-        (lambda: PositionError(sd=-1.0), "position error must be a positive"),
-        (lambda: PositionError(window=30.0), "a position window without a position error"),
+        (lambda: PositionError(sd=-1.0), "position error must be a number of metres, 0 or"),
+        (lambda: PositionError(sd=float("inf")), "position error must be a number of metres"),
         (lambda: PositionError(sd=1.0, window=0.0), "position window must be a positive"),
         (lambda: Calibration(prior_sd=float("nan")), "calibration prior must be a positive"),
         (lambda: Calibration(window=30.0), "a calibration window without self-calibration"),

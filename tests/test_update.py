@@ -332,12 +332,16 @@ def test_a_truth_table_without_a_report_is_refused(city_map, halves, grid_dir):
     assert digest(city_map) == original
 
 
-def test_evidence_kept_without_satellites_reads_as_empty_satellites():
+def test_older_evidence_reads_as_it_was_fitted():
     import pyarrow as pa
 
     from gnss_citygml.update import _columns
 
-    older = pa.table({"signal_key": [1, 2], "building": ["a", "b"]})
-    table = _columns(older, ["signal_key", "satellite", "building"])
-    assert table.column_names == ["signal_key", "satellite", "building"]
+    older = pa.table({"signal_key": [1, 2], "building": ["a", "b"], "receiver": ["r", "s"]})
+    wanted = ["signal_key", "satellite", "building", "height_sd", "recording"]
+    table = _columns(older, wanted)
+    assert table.column_names == wanted
+    # no satellites; cast from positions taken as exact, one recording per receiver
     assert table.column("satellite").null_count == 2
+    assert table.column("height_sd").to_pylist() == [0.0, 0.0]
+    assert table.column("recording").to_pylist() == ["r", "s"]

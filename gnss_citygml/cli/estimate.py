@@ -7,10 +7,11 @@ from pathlib import Path
 
 import click
 
-from ..settings import RECEIVER_HEIGHTS, Rays, ReceiverHeights
+from ..settings import RECEIVER_HEIGHTS, PositionError, Rays, ReceiverHeights
 from .options import (
     DEM_CRS,
     GRID_DIR,
+    HEIGHT_RULE,
     ID_FIELD,
     LAYER,
     MAX_ELEVATION,
@@ -53,23 +54,27 @@ _RUN_OPTIONS = together(
     ),
     THRESHOLD,
     METHOD,
+    HEIGHT_RULE,
     click.option(
         "--max-range", type=float, default=Rays.max_range, show_default=True, help="Ray length (m)."
     ),
     click.option(
         "--position-sd",
-        type=click.FloatRange(min=0.0, min_open=True),
-        help="How far the receiver positions may be off (m per axis; about 1 for points placed "
-        "by hand): the fits model the height errors that follow and the ranges widen. Not for "
-        "phone fixes, whose errors drift: use --calibration-sd. Default: positions taken as "
-        "exact, as in the paper.",
+        type=click.FloatRange(min=0.0),
+        help="How far every receiver position may be off (m per axis; about 1 for points placed "
+        "by hand), overriding the observations' position_sd: the fits model the height errors "
+        "that follow and the ranges widen. 0: positions taken as exact, as in the paper. "
+        "Default: each observation's position_sd (a phone fix's accuracy), 1 m where it is "
+        "empty.",
     ),
     click.option(
         "--position-window",
         type=click.FloatRange(min=0.0, min_open=True),
-        help="With --position-sd: one position error lasts this many seconds of a recording "
-        "(e.g. 30 for a walker's traced path). Default: a whole recording, as a point placed by "
-        "hand.",
+        default=PositionError.window,
+        show_default=True,
+        help="Seconds one position error of a moving receiver lasts (a walker's traced path, "
+        "a phone's fixes). A receiver whose position stays the same this long (a point placed "
+        "by hand) shares one error over its whole stay.",
     ),
     click.option(
         "--calibration-sd",
@@ -142,6 +147,7 @@ def _run(
     antenna_height,
     init_threshold,
     method,
+    height_rule,
     max_range,
     position_sd,
     position_window,
@@ -157,7 +163,7 @@ def _run(
     with a progress bar over its stages."""
     from ..jobs import estimate_file
     from ..pipeline import STAGES
-    from ..settings import Calibration, Estimator, PositionError
+    from ..settings import Calibration, Estimator
 
     steps = len(STAGES) + (report is not None)
     with progress(steps, "stages", quiet) as bar:
@@ -179,7 +185,9 @@ def _run(
                 min_elevation=min_elevation, max_elevation=max_elevation, max_range=max_range
             ),
             receiver_heights=ReceiverHeights(source=receiver_height, antenna_height=antenna_height),
-            estimator=Estimator(method=method, init_threshold=init_threshold),
+            estimator=Estimator(
+                method=method, init_threshold=init_threshold, height_rule=height_rule
+            ),
             position_error=PositionError(sd=position_sd, window=position_window),
             calibration=Calibration(prior_sd=calibration_sd, window=calibration_window),
             dem_crs=dem_crs,

@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from ..settings import WEIGHTINGS, Estimator
-from .options import METHOD, OVERWRITE, THRESHOLD, output_file
+from .options import HEIGHT_RULE, METHOD, OVERWRITE, THRESHOLD, output_file
 
 
 @click.command()
@@ -22,13 +22,16 @@ from .options import METHOD, OVERWRITE, THRESHOLD, output_file
     show_default=True,
     help="Reweighting of the 4PL height fit (4PL-B and 4PL).",
 )
+@HEIGHT_RULE
 @OVERWRITE
-def heights(intersections, output, method, init_threshold, weighting, overwrite):
+def heights(intersections, output, method, init_threshold, weighting, height_rule, overwrite):
     """Estimate building heights from an intersections table (CSV or Parquet)."""
     from ..model.estimate import estimate_heights
     from ..tables import check_table_output, read_table, write_table
 
-    estimator = Estimator(method=method, init_threshold=init_threshold, weighting=weighting)
+    estimator = Estimator(
+        method=method, init_threshold=init_threshold, weighting=weighting, height_rule=height_rule
+    )
     check_table_output(output, overwrite=overwrite)
     out = estimate_heights(read_table(intersections), estimator)
     write_table(out, output, overwrite=overwrite)

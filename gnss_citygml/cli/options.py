@@ -15,13 +15,14 @@ from typing import TYPE_CHECKING
 import click
 
 from ..model import METHODS
-from ..settings import Estimator, Rays
+from ..settings import HEIGHT_RULES, Estimator, Rays
 
 __all__ = [
     "DEM_CRS",
     "GRID_DIR",
     "ID_FIELD",
     "LAYER",
+    "HEIGHT_RULE",
     "MAX_ELEVATION",
     "METHOD",
     "MIN_ELEVATION",
@@ -94,6 +95,14 @@ METHOD = click.option(
     default=Estimator.method,
     show_default=True,
     help="Height estimator: 4PL-B, the paper's one-shot 4PL, or the hinge or Bayes baseline.",
+)
+HEIGHT_RULE = click.option(
+    "--height-rule",
+    type=click.Choice(list(HEIGHT_RULES)),
+    default=Estimator.height_rule,
+    show_default=True,
+    help="How the height is read off a building's 4PL: its inflection point c, or the paper's "
+    "c + 1.5/b (both are in every output: c and height_paper).",
 )
 THRESHOLD = click.option(
     "--init-threshold",

@@ -10,6 +10,7 @@ from ..settings import Estimator
 from .options import (
     DEM_CRS,
     GRID_DIR,
+    HEIGHT_RULE,
     ID_FIELD,
     LAYER,
     METHOD,
@@ -55,6 +56,7 @@ from .options import (
 @TRUTH
 @THRESHOLD
 @METHOD
+@HEIGHT_RULE
 @DEM_CRS
 @GRID_DIR
 @QUIET
@@ -72,6 +74,7 @@ def update(
     truth,
     init_threshold,
     method,
+    height_rule,
     dem_crs,
     grid_dir,
     quiet,
@@ -103,7 +106,9 @@ def update(
             threshold=threshold,
             dry_run=dry_run,
             backup=not no_backup,
-            estimator=Estimator(method=method, init_threshold=init_threshold),
+            estimator=Estimator(
+                method=method, init_threshold=init_threshold, height_rule=height_rule
+            ),
             grid_dir=grid_dir,
             dem_crs=dem_crs,
             report=report,

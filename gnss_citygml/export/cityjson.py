@@ -150,7 +150,7 @@ def write_cityjson(
     ...                          typed_attributes=True)
     ...     model = json.load(open(out.path))
     >>> model["extensions"]["GnssCityGML"]["version"]
-    '1.0'
+    '1.1'
     >>> model["CityObjects"]["osgb1"]["attributes"]
     {'measuredHeight': 12.5, 'creationDate': '2024-05-01', '+ground': 20.0, '+height': 32.5}
     """

@@ -48,10 +48,11 @@ def observe_log(
     orbits
         Satellite orbits covering the log (:func:`~gnss_citygml.gnss.orbits.load_orbits`).
     receiver_positions
-        ``time_utc``, ``lat``, ``lon``, ``h`` for every epoch of the log (e.g. from
-        :func:`~gnss_citygml.gnss.positions.positions`); ``h`` may be NaN (the DEM gives
-        the receiver height later; the sky is then seen from the ellipsoid, which moves no
-        satellite by a measurable angle).
+        ``time_utc``, ``lat``, ``lon``, ``h`` and optionally ``position_sd`` for every epoch of
+        the log (e.g. from :func:`~gnss_citygml.gnss.positions.positions`); ``h`` may be NaN
+        (the DEM gives the receiver height later; the sky is then seen from the ellipsoid, which
+        moves no satellite by a measurable angle), and ``position_sd`` too (unknown: the
+        estimator's default applies).
     min_elevation, max_elevation
         Elevation mask (deg): satellites outside it are left out.
     band
@@ -98,6 +99,7 @@ def observe_log(
             "svid": sky["svid"].to_numpy()[in_view],
             "azimuth": az[in_view],
             "elevation": el[in_view],
+            "position_sd": rx.get("position_sd", pd.Series(np.nan, rx.index)).to_numpy()[in_view],
         }
     )
     key = ["time_utc", "constellation", "svid"]

@@ -10,8 +10,11 @@ survey:
   receiver and time span, and :func:`surveyed_positions` gives a receiver's position at given
   times from it.
 
-Both return the same table: ``time_utc``, ``lat``, ``lon`` (deg, WGS84 / ETRS89) and ``h``
-(m above the ellipsoid; NaN where unknown, for the terrain model to fill in).
+Both return the same table: ``time_utc``, ``lat``, ``lon`` (deg, WGS84 / ETRS89), ``h``
+(m above the ellipsoid; NaN where unknown, for the terrain model to fill in) and
+``position_sd`` (m per axis: how far the position may be off; NaN where unknown, for the
+estimator's default). A fix's is its accuracy (Android's ``AccuracyMeters``, the radius of 68 %
+confidence) over :data:`ACCURACY_PER_SD`; a surveyed position's is the file's ``sd``.
 """
 
 from __future__ import annotations
@@ -27,7 +30,12 @@ from gnss_citygml.gnss.gnsslogger import GnssLog
 from gnss_citygml.gnss.gpstime import Times, utc_ns
 from gnss_citygml.paths import StrPath
 
-__all__ = ["positions", "read_surveyed_positions", "surveyed_positions"]
+__all__ = ["ACCURACY_PER_SD", "positions", "read_surveyed_positions", "surveyed_positions"]
+
+#: Android's horizontal accuracy (``AccuracyMeters``) is the radius holding the position with
+#: 68 % probability. For an error of standard deviation ``s`` along each axis, the radius holds
+#: ``1 - exp(-r^2 / 2 s^2)``, so that radius is ``s * sqrt(-2 ln 0.32)``, 1.51 s.
+ACCURACY_PER_SD = float(np.sqrt(-2.0 * np.log(1.0 - 0.68)))
 
 
 def positions(
@@ -54,7 +62,8 @@ def positions(
     -------
     pd.DataFrame
         ``time_utc``, ``lat``, ``lon`` (deg, WGS84), ``h`` (m above the WGS84 ellipsoid; NaN
-        where the fix had no altitude), one row per epoch in
+        where the fix had no altitude), ``position_sd`` (m per axis, the fix's accuracy over
+        :data:`ACCURACY_PER_SD`; NaN where the fix had none), one row per epoch in
         :attr:`~gnss_citygml.gnss.gnsslogger.GnssLog.epochs`.
 
     Raises
@@ -100,6 +109,7 @@ def positions(
             fix="raise max_gap, choose another provider or method, or give surveyed positions",
         )
     lat, h = fixes["lat"].to_numpy(), fixes["altitude"].to_numpy()
+    sd = fixes["accuracy"].to_numpy(dtype=float) / ACCURACY_PER_SD
     lon = np.degrees(np.unwrap(np.radians(fixes["lon"].to_numpy())))  # no jump at 180 deg
     lon = lon[lo] + weight * (lon[hi] - lon[lo])
     return pd.DataFrame(
@@ -108,6 +118,7 @@ def positions(
             "lat": lat[lo] + weight * (lat[hi] - lat[lo]),
             "lon": (lon + 180.0) % 360.0 - 180.0,
             "h": h[lo] + weight * (h[hi] - h[lo]),
+            "position_sd": sd[lo] + weight * (sd[hi] - sd[lo]),
         }
     )
 
@@ -126,8 +137,10 @@ def read_surveyed_positions(path: StrPath) -> pd.DataFrame:
     ``start_utc`` and ``end_utc`` are ISO 8601 times, UTC unless they carry an offset; the
     span includes both ends (where one span ends as the next one starts, the later span
     wins). ``lat``, ``lon`` are WGS84 / ETRS89 degrees and ``h`` the ellipsoidal height in
-    metres, empty when the height should come from the terrain model. Spans of one receiver
-    must not overlap.
+    metres, empty when the height should come from the terrain model. An optional column
+    ``sd`` says how far the position may be off (m per axis, e.g. 0.5 for a point measured
+    on a large-scale map, 0.02 for a surveyed mark); empty (or no column) leaves it to the
+    estimator's default. Spans of one receiver must not overlap.
 
     Parameters
     ----------
@@ -138,7 +151,8 @@ def read_surveyed_positions(path: StrPath) -> pd.DataFrame:
     -------
     pd.DataFrame
         ``receiver``, ``start_utc``, ``end_utc`` (datetime64[ns, UTC]), ``lat``, ``lon``,
-        ``h``, sorted by receiver and start; the file name is in ``attrs["path"]``.
+        ``h``, ``position_sd`` (the file's ``sd``, NaN where empty), sorted by receiver and
+        start; the file name is in ``attrs["path"]``.
 
     Raises
     ------
@@ -170,8 +184,8 @@ def read_surveyed_positions(path: StrPath) -> pd.DataFrame:
         if len(fields) != len(header):
             raise InputError(f"{len(fields)} fields, the header has {len(header)}", where=where)
         rows.append(_surveyed_row(dict(zip(header, fields, strict=True)), where) + (n,))
-    table = pd.DataFrame(rows, columns=[*wanted, "line"]).astype(
-        {"receiver": str, "lat": float, "lon": float, "h": float}
+    table = pd.DataFrame(rows, columns=[*wanted, "position_sd", "line"]).astype(
+        {"receiver": str, "lat": float, "lon": float, "h": float, "position_sd": float}
     )
     table["start_utc"] = pd.to_datetime(table["start_utc"], utc=True).astype("datetime64[ns, UTC]")
     table["end_utc"] = pd.to_datetime(table["end_utc"], utc=True).astype("datetime64[ns, UTC]")
@@ -206,8 +220,8 @@ def surveyed_positions(surveyed: pd.DataFrame, receiver: str, times: Times) -> p
     Returns
     -------
     pd.DataFrame
-        ``time_utc``, ``lat``, ``lon``, ``h`` (NaN where the file left it empty), one row per
-        time, in the given order.
+        ``time_utc``, ``lat``, ``lon``, ``h`` and ``position_sd`` (NaN where the file left
+        them empty), one row per time, in the given order.
 
     Raises
     ------
@@ -220,10 +234,10 @@ def surveyed_positions(surveyed: pd.DataFrame, receiver: str, times: Times) -> p
     ...     "receiver": ["phone"],
     ...     "start_utc": [pd.Timestamp("2020-02-11 08:49", tz="UTC")],
     ...     "end_utc": [pd.Timestamp("2020-02-11 08:55", tz="UTC")],
-    ...     "lat": [51.5247], "lon": [-0.1341], "h": [np.nan]})
+    ...     "lat": [51.5247], "lon": [-0.1341], "h": [np.nan], "position_sd": [0.5]})
     >>> surveyed_positions(surveyed, "phone", [pd.Timestamp("2020-02-11 08:50", tz="UTC")])
-                       time_utc      lat     lon   h
-    0 2020-02-11 08:50:00+00:00  51.5247 -0.1341 NaN
+                       time_utc      lat     lon   h  position_sd
+    0 2020-02-11 08:50:00+00:00  51.5247 -0.1341 NaN          0.5
     """
     where = surveyed.attrs.get("path", "surveyed positions")
     spans = surveyed[surveyed["receiver"] == receiver].sort_values("start_utc")
@@ -252,12 +266,13 @@ def surveyed_positions(surveyed: pd.DataFrame, receiver: str, times: Times) -> p
             "lat": spans["lat"].to_numpy()[k],
             "lon": spans["lon"].to_numpy()[k],
             "h": spans["h"].to_numpy()[k],
+            "position_sd": spans["position_sd"].to_numpy()[k],
         }
     )
 
 
 def _surveyed_row(row: dict[str, str], where: str) -> tuple:
-    """One row of a surveyed positions file, checked: (receiver, start, end, lat, lon, h)."""
+    """One row of a surveyed positions file, checked: (receiver, start, end, lat, lon, h, sd)."""
     receiver = row["receiver"].strip()
     if not receiver:
         raise InputError("empty receiver name", where=where)
@@ -268,7 +283,15 @@ def _surveyed_row(row: dict[str, str], where: str) -> tuple:
         _number(row[name], name, where, limit) for name, limit in (("lat", 90), ("lon", 180))
     )
     h = _number(row["h"], "h", where) if row["h"].strip() else np.nan
-    return receiver, start, end, lat, lon, h
+    sd = row.get("sd", "").strip()
+    sd = _number(sd, "sd", where) if sd else np.nan
+    if sd < 0:
+        raise InputError(
+            f"sd {sd:g} is negative",
+            where=where,
+            fix="give the position error in metres, 0 or more",
+        )
+    return receiver, start, end, lat, lon, h, sd
 
 
 def _utc_time(text: str, name: str, where: str) -> pd.Timestamp:

@@ -22,6 +22,7 @@ HEIGHTS_COLUMNS = [
     "height",
     "height_lower",
     "height_upper",
+    "height_paper",
     "a",
     "b",
     "c",
@@ -63,11 +64,13 @@ def estimate_heights(
     -------
     pandas.DataFrame
         The heights table, one row per building in order of first appearance: ``id``,
-        ``height`` (c + 1.5/b for the 4PL methods), ``height_lower`` and ``height_upper``
-        (4PL-B: the paper's range (c, c + 3/b) stretched over the 95 % likelihood-ratio interval
-        of ``c``, :func:`~gnss_citygml.model.fourpl.c_interval`; 4PL: (c, c + 3/b); with
-        ``height_sd`` both moved out by twice the standard error of ``c`` from
-        position errors), ``a``, ``b``, ``c``, ``d``, ``n_signals``, ``iterations``, ``converged``,
+        ``height`` (for the 4PL methods ``c``, or the paper's c + 1.5/b with
+        ``height_rule="paper"``), ``height_lower`` and ``height_upper`` (the 3/b-wide
+        transition centred on the height; 4PL-B stretches it over the 95 % likelihood-ratio
+        interval of ``c``, :func:`~gnss_citygml.model.fourpl.c_interval`; with ``height_sd``
+        both ends move out by twice the standard error of ``c`` from position errors),
+        ``height_paper`` (c + 1.5/b, whichever the rule), ``a``, ``b``, ``c``, ``d``,
+        ``n_signals``, ``iterations``, ``converged``,
         ``method`` and ``status``. A building whose estimate is not to be trusted has
         ``converged = False``, empty heights and the reason in ``status``. For 4PL-B,
         ``attrs["signal_classifier"]`` holds the final C/N0 classifier.
@@ -114,7 +117,9 @@ def estimate_heights(
         nan = np.full(n, np.nan)
         columns = {
             "height": np.where(ok, h, np.nan),
-            **dict.fromkeys(["height_lower", "height_upper", "a", "b", "c", "d"], nan),
+            **dict.fromkeys(
+                ["height_lower", "height_upper", "height_paper", "a", "b", "c", "d"], nan
+            ),
             "n_signals": n_signals,
             "iterations": np.where(ok, 1, 0),
             "converged": ok,

@@ -4,7 +4,10 @@ For every building, a 4PL in intersection height (the *map classifier*) is fitte
 labelled by a C/N0 *signal classifier*; the signals are then relabelled by the map (open where
 the intersection height is above the fitted inflection point ``c``), the signal classifier is
 refitted to those labels, and the loop repeats until fewer than 1 % of the map labels change or
-10 iterations have run. The height estimate is ``c + 1.5/b`` with range ``(c, c + 3/b)``.
+10 iterations have run. The paper's height estimate is ``c + 1.5/b`` with range
+``(c, c + 3/b)``; by default the height is ``c`` itself (``Estimator.height_rule``), with the
+transition's range ``(c - 1.5/b, c + 1.5/b)`` around it: where a roof edge is blurred alike
+above and below (by position errors, by diffraction), ``c`` is on it.
 
 Beyond the paper, the range is stretched over every roof line the data fit about as well as
 ``c`` (:func:`~.fourpl.c_interval`, a 95 % likelihood-ratio interval): a building seen only
@@ -70,6 +73,8 @@ class BuildingFits:
     height: np.ndarray
     height_lower: np.ndarray
     height_upper: np.ndarray
+    #: The paper's height ``c + 1.5/b`` (NaN where not converged), whichever rule ``height`` is.
+    height_paper: np.ndarray
 
 
 def height_weights(
@@ -309,6 +314,7 @@ def fourplb(
         strict=bootstrap,
         margin=margin,
         c_range=c_range,
+        paper_rule=estimator.height_rule == "paper",
     )
     return result, classifier
 
@@ -393,9 +399,12 @@ def _judge(
     strict=True,
     margin=0.0,
     c_range=None,
+    paper_rule=False,
 ):
     """Turn a fit on the ``seen`` rows into heights, with an explicit reason wherever it is
-    not to be trusted (``strict``: also where 4PL-B's loop or the fit itself is implausible)."""
+    not to be trusted (``strict``: also where 4PL-B's loop or the fit itself is implausible).
+    The height is ``c`` (``c + 1.5/b`` by the ``paper_rule``), its range the 3/b-wide
+    transition centred on it, over the interval of ``c`` and widened by the ``margin``."""
     below_all = h < fit.c[g]
     hidden = np.bincount(g, below_all & seen, n_groups) < MIN_VISIBLE * np.bincount(
         g, below_all, n_groups
@@ -410,8 +419,9 @@ def _judge(
     n_open = np.bincount(g, weights=labels.astype(float), minlength=n_groups)
     n_below = np.bincount(g, h < c[g], minlength=n_groups)
     c_lo, c_hi = (c, c) if c_range is None else c_range  # c_interval's ends hold c
-    lower = c_lo - margin
-    upper = c_hi + 3.0 / b + margin
+    offset = 1.5 / b if paper_rule else 0.0
+    lower = c_lo + offset - 1.5 / b - margin
+    upper = c_hi + offset + 1.5 / b + margin
     status = np.full(n_groups, "ok", dtype=object)
     plausibility = [
         (change >= label_tol, f"labels still changing after {iterations} iterations"),
@@ -446,7 +456,8 @@ def _judge(
         iterations=np.where(usable, iterations, 0),
         converged=converged,
         status=status,
-        height=np.where(converged, c + 1.5 / b, np.nan),
+        height=np.where(converged, c + offset, np.nan),
         height_lower=np.where(converged, lower, np.nan),
         height_upper=np.where(converged, upper, np.nan),
+        height_paper=np.where(converged, c + 1.5 / b, np.nan),
     )

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import geopandas as gpd
 import numpy as np
 import numpy.typing as npt
 import pandas as pd
@@ -52,6 +53,21 @@ class Simulation:
     observations: pd.DataFrame
     intersections: pd.DataFrame
     truth: pd.DataFrame
+
+    @property
+    def rays(self) -> pd.DataFrame:
+        """The observations as the pipeline's receivers table in the scene's grid (``bearing``
+        = ``azimuth``: the grid's north is true north), to cast with
+        :func:`~gnss_citygml.pipeline.intersections` as a user's data would be."""
+        return self.observations.assign(bearing=self.observations["azimuth"])
+
+    @property
+    def buildings(self) -> gpd.GeoDataFrame:
+        """The footprints in the scene's grid: ``id`` and ``geometry``."""
+        return gpd.GeoDataFrame(
+            {"id": [b.id for b in self.scene.buildings]},
+            geometry=[b.footprint for b in self.scene.buildings],
+        )
 
 
 def simulate(
@@ -91,6 +107,8 @@ def simulate(
         ``observations`` (one row per epoch x satellite above the mask, with ``cn0`` NaN for
         blocked signals; the reported position as ``lat``, ``lon`` (WGS84) with ``h`` empty, as
         the DEM gives receiver heights, and in the scene's grid as ``e``, ``n``, ``z`` (ODN);
+        ``position_sd``, the error a phone reports with its fix (empty for positions placed by
+        hand, whose error the user does not know);
         the truth as ``e_true``, ``n_true``, ``z_true`` and ``los``), ``intersections``
         (``signal``, ``building``, ``height``, ``distance``, ``order``, ``cn0``, ``receiver``)
         and ``truth`` (``id``, ``height``, ``ground``, ``target``).
@@ -196,7 +214,9 @@ def _session(rng, site: _Site, session: Session, locations, interval):
     nlos = received & blocked & (reflected > direct)
     cn0 = np.where(received, np.round(cn0, 1), np.nan)
 
-    # The positions the user has.
+    # The positions the user has, and the error they are reported with (none for points placed
+    # by hand: the user does not know it, and the estimator's default applies).
+    reported_sd = np.full(n_ep, np.nan)
     if locations == "manual":
         if session.walking:
             err = ar1(rng, n_ep, interval, 30.0, m.manual_sd, (2,))
@@ -205,7 +225,7 @@ def _session(rng, site: _Site, session: Session, locations, interval):
     else:
         rec, nl, c = np.zeros(az.shape, bool), np.zeros(az.shape, bool), np.full(az.shape, np.nan)
         rec[ep, sat], nl[ep, sat], c[ep, sat] = received, nlos, cn0
-        de, dn = gnss_fix_errors(
+        de, dn, reported_sd = gnss_fix_errors(
             rng,
             np.where(visible, az, np.nan),
             np.where(visible, el, np.nan),
@@ -229,6 +249,7 @@ def _session(rng, site: _Site, session: Session, locations, interval):
             "lat": lat[ep],
             "lon": lon[ep],
             "h": np.nan,
+            "position_sd": reported_sd[ep],
             "e": rep[ep, 0],
             "n": rep[ep, 1],
             "z": scene.ground + ASSUMED_ANTENNA,

@@ -96,8 +96,14 @@ def gnss_fix_errors(
     nlos: np.ndarray,
     cn0: np.ndarray,
     dt: float = 1.0,
-) -> tuple[np.ndarray, np.ndarray]:
-    """East, north errors (m) of the phone's own position fix, epoch by epoch.
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """East, north errors (m) of the phone's own position fix, epoch by epoch, and the error
+    the phone reports with it (m per axis, as its accuracy over 1.51).
+
+    The fix is a weighted least-squares solution of pseudorange errors (noise, and the extra
+    path of reflections). Its reported error is what a chipset can know: the solution's
+    covariance under its own noise model, scaled by the residuals' variance factor (not below
+    1), so a fix spoilt by reflections says it is worse, though not always by as much as it is.
 
     Parameters
     ----------
@@ -119,9 +125,14 @@ def gnss_fix_errors(
     w = np.where(received, 1.0 / sigma**2, 0.0)
     normal = np.einsum("es,esi,esj->eij", w, h, h) + 1e-9 * np.eye(4)
     rhs = np.einsum("es,esi,es->ei", w, h, err)
-    ok = received.sum(axis=1) >= 5
-    sol = np.zeros((n_ep, 4))
+    n_used = received.sum(axis=1)
+    ok = n_used >= 5
+    sol, sd = np.zeros((n_ep, 4)), np.full(n_ep, np.nan)
     sol[ok] = np.linalg.solve(normal[ok], rhs[ok][:, :, None])[:, :, 0]
+    residual = err - np.einsum("esi,ei->es", h, sol)
+    factor = np.einsum("es,es->e", w, residual**2) / np.maximum(n_used - 4, 1)
+    cov = np.linalg.inv(normal[ok]) * np.maximum(factor[ok], 1.0)[:, None, None]
+    sd[ok] = np.sqrt((cov[:, 0, 0] + cov[:, 1, 1]) / 2.0)
     last_fix = np.maximum.accumulate(np.where(ok, np.arange(n_ep), 0))  # hold through outages
-    sol = sol[last_fix]
-    return sol[:, 0], sol[:, 1]
+    sol, sd = sol[last_fix], sd[last_fix]
+    return sol[:, 0], sol[:, 1], sd

@@ -13,6 +13,7 @@ from qgis.core import (
     QgsProcessingAlgorithm,
     QgsProcessingException,
     QgsProcessingParameterDefinition,
+    QgsProcessingParameterEnum,
     QgsProcessingParameterFile,
 )
 from qgis.PyQt.QtGui import QIcon
@@ -155,11 +156,27 @@ class Algorithm(QgsProcessingAlgorithm):
         """An optional string, field or folder parameter: None when empty."""
         return self.parameterAsString(parameters, name, context) or None
 
+    def chosen(self, parameters, name, options, context):
+        """The one of ``options`` that a :func:`choice` parameter chose."""
+        return options[self.parameterAsEnum(parameters, name, context)]
+
 
 def advanced(parameter):
     """``parameter`` shown under "Advanced parameters"."""
     parameter.setFlags(parameter.flags() | QgsProcessingParameterDefinition.FlagAdvanced)
     return parameter
+
+
+#: The description of the height rule parameter (estimate, update).
+HEIGHT_RULE = "Height rule (c: the 4PL's inflection point; paper: c + 1.5/b)"
+
+
+def choice(name, description, options, default):
+    """A parameter choosing one of ``options`` (shown by name), ``default`` at first."""
+    options = list(options)
+    return QgsProcessingParameterEnum(
+        name, description, options=options, defaultValue=options.index(default)
+    )
 
 
 def folder(name, description):

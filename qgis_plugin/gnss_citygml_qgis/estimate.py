@@ -17,7 +17,7 @@ from qgis.core import (
     QgsProcessingParameterVectorDestination,
 )
 
-from .algorithm import Algorithm, advanced, folder
+from .algorithm import HEIGHT_RULE, Algorithm, advanced, choice, folder
 
 LAYER = "heights"
 
@@ -75,8 +75,10 @@ class EstimateAlgorithm(Algorithm):
     def define(self):
         from gnss_citygml.model import METHODS
         from gnss_citygml.settings import (
+            HEIGHT_RULES,
             RECEIVER_HEIGHTS,
             Estimator,
+            PositionError,
             Rays,
             ReceiverHeights,
         )
@@ -147,14 +149,8 @@ class EstimateAlgorithm(Algorithm):
                 Estimator.init_threshold,
             )
         )
-        self.addParameter(
-            QgsProcessingParameterEnum(
-                "METHOD",
-                "Method",
-                options=list(METHODS),
-                defaultValue=METHODS.index(Estimator.method),
-            )
-        )
+        self.addParameter(choice("METHOD", "Method", METHODS, Estimator.method))
+        self.addParameter(choice("HEIGHT_RULE", HEIGHT_RULE, HEIGHT_RULES, Estimator.height_rule))
         self.addParameter(
             advanced(
                 QgsProcessingParameterNumber(
@@ -162,9 +158,30 @@ class EstimateAlgorithm(Algorithm):
                 )
             )
         )
+        self.addParameter(
+            advanced(
+                QgsProcessingParameterNumber(
+                    "POSITION_SD",
+                    "Receiver position error (m per axis; default: the observations', 1 m where "
+                    "empty; 0: exact)",
+                    double,
+                    optional=True,
+                    minValue=0,
+                )
+            )
+        )
+        self.addParameter(
+            advanced(
+                QgsProcessingParameterNumber(
+                    "POSITION_WINDOW",
+                    "Position error of a moving receiver lasts (s)",
+                    double,
+                    PositionError.window,
+                    minValue=0,
+                )
+            )
+        )
         for name, description in (
-            ("POSITION_SD", "Receiver position error (m per axis; about 1 for points by hand)"),
-            ("POSITION_WINDOW", "Position error lasts (s; default: a whole recording)"),
             ("CALIBRATION_SD", "Self-calibrate receiver offsets with prior (m; 4PL-B only)"),
             ("CALIBRATION_WINDOW", "One calibration offset per (s; default: per recording)"),
         ):
@@ -186,7 +203,7 @@ class EstimateAlgorithm(Algorithm):
 
     def job(self, parameters, context, feedback):
         from gnss_citygml.model import METHODS
-        from gnss_citygml.settings import RECEIVER_HEIGHTS
+        from gnss_citygml.settings import HEIGHT_RULES, RECEIVER_HEIGHTS
 
         number = self.parameterAsDouble
         optional = self.optional_number
@@ -214,12 +231,13 @@ class EstimateAlgorithm(Algorithm):
                 "antenna_height": number(parameters, "ANTENNA_HEIGHT", context),
             },
             "estimator": {
-                "method": METHODS[self.parameterAsEnum(parameters, "METHOD", context)],
+                "method": self.chosen(parameters, "METHOD", METHODS, context),
                 "init_threshold": number(parameters, "INIT_THRESHOLD", context),
+                "height_rule": self.chosen(parameters, "HEIGHT_RULE", HEIGHT_RULES, context),
             },
             "position_error": {
                 "sd": optional(parameters, "POSITION_SD", context),
-                "window": optional(parameters, "POSITION_WINDOW", context),
+                "window": number(parameters, "POSITION_WINDOW", context),
             },
             "calibration": {
                 "prior_sd": optional(parameters, "CALIBRATION_SD", context),

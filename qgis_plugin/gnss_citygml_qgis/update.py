@@ -10,7 +10,6 @@ from qgis.core import (
     QgsProcessingOutputBoolean,
     QgsProcessingOutputNumber,
     QgsProcessingParameterBoolean,
-    QgsProcessingParameterEnum,
     QgsProcessingParameterField,
     QgsProcessingParameterMultipleLayers,
     QgsProcessingParameterNumber,
@@ -19,7 +18,7 @@ from qgis.core import (
     QgsProviderRegistry,
 )
 
-from .algorithm import Algorithm, advanced, folder
+from .algorithm import HEIGHT_RULE, Algorithm, advanced, choice, folder
 
 HELP = """Keeps the building heights of a GeoPackage map up to date as new GNSS observations \
 arrive: adds or updates the columns height_gnss, height_lower, height_upper, n_signals, \
@@ -49,7 +48,7 @@ class UpdateAlgorithm(Algorithm):
 
     def define(self):
         from gnss_citygml.model import METHODS
-        from gnss_citygml.settings import Estimator
+        from gnss_citygml.settings import HEIGHT_RULES, Estimator
 
         self.addParameter(
             QgsProcessingParameterVectorLayer(
@@ -91,14 +90,10 @@ class UpdateAlgorithm(Algorithm):
         self.addParameter(
             QgsProcessingParameterBoolean("BACKUP", "Keep the map as it was (MAP.bak.gpkg)", True)
         )
+        self.addParameter(advanced(choice("METHOD", "Method", METHODS, Estimator.method)))
         self.addParameter(
-            advanced(
-                QgsProcessingParameterEnum(
-                    "METHOD", "Method", options=list(METHODS),
-                    defaultValue=METHODS.index(Estimator.method),
-                )
-            )
-        )  # fmt: skip
+            advanced(choice("HEIGHT_RULE", HEIGHT_RULE, HEIGHT_RULES, Estimator.height_rule))
+        )
         self.addParameter(
             advanced(
                 QgsProcessingParameterNumber(
@@ -115,6 +110,7 @@ class UpdateAlgorithm(Algorithm):
 
     def job(self, parameters, context, feedback):
         from gnss_citygml.model import METHODS
+        from gnss_citygml.settings import HEIGHT_RULES
 
         layer = self.parameterAsVectorLayer(parameters, "MAP", context)
         parts = QgsProviderRegistry.instance().decodeUri(layer.providerType(), layer.source())
@@ -136,8 +132,9 @@ class UpdateAlgorithm(Algorithm):
             "dry_run": self.parameterAsBoolean(parameters, "DRY_RUN", context),
             "backup": self.parameterAsBoolean(parameters, "BACKUP", context),
             "estimator": {
-                "method": METHODS[self.parameterAsEnum(parameters, "METHOD", context)],
+                "method": self.chosen(parameters, "METHOD", METHODS, context),
                 "init_threshold": self.parameterAsDouble(parameters, "INIT_THRESHOLD", context),
+                "height_rule": self.chosen(parameters, "HEIGHT_RULE", HEIGHT_RULES, context),
             },
             "grid_dir": self.optional_text(parameters, "GRID_DIR", context),
             "dem_crs": dem.crs().authid() or None,

@@ -157,8 +157,8 @@ class Acceptance:
         to others, still had a - d of about 0.4.)
     max_uncertainty
         Widest height range, in metres, of a converged estimate: the roof line's transition
-        3/b wide, over the likelihood-ratio interval of ``c`` and widened by the position
-        margin (:func:`~gnss_citygml.model.fourplb.fourplb`). The default, 10 m, keeps the
+        3/b wide, widened by the likelihood-ratio interval of ``c`` and the position margin
+        in quadrature (:func:`~gnss_citygml.model.fourplb.fourplb`). The default, 10 m, keeps the
         estimate within 5 m of both ends of its range: CityGML's accuracy class for LOD1, the
         benchmark the paper measures itself against.
     """

@@ -276,3 +276,26 @@ def test_the_range_holds_where_the_data_leave_the_roof_line(rng):
     row = estimate_heights(table, lax).iloc[0]
     assert row["converged"]
     assert row["height_lower"] <= 30.5 and row["height_upper"] >= 49.5
+
+
+def test_the_datas_and_the_positions_uncertainties_add_in_quadrature():
+    from gnss_citygml.model.fourpl import FourPLFit
+    from gnss_citygml.model.fourplb import _judge
+
+    one = np.ones(1)
+    fit = FourPLFit(
+        a=0.9 * one, b=one, c=30.0 * one, d=0.05 * one, loglik=-one,
+        converged=one.astype(bool), n_iter=one, separable=~one.astype(bool),
+    )  # fmt: skip
+    h = np.r_[np.linspace(20.0, 29.0, 20), np.linspace(31.0, 40.0, 20)]
+    labels = h > 30.0
+    g = np.zeros(h.size, dtype=np.intp)
+    interval = (30.0 - 3.0) * one, (30.0 + 1.0) * one  # the data's: 3 m below c, 1 m above
+    judged = _judge(
+        fit, g, h, labels, np.ones(h.size, bool), 1, np.zeros(1), 3,
+        Acceptance(max_uncertainty=20.0), margin=4.0 * one, c_range=interval,
+    )  # fmt: skip
+    assert judged.converged[0] and judged.height[0] == 30.0
+    # 1.5/b of transition on each side, then the two uncertainties of c: hypot(3, 4) = 5
+    assert judged.height_lower[0] == pytest.approx(30.0 - 1.5 - 5.0)
+    assert judged.height_upper[0] == pytest.approx(30.0 + 1.5 + np.hypot(1.0, 4.0))

@@ -68,7 +68,8 @@ def estimate_heights(
         ``height_rule="paper"``), ``height_lower`` and ``height_upper`` (the 3/b-wide
         transition centred on the height; 4PL-B stretches it over the 95 % likelihood-ratio
         interval of ``c``, :func:`~gnss_citygml.model.fourpl.c_interval`; with ``height_sd``
-        both ends move out by twice the standard error of ``c`` from position errors),
+        both ends move out by twice the standard error of ``c`` from position errors, added to
+        the interval in quadrature),
         ``height_paper`` (c + 1.5/b, whichever the rule), ``a``, ``b``, ``c``, ``d``,
         ``n_signals``, ``iterations``, ``converged``,
         ``method`` and ``status``. A building whose estimate is not to be trusted has

@@ -420,8 +420,10 @@ def _judge(
     n_below = np.bincount(g, h < c[g], minlength=n_groups)
     c_lo, c_hi = (c, c) if c_range is None else c_range  # c_interval's ends hold c
     offset = 1.5 / b if paper_rule else 0.0
-    lower = c_lo + offset - 1.5 / b - margin
-    upper = c_hi + offset + 1.5 / b + margin
+    # the data's uncertainty of c and the receivers' shared position errors are independent:
+    # they add in quadrature; the transition, the roof line's own blur, adds to both
+    lower = c + offset - 1.5 / b - np.hypot(c - c_lo, margin)
+    upper = c + offset + 1.5 / b + np.hypot(c_hi - c, margin)
     status = np.full(n_groups, "ok", dtype=object)
     plausibility = [
         (change >= label_tol, f"labels still changing after {iterations} iterations"),

@@ -23,7 +23,7 @@ from gnss_citygml.model import METHODS
 from gnss_citygml.model.estimate import estimate_heights
 from gnss_citygml.observations import read_observations
 from gnss_citygml.pipeline import intersections, receivers
-from gnss_citygml.settings import POSITION_WINDOW, Calibration, Estimator, PositionError
+from gnss_citygml.settings import Calibration, Estimator, PositionError
 from gnss_citygml.simulate import simulate
 from gnss_citygml.simulate.files import write_site
 
@@ -58,7 +58,7 @@ POSITION_ERRORS = ("data", "exact", "fixed")
 POSITION_SD = {"manual": 1.0, "gnss": 5.0}
 
 
-def position_error(kind: str, locations: str, window: float = POSITION_WINDOW) -> PositionError:
+def position_error(kind: str, locations: str, window: float | None = None) -> PositionError:
     """The :class:`~gnss_citygml.settings.PositionError` of ``kind`` (one of
     :data:`POSITION_ERRORS`) for positions of ``locations``."""
     if kind not in POSITION_ERRORS:
@@ -80,7 +80,7 @@ def run_accuracy(
     progress=None,
     pipeline_grids=None,
     position_errors="data",
-    position_window=POSITION_WINDOW,
+    position_window=None,
     calibration_sd=None,
     calibration_window=None,
     positions="reported",

@@ -35,7 +35,6 @@ from shared_data import GRIDS
 
 from gnss_citygml import Estimator, estimate_heights
 from gnss_citygml.model.fourpl import logistic4
-from gnss_citygml.settings import POSITION_WINDOW
 from gnss_citygml.simulate import simulate
 
 PRESETS = ("ucl", "goodchild", "hermitage", "city")
@@ -68,8 +67,8 @@ def main():
     parser.add_argument(
         "--position-window",
         type=float,
-        default=POSITION_WINDOW,
-        help="seconds one position error of a moving receiver lasts",
+        default=None,
+        help="seconds one position error of a moving receiver lasts (default: its recording)",
     )
     parser.add_argument(
         "--calibrate",

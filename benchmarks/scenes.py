@@ -30,7 +30,7 @@ import pandas as pd
 from accuracy import POSITION_ERRORS, position_error, site_tables
 
 from gnss_citygml import Estimator, estimate_heights
-from gnss_citygml.settings import POSITION_WINDOW, WEIGHTINGS
+from gnss_citygml.settings import WEIGHTINGS
 from gnss_citygml.simulate import EPOCH, LOCATIONS, simulate
 from gnss_citygml.simulate.scenes import city_scene, street_scene
 from gnss_citygml.simulate.signals import SignalModel
@@ -111,8 +111,8 @@ def main():
     parser.add_argument(
         "--position-window",
         type=float,
-        default=POSITION_WINDOW,
-        help="seconds one position error of a moving receiver lasts",
+        default=None,
+        help="seconds one position error of a moving receiver lasts (default: its recording)",
     )
     parser.add_argument(
         "--physics", action="store_true", help="draw each scene's physics too (PHYSICS)"

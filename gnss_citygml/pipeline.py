@@ -141,8 +141,8 @@ def intersections(
     way to it by itself over the cosine of the angle of incidence; along the wall it changes
     nothing), with the cosine floored at :data:`MIN_INCIDENCE`; and ``recording``, which rows
     share one position error (:func:`~gnss_citygml.recordings.position_groups`: a receiver
-    standing still shares one over its stay, a moving one over windows of
-    ``position_error.window`` seconds; needs ``time_utc``).
+    standing still shares one over its stay, a moving one over its recording, or over windows
+    of ``position_error.window`` seconds; needs ``time_utc``).
     """
     ray, fp, dist, incidence = footprint_entries(
         receivers["e"].to_numpy(),
@@ -183,7 +183,7 @@ def intersections(
     )
 
 
-def _recordings(receivers: pd.DataFrame, window: float) -> pd.Categorical:
+def _recordings(receivers: pd.DataFrame, window: float | None) -> pd.Categorical:
     """Each row's position group (:func:`~gnss_citygml.recordings.position_groups`) named by
     its receiver and first epoch (``phone1 2020-02-11T08:49:00Z``): a name that another run
     over more observations gives the same group (``update`` keeps it with its evidence)."""

@@ -20,7 +20,11 @@ import pandas as pd
 
 from .errors import InputError
 
-__all__ = ["position_groups", "recording_windows"]
+__all__ = ["STILL", "position_groups", "recording_windows"]
+
+#: Seconds a receiver's reported position must stay exactly the same for it to be standing at
+#: one point (placed by hand, surveyed): a phone's own fixes move a little every epoch.
+STILL = 30.0
 
 
 def recording_windows(rows: pd.DataFrame, window: float | None = None) -> np.ndarray:
@@ -62,21 +66,22 @@ def recording_windows(rows: pd.DataFrame, window: float | None = None) -> np.nda
     return pd.factorize(pd.MultiIndex.from_arrays([receiver, slot]))[0].astype(np.intp)
 
 
-def position_groups(rows: pd.DataFrame, window: float) -> np.ndarray:
-    """Which rows share one position error: a stay, or a window of a moving recording.
+def position_groups(rows: pd.DataFrame, window: float | None = None) -> np.ndarray:
+    """Which rows share one position error: a stay at one point, or a moving recording.
 
     A receiver whose reported position (``e``, ``n``) stays exactly the same for at least
-    ``window`` seconds is standing at a point placed by hand or surveyed: that point's one
-    error lasts as long as the stay. Anywhere else (a walker's traced path, a phone's fixes,
-    which move a little every epoch even on a phone lying still) the error drifts, and the
-    rows of one ``window`` of the recording share one (:func:`recording_windows`).
+    :data:`STILL` seconds is standing at a point placed by hand or surveyed: that point's one
+    error lasts as long as the stay, and the next point placed has its own. The other rows of
+    a recording (a walker's traced path, a phone's fixes, which move a little every epoch even
+    on a phone lying still) share one error, or one per ``window`` seconds of the recording
+    (:func:`recording_windows`).
 
     Parameters
     ----------
     rows
         A table with ``receiver``, ``time_utc``, ``e`` and ``n`` (m), e.g. the receivers.
     window
-        Seconds, e.g. :data:`~gnss_citygml.settings.POSITION_WINDOW`.
+        Seconds one error of a moving receiver lasts; ``None``: its whole recording.
 
     Returns
     -------
@@ -88,6 +93,8 @@ def position_groups(rows: pd.DataFrame, window: float) -> np.ndarray:
     >>> t = pd.to_datetime([f"2020-01-01T10:00:{s:02d}" for s in (0, 20, 40, 0, 20, 40)])
     >>> rows = pd.DataFrame({"receiver": ["still"] * 3 + ["walker"] * 3, "time_utc": t,
     ...                      "e": [5.0, 5.0, 5.0, 0.0, 1.0, 2.0], "n": 0.0})
+    >>> position_groups(rows)
+    array([0, 0, 0, 1, 1, 1])
     >>> position_groups(rows, 30.0)
     array([0, 0, 0, 1, 1, 2])
     """
@@ -107,7 +114,7 @@ def position_groups(rows: pd.DataFrame, window: float) -> np.ndarray:
     stay = np.cumsum(moved) - 1
     first = np.flatnonzero(moved)
     last = np.r_[first[1:], r.size] - 1
-    still = (t[last] - t[first] >= round(window * 1e9))[stay]
+    still = (t[last] - t[first] >= round(STILL * 1e9))[stay]
     key = np.empty(r.size, dtype=np.int64)
     key[by_time] = np.where(still, stay, -1 - windows[by_time])
     return pd.factorize(key)[0].astype(np.intp)

@@ -30,7 +30,6 @@ from .model import METHODS
 __all__ = [
     "DEFAULT_POSITION_SD",
     "HEIGHT_RULES",
-    "POSITION_WINDOW",
     "RECEIVER_HEIGHTS",
     "WEIGHTINGS",
     "Acceptance",
@@ -56,11 +55,6 @@ RECEIVER_HEIGHTS = ("dem", "log")
 #: a point placed by hand on a large-scale map, as the paper's receivers were ("an estimated
 #: location error of below 2 metres", taken as two standard deviations).
 DEFAULT_POSITION_SD = 1.0
-
-#: How long (s) one position error of a moving receiver lasts: a phone's fix and a walker's
-#: traced path wander with the multipath and the hand-tracing of the street around them, which
-#: change over tens of seconds at walking pace.
-POSITION_WINDOW = 30.0
 
 
 def _finite(value) -> bool:
@@ -284,15 +278,16 @@ class PositionError:
         hand on a map. ``0``: the positions are taken as exact, as in the paper (no error is
         modelled). ``None`` (default): from the data.
     window
-        How long (s) one error of a moving receiver lasts: a walker's traced path or a phone's
-        fix drifts, so its rows share an error within windows of this length (windows of each
-        recording from its own first epoch). A receiver whose reported position stays put for
-        at least this long (a point placed by hand) shares one error over the whole stay
-        (:func:`~gnss_citygml.recordings.position_groups`).
+        How long (s) one error of a moving receiver (a phone's fixes, a walker's traced path)
+        lasts: its rows share an error within windows of this length (windows of each recording
+        from its own first epoch). ``None`` (default): its whole recording, as the street around
+        it biases a phone's fixes (the reflections it receives) for as long as it is there. A
+        receiver standing at one reported point (a point placed by hand) shares one error over
+        its stay either way (:func:`~gnss_citygml.recordings.position_groups`).
     """
 
     sd: float | None = None
-    window: float = POSITION_WINDOW
+    window: float | None = None
 
     def __post_init__(self):
         if self.sd is not None and not (_finite(self.sd) and self.sd >= 0):
@@ -300,7 +295,7 @@ class PositionError:
                 f"the position error must be a number of metres, 0 or more, not {self.sd}",
                 fix="give --position-sd, e.g. 1 m for points placed by hand (0: exact positions)",
             )
-        if not _positive(self.window):
+        if self.window is not None and not _positive(self.window):
             raise InputError(
                 f"the position window must be a positive number of seconds, not {self.window}",
                 fix="give --position-window, e.g. 30 for a walker's traced path",

@@ -174,9 +174,10 @@ def test_estimate_with_position_errors(grid_args, tmp_path, capsys):
         row = row.loc["hermitage_terrace"]
         assert row["converged"]
         ranges[sd] = (row["height_lower"], row["height_upper"])
-    # the range carries the roof line's position uncertainty: wider, the further off
+    # the range carries the roof line's position uncertainty: 1 m costs about what the
+    # errors-in-variables fit gains (its roof line is sharper: 3/b shrinks), 3 m widen it
     width = {sd: upper - lower for sd, (lower, upper) in ranges.items()}
-    assert width["0"] < width["1"] < width["3"]
+    assert max(width["0"], width["1"]) < width["3"]
 
 
 def test_estimate_bad_observation_names_its_line(grid_args, tmp_path, capsys):

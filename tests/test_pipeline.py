@@ -152,9 +152,10 @@ def test_real_mastermap_footprints(shared_data, grid_dir, tmp_path):
     out = estimate(sim.observations, near, str(paths["dem"]), grid_dir=grid_dir)
     ok = out[out["converged"]].set_index("toid")  # MasterMap's TOIDs keep their name
     error = ok["height"] - sim.truth.set_index("id").loc[ok.index, "height"]
-    # measured: 13 of 48 converge, median error 1.6 m; houses inside terraces, seen only
+    # measured: 7 of 48 converge (31 say their range would be over 10 m: twelve phones
+    # standing 10 min each, 1 m off), median error 0.5 m; houses inside terraces, seen only
     # over their neighbours' party walls, are the outliers (up to 12 m)
-    assert len(ok) >= 10
+    assert len(ok) >= 7
     assert np.median(np.abs(error)) < 2.5
     assert out["toid"].str.startswith("osgb").all() and out.crs.to_epsg() == 27700
 
@@ -218,5 +219,8 @@ def test_position_errors_shared_per_window():
     out = intersections(rx, wall, position_error=walker)
     rec = out["recording"].to_numpy()
     assert rec[0] == rec[1] and len({rec[0], rec[2], rec[3]}) == 3
+    # by default a moving receiver's whole recording shares one error
+    rec = intersections(rx, wall)["recording"].to_numpy()
+    assert rec[0] == rec[1] == rec[2] != rec[3]
     with pytest.raises(InputError, match="position errors need the observations' time_utc"):
         intersections(rx.drop(columns="time_utc"), wall)

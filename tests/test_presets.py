@@ -22,11 +22,17 @@ def sims():
     return get
 
 
+def _cast(sim):
+    """The intersections as the pipeline casts them by default: each position 1 m off (placed
+    by hand) or as far as the phone says its fix may be."""
+    return intersections(sim.rays, sim.buildings)
+
+
 def _target(sim, threshold, method="4PL-B"):
     """The estimate of the site's target building and its true height."""
     truth = sim.truth.set_index("id")
     estimator = Estimator(method=method, init_threshold=threshold)
-    out = estimate_heights(sim.intersections, estimator).set_index("id")
+    out = estimate_heights(_cast(sim), estimator).set_index("id")
     bid = truth.index[truth["target"]][0]
     return out.loc[bid], truth.loc[bid, "height"]
 
@@ -65,12 +71,9 @@ def test_canyon_with_gnss_fixes_is_reported_not_guessed(sims, threshold):
 
 @pytest.mark.parametrize("threshold", THRESHOLDS)
 def test_city_with_walkers(sims, threshold):
-    # cast as the pipeline does by default: each position 1 m off (placed by hand), the
-    # walkers' errors shared over 30 s
     sim = sims("city", "manual")
     truth = sim.truth.set_index("id")["height"]
-    cast = intersections(sim.rays, sim.buildings)
-    out = estimate_heights(cast, Estimator(init_threshold=threshold)).set_index("id")
+    out = estimate_heights(_cast(sim), Estimator(init_threshold=threshold)).set_index("id")
     ok = out["converged"]
     true = truth.reindex(out.index)
     err = (out["height"] - true)[ok]

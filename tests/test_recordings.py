@@ -63,15 +63,17 @@ def test_the_pipelines_position_errors_share_the_windows():
 
 
 def test_a_receiver_standing_still_shares_one_error_over_its_stay():
-    # a: placed by hand at one point for 60 s, then at another for 20 s (shorter than a
-    # window: a pause of a walk, cut by the windows); b: a phone's fixes, a little off
-    # every epoch
-    table = rows(["a"] * 5 + ["b"] * 4, [0, 30, 60, 80, 100, 0, 10, 40, 70]).assign(
-        e=[5.0, 5.0, 5.0, 9.0, 9.0, 0.0, 0.3, 0.1, 0.2], n=0.0
+    # a: placed by hand at one point for 60 s, then at another for 40 s, then 20 s at a third
+    # (shorter than STILL: a pause of a walk); b: a phone's fixes, a little off every epoch
+    seconds = [0, 30, 60, 80, 120, 130, 150, 0, 10, 40, 70]
+    table = rows(["a"] * 7 + ["b"] * 4, seconds).assign(
+        e=[5.0, 5.0, 5.0, 9.0, 9.0, 7.0, 7.0, 0.0, 0.3, 0.1, 0.2], n=0.0
     )
-    assert groups(position_groups(table, 30.0)) == [[0, 1, 2], [3], [4], [5, 6], [7], [8]]
-    # a stay at least a window long is one group, however long
-    assert groups(position_groups(table, 10.0)) == [[0, 1, 2], [3, 4], [5], [6], [7], [8]]
-    # the order of the rows does not matter (row i is now row 8 - i)
-    backwards = table.iloc[::-1].reset_index(drop=True)
-    assert groups(position_groups(backwards, 30.0)) == [[0], [1], [2, 3], [4], [5], [6, 7, 8]]
+    # each stay its own error; the moving rows share one per recording ...
+    assert groups(position_groups(table)) == [[0, 1, 2], [3, 4], [5, 6], [7, 8, 9, 10]]
+    # ... or one per window of the recording
+    by_30 = [[0, 1, 2], [3, 4], [5], [6], [7, 8], [9], [10]]
+    assert groups(position_groups(table, 30.0)) == by_30
+    # the order of the rows does not matter (row i is now row 10 - i)
+    backwards = groups(position_groups(table.iloc[::-1].reset_index(drop=True), 30.0))
+    assert backwards == sorted(sorted(10 - i for i in g) for g in by_30)

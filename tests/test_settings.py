@@ -22,7 +22,7 @@ def test_defaults_are_the_papers():
     )
     assert Estimator().acceptance == Acceptance(0.01, 10, 0.3, 10.0)
     # position errors from the data by default; sd=0 takes positions as exact, as the paper
-    assert PositionError() == PositionError(sd=None, window=30.0)
+    assert PositionError() == PositionError(sd=None, window=None)
     assert not PositionError().exact and PositionError(sd=0).exact
     assert not Calibration().on
     assert Calibration(prior_sd=5.0).rounds == 3

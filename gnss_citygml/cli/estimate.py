@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from ..settings import RECEIVER_HEIGHTS, PositionError, Rays, ReceiverHeights
+from ..settings import RECEIVER_HEIGHTS, Rays, ReceiverHeights
 from .options import (
     DEM_CRS,
     GRID_DIR,
@@ -70,11 +70,9 @@ _RUN_OPTIONS = together(
     click.option(
         "--position-window",
         type=click.FloatRange(min=0.0, min_open=True),
-        default=PositionError.window,
-        show_default=True,
         help="Seconds one position error of a moving receiver lasts (a walker's traced path, "
-        "a phone's fixes). A receiver whose position stays the same this long (a point placed "
-        "by hand) shares one error over its whole stay.",
+        "a phone's fixes). Default: its whole recording. A receiver standing at one point (a "
+        "point placed by hand) shares one error over its stay either way.",
     ),
     click.option(
         "--calibration-sd",
@@ -163,7 +161,7 @@ def _run(
     with a progress bar over its stages."""
     from ..jobs import estimate_file
     from ..pipeline import STAGES
-    from ..settings import Calibration, Estimator
+    from ..settings import Calibration, Estimator, PositionError
 
     steps = len(STAGES) + (report is not None)
     with progress(steps, "stages", quiet) as bar:

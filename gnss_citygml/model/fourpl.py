@@ -277,7 +277,9 @@ def c_interval(
     as well by any ``c`` in the gap, and a separable fit (``b`` on its bound) chooses one at
     random. The interval spans that gap. ``c`` is tried on a grid of offsets out to ``reach``
     (finer near the fit); an end that is still within ``drop`` at ``reach`` is returned there,
-    so an interval as wide as the grid means "at least that wide".
+    so an interval as wide as the grid means "at least that wide". ``weights`` say how much
+    each sample counts as evidence (4PL-B counts each look once: samples that repeat one
+    another are not independent, and counted one by one they make the interval too narrow).
 
     Returns
     -------

@@ -14,6 +14,10 @@ Beyond the paper, the range is stretched over every roof line the data fit about
 below and far above its roof (a few satellites from a few places) fits any ``c`` in between,
 and the paper's range, as wide as the transition, then claimed a precision the data do not
 have (the truth was inside it for 16 % of the converged buildings of street scenes, issue 14).
+The interval counts each *look* once (:func:`look_ids`: one recording's view of one satellite
+within a metre of height): a phone at 1 Hz repeats one ray's geometry, its position error and
+its multipath fading (which a static phone's reflections keep for minutes) epoch after epoch,
+so its rows are not independent evidence of where the roof line is.
 
 The signal classifier belongs to a dataset (one device): in a run over many buildings it is
 co-trained on all buildings' relabelled signals at once, while each building keeps its own
@@ -234,9 +238,10 @@ def fourplb(
         sig = None
     if order is not None:
         order = np.asarray(order)[by_group]
-    looks = None
-    if estimator.weighting == "looks":  # once: a row's look does not change as 4PL-B iterates
-        looks = look_ids(h, g, None if track is None else np.asarray(track)[by_group])
+    tracks = None if track is None else np.asarray(track)[by_group]
+    looks = None  # found once: a row's look does not change as 4PL-B iterates
+    if estimator.weighting == "looks" or (bootstrap and tracks is not None):
+        looks = look_ids(h, g, tracks)
     occlusion = estimator.visibility and sig is not None
     seen = np.ones(h.size, dtype=bool)
     if occlusion and order is not None:
@@ -250,7 +255,7 @@ def fourplb(
         weights = height_weights(
             h, g, n_groups, estimator.weighting, c=c_now, mask=seen, looks=looks
         )
-        fit_labels, fit_seen, fit_weights = labels, seen, weights
+        fit_labels, fit_seen = labels, seen
         # every building's map classifier, a 4PL in intersection height, fitted at once
         use = weights > 0  # rows left out weigh nothing: do not carry them through the fit
         fit = fit_4pl(
@@ -288,12 +293,16 @@ def fourplb(
     assert fit is not None  # max_iter >= 1: the loop fitted at least once
     c_range = None
     if bootstrap:  # the paper's 4PL keeps the paper's range
+        # the evidence counted as independent: each look once where the tracks are known
+        evidence = fit_seen.astype(float)
+        if tracks is not None:
+            evidence = height_weights(h, g, n_groups, "looks", mask=fit_seen, looks=looks)
         c_range = c_interval(
             fit,
             h[fit_seen],
             fit_labels[fit_seen],
             g[fit_seen],
-            weights=fit_weights[fit_seen],
+            weights=evidence[fit_seen],
             sd=None if sd is None else sd[fit_seen],
             reach=accept.max_uncertainty,
         )
@@ -370,19 +379,24 @@ def position_margin(
 
     The errors-in-variables fit averages the position errors of rows as if independent, but a
     recording's offset (a point picked on a map, a phone's drifting fix) moves all its rows
-    alike. So each recording counts once, by its rows within the transition (``|h - c| <=
-    1.5/b + sd``), with the root mean square of their ``sd``: ``se(c)^2 = sum_r (n_r s_r)^2 /
-    (sum_r n_r)^2``. Without recordings all rows are one recording (the widest margin).
+    alike. So each recording's rows within the transition (``|h - c| <= 1.5/b + sd``) move
+    ``c`` together, each by its ``sd`` in proportion to what it tells of ``c``: its Fisher
+    information, the square of its slope at the roof line, ``kappa^2 = 1 / (1 + pi b^2 sd^2 /
+    8)`` (:mod:`.fourpl`). ``se(c)^2 = sum_r (sum_{i in r} w_i s_i)^2 / (sum_i w_i)^2``: one
+    recording of rows alike moves ``c`` by their ``sd``, ``R`` such recordings by ``sd /
+    sqrt(R)``, and a grazing ray whose height a metre of position moves by tens of metres
+    tells little of ``c`` and moves it little. Without recordings all rows are one recording
+    (the widest margin).
     """
     near = np.abs(h - fit.c[g]) <= 1.5 / fit.b[g] + sd
     g, sd = g[near], sd[near]
+    w = 1.0 / (1.0 + np.pi * (fit.b[g] * sd) ** 2 / 8.0)
     rec = np.zeros(g.size, dtype=np.intp) if recording is None else recording[near]
     key, pair = np.unique(np.column_stack([g, rec]), axis=0, return_inverse=True)
-    n = np.bincount(pair, minlength=len(key)).astype(float)
-    s2 = np.bincount(pair, sd**2, minlength=len(key)) / np.maximum(n, 1.0)
-    num = np.bincount(key[:, 0], n * n * s2, minlength=n_groups)
-    den = np.bincount(key[:, 0], n, minlength=n_groups)
-    return 2.0 * np.sqrt(num) / np.maximum(den, 1.0)
+    shift = np.bincount(pair, w * sd, minlength=len(key))
+    num = np.bincount(key[:, 0], shift**2, minlength=n_groups)
+    den = np.bincount(g, w, minlength=n_groups)
+    return 2.0 * np.sqrt(num) / np.maximum(den, 1e-300)
 
 
 def _judge(

@@ -78,7 +78,6 @@ class EstimateAlgorithm(Algorithm):
             HEIGHT_RULES,
             RECEIVER_HEIGHTS,
             Estimator,
-            PositionError,
             Rays,
             ReceiverHeights,
         )
@@ -170,18 +169,8 @@ class EstimateAlgorithm(Algorithm):
                 )
             )
         )
-        self.addParameter(
-            advanced(
-                QgsProcessingParameterNumber(
-                    "POSITION_WINDOW",
-                    "Position error of a moving receiver lasts (s)",
-                    double,
-                    PositionError.window,
-                    minValue=0,
-                )
-            )
-        )
         for name, description in (
+            ("POSITION_WINDOW", "Position error of a moving receiver lasts (s; default: all)"),
             ("CALIBRATION_SD", "Self-calibrate receiver offsets with prior (m; 4PL-B only)"),
             ("CALIBRATION_WINDOW", "One calibration offset per (s; default: per recording)"),
         ):
@@ -237,7 +226,7 @@ class EstimateAlgorithm(Algorithm):
             },
             "position_error": {
                 "sd": optional(parameters, "POSITION_SD", context),
-                "window": number(parameters, "POSITION_WINDOW", context),
+                "window": optional(parameters, "POSITION_WINDOW", context),
             },
             "calibration": {
                 "prior_sd": optional(parameters, "CALIBRATION_SD", context),

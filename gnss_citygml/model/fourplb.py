@@ -293,9 +293,9 @@ def fourplb(
     assert fit is not None  # max_iter >= 1: the loop fitted at least once
     c_range = None
     if bootstrap:  # the paper's 4PL keeps the paper's range
-        # the evidence counted as independent: each look once where the tracks are known
+        # the evidence counted as independent: each look once where the looks are known
         evidence = fit_seen.astype(float)
-        if tracks is not None:
+        if looks is not None:
             evidence = height_weights(h, g, n_groups, "looks", mask=fit_seen, looks=looks)
         c_range = c_interval(
             fit,

@@ -27,14 +27,17 @@ four-parameter logistic regression of "signal received" against the height at wh
 satellite ray crosses the footprint, co-trained with a C/N0 signal classifier.
 
 <b>Observations</b>: the observations table (Parquet or CSV: time_utc, receiver, lat, lon, h, \
-constellation, svid, azimuth, elevation, cn0, with an empty cn0 for a blocked signal), as \
-written by <tt>gnss-citygml observe</tt> from GnssLogger logs.
+constellation, svid, azimuth, elevation, cn0, with an empty cn0 for a blocked signal, and \
+optionally position_sd, how far each position may be off: 1 m where it is empty), as written \
+by <tt>gnss-citygml observe</tt> from GnssLogger logs.
 <b>Footprints</b>: building polygons (OS MasterMap, any GeoPackage; in British National Grid, \
 or in ETRS89/WGS 84, converted with OSTN15).
 <b>DEM</b>: the terrain in British National Grid with ODN heights.
 
-The output layer holds every footprint with its attributes and the estimate: height (m ODN), \
-height_lower and height_upper (the range), relative_height (above the ground), n_signals, \
+The output layer holds every footprint with its attributes and the estimate: height (m ODN: \
+the 4PL's inflection point c; the height rule "paper" gives c + 1.5/b, which height_paper \
+holds either way), height_lower and height_upper (the range), relative_height (above the \
+ground), n_signals, \
 converged and status (why a building has no height: never a guess). It opens styled: \
 buildings coloured by height, hatched where there is no estimate, extruded in the 3D view.
 

@@ -161,7 +161,7 @@ def intersections(
     if not position_error.exact:
         spread = np.tan(elevation) / np.maximum(incidence, MIN_INCIDENCE)
         extra["height_sd"] = position_sds(receivers, position_error)[ray] * spread
-        extra["recording"] = _recordings(receivers, position_error.window)[ray]
+        extra["recording"] = _named_position_groups(receivers, position_error.window)[ray]
     if {"constellation", "svid"} <= set(receivers.columns):
         extra["satellite"] = satellites(receivers)[ray]
     return pd.DataFrame(
@@ -183,7 +183,7 @@ def intersections(
     )
 
 
-def _recordings(receivers: pd.DataFrame, window: float | None) -> pd.Categorical:
+def _named_position_groups(receivers: pd.DataFrame, window: float | None) -> pd.Categorical:
     """Each row's position group (:func:`~gnss_citygml.recordings.position_groups`) named by
     its receiver and first epoch (``phone1 2020-02-11T08:49:00Z``): a name that another run
     over more observations gives the same group (``update`` keeps it with its evidence)."""

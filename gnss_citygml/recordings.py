@@ -59,11 +59,13 @@ def recording_windows(rows: pd.DataFrame, window: float | None = None) -> np.nda
             "a time window of each recording needs the observations' time_utc",
             fix="give every observation its time, or leave out the window",
         )
-    ns = _nanoseconds(rows)
-    receiver = rows["receiver"].to_numpy()
-    since_start = (ns - ns.groupby(receiver).transform("min")).to_numpy()
-    slot = since_start // max(round(window * 1e9), 1)
-    return pd.factorize(pd.MultiIndex.from_arrays([receiver, slot]))[0].astype(np.intp)
+    ns = _nanoseconds(rows).to_numpy()
+    receiver = pd.factorize(rows["receiver"])[0]
+    start = np.full(receiver.max(initial=-1) + 1, np.iinfo(np.int64).max)
+    np.minimum.at(start, receiver, ns)
+    slot = (ns - start[receiver]) // max(round(window * 1e9), 1)
+    # one int64 key per (receiver, slot): both codes are below the number of rows
+    return pd.factorize(receiver * (int(slot.max(initial=0)) + 1) + slot)[0].astype(np.intp)
 
 
 def position_groups(rows: pd.DataFrame, window: float | None = None) -> np.ndarray:

@@ -283,8 +283,8 @@ def _surveyed_row(row: dict[str, str], where: str) -> tuple:
         _number(row[name], name, where, limit) for name, limit in (("lat", 90), ("lon", 180))
     )
     h = _number(row["h"], "h", where) if row["h"].strip() else np.nan
-    sd = row.get("sd", "").strip()
-    sd = _number(sd, "sd", where) if sd else np.nan
+    text = row.get("sd", "").strip()  # an optional column
+    sd = _number(text, "sd", where) if text else np.nan
     if sd < 0:
         raise InputError(
             f"sd {sd:g} is negative",

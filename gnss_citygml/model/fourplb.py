@@ -418,7 +418,8 @@ def _judge(
     """Turn a fit on the ``seen`` rows into heights, with an explicit reason wherever it is
     not to be trusted (``strict``: also where 4PL-B's loop or the fit itself is implausible).
     The height is ``c`` (``c + 1.5/b`` by the ``paper_rule``), its range the 3/b-wide
-    transition centred on it, over the interval of ``c`` and widened by the ``margin``."""
+    transition centred on it, widened at each end by that side of the interval of ``c`` and
+    the ``margin`` in quadrature."""
     below_all = h < fit.c[g]
     hidden = np.bincount(g, below_all & seen, n_groups) < MIN_VISIBLE * np.bincount(
         g, below_all, n_groups

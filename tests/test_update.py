@@ -98,7 +98,8 @@ def test_two_updates_equal_one_run_over_all_observations(city_map, halves, grid_
     theirs = theirs.loc[ours.index]
     assert (ours["converged"].astype(bool) == theirs["converged"].astype(bool)).all()
     pairs = [("height_gnss", "height"), ("height_lower", "height_lower"),
-             ("height_upper", "height_upper"), ("n_signals", "n_signals")]  # fmt: skip
+             ("height_upper", "height_upper"), ("height_paper", "height_paper"),
+             ("c_gnss", "c"), ("n_signals", "n_signals")]  # fmt: skip
     for mine, full_run in pairs:
         np.testing.assert_allclose(ours[mine], theirs[full_run], rtol=0, atol=1e-9)
     assert (ours["status_gnss"] == theirs["status"]).all()

@@ -81,12 +81,13 @@ def update(
 ):
     """Update a GeoPackage MAP's building heights with new GNSS observations, safely.
 
-    Adds or updates height_gnss, height_lower, height_upper, n_signals, converged, method,
-    status_gnss and updated_utc on the footprint layer; every other column, feature, layer and
-    style is kept, and so are the feature ids. The evidence (every intersection cast) is kept
-    in the table gnss_evidence: a later update casts only what is new and refits on all of
-    it. The map is written as a whole at the end (MAP.bak.gpkg keeps it as it was), so a failure
-    or Ctrl-C leaves it untouched; running again with the same data changes nothing.
+    Adds or updates height_gnss, height_lower, height_upper, height_paper, c_gnss, n_signals,
+    converged, method, status_gnss and updated_utc on the footprint layer; every other
+    column, feature, layer and style is kept, and so are the feature ids. The evidence (every
+    intersection cast) is kept in the table gnss_evidence: a later update casts only what is
+    new and refits on all of it. The map is written as a whole at the end (MAP.bak.gpkg keeps
+    it as it was), so a failure or Ctrl-C leaves it untouched; running again with the same data
+    changes nothing.
     """
     from ..update import update_map
 

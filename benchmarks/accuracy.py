@@ -30,7 +30,9 @@ from gnss_citygml.simulate.files import write_site
 __all__ = [
     "PAPER_THRESHOLDS",
     "POSITION_ERRORS",
+    "LABELS",
     "POSITIONS",
+    "labelled",
     "position_error",
     "markdown_table",
     "run_accuracy",
@@ -48,6 +50,15 @@ PAPER_THRESHOLDS = tuple(float(t) for t in range(20, 41))
 #: (it moves the rays to one building up and to the one opposite down), so ``common`` measures
 #: the information floor of a site's data; ``true`` the floor of the estimator itself.
 POSITIONS = ("reported", "common", "true")
+
+#: What the signals say: their C/N0 (``cn0``, as a user has it), or the simulator's truth of
+#: whether each had a line of sight (``los``: a perfect signal classifier, the floor of the
+#: height fits given the rays).
+LABELS = ("cn0", "los")
+#: The C/N0 (dB-Hz) that ``los`` gives a signal with a line of sight and a received one
+#: without: any initial threshold of 20-40 dB-Hz, and the classifier fitted on them, tells
+#: them apart.
+LOS_CN0, NLOS_CN0 = 45.0, 15.0
 
 #: What the fits are told of the receivers' position errors: what the observations say (the
 #: toolkit's default: a phone's reported accuracy; 1 m for points placed by hand, which say
@@ -182,6 +193,21 @@ def site_tables(
         )
         footprints = read_footprints(paths["footprints"])
     return rays, footprints, _recast(rays, footprints, position_error)
+
+
+def labelled(sim, intersections: pd.DataFrame, labels: str = "cn0") -> pd.DataFrame:
+    """The intersections with their signals' ``cn0``, or (``los``) with the simulator's line of
+    sight as a C/N0 that no classifier mistakes (:data:`LOS_CN0` for every signal with one,
+    received or not; :data:`NLOS_CN0` for a received signal without; one neither received
+    nor in sight stays empty)."""
+    if labels not in LABELS:
+        raise ValueError(f"labels must be one of {', '.join(LABELS)}, not {labels!r}")
+    if labels == "cn0":
+        return intersections
+    los = sim.observations["los"].to_numpy(dtype=bool)[intersections["signal"].to_numpy()]
+    received = intersections["cn0"].notna().to_numpy()
+    cn0 = np.where(los, LOS_CN0, np.where(received, NLOS_CN0, np.nan))
+    return intersections.assign(cn0=cn0)
 
 
 def _check_positions(positions, grid_dir):

@@ -16,9 +16,15 @@ With ``--regimes``, the scenes are streets instead (:func:`street_scene`), drawn
 the regimes of :data:`REGIMES` (a narrow canyon with receivers 3-8 m from the wall, a street,
 a square), with their physics drawn too; the totals are then per regime and locations.
 
+With ``--labels los`` the signals are labelled by the simulator's line of sight (a perfect
+signal classifier) and with ``--positions true`` the rays start from the true positions: the
+two together give what the height fits can do with perfect information, the floor of the
+estimator on these scenes (issue 14).
+
     python benchmarks/scenes.py [--scenes 8] [--physics | --regimes]
                                 [--position-errors data|exact|fixed] [--position-window 30]
-                                [--weighting looks]
+                                [--weighting looks] [--labels cn0|los]
+                                [--positions reported|common|true]
 """
 
 from __future__ import annotations
@@ -27,7 +33,7 @@ import argparse
 
 import numpy as np
 import pandas as pd
-from accuracy import POSITION_ERRORS, position_error, site_tables
+from accuracy import LABELS, POSITION_ERRORS, POSITIONS, labelled, position_error, site_tables
 
 from gnss_citygml import Estimator, estimate_heights
 from gnss_citygml.settings import WEIGHTINGS
@@ -123,6 +129,18 @@ def main():
     parser.add_argument(
         "--regimes", action="store_true", help="street scenes in each regime (REGIMES)"
     )
+    parser.add_argument(
+        "--labels",
+        choices=LABELS,
+        default="cn0",
+        help="label the signals by their C/N0 (default) or by the simulator's line of sight",
+    )
+    parser.add_argument(
+        "--positions",
+        choices=POSITIONS,
+        default="reported",
+        help="cast the rays from the positions a user has (default) or the true ones",
+    )
     args = parser.parse_args()
     runs, totals = [], {}
     header = (
@@ -141,7 +159,8 @@ def main():
         for locations in LOCATIONS:
             sim = simulate(scene, locations=locations, seed=k, start=start, physics=physics)
             error = position_error(args.position_errors, locations, args.position_window)
-            intersections = site_tables(sim, position_error=error)[2]
+            cast = site_tables(sim, positions=args.positions, position_error=error)[2]
+            intersections = labelled(sim, cast, args.labels)
             truth = sim.truth.set_index("id")["height"]
             errors = []
             for threshold in THRESHOLDS:

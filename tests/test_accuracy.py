@@ -7,7 +7,17 @@ from pathlib import Path
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-from accuracy import markdown_table, run_accuracy, summarise  # noqa: E402
+from accuracy import (  # noqa: E402
+    LOS_CN0,
+    NLOS_CN0,
+    labelled,
+    markdown_table,
+    run_accuracy,
+    site_tables,
+    summarise,
+)
+
+from gnss_citygml.simulate import simulate  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -59,3 +69,18 @@ def test_unknown_positions_are_refused():
         run_accuracy(["goodchild"], positions="guessed")
     with pytest.raises(ValueError, match="simulator's intersections"):
         run_accuracy(["goodchild"], positions="true", pipeline_grids="grids")
+
+
+def test_line_of_sight_labels_replace_the_c_n0():
+    sim = simulate("goodchild", interval=60.0)
+    inter = site_tables(sim)[2]
+    assert labelled(sim, inter) is inter
+    oracle = labelled(sim, inter, "los")
+    los = sim.observations["los"].to_numpy()[inter["signal"].to_numpy()]
+    received = inter["cn0"].notna().to_numpy()
+    assert (oracle["cn0"][los] == LOS_CN0).all()
+    assert (oracle["cn0"][~los & received] == NLOS_CN0).all()
+    assert oracle["cn0"][~los & ~received].isna().all()
+    assert 0 < los.sum() < los.size  # the canyon blocks some signals, not all
+    with pytest.raises(ValueError, match="labels must be one of"):
+        labelled(sim, inter, "snr")

@@ -1,0 +1,180 @@
+"""Square tiles of British National Grid: the unit of work of a run split over many workers.
+
+A national run cannot hold every signal and building at once, so it is cut into square tiles
+aligned to the OS grid (``size`` metres, 1 km by default), which get stable names: the OS grid
+reference of the tile's south-west corner at the tile's resolution (``TQ2982`` for the 1 km
+square of Gower Street, ``TQ28`` for 10 km). A tile size that is not a power of ten gets the
+corner to the metre and its size (``TQ2950082000-500m``).
+
+- A **building** belongs to the one tile that holds its representative point
+  (:func:`building_tiles`), so every building is estimated exactly once.
+- A **receiver** belongs to every tile whose buildings one of its rays can reach: those within
+  ``max_range`` of the tile's buildings' extent (:func:`receiver_tiles`), so every ray that can
+  cross a tile's buildings is cast in that tile, also from a receiver in a neighbouring one.
+"""
+
+from __future__ import annotations
+
+import geopandas as gpd
+import numpy as np
+import numpy.typing as npt
+import pandas as pd
+import shapely
+
+from .errors import InputError
+
+__all__ = ["DEFAULT_TILE_SIZE", "building_tiles", "receiver_tiles", "tile_index", "tile_names"]
+
+#: Side of a tile (m): the OS 1 km square.
+DEFAULT_TILE_SIZE = 1000.0
+
+#: The extent of the OS national grid's lettered 100 km squares (m): eastings 0-700 km,
+#: northings 0-1300 km.
+_GRID_E, _GRID_N = 700_000.0, 1_300_000.0
+
+
+def tile_index(e: npt.ArrayLike, n: npt.ArrayLike, size: float = DEFAULT_TILE_SIZE):
+    """Column and row (int64) of the tile holding each point (``e``, ``n`` in BNG metres)."""
+    _check_size(size)
+    e, n = np.asarray(e, dtype=float), np.asarray(n, dtype=float)
+    return np.floor(e / size).astype(np.int64), np.floor(n / size).astype(np.int64)
+
+
+def tile_names(ix: npt.ArrayLike, iy: npt.ArrayLike, size: float = DEFAULT_TILE_SIZE) -> np.ndarray:
+    """The name of each tile (:func:`tile_index`): the OS grid reference of its south-west
+    corner at the tile's resolution.
+
+    Examples
+    --------
+    >>> tile_names([529], [182]).tolist()
+    ['TQ2982']
+    >>> tile_names([52], [18], 10_000).tolist()
+    ['TQ28']
+    >>> tile_names([1059], [364], 500).tolist()
+    ['TQ2950082000-500m']
+    """
+    _check_size(size)
+    ix, iy = np.asarray(ix, dtype=np.int64), np.asarray(iy, dtype=np.int64)
+    e, n = ix * size, iy * size
+    outside = (e < 0) | (n < 0) | (e >= _GRID_E) | (n >= _GRID_N)
+    if outside.any():
+        k = int(np.flatnonzero(outside)[0])
+        raise InputError(
+            f"a tile at E {e[k]:.0f} m, N {n[k]:.0f} m is outside the OS national grid "
+            "(eastings 0-700 km, northings 0-1300 km)",
+            fix="check that the data are in British National Grid (EPSG:27700)",
+        )
+    letters = _letters(e, n)
+    digits = round(5 - np.log10(size))
+    if size == 10.0 ** (5 - digits):  # 1 m .. 100 km: the OS's own references
+        width = max(digits, 0)
+        east = (np.mod(e, 100_000) // size).astype(np.int64)
+        north = (np.mod(n, 100_000) // size).astype(np.int64)
+        if width == 0:
+            return letters
+        return np.array(
+            [
+                f"{a}{x:0{width}d}{y:0{width}d}"
+                for a, x, y in zip(letters, east, north, strict=True)
+            ],
+            dtype=object,
+        )
+    east = np.mod(e, 100_000).astype(np.int64)
+    north = np.mod(n, 100_000).astype(np.int64)
+    return np.array(
+        [f"{a}{x:05d}{y:05d}-{size:g}m" for a, x, y in zip(letters, east, north, strict=True)],
+        dtype=object,
+    )
+
+
+def building_tiles(buildings: gpd.GeoDataFrame, size: float = DEFAULT_TILE_SIZE) -> np.ndarray:
+    """The name of the one tile each building belongs to: the tile of its representative point
+    (a point inside the footprint, so an L-shaped building is not placed by a corner outside
+    it)."""
+    points = shapely.point_on_surface(buildings.geometry.to_numpy())
+    ix, iy = tile_index(shapely.get_x(points), shapely.get_y(points), size)
+    return tile_names(ix, iy, size)
+
+
+def receiver_tiles(
+    e: npt.ArrayLike,
+    n: npt.ArrayLike,
+    buildings: gpd.GeoDataFrame,
+    max_range: float,
+    size: float = DEFAULT_TILE_SIZE,
+) -> pd.DataFrame:
+    """Which tiles each receiver position serves: every tile whose buildings lie, at least in
+    part, within ``max_range`` (m, the rays' horizontal reach) of it.
+
+    A tile's reach is the bounding box of its own buildings' footprints (which may cross the
+    tile's edges) grown by ``max_range``: a receiver outside it has no ray that can enter any
+    of them. Returns one row per (``row``: position in ``e``/``n``, ``tile``: name), in order
+    of ``row`` then tile; a receiver near no building is in no tile. Each receiver is tested
+    against the few tiles around it that can reach it (vectorised: no loop over tiles or
+    receivers).
+    """
+    e, n = np.asarray(e, dtype=float), np.asarray(n, dtype=float)
+    if not (np.isfinite(max_range) and max_range > 0):
+        raise InputError(f"max_range must be a positive number of metres, not {max_range!r}")
+    if len(buildings) == 0:
+        return pd.DataFrame({"row": np.empty(0, dtype=np.int64), "tile": np.empty(0, dtype=object)})
+    points = shapely.point_on_surface(buildings.geometry.to_numpy())
+    bx, by = tile_index(shapely.get_x(points), shapely.get_y(points), size)
+    bounds = pd.DataFrame(
+        shapely.bounds(buildings.geometry.to_numpy()), columns=["x0", "y0", "x1", "y1"]
+    )
+    box = bounds.groupby([bx, by]).agg({"x0": "min", "y0": "min", "x1": "max", "y1": "max"})
+    tx, ty = (box.index.get_level_values(i).to_numpy(dtype=np.int64) for i in (0, 1))
+    reach = box.to_numpy() + np.array([-max_range, -max_range, max_range, max_range])
+    # how far beyond its own square a tile reaches: the candidates around each receiver
+    beyond = np.max(
+        [
+            tx * size - reach[:, 0],
+            ty * size - reach[:, 1],
+            reach[:, 2] - (tx + 1) * size,
+            reach[:, 3] - (ty + 1) * size,
+        ]  # fmt: skip
+    )
+    ix0, iy0 = tile_index(e - beyond, n - beyond, size)
+    ix1, iy1 = tile_index(e + beyond, n + beyond, size)
+    span = int(max((ix1 - ix0).max(initial=0), (iy1 - iy0).max(initial=0))) + 1
+    dx, dy = (g.ravel() for g in np.meshgrid(np.arange(span), np.arange(span), indexing="ij"))
+    row = np.repeat(np.arange(e.size), dx.size)
+    cx, cy = (
+        np.repeat(ix0, dx.size) + np.tile(dx, e.size),
+        np.repeat(iy0, dx.size) + np.tile(dy, e.size),
+    )
+    keys = _key(tx, ty)  # sorted: the groupby sorted the tiles
+    at = np.clip(np.searchsorted(keys, _key(cx, cy)), 0, keys.size - 1)
+    found = keys[at] == _key(cx, cy)
+    x0, y0, x1, y1 = reach[at].T
+    px, py = e[row], n[row]
+    hit = found & (px >= x0) & (px <= x1) & (py >= y0) & (py <= y1)
+    names = tile_names(tx, ty, size)  # once per tile, not per pair
+    return pd.DataFrame({"row": row[hit], "tile": names[at[hit]]})
+
+
+def _key(ix: np.ndarray, iy: np.ndarray) -> np.ndarray:
+    """One int64 per tile, ordered as (column, row): both fit in 31 bits for 1 m tiles."""
+    return (ix.astype(np.int64) << 31) + iy.astype(np.int64)
+
+
+def _letters(e: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """The two letters of the OS 100 km square holding each (``e``, ``n``): the first names
+    the 500 km square (S, T, N, O, H, J from the false origin), the second the 100 km square in
+    it; each letter counts A-Z without I across a 5 x 5 block."""
+    e100, n100 = (e // 100_000).astype(np.int64), (n // 100_000).astype(np.int64)
+    first = (19 - n100) - (19 - n100) % 5 + (e100 + 10) // 5
+    second = (19 - n100) * 5 % 25 + e100 % 5
+    first, second = first + (first > 7), second + (second > 7)  # no I
+    return np.array(
+        [chr(65 + a) + chr(65 + b) for a, b in zip(first, second, strict=True)], dtype=object
+    )
+
+
+def _check_size(size: float) -> None:
+    if not (np.isfinite(size) and size >= 1 and float(size).is_integer()):
+        raise InputError(
+            f"a tile size must be a whole number of metres, at least 1, not {size!r}",
+            fix="give --tile-size in metres, e.g. 1000",
+        )

@@ -1,0 +1,106 @@
+"""Tiles of British National Grid (gnss_citygml.tiles): names, buildings' and receivers'
+tiles, against OS grid references of known places and a brute-force reach."""
+
+import geopandas as gpd
+import numpy as np
+import pytest
+import shapely
+from shapely.geometry import Polygon, box
+
+from gnss_citygml.errors import InputError
+from gnss_citygml.tiles import building_tiles, receiver_tiles, tile_index, tile_names
+
+
+def name(e, n, size=1000.0):
+    return tile_names(*tile_index([e], [n], size), size)[0]
+
+
+@pytest.mark.parametrize(
+    ("e", "n", "size", "expected"),
+    [
+        (529540, 182293, 1000, "TQ2982"),  # Gower Street, London
+        (529540, 182293, 10_000, "TQ28"),
+        (529540, 182293, 100_000, "TQ"),
+        (529540, 182293, 100, "TQ295822"),
+        (216600, 771200, 1000, "NN1671"),  # Ben Nevis
+        (447000, 1141000, 1000, "HU4741"),  # Lerwick, Shetland
+        (0, 0, 1000, "SV0000"),  # the false origin, off the Scillies
+        (699_999, 1_299_999, 1000, "JM9999"),  # the grid's far corner
+        (529540, 182293, 500, "TQ2950082000-500m"),
+    ],
+)
+def test_tiles_are_named_by_their_os_grid_reference(e, n, size, expected):
+    assert name(e, n, size) == expected
+
+
+@pytest.mark.parametrize(("e", "n"), [(-1, 5), (700_000, 5), (5, 1_300_000)])
+def test_a_tile_outside_the_national_grid_is_refused(e, n):
+    with pytest.raises(InputError, match="outside the OS national grid"):
+        name(e, n)
+
+
+@pytest.mark.parametrize("size", [0, 0.5, 250.5, float("nan"), -1000])
+def test_a_tile_size_must_be_whole_metres(size):
+    with pytest.raises(InputError, match="whole number of metres"):
+        tile_index([0.0], [0.0], size)
+
+
+def test_a_building_belongs_to_the_tile_of_a_point_inside_it():
+    across = box(529_990, 182_100, 530_030, 182_120)  # 10 m in TQ2982, 30 m in TQ3082
+    ell = Polygon(  # an L whose centroid lies outside it, in the next tile
+        [
+            (528_999, 182_000),
+            (528_999, 182_990),
+            (529_001, 182_990),
+            (529_001, 182_002),
+            (529_990, 182_002),
+            (529_990, 182_000),
+        ]  # fmt: skip
+    )
+    assert not ell.contains(ell.centroid)
+    buildings = gpd.GeoDataFrame(geometry=[across, ell], crs=27700)
+    tiles = building_tiles(buildings).tolist()
+    assert tiles[0] in ("TQ2982", "TQ3082")
+    assert tiles[0] == name(*shapely.point_on_surface(across).coords[0])
+    assert ell.contains(shapely.point_on_surface(ell))
+    assert tiles[1] == name(*shapely.point_on_surface(ell).coords[0])
+
+
+def test_receivers_serve_every_tile_whose_buildings_their_rays_reach():
+    rng = np.random.default_rng(3)
+    x0, y0 = 528_000.0, 181_000.0  # a 3 km x 3 km city: 9 tiles, buildings across edges
+    corners = rng.uniform(0, 3000, (300, 2)) + (x0, y0)
+    sizes = rng.uniform(8, 60, (300, 2))
+    buildings = gpd.GeoDataFrame(
+        geometry=[box(x, y, x + w, y + h) for (x, y), (w, h) in zip(corners, sizes, strict=True)],
+        crs=27700,
+    )
+    e, n = (rng.uniform(-800, 3800, 4000) + o for o in (x0, y0))
+    max_range = 300.0
+    got = receiver_tiles(e, n, buildings, max_range)
+    # brute force: each tile's buildings' bounding box, grown by the reach
+    names = building_tiles(buildings)
+    expected = set()
+    for tile in set(names):
+        bx0, by0, bx1, by1 = shapely.total_bounds(buildings.geometry[names == tile])
+        inside = (e >= bx0 - max_range) & (e <= bx1 + max_range)
+        inside &= (n >= by0 - max_range) & (n <= by1 + max_range)
+        expected |= {(int(r), tile) for r in np.flatnonzero(inside)}
+    assert set(zip(got["row"], got["tile"], strict=True)) == expected
+    assert len(got) == len(expected)  # no pair twice
+    assert (np.diff(got["row"]) >= 0).all()
+    assert len(set(names)) >= 9
+    # the receivers near a tile edge serve both tiles; the far ones serve none
+    per_row = got.groupby("row").size()
+    assert per_row.max() >= 4 and 0 < per_row.size < e.size
+
+
+def test_no_buildings_no_tiles():
+    empty = gpd.GeoDataFrame(geometry=[], crs=27700)
+    assert receiver_tiles([529_000.0], [182_000.0], empty, 500.0).empty
+
+
+def test_the_reach_must_be_positive():
+    one = gpd.GeoDataFrame(geometry=[box(0, 0, 10, 10)], crs=27700)
+    with pytest.raises(InputError, match="max_range"):
+        receiver_tiles([5.0], [5.0], one, 0.0)

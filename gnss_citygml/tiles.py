@@ -11,9 +11,15 @@ corner to the metre and its size (``TQ2950082000-500m``).
 - A **receiver** belongs to every tile whose buildings one of its rays can reach: those within
   ``max_range`` of the tile's buildings' extent (:func:`receiver_tiles`), so every ray that can
   cross a tile's buildings is cast in that tile, also from a receiver in a neighbouring one.
+- A tile's rays are cast against its own buildings and its **halo**: every other building
+  within ``max_range`` of its receivers (:func:`plan_tiles`). A signal that crosses one of
+  the tile's buildings then has every crossing the single run gives it, neighbours across the
+  tile's edge included, so the visibility model sees the same rays.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import geopandas as gpd
 import numpy as np
@@ -23,7 +29,15 @@ import shapely
 
 from .errors import InputError
 
-__all__ = ["DEFAULT_TILE_SIZE", "building_tiles", "receiver_tiles", "tile_index", "tile_names"]
+__all__ = [
+    "DEFAULT_TILE_SIZE",
+    "Tile",
+    "building_tiles",
+    "plan_tiles",
+    "receiver_tiles",
+    "tile_index",
+    "tile_names",
+]
 
 #: Side of a tile (m): the OS 1 km square.
 DEFAULT_TILE_SIZE = 1000.0
@@ -152,6 +166,51 @@ def receiver_tiles(
     hit = found & (px >= x0) & (px <= x1) & (py >= y0) & (py <= y1)
     names = tile_names(tx, ty, size)  # once per tile, not per pair
     return pd.DataFrame({"row": row[hit], "tile": names[at[hit]]})
+
+
+@dataclass(frozen=True)
+class Tile:
+    """One tile's work: positions (``iloc``) of its own buildings, of the other buildings its
+    receivers' rays may cross (``halo``) and of its receivers."""
+
+    name: str
+    buildings: np.ndarray
+    halo: np.ndarray
+    receivers: np.ndarray
+
+
+def plan_tiles(
+    e: npt.ArrayLike,
+    n: npt.ArrayLike,
+    buildings: gpd.GeoDataFrame,
+    max_range: float,
+    size: float = DEFAULT_TILE_SIZE,
+) -> list[Tile]:
+    """The tiles of a run, in name order: each tile's buildings (:func:`building_tiles`), the
+    receivers that serve it (:func:`receiver_tiles`) and its halo, the other buildings within
+    ``max_range`` of the bounding box of those receivers. A tile that no receiver serves is
+    still listed (its buildings have no signal)."""
+    e, n = np.asarray(e, dtype=float), np.asarray(n, dtype=float)
+    names = building_tiles(buildings, size)
+    pairs = receiver_tiles(e, n, buildings, max_range, size)
+    served = {str(k): v.to_numpy() for k, v in pairs.groupby("tile")["row"]}
+    tree = shapely.STRtree(buildings.geometry.to_numpy())
+    tiles = []
+    for key, own in pd.Series(np.arange(len(names))).groupby(names):
+        name = str(key)
+        rows = served.get(name, np.empty(0, dtype=np.int64))
+        halo = np.empty(0, dtype=np.int64)
+        if rows.size:
+            reach = shapely.box(
+                e[rows].min() - max_range,
+                n[rows].min() - max_range,
+                e[rows].max() + max_range,
+                n[rows].max() + max_range,
+            )
+            near = np.sort(tree.query(reach))
+            halo = near[names[near] != name]
+        tiles.append(Tile(name, own.to_numpy(), halo, rows))
+    return tiles
 
 
 def _key(ix: np.ndarray, iy: np.ndarray) -> np.ndarray:

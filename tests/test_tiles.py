@@ -3,12 +3,20 @@ tiles, against OS grid references of known places and a brute-force reach."""
 
 import geopandas as gpd
 import numpy as np
+import pandas as pd
 import pytest
 import shapely
 from shapely.geometry import Polygon, box
 
 from gnss_citygml.errors import InputError
-from gnss_citygml.tiles import building_tiles, receiver_tiles, tile_index, tile_names
+from gnss_citygml.raycast import footprint_entries
+from gnss_citygml.tiles import (
+    building_tiles,
+    plan_tiles,
+    receiver_tiles,
+    tile_index,
+    tile_names,
+)
 
 
 def name(e, n, size=1000.0):
@@ -104,3 +112,68 @@ def test_the_reach_must_be_positive():
     one = gpd.GeoDataFrame(geometry=[box(0, 0, 10, 10)], crs=27700)
     with pytest.raises(InputError, match="max_range"):
         receiver_tiles([5.0], [5.0], one, 0.0)
+
+
+def test_each_tile_casts_every_crossing_of_the_signals_that_cross_its_buildings():
+    """The per-tile casts give the single cast's rows: every (signal, building) row of a tile's
+    own buildings exactly once over all tiles, and for each such signal every other building
+    it crosses, neighbours across the tile's edge included, with the same distances."""
+    rng = np.random.default_rng(8)
+    x0, y0 = 528_000.0, 181_000.0  # 2.5 km square, 500 m tiles: rays cross tile edges
+    corners = rng.uniform(0, 2500, (400, 2)) + (x0, y0)
+    sizes = rng.uniform(10, 40, (400, 2))
+    geometry = [box(x, y, x + w, y + h) for (x, y), (w, h) in zip(corners, sizes, strict=True)]
+    buildings = gpd.GeoDataFrame(geometry=geometry, crs=27700)
+    e, n = (rng.uniform(0, 2500, 3000) + o for o in (x0, y0))
+    bearing = rng.uniform(0, 360, e.size)
+    max_range = 300.0
+    whole = pd.DataFrame(
+        dict(
+            zip(
+                ["ray", "building", "distance"],
+                footprint_entries(e, n, bearing, geometry, max_range)[:3],
+                strict=True,
+            )
+        )
+    )
+    tiles = plan_tiles(e, n, buildings, max_range, size=500.0)
+    assert len(tiles) >= 25 and sum(t.buildings.size for t in tiles) == len(buildings)
+    assert all(np.intersect1d(t.buildings, t.halo).size == 0 for t in tiles)
+    parts = []
+    for t in tiles:
+        cast = np.concatenate([t.buildings, t.halo])
+        ray, fp, dist = footprint_entries(
+            e[t.receivers],
+            n[t.receivers],
+            bearing[t.receivers],
+            buildings.geometry.to_numpy()[cast],
+            max_range,
+        )[:3]
+        rows = pd.DataFrame({"ray": t.receivers[ray], "building": cast[fp], "distance": dist})
+        mine = rows.loc[np.isin(rows["building"], t.buildings), "ray"].unique()
+        rows = rows[np.isin(rows["ray"], mine)]
+        parts.append(rows.assign(own=np.isin(rows["building"], t.buildings)))
+    tiled = pd.concat(parts)
+    keys = ["ray", "building"]
+    own = tiled[tiled["own"]].sort_values(keys).reset_index(drop=True)
+    expected = whole.sort_values(keys).reset_index(drop=True)
+    pd.testing.assert_frame_equal(
+        own[["ray", "building", "distance"]], expected, check_dtype=False, check_exact=True
+    )
+    # every tile's signals carry all their crossings, the halo's included
+    full = tiled.drop(columns="own").drop_duplicates(keys).sort_values(keys).reset_index(drop=True)
+    crossing = whole[np.isin(whole["ray"], full["ray"])].sort_values(keys).reset_index(drop=True)
+    pd.testing.assert_frame_equal(full, crossing, check_dtype=False, check_exact=True)
+    assert tiled["own"].sum() < len(tiled)  # the halo was needed
+
+
+def test_a_tile_no_receiver_serves_is_listed_empty():
+    buildings = gpd.GeoDataFrame(
+        geometry=[box(529_100, 182_100, 529_120, 182_120), box(540_100, 182_100, 540_120, 182_120)],
+        crs=27700,
+    )
+    tiles = plan_tiles([529_050.0], [182_050.0], buildings, 300.0)
+    assert [t.name for t in tiles] == ["TQ2982", "TQ4082"]
+    near, far = tiles
+    assert near.receivers.tolist() == [0] and near.buildings.tolist() == [0]
+    assert far.receivers.size == 0 and far.halo.size == 0 and far.buildings.tolist() == [1]

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from gnss_citygml.model.classifier import SignalClassifier
+from gnss_citygml.model.classifier import Cn0Counts, SignalClassifier
 
 
 def test_initial_classifier_is_the_papers():
@@ -27,3 +27,22 @@ def test_refit_ignores_blocked_and_keeps_itself_on_one_class(rng):
     clf = SignalClassifier.initial(30.0)
     assert clf.refit(np.array([np.nan, 40.0, 41.0]), np.array([False, True, True])) is clf
     assert clf.refit(np.array([]), np.array([], dtype=bool)) is clf
+
+
+def test_counts_of_parts_add_up_to_the_whole_and_refit_it_exactly(rng):
+    # the tiles of a distributed run each count their signals; one sum refits the classifier
+    n = 5000
+    is_open = rng.random(n) < 0.6
+    cn0 = np.where(is_open, rng.normal(40, 4, n), rng.normal(25, 5, n)).round(1)
+    cn0[rng.random(n) < 0.1] = np.nan  # blocked: no C/N0
+    labels = is_open ^ (rng.random(n) < 0.05)
+    part = rng.integers(0, 4, n)
+    counts = [Cn0Counts.of(cn0[part == p], labels[part == p]) for p in range(4)]
+    total = counts[0] + counts[1] + counts[2] + counts[3]
+    whole = Cn0Counts.of(cn0, labels)
+    for name in ("key", "n", "k"):
+        np.testing.assert_array_equal(getattr(total, name), getattr(whole, name))
+    assert total.n.sum() == np.isfinite(cn0).sum()
+    start = SignalClassifier.initial(30.0)
+    assert start.refit_counts(total) == start.refit(cn0, labels)
+    assert 30.0 < start.refit(cn0, labels).threshold < 36.0

@@ -15,7 +15,7 @@ import numpy.typing as npt
 
 from .fourpl import fit_4pl, logistic4
 
-__all__ = ["SignalClassifier"]
+__all__ = ["Cn0Counts", "SignalClassifier"]
 
 #: C/N0 values are pooled to this resolution (dB-Hz) when the classifier is fitted: receivers
 #: report C/N0 to 0.1 dB-Hz at best, and pooling makes the fit cost independent of the
@@ -70,20 +70,53 @@ class SignalClassifier:
         best fit that never reaches Pr(open) = 0.5), the current classifier is kept: co-training
         cannot continue from a classifier that gives every signal the same label.
         """
-        cn0 = np.asarray(cn0, dtype=float)
-        labels = np.asarray(labels, dtype=bool)
-        received = ~np.isnan(cn0)
-        values, y = cn0[received], labels[received]
-        if values.size == 0 or y.all() or not y.any():
+        return self.refit_counts(Cn0Counts.of(cn0, labels))
+
+    def refit_counts(self, counts: Cn0Counts) -> SignalClassifier:
+        """:meth:`refit` from the signals' pooled counts: the same fit, so that parts of a run
+        (tiles) can each count their signals and one sum refits the classifier exactly."""
+        n, k = counts.n.astype(float), counts.k.astype(float)
+        if n.size == 0 or k.sum() in (0.0, n.sum()):
             return self
-        key = np.round(values / CN0_RESOLUTION).astype(np.int64)
-        uniq, inverse = np.unique(key, return_inverse=True)
-        n = np.bincount(inverse).astype(float)
-        k = np.bincount(inverse, weights=y.astype(float))
-        x, frac = uniq * CN0_RESOLUTION, k / n
+        x, frac = counts.key * CN0_RESOLUTION, k / n
         fits = [fit_4pl(x, frac, n, init=[[self.a, self.b, self.c, self.d]]), fit_4pl(x, frac, n)]
         best = max(fits, key=lambda f: f.loglik[0] if np.isfinite(f.loglik[0]) else -np.inf)
         new = replace(
             self, a=float(best.a[0]), b=float(best.b[0]), c=float(best.c[0]), d=float(best.d[0])
         )
         return new if np.isfinite(new.threshold) else self
+
+
+@dataclass(frozen=True)
+class Cn0Counts:
+    """The received signals pooled by C/N0 (to :data:`CN0_RESOLUTION`): for each C/N0 ``key``
+    (C/N0 / resolution, rounded; ascending) how many signals there are (``n``) and how many of
+    them the map labels open (``k``). All the classifier's fit needs, and summable."""
+
+    key: np.ndarray
+    n: np.ndarray
+    k: np.ndarray
+
+    @classmethod
+    def of(cls, cn0: npt.ArrayLike, labels: npt.ArrayLike) -> Cn0Counts:
+        """The counts of signals with C/N0 ``cn0`` (NaN: blocked, left out) and map labels."""
+        cn0 = np.asarray(cn0, dtype=float)
+        labels = np.asarray(labels, dtype=bool)
+        received = ~np.isnan(cn0)
+        key = np.round(cn0[received] / CN0_RESOLUTION).astype(np.int64)
+        return cls._pooled(key, np.ones(key.size, dtype=np.int64), labels[received])
+
+    def __add__(self, other: Cn0Counts) -> Cn0Counts:
+        """The counts of both sets of signals together."""
+        return Cn0Counts._pooled(
+            np.concatenate([self.key, other.key]),
+            np.concatenate([self.n, other.n]),
+            np.concatenate([self.k, other.k]),
+        )
+
+    @classmethod
+    def _pooled(cls, key: np.ndarray, n: npt.ArrayLike, k: npt.ArrayLike) -> Cn0Counts:
+        uniq, inverse = np.unique(key, return_inverse=True)
+        total = np.bincount(inverse, weights=n, minlength=uniq.size).astype(np.int64)
+        opened = np.bincount(inverse, weights=k, minlength=uniq.size).astype(np.int64)
+        return cls(uniq, total, opened)

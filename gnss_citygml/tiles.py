@@ -42,6 +42,10 @@ __all__ = [
 #: Side of a tile (m): the OS 1 km square.
 DEFAULT_TILE_SIZE = 1000.0
 
+#: Receivers per block of :func:`receiver_tiles`: its candidate pairs (9 per receiver for
+#: 1 km tiles and a 500 m reach) stay within tens of MB.
+_CHUNK = 1 << 16
+
 #: The extent of the OS national grid's lettered 100 km squares (m): eastings 0-700 km,
 #: northings 0-1300 km.
 _GRID_E, _GRID_N = 700_000.0, 1_300_000.0
@@ -149,23 +153,27 @@ def receiver_tiles(
             reach[:, 3] - (ty + 1) * size,
         ]  # fmt: skip
     )
-    ix0, iy0 = tile_index(e - beyond, n - beyond, size)
-    ix1, iy1 = tile_index(e + beyond, n + beyond, size)
-    span = int(max((ix1 - ix0).max(initial=0), (iy1 - iy0).max(initial=0))) + 1
+    span = int(np.ceil(2.0 * beyond / size)) + 1  # candidate tiles across, around a receiver
     dx, dy = (g.ravel() for g in np.meshgrid(np.arange(span), np.arange(span), indexing="ij"))
-    row = np.repeat(np.arange(e.size), dx.size)
-    cx, cy = (
-        np.repeat(ix0, dx.size) + np.tile(dx, e.size),
-        np.repeat(iy0, dx.size) + np.tile(dy, e.size),
-    )
     keys = _key(tx, ty)  # sorted: the groupby sorted the tiles
-    at = np.clip(np.searchsorted(keys, _key(cx, cy)), 0, keys.size - 1)
-    found = keys[at] == _key(cx, cy)
-    x0, y0, x1, y1 = reach[at].T
-    px, py = e[row], n[row]
-    hit = found & (px >= x0) & (px <= x1) & (py >= y0) & (py <= y1)
+    rows, tiles = [], []
+    for start in range(0, e.size, _CHUNK):  # a chunk's candidates stay within memory
+        part = slice(start, start + _CHUNK)
+        px, py = np.repeat(e[part], dx.size), np.repeat(n[part], dx.size)
+        ix0, iy0 = tile_index(e[part] - beyond, n[part] - beyond, size)
+        candidate = _key(
+            np.repeat(ix0, dx.size) + np.tile(dx, ix0.size),
+            np.repeat(iy0, dx.size) + np.tile(dy, iy0.size),
+        )
+        at = np.clip(np.searchsorted(keys, candidate), 0, keys.size - 1)
+        x0, y0, x1, y1 = reach[at].T
+        hit = (keys[at] == candidate) & (px >= x0) & (px <= x1) & (py >= y0) & (py <= y1)
+        rows.append(start + np.flatnonzero(hit) // dx.size)
+        tiles.append(at[hit])
     names = tile_names(tx, ty, size)  # once per tile, not per pair
-    return pd.DataFrame({"row": row[hit], "tile": names[at[hit]]})
+    return pd.DataFrame(
+        {"row": np.concatenate(rows), "tile": names[np.concatenate(tiles).astype(np.intp)]}
+    )
 
 
 @dataclass(frozen=True)

@@ -51,7 +51,9 @@ _CHUNK = 1 << 16
 _GRID_E, _GRID_N = 700_000.0, 1_300_000.0
 
 
-def tile_index(e: npt.ArrayLike, n: npt.ArrayLike, size: float = DEFAULT_TILE_SIZE):
+def tile_index(
+    e: npt.ArrayLike, n: npt.ArrayLike, size: float = DEFAULT_TILE_SIZE
+) -> tuple[np.ndarray, np.ndarray]:
     """Column and row (int64) of the tile holding each point (``e``, ``n`` in BNG metres)."""
     _check_size(size)
     e, n = np.asarray(e, dtype=float), np.asarray(n, dtype=float)

@@ -53,7 +53,7 @@ def main() -> None:
         f"{args.reach:.0f} m: one cast {single:.1f} s, {whole:,} crossings\n"
     )
     print(
-        "| tiles | tile side | plan | cast: all tiles | largest tile | crossings cast | halo overhead |"
+        "| tiles | tile side | plan | cast: all tiles | largest tile | crossings | halo overhead |"
     )
     print("|---|---|---|---|---|---|---|")
     for per_side in (1, 2, 4):

@@ -5,8 +5,8 @@ A synthetic city (``--km`` square of British National Grid, ``--buildings`` boxe
 into 1, 4 and 16 tiles (tile side = km / 1, 2, 4) and cast tile by tile against each tile's
 buildings and halo (:func:`gnss_citygml.tiles.plan_tiles`). Printed per tiling: the time to
 plan, the cast's total and largest tile time, and how many crossings the tiles cast beside
-the single run's (the halo's overhead: a ray near a tile edge is cast in every tile it can
-reach). The rows of a tile's own buildings equal the single cast's (tests/test_tiles.py).
+the single run's (the halo's overhead: a ray is cast in every tile whose buildings' extent it
+enters). The rows of a tile's own buildings equal the single cast's (tests/test_tiles.py).
 
     python benchmarks/tiles.py [--km 4] [--buildings 20000] [--signals 1000000] [--reach 500]
 """
@@ -59,7 +59,7 @@ def main() -> None:
     for per_side in (1, 2, 4):
         size = side / per_side
         t = time.perf_counter()
-        tiles = plan_tiles(e, n, buildings, args.reach, size)
+        tiles = plan_tiles(e, n, buildings, args.reach, size, bearing)
         plan = time.perf_counter() - t
         times, rows = [], 0
         for tile in tiles:

@@ -122,9 +122,12 @@ def receiver_tiles(
     buildings: gpd.GeoDataFrame,
     max_range: float,
     size: float = DEFAULT_TILE_SIZE,
+    bearing: npt.ArrayLike | None = None,
 ) -> pd.DataFrame:
     """Which tiles each receiver position serves: every tile whose buildings lie, at least in
-    part, within ``max_range`` (m, the rays' horizontal reach) of it.
+    part, within ``max_range`` (m, the rays' horizontal reach) of it. With ``bearing`` (deg,
+    one per row: each row is then a ray), only the tiles whose buildings' bounding box the
+    ray's ``max_range`` long segment enters: a ray pointing away from a tile is not its work.
 
     A tile's reach is the bounding box of its own buildings' footprints (which may cross the
     tile's edges) grown by ``max_range``: a receiver outside it has no ray that can enter any
@@ -170,6 +173,10 @@ def receiver_tiles(
         at = np.clip(np.searchsorted(keys, candidate), 0, keys.size - 1)
         x0, y0, x1, y1 = reach[at].T
         hit = (keys[at] == candidate) & (px >= x0) & (px <= x1) & (py >= y0) & (py <= y1)
+        if bearing is not None:
+            way = np.radians(np.repeat(np.asarray(bearing, dtype=float)[part], dx.size))
+            ends = (max_range * np.sin(way), max_range * np.cos(way))
+            hit &= _segment_enters(px, py, *ends, box.to_numpy()[at])
         rows.append(start + np.flatnonzero(hit) // dx.size)
         tiles.append(at[hit])
     names = tile_names(tx, ty, size)  # once per tile, not per pair
@@ -195,14 +202,15 @@ def plan_tiles(
     buildings: gpd.GeoDataFrame,
     max_range: float,
     size: float = DEFAULT_TILE_SIZE,
+    bearing: npt.ArrayLike | None = None,
 ) -> list[Tile]:
     """The tiles of a run, in name order: each tile's buildings (:func:`building_tiles`), the
-    receivers that serve it (:func:`receiver_tiles`) and its halo, the other buildings within
-    ``max_range`` of the bounding box of those receivers. A tile that no receiver serves is
-    still listed (its buildings have no signal)."""
+    receivers (or, with ``bearing``, the rays) that serve it (:func:`receiver_tiles`) and its
+    halo, the other buildings within ``max_range`` of the bounding box of those receivers. A
+    tile that no receiver serves is still listed (its buildings have no signal)."""
     e, n = np.asarray(e, dtype=float), np.asarray(n, dtype=float)
     names = building_tiles(buildings, size)
-    pairs = receiver_tiles(e, n, buildings, max_range, size)
+    pairs = receiver_tiles(e, n, buildings, max_range, size, bearing)
     served = {str(k): v.to_numpy() for k, v in pairs.groupby("tile")["row"]}
     tree = shapely.STRtree(buildings.geometry.to_numpy())
     tiles = []
@@ -221,6 +229,20 @@ def plan_tiles(
             halo = near[names[near] != name]
         tiles.append(Tile(name, own.to_numpy(), halo, rows))
     return tiles
+
+
+def _segment_enters(x, y, dx, dy, boxes) -> np.ndarray:
+    """Whether each segment from (``x``, ``y``) to (``x + dx``, ``y + dy``) meets its box
+    (``x0, y0, x1, y1`` per row): Liang-Barsky clipping, vectorised."""
+    t0, t1 = np.zeros(x.size), np.ones(x.size)
+    for p, d, lo, hi in ((x, dx, boxes[:, 0], boxes[:, 2]), (y, dy, boxes[:, 1], boxes[:, 3])):
+        moving = d != 0.0
+        with np.errstate(divide="ignore", invalid="ignore"):
+            a, b = (lo - p) / d, (hi - p) / d
+        inside = (p >= lo) & (p <= hi)  # a segment along the axis: inside the slab or never
+        t0 = np.where(moving, np.maximum(t0, np.minimum(a, b)), np.where(inside, t0, np.inf))
+        t1 = np.where(moving, np.minimum(t1, np.maximum(a, b)), t1)
+    return t0 <= t1
 
 
 def _key(ix: np.ndarray, iy: np.ndarray) -> np.ndarray:

@@ -114,7 +114,8 @@ def test_the_reach_must_be_positive():
         receiver_tiles([5.0], [5.0], one, 0.0)
 
 
-def test_each_tile_casts_every_crossing_of_the_signals_that_cross_its_buildings():
+@pytest.mark.parametrize("by_ray", [False, True])
+def test_each_tile_casts_every_crossing_of_the_signals_that_cross_its_buildings(by_ray):
     """The per-tile casts give the single cast's rows: every (signal, building) row of a tile's
     own buildings exactly once over all tiles, and for each such signal every other building
     it crosses, neighbours across the tile's edge included, with the same distances."""
@@ -136,7 +137,7 @@ def test_each_tile_casts_every_crossing_of_the_signals_that_cross_its_buildings(
             )
         )
     )
-    tiles = plan_tiles(e, n, buildings, max_range, size=500.0)
+    tiles = plan_tiles(e, n, buildings, max_range, 500.0, bearing if by_ray else None)
     assert len(tiles) >= 25 and sum(t.buildings.size for t in tiles) == len(buildings)
     assert all(np.intersect1d(t.buildings, t.halo).size == 0 for t in tiles)
     parts = []
@@ -177,3 +178,33 @@ def test_a_tile_no_receiver_serves_is_listed_empty():
     near, far = tiles
     assert near.receivers.tolist() == [0] and near.buildings.tolist() == [0]
     assert far.receivers.size == 0 and far.halo.size == 0 and far.buildings.tolist() == [1]
+
+
+def test_rays_serve_only_the_tiles_they_can_enter():
+    rng = np.random.default_rng(5)
+    x0, y0 = 528_000.0, 181_000.0
+    corners = rng.uniform(0, 3000, (200, 2)) + (x0, y0)
+    buildings = gpd.GeoDataFrame(
+        geometry=[box(x, y, x + 30, y + 20) for x, y in corners], crs=27700
+    )
+    e, n = (rng.uniform(-400, 3400, 3000) + o for o in (x0, y0))
+    bearing = rng.uniform(0, 360, e.size)
+    bearing[:10] = [0, 90, 180, 270, 0, 90, 180, 270, 45, 135]  # along the axes too
+    max_range = 300.0
+    got = receiver_tiles(e, n, buildings, max_range, 1000.0, bearing)
+    names = building_tiles(buildings, 1000.0)
+    expected = set()
+    way = np.radians(bearing)
+    rays = shapely.linestrings(
+        np.stack(
+            [np.column_stack([e, n]),
+             np.column_stack([e + max_range * np.sin(way), n + max_range * np.cos(way)])],
+            axis=1,
+        )
+    )  # fmt: skip
+    for tile in set(names):
+        extent = shapely.box(*shapely.total_bounds(buildings.geometry[names == tile]))
+        expected |= {(int(r), tile) for r in np.flatnonzero(shapely.intersects(rays, extent))}
+    assert set(zip(got["row"], got["tile"], strict=True)) == expected
+    everyone = receiver_tiles(e, n, buildings, max_range, 1000.0)
+    assert len(got) < 0.6 * len(everyone)  # most rays point away from most tiles in reach

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 
 from .errors import InputError
 from .paths import StrPath
-from .settings import Calibration, Estimator, PositionError, Rays, ReceiverHeights
+from .settings import Calibration, Estimator, PositionError, Rays, ReceiverHeights, Tiling
 
 if TYPE_CHECKING:
     import geopandas as gpd
@@ -58,6 +58,7 @@ def estimate_file(
     estimator: Estimator = Estimator(),
     position_error: PositionError = PositionError(),
     calibration: Calibration = Calibration(),
+    tiling: Tiling = Tiling(),
     dem_crs: str | None = None,
     grid_dir: StrPath | None = None,
     overwrite: bool = False,
@@ -89,6 +90,13 @@ def estimate_file(
             fix="give a report folder too (--report DIR), or leave the truth out",
         )
     calibration.check_method(estimator)  # as the pipeline does, but before any file is read
+    tiling.check(estimator, calibration)
+    if tiling.on and report is not None:
+        raise InputError(
+            "the report needs every intersection on one machine, and a run on a Dask "
+            "scheduler does not gather them",
+            fix="leave out --report, or --scheduler",
+        )
     if output is not None:
         check_layer_output(output, "heights", overwrite=overwrite)
     if report is not None:
@@ -111,6 +119,7 @@ def estimate_file(
         estimator=estimator,
         position_error=position_error,
         calibration=calibration,
+        tiling=tiling,
         grid_dir=grid_dir,
         dem_crs=dem_crs,
         progress=stage,

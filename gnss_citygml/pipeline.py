@@ -36,6 +36,7 @@ from .settings import (
     PositionError,
     Rays,
     ReceiverHeights,
+    Tiling,
 )
 from .terrain import Dem, building_ground, sample_ground
 
@@ -49,6 +50,7 @@ __all__ = [
     "join_heights",
     "position_sds",
     "receivers",
+    "recordings",
     "run",
 ]
 
@@ -124,6 +126,7 @@ def intersections(
     *,
     rays: Rays = Rays(),
     position_error: PositionError = PositionError(),
+    recording: pd.Categorical | None = None,
 ) -> pd.DataFrame:
     """The intersections table of DESIGN.md: every signal x building its ray enters.
 
@@ -142,7 +145,8 @@ def intersections(
     nothing), with the cosine floored at :data:`MIN_INCIDENCE`; and ``recording``, which rows
     share one position error (:func:`~gnss_citygml.recordings.position_groups`: a receiver
     standing still shares one over its stay, a moving one over its recording, or over windows
-    of ``position_error.window`` seconds; needs ``time_utc``).
+    of ``position_error.window`` seconds; needs ``time_utc``): :func:`recordings`, unless
+    given (``recording``, one per receiver row: a tile's rows, named over the whole run).
     """
     ray, fp, dist, incidence = footprint_entries(
         receivers["e"].to_numpy(),
@@ -161,7 +165,9 @@ def intersections(
     if not position_error.exact:
         spread = np.tan(elevation) / np.maximum(incidence, MIN_INCIDENCE)
         extra["height_sd"] = position_sds(receivers, position_error)[ray] * spread
-        extra["recording"] = _named_position_groups(receivers, position_error.window)[ray]
+        if recording is None:
+            recording = recordings(receivers, position_error)
+        extra["recording"] = recording[ray]
     if {"constellation", "svid"} <= set(receivers.columns):
         extra["satellite"] = satellites(receivers)[ray]
     return pd.DataFrame(
@@ -183,11 +189,14 @@ def intersections(
     )
 
 
-def _named_position_groups(receivers: pd.DataFrame, window: float | None) -> pd.Categorical:
-    """Each row's position group (:func:`~gnss_citygml.recordings.position_groups`) named by
-    its receiver and first epoch (``phone1 2020-02-11T08:49:00Z``): a name that another run
-    over more observations gives the same group (``update`` keeps it with its evidence)."""
-    codes = position_groups(receivers, window)
+def recordings(
+    receivers: pd.DataFrame, position_error: PositionError = PositionError()
+) -> pd.Categorical:
+    """Each row's position group (:func:`~gnss_citygml.recordings.position_groups`, windows
+    of ``position_error.window`` seconds) named by its receiver and first epoch (``phone1
+    2020-02-11T08:49:00Z``): a name that another run over more observations gives the same
+    group (``update`` keeps it with its evidence)."""
+    codes = position_groups(receivers, position_error.window)
     first = receivers["time_utc"].groupby(codes).min()
     who = receivers["receiver"].groupby(codes).first()
     utc = pd.to_datetime(first, utc=True).dt.strftime("%Y-%m-%dT%H:%M:%S.%fZ")
@@ -217,8 +226,8 @@ class Run:
     #: The observations inside the elevation mask, with the receiver columns (:func:`receivers`).
     receivers: pd.DataFrame
     #: One row per (signal, building its ray enters) (:func:`intersections`); ``signal`` is
-    #: the row of :attr:`receivers`.
-    intersections: pd.DataFrame
+    #: the row of :attr:`receivers`. None for a run in tiles: they are never gathered.
+    intersections: pd.DataFrame | None
     #: The buildings with their ``ground``.
     buildings: gpd.GeoDataFrame
     #: The final C/N0 signal classifier of 4PL-B or 4PL (None for the baselines).
@@ -246,6 +255,7 @@ def run(
     estimator: Estimator = Estimator(),
     position_error: PositionError = PositionError(),
     calibration: Calibration = Calibration(),
+    tiling: Tiling = Tiling(),
     grid_dir: StrPath | None = None,
     dem_crs: CrsInput | None = None,
     progress: Callable[[str], None] | None = None,
@@ -285,6 +295,11 @@ def run(
         with the heights (:func:`~gnss_citygml.calibrate.calibrate_receivers`). Off by default:
         it costs a few extra casts and fits. Only 4PL-B can use it: with another method it is
         an error.
+    tiling
+        With ``Tiling(scheduler=...)``, the rays are cast and 4PL-B runs in tiles on a Dask
+        cluster (:func:`~gnss_citygml.tiled.tiled_heights`): the same heights, and no
+        machine holds every intersection (``Run.intersections`` is None). 4PL-B or 4PL,
+        without self-calibration.
     grid_dir
         Folder of the OSTN15/OSGM15 grids (see :mod:`gnss_citygml.geodesy`).
     dem_crs
@@ -310,6 +325,7 @@ def run(
         not a GeoDataFrame in EPSG:27700 (both before any work), and any stage's error.
     """
     calibration.check_method(estimator)
+    tiling.check(estimator, calibration)
     check_bng(footprints, "footprints")
     say = progress or (lambda stage: None)
     say(STAGES[0])
@@ -330,11 +346,34 @@ def run(
     elif "ground" not in buildings.columns:
         raise InputError("building ground heights need a DEM", fix="give --dem")
     say(STAGES[3])
+    if tiling.on:
+        return _tiled(rx, buildings, rays, estimator, position_error, tiling, footprints, say)
     if calibration.on:
         rx = calibrate_receivers(rx, buildings, calibration, estimator=estimator, rays=rays)
     inter = intersections(rx, buildings, rays=rays, position_error=position_error)
     heights, classifier = fit_heights(inter, buildings, estimator, id_field(footprints), say)
     return Run(heights, rx, inter, buildings, classifier)
+
+
+def _tiled(rx, buildings, rays, estimator, position_error, tiling, footprints, say) -> Run:
+    """The ray casting and height model stages in tiles on a Dask cluster."""
+    from .cluster import connect  # the [dask] extra: only when asked for
+    from .tiled import tiled_heights
+
+    with connect(tiling) as engine:
+        table, classifier = tiled_heights(
+            rx,
+            buildings,
+            estimator=estimator,
+            rays=rays,
+            position_error=position_error,
+            tile_size=tiling.size,
+            engine=engine,
+        )
+    say(STAGES[4])
+    say(STAGES[5])
+    heights = join_heights(buildings, table, estimator.method, id_field(footprints))
+    return Run(heights, rx, None, buildings, classifier)
 
 
 def fit_heights(

@@ -85,7 +85,7 @@ def signal_states(run: Run) -> pd.DataFrame:
     else:
         open_ = received
     state = np.where(~received, "blocked", np.where(open_, "open", "closed"))
-    inter = run.intersections
+    inter = _intersections(run)
     below = _below_roofs(inter, id_named(run.heights).set_index("id")["c"])
     hidden = np.zeros(len(rx), dtype=bool)
     hidden[inter["signal"].to_numpy()[below]] = True
@@ -342,7 +342,7 @@ def _fits(plt: Any, run: Run, table: pd.DataFrame, states: pd.DataFrame) -> Any:
     ``FIT_WINDOW`` m either side of the roof line), the estimate a line, the range shaded."""
     chosen = fit_sample(table.assign(height_lower=table["lower"], height_upper=table["upper"]))
     heights = id_named(run.heights).set_index("id")
-    inter = run.intersections
+    inter = _intersections(run)
     codes = inter["building"].astype(str).to_numpy()
     open_ = states["state"].to_numpy()[inter["signal"].to_numpy()] == "open"
     shown = ~blocked_by_others(inter, heights["c"])
@@ -449,7 +449,7 @@ def _page(title: str, run: Run, table: pd.DataFrame, sections: list) -> str:
     converged = int(table["converged"].sum())
     lines = [
         f"{len(table)} buildings, {converged} with a height; {len(run.receivers)} signals from "
-        f"{run.receivers['receiver'].nunique()} receivers, {len(run.intersections)} "
+        f"{run.receivers['receiver'].nunique()} receivers, {len(_intersections(run))} "
         "intersections."
     ]
     if "error" in table:
@@ -488,3 +488,14 @@ _STYLE = (
     "td,th{padding:2px 8px;border-bottom:1px solid #eee;text-align:right}"
     "h2{margin-top:2em}"
 )
+
+
+def _intersections(run: Run) -> pd.DataFrame:
+    """The run's intersections, which a run in tiles never gathers."""
+    if run.intersections is None:
+        raise InputError(
+            "the report needs every intersection of the run on one machine, and a run on a "
+            "Dask scheduler does not gather them",
+            fix="run without --scheduler for the report",
+        )
+    return run.intersections

@@ -10,7 +10,8 @@ takes them:
 - :class:`Estimator`: the height estimator (4PL-B, 4PL or a baseline) and its settings, with
   :class:`Acceptance`, what a 4PL-B estimate must satisfy to count as converged;
 - :class:`PositionError`: how far the receiver positions may be off, for the fits to model;
-- :class:`Calibration`: the self-calibration of the receivers' offsets.
+- :class:`Calibration`: the self-calibration of the receivers' offsets;
+- :class:`Tiling`: a run cut into tiles on a Dask cluster.
 
 Each object checks its own values when it is made (one-line
 :class:`~gnss_citygml.errors.InputError`, or :class:`~gnss_citygml.errors.ModelError` for a
@@ -38,6 +39,7 @@ __all__ = [
     "PositionError",
     "ReceiverHeights",
     "Rays",
+    "Tiling",
 ]
 
 #: Reweighting schemes of the 4PL height fit (:func:`~gnss_citygml.model.fourplb.height_weights`).
@@ -365,4 +367,69 @@ class Calibration:
                 f"self-calibration needs method 4PL-B, not {estimator.method}",
                 fix="use method 4PL-B (--method 4PL-B), or leave out the calibration "
                 "(--calibration-sd)",
+            )
+
+
+@dataclass(frozen=True)
+class Tiling:
+    """A run cut into square tiles of British National Grid on a Dask cluster
+    (:mod:`gnss_citygml.tiled`, the ``[dask]`` extra), with the single process's heights.
+
+    Parameters
+    ----------
+    scheduler
+        ``None`` (default): one process, no tiles. ``"local"``: a Dask ``LocalCluster`` on
+        this machine. ``"tcp://host:port"``: a running Dask scheduler and its workers.
+    workers
+        With ``"local"``: how many worker processes (default: one per core).
+    size
+        Side of a tile (m, whole metres): 1000 by default, the OS 1 km square (tiles are named
+        by OS grid reference, ``TQ2982``).
+    """
+
+    scheduler: str | None = None
+    workers: int | None = None
+    size: float = 1000.0
+
+    def __post_init__(self):
+        if self.scheduler is not None and not (
+            self.scheduler == "local" or self.scheduler.startswith(("tcp://", "tls://"))
+        ):
+            raise InputError(
+                f"unknown scheduler {self.scheduler!r}",
+                fix="give --scheduler local, or the address of a Dask scheduler (tcp://host:port)",
+            )
+        if self.workers is not None and (self.scheduler != "local" or not _count(self.workers)):
+            raise InputError(
+                f"--workers {self.workers} is for --scheduler local, a whole number 1 or more",
+                fix="leave it out: a running scheduler has its own workers",
+            )
+        if not (_finite(self.size) and self.size >= 1 and float(self.size).is_integer()):
+            raise InputError(
+                f"a tile size must be a whole number of metres, at least 1, not {self.size!r}",
+                fix="give --tile-size in metres, e.g. 1000",
+            )
+        if self.scheduler is None and self.size != Tiling.size:
+            raise InputError(
+                "a tile size is for a run on a Dask scheduler",
+                fix="give --scheduler local (or tcp://host:port) too, or leave out --tile-size",
+            )
+
+    @property
+    def on(self) -> bool:
+        """Whether the run is cut into tiles on a Dask cluster."""
+        return self.scheduler is not None
+
+    def check(self, estimator: Estimator, calibration: Calibration) -> None:
+        """Refuse what a run in tiles cannot do: a method other than 4PL-B or 4PL (the
+        baselines have no parts), and self-calibration (its offsets move rays across tiles)."""
+        if self.on and not estimator.fourpl:
+            raise InputError(
+                f"a run on a Dask scheduler runs 4PL-B or 4PL, not {estimator.method}",
+                fix="use --method 4PL-B, or leave out --scheduler",
+            )
+        if self.on and calibration.on:
+            raise InputError(
+                "self-calibration is not available in a run on a Dask scheduler",
+                fix="leave out --calibration-sd, or --scheduler",
             )

@@ -73,6 +73,39 @@ def test_groups_are_fitted_independently(rng):
     assert fit.c[1] == pytest.approx(single.c[0], abs=1e-3)
 
 
+@pytest.mark.parametrize("before", [1, 777, 70_000])
+@pytest.mark.parametrize("size", [40, 3000, 150_000])
+def test_a_groups_fit_is_the_same_bit_for_bit_whatever_groups_surround_it(before, size):
+    """A tile fits a building among other groups than the whole run does: its fit must not
+    change in the last bit, or a flat likelihood (separable data, a gap in the heights) turns
+    the rounding into metres. Groups of every size (packed with others in a block, alone,
+    spanning blocks), after a group of any size, with weights and errors in x."""
+    rng = np.random.default_rng(size + before)
+    x, y = draw_4pl(rng, size, 0.9, 2.0, 30.0, 0.1)
+    w, sd = rng.uniform(0.2, 1.0, size), rng.uniform(0.0, 2.0, size)
+    x0, y0 = draw_4pl(rng, before, 0.8, 0.5, 20.0, 0.2)
+    alone = fit_4pl(x, y, w, sd=sd, init=[[0.8, 1.0, 29.0, 0.1]])
+    w0, sd0 = rng.uniform(0.2, 1.0, before), rng.uniform(0.0, 2.0, before)
+    x_all, y_all, g_all = (
+        np.r_[x0, x],
+        np.r_[y0, y],
+        np.r_[np.zeros(before, int), np.ones(size, int)],
+    )
+    after = fit_4pl(
+        x_all,
+        y_all,
+        np.r_[w0, w],
+        g_all,
+        sd=np.r_[sd0, sd],
+        init=[[0.7, 0.4, 21.0, 0.2], [0.8, 1.0, 29.0, 0.1]],
+    )
+    for name in ("a", "b", "c", "d", "loglik"):
+        assert getattr(after, name)[1] == getattr(alone, name)[0], name
+    one = c_interval(alone, x, y, np.zeros(size, int), weights=w, sd=sd)
+    two = c_interval(after, x_all, y_all, g_all, weights=np.r_[w0, w], sd=np.r_[sd0, sd])
+    assert (two[0][1], two[1][1]) == (one[0][0], one[1][0])
+
+
 def test_separable_data_end_on_the_boundary():
     x = np.linspace(0.0, 10.0, 60)
     fit = fit_4pl(x, x > 5.0)

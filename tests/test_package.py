@@ -90,6 +90,8 @@ def _public_functions():
             elif inspect.isclass(value):
                 for attr, member in vars(value).items():
                     member = getattr(member, "__func__", getattr(member, "fget", member))
+                    if attr == "__init__" and getattr(value, "_is_protocol", False):
+                        continue  # typing.Protocol's own, not the module's
                     if inspect.isfunction(member) and (attr == "__init__" or attr[0] != "_"):
                         yield f"{module.__name__}.{name}.{attr}", member
 

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from ..settings import RECEIVER_HEIGHTS, Rays, ReceiverHeights
+from ..settings import RECEIVER_HEIGHTS, Rays, ReceiverHeights, Tiling
 from .options import (
     DEM_CRS,
     GRID_DIR,
@@ -101,7 +101,25 @@ _RUN_OPTIONS = together(
 )
 @REPORT
 @_RUN_OPTIONS
-def estimate(output, report, **options):
+@click.option(
+    "--scheduler",
+    help="Run in tiles on Dask (pip install 'gnss-citygml[dask]'): 'local' starts a cluster "
+    "on this machine, tcp://HOST:PORT uses a running scheduler. The heights are the same as "
+    "without it. Not with --report or self-calibration.",
+)
+@click.option(
+    "--workers",
+    type=click.IntRange(min=1),
+    help="With --scheduler local: worker processes (default: one per core).",
+)
+@click.option(
+    "--tile-size",
+    type=float,
+    default=Tiling.size,
+    show_default=True,
+    help="With --scheduler: side of a tile (m), aligned to the OS grid.",
+)
+def estimate(output, report, scheduler, workers, tile_size, **options):
     """Estimate the height of every footprint from GNSS OBSERVATIONS.
 
     OBSERVATIONS is the observations table (CSV or Parquet: time_utc, receiver, lat, lon, h,
@@ -109,9 +127,14 @@ def estimate(output, report, **options):
     GeoPackage or any polygon layer, or OS MasterMap Topography GML. The output holds each
     footprint with its estimate; buildings with too little data have empty heights.
     """
-    heights = _run(output, report, **options)
+    tiling = Tiling(scheduler=scheduler, workers=workers, size=tile_size)
+    heights = _run(output, report, tiling=tiling, **options)
     ok = int(heights["converged"].sum())
     click.echo(f"{ok} of {len(heights)} buildings have a height -> {output}")
+    failed = heights["status"].str.extract(r"^tile (\S+) failed: (.*)$").dropna()
+    for tile, why in failed.drop_duplicates().itertuples(index=False):
+        n = int((failed[0] == tile).sum())
+        click.echo(f"warning: tile {tile} failed ({why}): {n} buildings without a height", err=True)
     if report is not None:
         click.echo(f"report -> {report / 'report.html'}")
 
@@ -156,6 +179,7 @@ def _run(
     grid_dir,
     overwrite,
     quiet,
+    tiling=Tiling(),
 ):
     """Build the settings from the options and run :func:`gnss_citygml.jobs.estimate_file`
     with a progress bar over its stages."""
@@ -188,6 +212,7 @@ def _run(
             ),
             position_error=PositionError(sd=position_sd, window=position_window),
             calibration=Calibration(prior_sd=calibration_sd, window=calibration_window),
+            tiling=tiling,
             dem_crs=dem_crs,
             grid_dir=grid_dir,
             overwrite=overwrite,

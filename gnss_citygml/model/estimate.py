@@ -6,14 +6,15 @@ from collections.abc import Mapping
 from dataclasses import asdict
 
 import numpy as np
+import numpy.typing as npt
 import pandas as pd
 
 from ..errors import InputError, MissingColumnError, listing
 from ..settings import Estimator
 from .baselines import bayes_heights, hinge_heights
-from .fourplb import fourplb
+from .fourplb import Part, run_parts
 
-__all__ = ["HEIGHTS_COLUMNS", "estimate_heights"]
+__all__ = ["HEIGHTS_COLUMNS", "estimate_heights", "intersections_part"]
 
 #: Columns of the heights table, in order (see DESIGN.md; ``status`` says why a building did
 #: not converge, or ``ok``).
@@ -90,26 +91,14 @@ def estimate_heights(
     0  a      False  fewer than 10 signals
     """
     method = estimator.method
-    table = _as_table(intersections)
-    ids, codes, height, cn0, signal, order = _columns(table)
-    n = len(ids)
-    height_sd = _height_sd(table)
-
     if estimator.fourpl:
-        fits, classifier = fourplb(
-            codes,
-            height,
-            cn0,
-            n,
-            estimator,
-            signal=signal,
-            order=order,
-            height_sd=height_sd,
-            receiver=_recordings(table, height_sd),
-            track=_tracks(table),
-        )
-        columns = {name: getattr(fits, name) for name in HEIGHTS_COLUMNS[1:] if name != "method"}
+        ids, part = intersections_part(intersections, estimator)
+        (fits,), classifier = run_parts([part], [[0]], estimator)
+        columns = fits.columns()
     else:
+        table = _as_table(intersections)
+        ids, codes, height, cn0, _, _ = _columns(table)
+        n = len(ids)
         func = hinge_heights if method == "hinge" else bayes_heights
         h = func(codes, height, cn0, n, init_threshold=estimator.init_threshold)
         n_signals = np.bincount(codes, minlength=n)
@@ -130,6 +119,39 @@ def estimate_heights(
     if estimator.fourpl:
         out.attrs["signal_classifier"] = asdict(classifier)
     return out
+
+
+def intersections_part(
+    intersections: pd.DataFrame | Mapping, estimator: Estimator, own: npt.ArrayLike | None = None
+) -> tuple[np.ndarray, Part]:
+    """The 4PL-B :class:`~.fourplb.Part` of an intersections table (see
+    :func:`estimate_heights`) and its buildings' ids, in order of first appearance: all of
+    them owned, or, with ``own`` (ids), those first (a tile's, whose other rows are of the
+    buildings its signals also cross). The part's buildings are known by their ids
+    (``Part.building``), so that parts of a run can exchange their fits by id."""
+    table = _as_table(intersections)
+    ids, codes, height, cn0, signal, order = _columns(table)
+    n_own = len(ids)
+    if own is not None:  # the own buildings first
+        mine = pd.Index(np.asarray(own, dtype=object)).get_indexer(ids) >= 0
+        first = np.argsort(~mine, kind="stable")
+        ids, codes, n_own = ids[first], np.argsort(first)[codes], int(mine.sum())
+    height_sd = _height_sd(table)
+    part = Part.of(
+        codes,
+        height,
+        cn0,
+        len(ids),
+        estimator,
+        n_own=n_own,
+        building=ids,
+        signal=signal,
+        order=order,
+        height_sd=height_sd,
+        receiver=_recordings(table, height_sd),
+        track=_tracks(table),
+    )
+    return ids, part
 
 
 def _as_table(intersections) -> pd.DataFrame:

@@ -31,6 +31,7 @@ from typing import cast
 
 import numpy as np
 import numpy.typing as npt
+import pandas as pd
 from scipy.special import expit
 
 __all__ = ["B_BOUNDS", "FourPLFit", "c_interval", "fit_4pl", "log_likelihood", "logistic4"]
@@ -365,9 +366,10 @@ def _initial_theta(x, y, w, g, n_groups, lo, hi):
         xs, ys, ws, gs = x[order], y[order], w[order], g[order]
     starts = np.searchsorted(gs, np.arange(n_groups))
     ends = np.searchsorted(gs, np.arange(n_groups), side="right")
-    ones = _within_cumsum(ws * ys, starts, gs)  # weighted open labels at or below each sample
-    mass = _within_cumsum(ws, starts, gs)
-    tot_ones, tot_mass = _group_total(ws * ys, starts, ends), _group_total(ws, starts, ends)
+    ones = _within_cumsum(ws * ys, gs)  # weighted open labels at or below each sample
+    mass = _within_cumsum(ws, gs)
+    tot_ones = np.bincount(gs, ws * ys, n_groups)
+    tot_mass = np.bincount(gs, ws, n_groups)
     p_below = ones / np.maximum(mass, 1e-300)
     up_mass = tot_mass[gs] - mass
     p_above = (tot_ones[gs] - ones) / np.maximum(up_mass, 1e-300)
@@ -421,14 +423,11 @@ def _likeliest(starts, x, y, w, g, v, n_groups):
     return best
 
 
-def _within_cumsum(values, starts, gs):
-    total = np.cumsum(values)
-    return total - np.concatenate([[0.0], total])[starts][gs]
-
-
-def _group_total(values, starts, ends):
-    padded = np.concatenate([[0.0], np.cumsum(values)])
-    return padded[ends] - padded[starts]
+def _within_cumsum(values, gs):
+    """The running sum of ``values`` within each group (``gs`` sorted), each group summed on
+    its own: not a difference of one running sum over all groups, whose rounding would depend
+    on the groups before (a tile's or a whole run's)."""
+    return pd.Series(values).groupby(gs, sort=False).cumsum().to_numpy()
 
 
 def _neg_entropy(p):
@@ -462,12 +461,35 @@ def _from_theta(theta):
 _BLOCK = 1 << 16
 
 
+def _blocks(g: np.ndarray) -> list[tuple[int, int, bool]]:
+    """The blocks of :func:`_evaluate` over samples sorted by group: (start, stop, alone).
+    Groups of at most :data:`_BLOCK` samples are never split: those that start in one
+    stretch of ``_BLOCK`` samples make a block. A larger group is ``alone``, in blocks of
+    ``_BLOCK`` samples counted from its own first. So every group is summed the same way
+    whichever groups lie around it: a tile's fit of a building is the whole run's, bit for
+    bit, not only to rounding (which a flat likelihood would turn into metres)."""
+    if g.size == 0:
+        return []
+    starts = np.flatnonzero(np.r_[True, g[1:] != g[:-1]])
+    sizes = np.diff(np.r_[starts, g.size])
+    large = sizes > _BLOCK
+    stretch = starts // _BLOCK
+    new = np.r_[True, (stretch[1:] != stretch[:-1]) | large[1:] | large[:-1]]
+    first = starts[new]
+    blocks = []
+    for lo, hi, alone in zip(first, np.r_[first[1:], g.size], large[new], strict=True):
+        step = _BLOCK if alone else hi - lo
+        blocks += [(int(k), int(min(k + step, hi)), bool(alone)) for k in range(lo, hi, step)]
+    return blocks
+
+
 def _evaluate(theta, x, y, w, g, v, n_groups, active, *, ll_only=False):
     """Log-likelihood, gradient and Fisher information (in theta) of the active groups
-    (gradient and information left at zero with ``ll_only``), summed block by block.
+    (gradient and information left at zero with ``ll_only``), summed block by block
+    (:func:`_blocks`).
 
     The hot loop of every fit. Samples sorted by group make each block's sums cover a short
-    range of groups (:func:`fit_4pl` sorts them); any order gives the same result."""
+    range of groups (:func:`fit_4pl` sorts them)."""
     ll = np.zeros(n_groups)
     grad = np.zeros((n_groups, 4))
     fisher = np.zeros((n_groups, 4, 4))
@@ -476,12 +498,21 @@ def _evaluate(theta, x, y, w, g, v, n_groups, active, *, ll_only=False):
         x, y, w, g, v = x[sel], y[sel], w[sel], g[sel], v[sel]
     a_g, r_g = expit(theta[:, 0]), expit(theta[:, 3])
     per_group = (a_g, a_g * r_g, np.exp(theta[:, 1]), theta[:, 2], r_g)
-    for lo in range(0, x.size, _BLOCK):
-        block = slice(lo, lo + _BLOCK)
+    for lo, hi, alone in _blocks(g):
+        block = slice(lo, hi)
         gb = g[block]
-        first, last = gb.min(), gb.max() + 1
+        first, last = gb[0], gb[-1] + 1
         sums = _block_sums(
-            x[block], y[block], w[block], v[block], gb - first, per_group, first, last, ll_only
+            x[block],
+            y[block],
+            w[block],
+            v[block],
+            gb - first,
+            per_group,
+            first,
+            last,
+            ll_only,
+            alone,
         )
         ll[first:last] += sums[0]
         if not ll_only:
@@ -490,11 +521,12 @@ def _evaluate(theta, x, y, w, g, v, n_groups, active, *, ll_only=False):
     return ll, grad, fisher
 
 
-def _block_sums(x, y, w, v, g, per_group, first, last, ll_only):
+def _block_sums(x, y, w, v, g, per_group, first, last, ll_only, alone):
     """Per-group sums of one block of samples (``g`` counted from group ``first``). A block of
-    one group (one building, or a large one spanning blocks) sums by matrix products."""
+    a large group (``alone``) sums by matrix products, the others by ``bincount``, which adds
+    each group's samples in order whatever the other groups in the block."""
     n = last - first
-    if n == 1:
+    if alone:
         a, d, b, c, r = (v[first] for v in per_group)
     else:
         a, d, b, c, r = (np.take(v[first:last], g) for v in per_group)
@@ -504,7 +536,7 @@ def _block_sums(x, y, w, v, g, per_group, first, last, ll_only):
     p = np.clip(d + (a - d) * s, _EPS, 1 - _EPS)
     q = 1 - p
     terms = w * (y * np.log(p) + (1 - y) * np.log(q))
-    ll = terms.sum(keepdims=True) if n == 1 else np.bincount(g, terms, n)
+    ll = terms.sum(keepdims=True) if alone else np.bincount(g, terms, n)
     if ll_only:
         return (ll,)
     s_low = 1 - s
@@ -516,7 +548,7 @@ def _block_sums(x, y, w, v, g, per_group, first, last, ll_only):
     )
     info = w / (p * q)
     resid = info * (y - p)
-    if n == 1:
+    if alone:
         return ll, (jac @ resid)[None, :], ((jac * info) @ jac.T)[None, :, :]
     grad = np.column_stack([np.bincount(g, resid * j, n) for j in jac])
     fisher = np.empty((n, 4, 4))

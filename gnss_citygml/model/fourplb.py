@@ -39,7 +39,11 @@ uncertainty (:func:`position_margin`).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import functools
+import operator
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, fields, replace
+from typing import Any, Protocol
 
 import numpy as np
 import numpy.typing as npt
@@ -47,10 +51,22 @@ import pandas as pd
 
 from ..errors import ModelError
 from ..settings import WEIGHTINGS, Estimator
-from .classifier import SignalClassifier
+from .classifier import Cn0Counts, SignalClassifier
 from .fourpl import B_BOUNDS, FourPLFit, c_interval, fit_4pl, group_range
 
-__all__ = ["BuildingFits", "fourplb", "height_weights", "look_ids", "position_margin"]
+__all__ = [
+    "BuildingFits",
+    "Engine",
+    "InProcess",
+    "Part",
+    "Shared",
+    "Tally",
+    "fourplb",
+    "height_weights",
+    "look_ids",
+    "position_margin",
+    "run_parts",
+]
 
 #: With the visibility model, at least this fraction of the signals crossing a building below
 #: its fitted roof line must be unblocked by other buildings; otherwise the lower edge of the
@@ -79,6 +95,11 @@ class BuildingFits:
     height_upper: np.ndarray
     #: The paper's height ``c + 1.5/b`` (NaN where not converged), whichever rule ``height`` is.
     height_paper: np.ndarray
+
+    def columns(self) -> dict[str, np.ndarray]:
+        """The columns of the heights table (:data:`~.estimate.HEIGHTS_COLUMNS`) these fits
+        give, by name."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}
 
 
 def height_weights(
@@ -214,118 +235,455 @@ def fourplb(
         :mod:`.fourpl`), so ``b`` is the sharpness of the roof line itself, and the range is
         widened by :func:`position_margin` for the part of the error no fit averages away
         (``acceptance.max_uncertainty`` then bounds the widened range).
+    track
+        Optional look track of each row (one recording's view of one satellite,
+        :func:`look_ids`).
 
     Returns
     -------
     (BuildingFits, SignalClassifier)
         The per-building fits and the final signal classifier.
     """
-    if not estimator.fourpl:
-        raise ModelError(f"fourplb runs 4PL-B or 4PL, not {estimator.method}")
-    bootstrap = estimator.method == "4PL-B"
-    accept = estimator.acceptance
-    g = np.asarray(groups, dtype=np.intp)
-    h = np.asarray(height, dtype=float)
-    by_group = np.lexsort((h, g))  # a building's rows together, by height: faster fits
-    g, h = g[by_group], h[by_group]
-    s = np.asarray(cn0, dtype=float)[by_group]
-    sd = None if height_sd is None else np.asarray(height_sd, dtype=float)[by_group]
-    if receiver is not None:
-        receiver = pd.factorize(np.asarray(receiver)[by_group])[0]
-    if signal is not None:
-        sig = np.unique(np.asarray(signal)[by_group], return_inverse=True)[1]
-    else:
-        sig = None
-    if order is not None:
-        order = np.asarray(order)[by_group]
-    tracks = None if track is None else np.asarray(track)[by_group]
-    looks = None  # found once: a row's look does not change as 4PL-B iterates
-    if estimator.weighting == "looks" or (bootstrap and tracks is not None):
-        looks = look_ids(h, g, tracks)
-    occlusion = estimator.visibility and sig is not None
-    seen = np.ones(h.size, dtype=bool)
-    if occlusion and order is not None:
-        seen = np.asarray(order) == 0
+    part = Part.of(
+        groups,
+        height,
+        cn0,
+        n_groups,
+        estimator,
+        signal=signal,
+        order=order,
+        height_sd=height_sd,
+        receiver=receiver,
+        track=track,
+    )
+    (fits,), classifier = run_parts([part], [[0]], estimator)
+    return fits, classifier
 
+
+class Engine(Protocol):
+    """Where :func:`run_parts` runs each step: :class:`InProcess`, or a Dask cluster
+    (:class:`gnss_citygml.cluster.DaskEngine`, whose ``submit`` returns futures that later
+    steps take). ``key`` names a step (``fit-3-TQ2982``) for the engine's progress and
+    errors."""
+
+    def submit(self, func: Callable[..., Any], *args: Any, key: str | None = None) -> Any: ...
+
+    def gather(self, futures: Any) -> Any: ...
+
+    def failures(self, futures: Sequence[Any]) -> dict[int, str]: ...
+
+
+class InProcess:
+    """The :class:`Engine` of a single process: each step runs when submitted."""
+
+    def submit(self, func: Callable[..., Any], *args: Any, key: str | None = None) -> Any:
+        """``func(*args)``."""
+        return func(*args)
+
+    def gather(self, futures: Any) -> Any:
+        """The values themselves."""
+        return futures
+
+    def failures(self, futures: Sequence[Any]) -> dict[int, str]:
+        """None: a step that fails raises as it runs."""
+        return {}
+
+
+#: Tallies summed per task of :func:`run_parts`'s reduce: a tree, not one task of every part.
+_FAN_IN = 32
+
+
+def run_parts(
+    parts: Sequence[Any],
+    neighbours: Sequence[Sequence[int]],
+    estimator: Estimator = Estimator(),
+    engine: Engine | None = None,
+    progress: Callable[[int], None] | None = None,
+    finish: Callable[[Part, int], Any] | None = None,
+    names: Sequence[str] | None = None,
+) -> tuple[list[Any], SignalClassifier]:
+    """4PL-B over a run cut into parts (:class:`Part`, or an engine's futures of them), with
+    the single process's result: the map / exchange / reduce of DESIGN.md.
+
+    Each iteration, every part relabels its rows with the shared classifier and fits its own
+    buildings (:meth:`Part.fitted`); then takes the fits of the buildings its rays also cross
+    from the parts that own them (``neighbours[i]``: the parts whose buildings part ``i``'s
+    rays cross, itself included), updates its visibility model and counts its signals for the
+    classifier (:meth:`Part.exchanged`); the counts are summed and refit the classifier once
+    (:class:`Tally`), and the largest change of labels decides whether to go on. ``progress``
+    is told each iteration's number as it ends. Returns what ``finish(part, iterations)``
+    gives of each part (default: its :class:`BuildingFits`, :meth:`Part.judged`), and the
+    classifier. ``names`` (one per part, e.g. its tile's) name the steps for the engine.
+    A part may be anything with :class:`Part`'s steps, e.g. a failed tile's stand-in
+    (:class:`gnss_citygml.tiled.FailedTile`).
+    """
+    engine = engine or InProcess()
+    bootstrap = estimator.method == "4PL-B"
     classifier = SignalClassifier.initial(estimator.init_threshold)
-    labels = classifier.label(s)
-    fit, prev_map, change, iterations = None, None, np.ones(n_groups), 0
+    iterations = 0
+    names = [str(k) for k in range(len(parts))] if names is None else list(names)
     for iterations in range(1, (estimator.max_iter if bootstrap else 1) + 1):
-        c_now = None if fit is None else fit.c
-        weights = height_weights(
-            h, g, n_groups, estimator.weighting, c=c_now, mask=seen, looks=looks
+        parts = [
+            engine.submit(_fitted, p, classifier, key=f"fit-{iterations}-{name}")
+            for p, name in zip(parts, names, strict=True)
+        ]
+        if not bootstrap:
+            break
+        shared = [
+            engine.submit(_shared, p, key=f"share-{iterations}-{name}")
+            for p, name in zip(parts, names, strict=True)
+        ]
+        steps = [
+            engine.submit(
+                _exchanged, p, *(shared[j] for j in near), key=f"exchange-{iterations}-{name}"
+            )
+            for p, near, name in zip(parts, neighbours, names, strict=True)
+        ]
+        parts = [
+            engine.submit(_first, step, key=f"part-{iterations}-{name}")
+            for step, name in zip(steps, names, strict=True)
+        ]
+        tallies = [
+            engine.submit(_second, step, key=f"tally-{iterations}-{name}")
+            for step, name in zip(steps, names, strict=True)
+        ]
+        level = 0
+        while len(tallies) > 1:
+            level += 1
+            tallies = [
+                engine.submit(
+                    _total, *tallies[k : k + _FAN_IN], key=f"sum-{iterations}-{level}-{k}"
+                )
+                for k in range(0, len(tallies), _FAN_IN)
+            ]
+        tally = engine.gather(tallies[0])
+        classifier = tally.refit(classifier)
+        if progress is not None:
+            progress(iterations)
+        if iterations > 1 and tally.change < estimator.acceptance.label_tol:
+            break
+    finish = finish or _judged
+    done = [
+        engine.submit(finish, p, iterations, key=f"finish-{name}")
+        for p, name in zip(parts, names, strict=True)
+    ]
+    return list(engine.gather(done)), classifier
+
+
+# The steps as functions of the part, for engines (a Part or a FailedPart alike).
+def _fitted(part: Part, classifier: SignalClassifier) -> Part:
+    return part.fitted(classifier)
+
+
+def _shared(part: Part) -> Shared:
+    return part.shared()
+
+
+def _exchanged(part: Part, *shared: Shared) -> tuple[Part, Tally]:
+    return part.exchanged(*shared)
+
+
+def _judged(part: Part, iterations: int) -> BuildingFits:
+    return part.judged(iterations)
+
+
+def _first(pair: tuple[Any, Any]) -> Any:
+    return pair[0]
+
+
+def _second(pair: tuple[Any, Any]) -> Any:
+    return pair[1]
+
+
+def _total(*tallies: Tally) -> Tally:
+    return functools.reduce(operator.add, tallies)
+
+
+@dataclass(frozen=True)
+class Shared:
+    """A part's buildings' current fits, as the other parts' rays need them (the visibility
+    model, which signals are open): each building's code in the whole run (``building``),
+    ``c``, ``b``, and whether the fit is plausible enough to stand in front of others and
+    teach the classifier (``plausible``; ``fallback``: with no separation asked for, for an
+    iteration where no building in the run is plausible)."""
+
+    building: np.ndarray
+    c: np.ndarray
+    b: np.ndarray
+    plausible: np.ndarray
+    fallback: np.ndarray
+
+
+@dataclass(frozen=True)
+class Tally:
+    """A part's share of an iteration's reduce: its signals counted by C/N0 and map label
+    (``counts``: those that plausible fits used, or, where the part has no plausible fit, the
+    ``fallback``'s), whether it has a plausible fit, and its buildings' largest share of
+    changed labels. Parts add up, exactly."""
+
+    counts: Cn0Counts
+    plausible: bool
+    change: float
+
+    def __add__(self, other: Tally) -> Tally:
+        """Both parts' tallies: where any building is plausible only plausible fits teach (the
+        others' counts are their fallbacks'), else every fallback does."""
+        change = max(self.change, other.change)
+        if self.plausible != other.plausible:
+            return replace(self if self.plausible else other, change=change)
+        return Tally(self.counts + other.counts, self.plausible, change)
+
+    def refit(self, classifier: SignalClassifier) -> SignalClassifier:
+        """The classifier refitted to the run's counts."""
+        return classifier.refit_counts(self.counts)
+
+
+@dataclass(frozen=True)
+class Part:
+    """Some buildings' rows (a tile's, or a whole run's) and where 4PL-B stands on them.
+
+    The part *owns* buildings ``0 .. n_own - 1`` (it fits and judges them) and also holds the
+    rows of the other buildings its signals cross (codes from ``n_own``): the visibility model
+    and the classifier's data need a signal's every crossing. ``building`` maps the part's
+    codes to the whole run's. Rows are sorted by building then height, so the own buildings'
+    rows come first and each building's rows are together (faster fits). Each step returns a
+    new part and leaves this one as it was, so an engine may run a step again.
+    """
+
+    g: np.ndarray
+    h: np.ndarray
+    s: np.ndarray
+    sd: np.ndarray | None
+    receiver: np.ndarray | None
+    sig: np.ndarray
+    order: np.ndarray | None
+    looks: np.ndarray | None
+    building: np.ndarray
+    n_own: int
+    estimator: Estimator
+    occlusion: bool
+    #: The rows the next fit uses (the visibility model's).
+    seen: np.ndarray
+    #: The last fit (None before the first).
+    last: LastFit | None = None
+
+    @classmethod
+    def of(
+        cls,
+        groups: npt.ArrayLike,
+        height: npt.ArrayLike,
+        cn0: npt.ArrayLike,
+        n_groups: int,
+        estimator: Estimator = Estimator(),
+        *,
+        n_own: int | None = None,
+        building: npt.ArrayLike | None = None,
+        signal: npt.ArrayLike | None = None,
+        order: npt.ArrayLike | None = None,
+        height_sd: npt.ArrayLike | None = None,
+        receiver: npt.ArrayLike | None = None,
+        track: npt.ArrayLike | None = None,
+    ) -> Part:
+        """A part from coded rows (see :func:`fourplb`): it owns the buildings coded below
+        ``n_own`` (default: all ``n_groups``), whose codes in the whole run are ``building``
+        (default: their own). A part that does not own every building needs ``signal`` and
+        ``order``, so that each signal is counted by one part."""
+        if not estimator.fourpl:
+            raise ModelError(f"fourplb runs 4PL-B or 4PL, not {estimator.method}")
+        n_own = n_groups if n_own is None else int(n_own)
+        if n_own < n_groups and (signal is None or order is None):
+            raise ModelError("a part of a run needs each row's signal and order along its ray")
+        g = np.asarray(groups, dtype=np.intp)
+        h = np.asarray(height, dtype=float)
+        by_group = np.lexsort((h, g))  # a building's rows together, by height: faster fits
+        g, h = g[by_group], h[by_group]
+        sd = None if height_sd is None else np.asarray(height_sd, dtype=float)[by_group]
+        if receiver is not None:  # coded in sorted order: the same order in any part
+            receiver = pd.factorize(np.asarray(receiver)[by_group], sort=True)[0]
+        if signal is not None:
+            sig = np.unique(np.asarray(signal)[by_group], return_inverse=True)[1]
+        else:
+            sig = np.arange(g.size)  # each row is a signal of its own
+        if order is not None:
+            order = np.asarray(order)[by_group]
+        tracks = None if track is None else np.asarray(track)[by_group]
+        looks = None  # found once: a row's look does not change as 4PL-B iterates
+        if estimator.weighting == "looks" or (estimator.method == "4PL-B" and tracks is not None):
+            looks = look_ids(h, g, tracks)
+        occlusion = estimator.visibility and signal is not None
+        seen = np.ones(h.size, dtype=bool)
+        if occlusion and order is not None:
+            seen = order == 0
+        return cls(
+            g=g,
+            h=h,
+            s=np.asarray(cn0, dtype=float)[by_group],
+            sd=sd,
+            receiver=receiver,
+            sig=sig,
+            order=order,
+            looks=looks,
+            building=np.arange(n_groups) if building is None else np.asarray(building),
+            n_own=n_own,
+            estimator=estimator,
+            occlusion=occlusion,
+            seen=seen,
         )
-        fit_labels, fit_seen = labels, seen
-        # every building's map classifier, a 4PL in intersection height, fitted at once
+
+    @property
+    def _own(self) -> slice:
+        """The own buildings' rows: the first ones."""
+        return slice(0, int(np.searchsorted(self.g, self.n_own)))
+
+    def fitted(self, classifier: SignalClassifier) -> Part:
+        """Step 1 (map): every row labelled by ``classifier``, the own buildings' height 4PLs
+        fitted to the rows the visibility model keeps, and how many of their map labels
+        changed."""
+        own, n_own, last = self._own, self.n_own, self.last
+        g, h, seen = self.g[own], self.h[own], self.seen[own]
+        labels = classifier.label(self.s)
+        c_now = None if last is None else last.fit.c
+        looks = None if self.looks is None else self.looks[own]
+        weights = height_weights(
+            h, g, n_own, self.estimator.weighting, c=c_now, mask=seen, looks=looks
+        )
         use = weights > 0  # rows left out weigh nothing: do not carry them through the fit
         fit = fit_4pl(
             h[use],
-            labels[use],
+            labels[own][use],
             weights[use],
             g[use],
-            n_groups,
-            init=None if fit is None else fit.params,
-            sd=None if sd is None else sd[use],
+            n_own,
+            init=None if last is None else last.fit.params,
+            sd=None if self.sd is None else self.sd[own][use],
         )
-        if not bootstrap:
-            break
-        new_map = h > fit.c[g]
-        if prev_map is not None:
-            flips = (new_map != prev_map) & seen
-            change = np.bincount(g, flips, n_groups) / np.maximum(np.bincount(g, seen, n_groups), 1)
-        prev_map = new_map
-        # Only plausible fits teach the classifier: a building whose map says nothing (flat,
-        # or its inflection point outside its data) would relabel its signals at random.
-        plausible = _plausible(fit, h, g, seen, n_groups, accept.min_separation)
-        teach = plausible
-        if not teach.any():
-            # A poor initial classifier (e.g. a low threshold labelling reflections open) can
-            # leave every first fit short of the separation: co-training would stop dead, so
-            # every map whose roof line lies inside its data teaches the classifier once.
-            teach = _plausible(fit, h, g, seen, n_groups, 0.0)
-        classifier = classifier.refit(*_classifier_data(s, new_map, sig, seen & teach[g]))
-        labels = classifier.label(s)
-        if occlusion:
-            seen = _unoccluded(h, g, sig, fit, plausible, order)
-        if iterations > 1 and np.all(change < accept.label_tol):
-            break
+        own_map = h > fit.c[g]
+        change = np.ones(n_own)
+        if last is not None:
+            flips = (own_map != last.own_map) & seen
+            change = np.bincount(g, flips, n_own) / np.maximum(np.bincount(g, seen, n_own), 1)
+        return replace(self, last=LastFit(fit, self.seen, labels, own_map, change))
 
-    assert fit is not None  # max_iter >= 1: the loop fitted at least once
-    c_range = None
-    if bootstrap:  # the paper's 4PL keeps the paper's range
-        # the evidence counted as independent: each look once where the looks are known
-        evidence = fit_seen.astype(float)
-        if looks is not None:
-            evidence = height_weights(h, g, n_groups, "looks", mask=fit_seen, looks=looks)
-        c_range = c_interval(
-            fit,
-            h[fit_seen],
-            fit_labels[fit_seen],
-            g[fit_seen],
-            weights=evidence[fit_seen],
-            sd=None if sd is None else sd[fit_seen],
-            reach=accept.max_uncertainty,
+    def shared(self) -> Shared:
+        """What the other parts need of the own buildings' fits (after :meth:`fitted`)."""
+        last, own = self._last, self._own
+        fit = last.fit
+        g, h, seen = self.g[own], self.h[own], last.seen[own]
+        min_separation = self.estimator.acceptance.min_separation
+        return Shared(
+            building=self.building[: self.n_own],
+            c=fit.c,
+            b=fit.b,
+            plausible=_plausible(fit, h, g, seen, self.n_own, min_separation),
+            fallback=_plausible(fit, h, g, seen, self.n_own, 0.0),
         )
-    margin = np.zeros(n_groups)
-    if sd is not None:
-        rec = None if receiver is None else receiver[fit_seen]
-        margin = position_margin(fit, g[fit_seen], h[fit_seen], sd[fit_seen], rec, n_groups)
-    result = _judge(
-        fit,
-        g,
-        h,
-        fit_labels,
-        fit_seen,
-        n_groups,
-        change,
-        iterations,
-        accept,
-        strict=bootstrap,
-        margin=margin,
-        c_range=c_range,
-        paper_rule=estimator.height_rule == "paper",
-    )
-    return result, classifier
+
+    def exchanged(self, *shared: Shared) -> tuple[Part, Tally]:
+        """Steps 2-3 (exchange, map): given the current fits of every building the part's rows
+        cross (``shared`` by the parts that own them, this one's included), the rows the next
+        fit may use, and the part's :class:`Tally`. A signal is counted by the part that owns
+        the first building along its ray that the fits used it for; it is open only if its
+        ray clears every building it was used for.
+
+        Only plausible fits teach the classifier: a building whose map says nothing (flat, or
+        its inflection point outside its data) would relabel its signals at random. Where no
+        fit is plausible (a poor initial classifier, e.g. a low threshold labelling reflections
+        open, can leave every first fit short of the separation), every map whose roof line
+        lies inside its data teaches the classifier once, or co-training would stop dead.
+        """
+        c, b, plausible, fallback = _lookup(self.building, shared)
+        own_plausible = bool(plausible[: self.n_own].any())
+        teach = plausible if own_plausible else fallback
+        last = self._last
+        open_map = self.h > c[self.g]
+        used = last.seen & teach[self.g]
+        counts = Cn0Counts.of(*_classifier_data(self, open_map, used))
+        seen = self.seen
+        if self.occlusion:
+            seen = _unoccluded(self.h, self.g, self.sig, c, b, plausible, self.order)
+        change = float(np.max(last.change, initial=0.0))
+        return replace(self, seen=seen), Tally(counts, own_plausible, change)
+
+    def judged(self, iterations: int) -> BuildingFits:
+        """The own buildings' heights, ranges and statuses after ``iterations`` iterations."""
+        last, own, n_own = self._last, self._own, self.n_own
+        fit = last.fit
+        accept = self.estimator.acceptance
+        bootstrap = self.estimator.method == "4PL-B"
+        g, h, labels, fit_seen = self.g[own], self.h[own], last.labels[own], last.seen[own]
+        sd = None if self.sd is None else self.sd[own]
+        looks = None if self.looks is None else self.looks[own]
+        c_range = None
+        if bootstrap:  # the paper's 4PL keeps the paper's range
+            # the evidence counted as independent: each look once where the looks are known
+            evidence = fit_seen.astype(float)
+            if looks is not None:
+                evidence = height_weights(h, g, n_own, "looks", mask=fit_seen, looks=looks)
+            c_range = c_interval(
+                fit,
+                h[fit_seen],
+                labels[fit_seen],
+                g[fit_seen],
+                weights=evidence[fit_seen],
+                sd=None if sd is None else sd[fit_seen],
+                reach=accept.max_uncertainty,
+            )
+        margin = np.zeros(n_own)
+        if sd is not None:
+            rec = None if self.receiver is None else self.receiver[own][fit_seen]
+            margin = position_margin(fit, g[fit_seen], h[fit_seen], sd[fit_seen], rec, n_own)
+        return _judge(
+            fit,
+            g,
+            h,
+            labels,
+            fit_seen,
+            n_own,
+            last.change,
+            iterations,
+            accept,
+            strict=bootstrap,
+            margin=margin,
+            c_range=c_range,
+            paper_rule=self.estimator.height_rule == "paper",
+        )
+
+    @property
+    def _last(self) -> LastFit:
+        if self.last is None:
+            raise ModelError("a part must be fitted first (Part.fitted)")
+        return self.last
+
+
+@dataclass(frozen=True)
+class LastFit:
+    """A part's last fit of its own buildings (:meth:`Part.fitted`): the 4PLs, the rows they
+    used (``seen``, all the part's rows) and every row's label then, the map's labels of the
+    own rows (``own_map``: above ``c``) and the share of each own building's labels that
+    changed from the fit before (``change``; 1 at the first)."""
+
+    fit: FourPLFit
+    seen: np.ndarray
+    labels: np.ndarray
+    own_map: np.ndarray
+    change: np.ndarray
+
+
+def _lookup(building: np.ndarray, shared: Sequence[Shared]):
+    """``c``, ``b``, ``plausible`` and ``fallback`` of each of ``building`` (codes in the
+    whole run) from the parts' :class:`Shared` fits."""
+    if len(shared) == 1 and np.array_equal(shared[0].building, building):
+        one = shared[0]
+        return one.c, one.b, one.plausible, one.fallback
+    known = np.concatenate([s.building for s in shared])
+    at = pd.Index(known).get_indexer(building)
+    if (at < 0).any():
+        missing = building[at < 0][:5].tolist()
+        raise ModelError(f"no part shared the fits of buildings {missing}")
+    return tuple(np.concatenate([getattr(s, k) for s in shared])[at] for k in _SHARED)
+
+
+_SHARED = ("c", "b", "plausible", "fallback")
 
 
 def _plausible(fit, h, g, seen, n_groups, min_separation):
@@ -335,14 +693,14 @@ def _plausible(fit, h, g, seen, n_groups, min_separation):
     return (fit.a - fit.d >= min_separation) & (fit.c >= lo) & (fit.c <= hi)
 
 
-def _unoccluded(h, g, sig, fit, plausible, order=None):
-    """Rows whose ray surely clears every *other* building at the current estimates: it passes
-    above the top of each one's height range, c + 3/b. A signal that may have been blocked by
-    another building tells nothing about this one, whatever its C/N0. A building without a
-    plausible estimate may stand at any height: with ``order``, the rows behind it along the
-    ray are left out too."""
-    blocks = plausible[g] & (h < fit.c[g] + 3.0 / fit.b[g])
-    n_sig = int(sig.max()) + 1
+def _unoccluded(h, g, sig, c, b, plausible, order=None):
+    """Rows whose ray surely clears every *other* building at the current estimates (``c``,
+    ``b`` per building): it passes above the top of each one's height range, c + 3/b. A
+    signal that may have been blocked by another building tells nothing about this one,
+    whatever its C/N0. A building without a plausible estimate may stand at any height: with
+    ``order``, the rows behind it along the ray are left out too."""
+    blocks = plausible[g] & (h < c[g] + 3.0 / b[g])
+    n_sig = int(sig.max(initial=-1)) + 1
     n_blocking = np.bincount(sig, blocks, n_sig)
     clear = (n_blocking[sig] - blocks) == 0
     if order is not None:
@@ -352,18 +710,21 @@ def _unoccluded(h, g, sig, fit, plausible, order=None):
     return clear
 
 
-def _classifier_data(cn0, open_map, sig, seen):
-    """C/N0 and map label of the signals the map fits used: with signal ids, a signal counts
-    once and is open only if it clears every building it was used for."""
-    if sig is None:
-        return cn0[seen], open_map[seen]
-    sig, cn0, open_map = sig[seen], cn0[seen], open_map[seen]
-    n_sig = int(sig.max()) + 1 if sig.size else 0
+def _classifier_data(part: Part, open_map: np.ndarray, used: np.ndarray):
+    """C/N0 and map label of the signals the part counts: those the fits ``used`` whose first
+    such row along the ray (by ``order``; without it, the first row) is of an own building.
+    A signal counts once, and is open only if it clears every building it was used for."""
+    sig, cn0, open_map = part.sig[used], part.s[used], open_map[used]
+    n_sig = int(sig.max(initial=-1)) + 1
     closed = np.bincount(sig, weights=(~open_map).astype(float), minlength=n_sig)
-    first = np.full(n_sig, -1)
-    first[sig[::-1]] = np.arange(sig.size)[::-1]
-    used = first >= 0
-    return cn0[first[used]], closed[used] == 0
+    rows = np.arange(sig.size)
+    if part.order is not None:  # the last assignment wins: the lowest order's
+        rows = rows[np.argsort(part.order[used], kind="stable")]
+    lead = np.full(n_sig, -1)
+    lead[sig[rows[::-1]]] = rows[::-1]
+    lead = lead[lead >= 0]
+    mine = part.g[used][lead] < part.n_own
+    return cn0[lead[mine]], closed[sig[lead[mine]]] == 0
 
 
 def position_margin(

@@ -1,0 +1,175 @@
+"""4PL-B over a run cut into tiles (:mod:`gnss_citygml.tiles`), with the single run's heights.
+
+Each tile casts the rays that can reach its buildings against its buildings and its halo
+(:func:`~gnss_citygml.tiles.plan_tiles`), keeps the signals that cross one of its own
+buildings, and takes part in 4PL-B's map / exchange / reduce
+(:func:`~gnss_citygml.model.fourplb.run_parts`): the parts whose buildings its rays cross are
+its neighbours. Run in one process (the default engine) or on a Dask cluster (an engine of
+:mod:`gnss_citygml.engines`), the heights are those of :func:`~gnss_citygml.pipeline.run`
+on the same receivers (tested); only sums run in a different order, within floating point.
+"""
+
+from __future__ import annotations
+
+import uuid
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+
+import geopandas as gpd
+import numpy as np
+import pandas as pd
+
+from .model.classifier import Cn0Counts, SignalClassifier
+from .model.estimate import HEIGHTS_COLUMNS, intersections_part
+from .model.fourplb import Engine, InProcess, Part, Shared, Tally, run_parts
+from .pipeline import intersections, recordings
+from .settings import Estimator, PositionError, Rays
+from .tiles import DEFAULT_TILE_SIZE, Tile, building_tiles, plan_tiles
+
+__all__ = ["FailedTile", "tile_heights", "tile_part", "tiled_heights"]
+
+
+def tiled_heights(
+    receivers: pd.DataFrame,
+    buildings: gpd.GeoDataFrame,
+    *,
+    estimator: Estimator = Estimator(),
+    rays: Rays = Rays(),
+    position_error: PositionError = PositionError(),
+    tile_size: float = DEFAULT_TILE_SIZE,
+    engine: Engine | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> tuple[pd.DataFrame, SignalClassifier]:
+    """The heights table of :func:`~gnss_citygml.model.estimate.estimate_heights` on
+    :func:`~gnss_citygml.pipeline.intersections` of ``receivers`` (the pipeline's receivers
+    table, :func:`~gnss_citygml.pipeline.receivers`) and ``buildings``, computed in tiles of
+    ``tile_size`` metres, and the final signal classifier. The intersections are never
+    gathered: each tile casts its own (on ``engine``'s workers). ``progress`` is told what is
+    being done ("tile plan: 16 tiles", "iteration 3").
+    """
+    say = progress or (lambda text: None)
+    engine = engine or InProcess()
+    rx = receivers.reset_index(drop=True)
+    if not position_error.exact:  # one position error may span tiles: name it over the run
+        rx["recording"] = recordings(rx, position_error)
+    e, n, bearing = (rx[c].to_numpy(dtype=float) for c in ("e", "n", "bearing"))
+    tiles = plan_tiles(e, n, buildings, rays.max_range, tile_size, bearing)
+    say(f"tile plan: {len(tiles)} tiles of {tile_size:g} m")
+    neighbours = _neighbours(tiles, building_tiles(buildings, tile_size))
+    run = uuid.uuid4().hex[:8]  # the steps' names are this run's alone on a shared cluster
+    names = [f"{tile.name}-{run}" for tile in tiles]
+    parts = [
+        engine.submit(
+            tile_part,
+            rx.iloc[tile.receivers],
+            buildings.iloc[np.concatenate([tile.buildings, tile.halo])],
+            tile.buildings.size,
+            estimator,
+            rays,
+            position_error,
+            key=f"cast-{name}",
+        )
+        for tile, name in zip(tiles, names, strict=True)
+    ]
+    ids = buildings["id"].astype(str).to_numpy()
+    for k, why in engine.failures(parts).items():
+        say(f"tile {tiles[k].name} failed: {why}")
+        parts[k] = FailedTile(tiles[k].name, ids[tiles[k].buildings], why)
+    tables, classifier = run_parts(
+        parts,
+        neighbours,
+        estimator,
+        engine,
+        progress=lambda k: say(f"iteration {k}"),
+        finish=tile_heights,
+        names=names,
+    )
+    heights = pd.concat(tables, ignore_index=True)
+    heights["method"] = estimator.method
+    heights = heights[HEIGHTS_COLUMNS]
+    heights.attrs["signal_classifier"] = asdict(classifier)
+    return heights, classifier
+
+
+def tile_part(
+    receivers: pd.DataFrame,
+    buildings: gpd.GeoDataFrame,
+    n_own: int,
+    estimator: Estimator,
+    rays: Rays,
+    position_error: PositionError,
+) -> Part:
+    """One tile's :class:`~gnss_citygml.model.fourplb.Part`: its ``receivers``' rays cast
+    against ``buildings`` (its own ``n_own`` first, then its halo), the signals that cross
+    one of its own buildings."""
+    recording = receivers["recording"].array if "recording" in receivers.columns else None
+    inter = intersections(
+        receivers, buildings, rays=rays, position_error=position_error, recording=recording
+    )
+    mine = inter["building"].cat.codes.to_numpy() < n_own
+    inter = inter[inter["signal"].isin(inter["signal"].to_numpy()[mine])]
+    own = buildings["id"].astype(str).to_numpy()[:n_own]
+    return intersections_part(inter, estimator, own=own)[1]
+
+
+def tile_heights(part: Part | FailedTile, iterations: int) -> pd.DataFrame:
+    """The heights table's rows of a tile's own buildings (every one its signals cross)."""
+    if isinstance(part, FailedTile):
+        return part.heights()
+    fits = part.judged(iterations)
+    return pd.DataFrame({"id": part.building[: part.n_own], **fits.columns()})
+
+
+@dataclass(frozen=True)
+class FailedTile:
+    """A tile whose cast failed (twice, on a cluster): it takes no part in the run, and its
+    buildings stand as unknown obstacles to the other tiles' rays (no plausible fit: the rows
+    behind them are left out), as a building without an estimate does in any run. Its
+    buildings are reported with the failure as their status."""
+
+    name: str
+    building: np.ndarray
+    reason: str
+
+    def fitted(self, classifier: SignalClassifier) -> FailedTile:
+        """Nothing to fit."""
+        return self
+
+    def shared(self) -> Shared:
+        """The buildings, with no fit."""
+        nan = np.full(self.building.size, np.nan)
+        no = np.zeros(self.building.size, dtype=bool)
+        return Shared(self.building, nan, nan, no, no)
+
+    def exchanged(self, *shared: Shared) -> tuple[FailedTile, Tally]:
+        """No signal to count, no label to change."""
+        return self, Tally(Cn0Counts.of([], []), plausible=False, change=0.0)
+
+    def heights(self) -> pd.DataFrame:
+        """The heights table's rows of the tile's buildings: not estimated, and why."""
+        n = self.building.size
+        fits = {c: np.full(n, np.nan) for c in HEIGHTS_COLUMNS if c not in _NOT_FLOAT}
+        return pd.DataFrame(
+            {
+                "id": self.building,
+                **fits,
+                "n_signals": np.zeros(n, dtype=np.int64),
+                "iterations": np.zeros(n, dtype=np.int64),
+                "converged": np.zeros(n, dtype=bool),
+                "status": f"tile {self.name} failed: {self.reason}",
+            }
+        )
+
+
+#: The heights table's columns that are not floats (or are set apart).
+_NOT_FLOAT = ("id", "n_signals", "iterations", "converged", "method", "status")
+
+
+def _neighbours(tiles: list[Tile], owner: np.ndarray) -> list[list[int]]:
+    """For each tile, the tiles (positions in ``tiles``) that own a building of its halo,
+    and itself: whose fits it needs each iteration."""
+    at = {tile.name: k for k, tile in enumerate(tiles)}
+    return [
+        sorted({k, *(at[name] for name in np.unique(owner[tile.halo]))})
+        for k, tile in enumerate(tiles)
+    ]

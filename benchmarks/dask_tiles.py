@@ -39,10 +39,14 @@ from gnss_citygml.tiled import tile_part, tiled_heights
 #: South-west corner of the city (m, BNG): TQ2080, west London.
 ORIGIN = np.array([520_000.0, 180_000.0])
 
-#: Great Britain: buildings (OS MasterMap's ~47 M structures), signals, and the 1 km squares
-#: that hold buildings (England, Wales and Scotland have ~230,000 km^2, about 40 % of which
-#: holds a building).
-GB_BUILDINGS, GB_SIGNALS, GB_TILES = 47e6, 1e10, 92_000
+#: Great Britain: buildings (OS MasterMap's ~47 M structures), signals, and its area in km^2
+#: (England, Wales and Scotland): at most so many 1 km tiles (a square without a building
+#: makes none).
+GB_BUILDINGS, GB_SIGNALS, GB_KM2 = 47e6, 1e10, 230_000
+
+#: Tasks per tile and iteration of run_parts (fit, share, exchange, part, tally), and per tile
+#: once (cast, finish).
+TASKS_PER_ITERATION, TASKS_ONCE = 5, 2
 
 #: Steps of run_parts and tiled_heights, by function name, as printed.
 STEPS = {
@@ -141,6 +145,8 @@ def main() -> None:
                 t = time.perf_counter()
                 on_dask, _ = tiled_heights(rx, buildings, tile_size=size, engine=dask)
                 walls.append(time.perf_counter() - t)
+                if workers == 2 and per_side == 1:
+                    rate = _task_rate(dask)
             diff = max(diff, _diff(on_dask, single))
         costs[per_side] = (steps, n, engine)
         per = {k: steps[k] / n for k in ("cast", "fit", "exchange", "judge")}
@@ -150,7 +156,19 @@ def main() -> None:
             f"{walls[0]:.1f} s | {walls[1]:.1f} s | {walls[0] - wall:+.1f} s | "
             f"{walls[0] / walls[1]:.2f}x | {diff:.1e} m |"
         )
-    _plan(costs[2], len(rx), len(inter))
+    print(f"\nDask's scheduler: {rate:,.0f} small tasks/s (2 workers)")
+    _plan(costs[2], len(rx), len(inter), rate, int(single["iterations"].max()))
+
+
+def _task_rate(dask, n=5000) -> float:
+    """Tasks per second through the engine: chains of trivial steps, as run_parts submits
+    them (each takes the one before)."""
+    t = time.perf_counter()
+    futures = [dask.submit(abs, -k, key=f"bench-{k}-0") for k in range(n // 5)]
+    for step in range(1, 5):
+        futures = [dask.submit(abs, f, key=f"bench-{k}-{step}") for k, f in enumerate(futures)]
+    dask.gather(futures)
+    return n / (time.perf_counter() - t)
 
 
 def _tiles(buildings, size) -> int:
@@ -167,30 +185,37 @@ def _diff(table, single) -> float:
     return float(np.nanmax(np.abs(a["height"] - b["height"]), initial=0.0))
 
 
-def _plan(measured, n_signals, n_crossings) -> None:
-    """Great Britain from the cost per signal and the bytes per row of the measured tiling.
-    Every tile's part stays on its worker for the whole run (each iteration needs it)."""
+def _plan(measured, n_signals, n_crossings, rate, iterations) -> None:
+    """Great Britain from the measured tiling's cost per signal (its halo included) and
+    bytes per row, and the scheduler's task rate. Every tile's part stays on its worker for
+    the whole run (each iteration needs it). The halo's share falls with larger tiles, so the
+    1 km figures hold as an upper bound for 10 km tiles."""
     steps, n, engine = measured
     per_signal = sum(steps.values()) / n_signals  # s of one worker, halo overhead included
-    hours = GB_SIGNALS * per_signal / 3600
+    worker_hours = GB_SIGNALS * per_signal / 3600
     rows = sum(engine.rows)
     per_row = sum(engine.bytes) / rows
     total = GB_SIGNALS * rows / n_signals * per_row  # bytes of every part at once
     print(
         f"\nPlan for Great Britain ({GB_BUILDINGS / 1e6:.0f} M buildings, "
-        f"{GB_SIGNALS:.0e} signals, ~{GB_TILES:,} tiles of 1 km) from the {n}-tile run: "
-        f"{per_signal * 1e6:.0f} us of one worker per signal; {rows / n_signals:.1f} rows "
-        f"per signal in the tiles ({n_crossings / n_signals:.1f} crossings in the single "
-        f"cast) of {per_row:.0f} bytes each: {total / 1e12:.1f} TB of parts held over the "
-        f"run, {GB_SIGNALS * per_signal / 3600:,.0f} worker-hours"
+        f"{GB_SIGNALS:.0e} signals) from the {n}-tile run: {per_signal * 1e6:.0f} us of one "
+        f"worker per signal; {rows / n_signals:.1f} rows per signal in the tiles "
+        f"({n_crossings / n_signals:.1f} crossings in the single cast) of {per_row:.0f} bytes "
+        f"each: {total / 1e12:.1f} TB of parts held over the run; {worker_hours:,.0f} "
+        f"worker-hours; {iterations} iterations"
     )
-    print("| workers | hours | tiles per worker | memory per worker |")
-    print("|---|---|---|---|")
-    for workers in (64, 256, 1024):
-        print(
-            f"| {workers} | {hours / workers:.1f} | {GB_TILES / workers:,.0f} | "
-            f"{total / workers / 1e9:.0f} GB |"
-        )
+    print("| tile | tiles (at most) | tasks | scheduler | workers | hours | memory per worker |")
+    print("|---|---|---|---|---|---|---|")
+    for km in (1, 10):
+        tiles = GB_KM2 / km**2
+        tasks = tiles * (TASKS_PER_ITERATION * iterations + TASKS_ONCE)
+        scheduler = tasks / rate / 3600
+        for workers in (64, 256, 1024):
+            print(
+                f"| {km} km | {tiles:,.0f} | {tasks / 1e6:.1f} M | {scheduler:.1f} h | "
+                f"{workers} | {max(worker_hours / workers, scheduler):.1f} | "
+                f"{total / workers / 1e9:.0f} GB |"
+            )
 
 
 if __name__ == "__main__":

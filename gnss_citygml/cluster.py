@@ -11,6 +11,7 @@ result. The core package does not import Dask: only this module does, when it is
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from typing import Any
@@ -26,6 +27,16 @@ RETRIES = 1
 #: Seconds to wait for a scheduler to answer.
 CONNECT_TIMEOUT = 30.0
 
+#: glibc's allocator settings for the workers. Dask's default trim threshold (64 kB) also
+#: freezes glibc's mmap threshold at 128 kB, so every temporary array of the fits (blocks of
+#: 65,536 rows, 512 kB) is mapped and unmapped, page faults and all: the fits ran 2.3x
+#: slower on a worker than in one process (benchmarks/dask_tiles.py). Temporaries up to
+#: 64 MB come from the heap, which keeps up to 256 MB free for the next ones.
+WORKER_MALLOC = {
+    "MALLOC_MMAP_THRESHOLD_": 64 << 20,
+    "MALLOC_TRIM_THRESHOLD_": 256 << 20,
+}
+
 
 class DaskEngine:
     """An :class:`~gnss_citygml.model.fourplb.Engine` on a ``dask.distributed.Client``."""
@@ -34,8 +45,14 @@ class DaskEngine:
         self.client = client
 
     def submit(self, func: Callable[..., Any], *args: Any, key: str | None = None) -> Any:
-        """A future of ``func(*args)`` (``args`` may be futures), run once more if it fails."""
-        return self.client.submit(func, *args, key=key, retries=RETRIES, pure=key is None)
+        """A future of ``func(*args)`` (``args`` may be futures), run once more if it fails.
+
+        Data given as it is (a tile's receivers) travel with the task, not scattered ahead:
+        the scheduler keeps them, so a tile whose worker died can be cast again. Dask's
+        warning about such large tasks is therefore left out."""
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", "Sending large graph", UserWarning)
+            return self.client.submit(func, *args, key=key, retries=RETRIES, pure=key is None)
 
     def gather(self, futures: Any) -> Any:
         """The futures' values, here."""
@@ -60,6 +77,7 @@ def connect(tiling: Tiling) -> Iterator[DaskEngine]:
     default: one per core), or the Dask scheduler at that address (its workers are its own).
     """
     try:
+        import dask
         from distributed import Client, LocalCluster
     except ImportError as err:
         raise InputError(
@@ -67,12 +85,14 @@ def connect(tiling: Tiling) -> Iterator[DaskEngine]:
             fix="pip install 'gnss-citygml[dask]'",
         ) from err
     if tiling.scheduler == "local":
-        cluster = LocalCluster(
-            n_workers=tiling.workers,
-            threads_per_worker=1,
-            processes=True,
-            dashboard_address=":0",  # any free port: two clusters on one machine do not clash
-        )
+        environ = {**dask.config.get("distributed.nanny.pre-spawn-environ"), **WORKER_MALLOC}
+        with dask.config.set({"distributed.nanny.pre-spawn-environ": environ}):
+            cluster = LocalCluster(
+                n_workers=tiling.workers,
+                threads_per_worker=1,
+                processes=True,
+                dashboard_address=":0",  # any free port: two clusters on one machine do not clash
+            )
         with cluster, Client(cluster) as client:
             yield DaskEngine(client)
         return

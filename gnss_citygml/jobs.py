@@ -12,7 +12,8 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable
-from typing import TYPE_CHECKING
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from .errors import InputError
 from .paths import StrPath
@@ -72,11 +73,13 @@ def estimate_file(
     simulator's truth table, CSV or Parquet) adds the true heights to the report. Returns the
     heights: every footprint with its attributes and the heights columns (see
     :func:`gnss_citygml.pipeline.run` for the rest of the arguments). Both outputs are
-    checked before any work; one of them must be given."""
+    checked before any work; one of them must be given. ``observations`` may be a partition
+    folder (:mod:`gnss_citygml.partition`), read tile by tile in a run with ``tiling``
+    (:func:`gnss_citygml.pipeline.run_partitioned`)."""
     from .compare import check_truth
     from .footprints import read_footprints
     from .observations import read_observations
-    from .pipeline import STAGES, run
+    from .pipeline import STAGES, run, run_partitioned
     from .report import check_report, write_report
     from .styles import heights_qml
     from .tables import check_layer_output, read_table, write_layer
@@ -97,6 +100,13 @@ def estimate_file(
             "scheduler does not gather them",
             fix="leave out --report, or --scheduler",
         )
+    partitioned = Path(observations).is_dir()
+    if partitioned and not tiling.on:
+        raise InputError(
+            "a partition folder is read by a run in tiles",
+            where=str(observations),
+            fix="give --scheduler local (or the address of a Dask scheduler)",
+        )
     if output is not None:
         check_layer_output(output, "heights", overwrite=overwrite)
     if report is not None:
@@ -108,29 +118,31 @@ def estimate_file(
     def stage(name: str) -> None:
         progress(name, next(stages) / len(steps))
 
-    obs = read_observations(observations)
-    fp = read_footprints(footprints, layer=layer, id_field=id_field, grid_dir=grid_dir)
-    result = run(
-        obs,
-        fp,
-        dem,
-        rays=rays,
-        receiver_heights=receiver_heights,
-        estimator=estimator,
-        position_error=position_error,
-        calibration=calibration,
-        tiling=tiling,
-        grid_dir=grid_dir,
-        dem_crs=dem_crs,
-        progress=stage,
-    )
+    settings: dict[str, Any] = {
+        "rays": rays,
+        "receiver_heights": receiver_heights,
+        "estimator": estimator,
+        "position_error": position_error,
+        "tiling": tiling,
+        "dem_crs": dem_crs,
+        "progress": stage,
+    }
+    if partitioned:  # each tile reads its own partitions
+        fp = read_footprints(footprints, layer=layer, id_field=id_field, grid_dir=grid_dir)
+        heights, _ = run_partitioned(observations, fp, dem, **settings)
+        result = None
+    else:
+        obs = read_observations(observations)
+        fp = read_footprints(footprints, layer=layer, id_field=id_field, grid_dir=grid_dir)
+        result = run(obs, fp, dem, calibration=calibration, grid_dir=grid_dir, **settings)
+        heights = result.heights
     if output is not None:
-        write_layer(result.heights, output, "heights", overwrite=overwrite, style=heights_qml())
-    if report is not None:
+        write_layer(heights, output, "heights", overwrite=overwrite, style=heights_qml())
+    if result is not None and report is not None:
         stage("report")
         write_report(result, report, truth=true, overwrite=overwrite)
     progress("done", 1.0)
-    return result.heights
+    return heights
 
 
 def read_buildings(

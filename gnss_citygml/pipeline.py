@@ -52,6 +52,7 @@ __all__ = [
     "receivers",
     "recordings",
     "run",
+    "run_partitioned",
 ]
 
 #: The stages :func:`estimate` reports to ``progress``, in order.
@@ -357,11 +358,10 @@ def run(
 
 def _tiled(rx, buildings, rays, estimator, position_error, tiling, footprints, say) -> Run:
     """The ray casting and height model stages in tiles on a Dask cluster."""
-    from .cluster import connect  # the [dask] extra: only when asked for
     from .tiled import tiled_heights
 
-    with connect(tiling) as engine:
-        table, classifier = tiled_heights(
+    def in_tiles(engine):
+        return tiled_heights(
             rx,
             buildings,
             estimator=estimator,
@@ -370,10 +370,82 @@ def _tiled(rx, buildings, rays, estimator, position_error, tiling, footprints, s
             tile_size=tiling.size,
             engine=engine,
         )
+
+    heights, classifier = _on_cluster(in_tiles, buildings, estimator, tiling, footprints, say)
+    return Run(heights, rx, None, buildings, classifier)
+
+
+def run_partitioned(
+    folder: StrPath,
+    footprints: gpd.GeoDataFrame,
+    dem: Dem | None = None,
+    *,
+    rays: Rays = Rays(),
+    receiver_heights: ReceiverHeights = ReceiverHeights(),
+    estimator: Estimator = Estimator(),
+    position_error: PositionError = PositionError(),
+    tiling: Tiling = Tiling("local"),
+    dem_crs: CrsInput | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> tuple[gpd.GeoDataFrame, SignalClassifier]:
+    """As :func:`run`, from observations partitioned by tile
+    (:func:`~gnss_citygml.partition.partition_observations`) on a Dask cluster (``tiling``;
+    its tile size is the partition's): the heights, joined onto the footprints, and the
+    final signal classifier. Each tile reads its own partitions
+    (:func:`~gnss_citygml.tiled.partitioned_heights`). The settings the partition applied
+    (elevation mask, receiver heights, position-error window) must be the run's."""
+    from .partition import check_partition, read_index
+    from .tiled import partitioned_heights
+
+    say = progress or (lambda stage: None)
+    if not tiling.on:
+        raise InputError(
+            "a partition folder is read by a run in tiles",
+            where=str(folder),
+            fix="give --scheduler local (or the address of a Dask scheduler)",
+        )
+    tiling.check(estimator, Calibration())
+    check_bng(footprints, "footprints")
+    say(STAGES[0])
+    index = read_index(folder)
+    check_partition(index, rays, position_error, receiver_heights)
+    if tiling.size not in (Tiling.size, index["tile_size"]):
+        raise InputError(
+            f"the partition's tiles are {index['tile_size']:g} m, not {tiling.size:g}",
+            where=str(folder),
+            fix="leave out --tile-size, or partition again with it",
+        )
+    say(STAGES[1])  # the partition holds the receivers
+    say(STAGES[2])
+    buildings = footprints
+    if dem is not None:
+        buildings = building_ground(footprints, dem, assume_crs=dem_crs)
+    elif "ground" not in buildings.columns:
+        raise InputError("building ground heights need a DEM", fix="give --dem")
+    say(STAGES[3])
+
+    def in_tiles(engine):
+        return partitioned_heights(
+            folder,
+            buildings,
+            estimator=estimator,
+            rays=rays,
+            position_error=position_error,
+            engine=engine,
+        )
+
+    return _on_cluster(in_tiles, buildings, estimator, tiling, footprints, say)
+
+
+def _on_cluster(in_tiles, buildings, estimator, tiling, footprints, say):
+    """``in_tiles(engine)`` on the cluster ``tiling`` names, joined onto the buildings."""
+    from .cluster import connect  # the [dask] extra: only when asked for
+
+    with connect(tiling) as engine:
+        table, classifier = in_tiles(engine)
     say(STAGES[4])
     say(STAGES[5])
-    heights = join_heights(buildings, table, estimator.method, id_field(footprints))
-    return Run(heights, rx, None, buildings, classifier)
+    return join_heights(buildings, table, estimator.method, id_field(footprints)), classifier
 
 
 def fit_heights(

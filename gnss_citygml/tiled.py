@@ -14,19 +14,30 @@ from __future__ import annotations
 import uuid
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
+from pathlib import Path
 
 import geopandas as gpd
 import numpy as np
 import pandas as pd
+import shapely
 
 from .model.classifier import Cn0Counts, SignalClassifier
 from .model.estimate import HEIGHTS_COLUMNS, intersections_part
 from .model.fourplb import Engine, InProcess, Part, Shared, Tally, run_parts
+from .partition import check_partition, read_index, read_receivers, tile_files
+from .paths import StrPath
 from .pipeline import intersections, recordings
 from .settings import Estimator, PositionError, Rays
-from .tiles import DEFAULT_TILE_SIZE, Tile, building_tiles, plan_tiles
+from .tiles import DEFAULT_TILE_SIZE, Tile, building_tiles, plan_tiles, receiver_tiles
 
-__all__ = ["FailedTile", "tile_heights", "tile_part", "tiled_heights"]
+__all__ = [
+    "FailedTile",
+    "partition_part",
+    "partitioned_heights",
+    "tile_heights",
+    "tile_part",
+    "tiled_heights",
+]
 
 
 def tiled_heights(
@@ -48,18 +59,14 @@ def tiled_heights(
     being done ("tile plan: 16 tiles", "iteration 3").
     """
     say = progress or (lambda text: None)
-    engine = engine or InProcess()
     rx = receivers.reset_index(drop=True)
     if not position_error.exact:  # one position error may span tiles: name it over the run
         rx["recording"] = recordings(rx, position_error)
     e, n, bearing = (rx[c].to_numpy(dtype=float) for c in ("e", "n", "bearing"))
     tiles = plan_tiles(e, n, buildings, rays.max_range, tile_size, bearing)
     say(f"tile plan: {len(tiles)} tiles of {tile_size:g} m")
-    neighbours = _neighbours(tiles, building_tiles(buildings, tile_size))
-    run = uuid.uuid4().hex[:8]  # the steps' names are this run's alone on a shared cluster
-    names = [f"{tile.name}-{run}" for tile in tiles]
-    parts = [
-        engine.submit(
+    casts = [
+        (
             tile_part,
             rx.iloc[tile.receivers],
             buildings.iloc[np.concatenate([tile.buildings, tile.halo])],
@@ -67,9 +74,65 @@ def tiled_heights(
             estimator,
             rays,
             position_error,
-            key=f"cast-{name}",
         )
-        for tile, name in zip(tiles, names, strict=True)
+        for tile in tiles
+    ]
+    return _run_tiles(tiles, casts, buildings, tile_size, estimator, engine, say)
+
+
+def partitioned_heights(
+    folder: StrPath,
+    buildings: gpd.GeoDataFrame,
+    *,
+    estimator: Estimator = Estimator(),
+    rays: Rays = Rays(),
+    position_error: PositionError = PositionError(),
+    engine: Engine | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> tuple[pd.DataFrame, SignalClassifier]:
+    """As :func:`tiled_heights`, from a partition folder
+    (:func:`~gnss_citygml.partition.partition_observations`, whose tiles it uses): each tile
+    reads the partitions within ``rays.max_range`` of its buildings itself (on the engine's
+    workers), and keeps the rows whose rays can enter them. Its halo is every building within
+    twice the reach of its buildings' extent: more than the rays need, which adds only
+    crossings the single run has too. The partition's elevation mask and position-error
+    window must be the run's (:func:`~gnss_citygml.partition.check_partition`)."""
+    say = progress or (lambda text: None)
+    index = read_index(folder)
+    check_partition(index, rays, position_error)
+    size, reach = float(index["tile_size"]), rays.max_range
+    squares = pd.DataFrame.from_dict(index["tiles"], orient="index")
+    x0, y0 = squares["ix"].to_numpy() * size, squares["iy"].to_numpy() * size
+    geometry = buildings.geometry.to_numpy()
+    tree = shapely.STRtree(geometry)
+    bounds = shapely.bounds(geometry)
+    names = building_tiles(buildings, size)
+    tiles, casts = [], []
+    for key, own in pd.Series(np.arange(len(names))).groupby(names):
+        own = own.to_numpy()
+        lo = bounds[own, :2].min(axis=0) - reach
+        hi = bounds[own, 2:].max(axis=0) + reach
+        near = (x0 <= hi[0]) & (x0 + size >= lo[0]) & (y0 <= hi[1]) & (y0 + size >= lo[1])
+        if not near.any():
+            continue  # no ray can enter its buildings: they have no signal, as in one run
+        halo = np.sort(tree.query(shapely.box(*(lo - reach), *(hi + reach))))
+        halo = halo[names[halo] != key]
+        files = [f for name in squares.index[near] for f in tile_files(folder, str(name))]
+        tiles.append(Tile(str(key), own, halo, np.empty(0, dtype=np.int64)))
+        cast = buildings.iloc[np.concatenate([own, halo])]
+        casts.append((partition_part, files, cast, own.size, size, estimator, rays, position_error))
+    say(f"tile plan: {len(tiles)} tiles of {size:g} m from {len(squares)} partitions")
+    return _run_tiles(tiles, casts, buildings, size, estimator, engine, say)
+
+
+def _run_tiles(tiles, casts, buildings, size, estimator, engine, say):
+    """4PL-B over the tiles, each made by its cast (a function and its arguments)."""
+    engine = engine or InProcess()
+    neighbours = _neighbours(tiles, building_tiles(buildings, size))
+    run = uuid.uuid4().hex[:8]  # the steps' names are this run's alone on a shared cluster
+    names = [f"{tile.name}-{run}" for tile in tiles]
+    parts = [
+        engine.submit(*cast, key=f"cast-{name}") for cast, name in zip(casts, names, strict=True)
     ]
     ids = buildings["id"].astype(str).to_numpy()
     for k, why in engine.failures(parts).items():
@@ -89,6 +152,26 @@ def tiled_heights(
     heights = heights[HEIGHTS_COLUMNS]
     heights.attrs["signal_classifier"] = asdict(classifier)
     return heights, classifier
+
+
+def partition_part(
+    files: list[Path],
+    buildings: gpd.GeoDataFrame,
+    n_own: int,
+    size: float,
+    estimator: Estimator,
+    rays: Rays,
+    position_error: PositionError,
+) -> Part:
+    """One tile's part from partition files: their rows whose rays can enter the tile's own
+    buildings (the first ``n_own`` of ``buildings``; :func:`~gnss_citygml.tiles.receiver_tiles`),
+    numbered by their ``signal``, cast as :func:`tile_part` does."""
+    rx = read_receivers(files)
+    own = buildings.iloc[:n_own]
+    e, n, bearing = (rx[c].to_numpy(dtype=float) for c in ("e", "n", "bearing"))
+    rows = np.unique(receiver_tiles(e, n, own, rays.max_range, size, bearing)["row"])
+    rx = rx.iloc[rows].set_index("signal")
+    return tile_part(rx, buildings, n_own, estimator, rays, position_error)
 
 
 def tile_part(

@@ -53,6 +53,10 @@ COMMANDS = {
         "observe",
         "Turn GnssLogger LOGS and satellite orbits into an observations table.",
     ),
+    "partition": (
+        "partition",
+        "Write observations as Parquet partitioned by tile, for a run in tiles.",
+    ),
     "report": (
         "estimate",
         "Estimate as `estimate` does and write the report of the run: an HTML page and PNGs.",

@@ -7,8 +7,9 @@ from pathlib import Path
 
 import click
 
-from ..settings import RECEIVER_HEIGHTS, Rays, ReceiverHeights, Tiling
+from ..settings import Rays, ReceiverHeights, Tiling
 from .options import (
+    ANTENNA_HEIGHT,
     DEM_CRS,
     GRID_DIR,
     HEIGHT_RULE,
@@ -18,9 +19,12 @@ from .options import (
     METHOD,
     MIN_ELEVATION,
     OVERWRITE,
+    POSITION_WINDOW,
     QUIET,
+    RECEIVER_HEIGHT,
     REPORT,
     THRESHOLD,
+    TILE_SIZE,
     TRUTH,
     dem_file,
     output_dir,
@@ -31,27 +35,15 @@ from .options import (
 
 #: The options of the run, which ``estimate`` and ``report`` share.
 _RUN_OPTIONS = together(
-    click.argument("observations", type=click.Path(dir_okay=False, path_type=Path)),
+    click.argument("observations", type=click.Path(path_type=Path)),
     click.argument("footprints", type=click.Path(path_type=Path)),
     dem_file("DEM raster in EPSG:27700 (GeoTIFF, ASCII grid, zip://...!/tile.asc).", required=True),
     LAYER,
     ID_FIELD,
     MIN_ELEVATION,
     MAX_ELEVATION,
-    click.option(
-        "--receiver-height",
-        type=click.Choice(list(RECEIVER_HEIGHTS)),
-        default=ReceiverHeights.source,
-        show_default=True,
-        help="Antenna height from the DEM (+ --antenna-height) or from the observations' h.",
-    ),
-    click.option(
-        "--antenna-height",
-        type=float,
-        default=ReceiverHeights.antenna_height,
-        show_default=True,
-        help="Metres.",
-    ),
+    RECEIVER_HEIGHT,
+    ANTENNA_HEIGHT,
     THRESHOLD,
     METHOD,
     HEIGHT_RULE,
@@ -67,13 +59,7 @@ _RUN_OPTIONS = together(
         "Default: each observation's position_sd (a phone fix's accuracy), 1 m where it is "
         "empty.",
     ),
-    click.option(
-        "--position-window",
-        type=click.FloatRange(min=0.0, min_open=True),
-        help="Seconds one position error of a moving receiver lasts (a walker's traced path, "
-        "a phone's fixes). Default: its whole recording. A receiver standing at one point (a "
-        "point placed by hand) shares one error over its stay either way.",
-    ),
+    POSITION_WINDOW,
     click.option(
         "--calibration-sd",
         type=click.FloatRange(min=0.0, min_open=True),
@@ -112,13 +98,7 @@ _RUN_OPTIONS = together(
     type=click.IntRange(min=1),
     help="With --scheduler local: worker processes (default: one per core).",
 )
-@click.option(
-    "--tile-size",
-    type=float,
-    default=Tiling.size,
-    show_default=True,
-    help="With --scheduler: side of a tile (m), aligned to the OS grid.",
-)
+@TILE_SIZE
 def estimate(output, report, scheduler, workers, tile_size, **options):
     """Estimate the height of every footprint from GNSS OBSERVATIONS.
 

@@ -15,9 +15,10 @@ from typing import TYPE_CHECKING
 import click
 
 from ..model import METHODS
-from ..settings import HEIGHT_RULES, Estimator, Rays
+from ..settings import HEIGHT_RULES, RECEIVER_HEIGHTS, Estimator, Rays, ReceiverHeights, Tiling
 
 __all__ = [
+    "ANTENNA_HEIGHT",
     "DEM_CRS",
     "GRID_DIR",
     "ID_FIELD",
@@ -28,12 +29,15 @@ __all__ = [
     "MIN_ELEVATION",
     "MODEL_OUTPUT",
     "OVERWRITE",
+    "POSITION_WINDOW",
     "QUIET",
+    "RECEIVER_HEIGHT",
     "REPORT",
     "SCHEMA_DIR",
     "SEED",
     "STDOUT",
     "THRESHOLD",
+    "TILE_SIZE",
     "TRUTH",
     "TYPED_ATTRIBUTES",
     "dem_file",
@@ -55,6 +59,34 @@ SEED = click.option(
 )
 OVERWRITE = click.option("--overwrite", is_flag=True, help="Replace an existing output.")
 QUIET = click.option("--quiet", "-q", is_flag=True, help="No progress output.")
+RECEIVER_HEIGHT = click.option(
+    "--receiver-height",
+    type=click.Choice(list(RECEIVER_HEIGHTS)),
+    default=ReceiverHeights.source,
+    show_default=True,
+    help="Antenna height from the DEM (+ --antenna-height) or from the observations' h.",
+)
+ANTENNA_HEIGHT = click.option(
+    "--antenna-height",
+    type=float,
+    default=ReceiverHeights.antenna_height,
+    show_default=True,
+    help="Metres.",
+)
+POSITION_WINDOW = click.option(
+    "--position-window",
+    type=click.FloatRange(min=0.0, min_open=True),
+    help="Seconds one position error of a moving receiver lasts (a walker's traced path, "
+    "a phone's fixes). Default: its whole recording. A receiver standing at one point (a "
+    "point placed by hand) shares one error over its stay either way.",
+)
+TILE_SIZE = click.option(
+    "--tile-size",
+    type=float,
+    default=Tiling.size,
+    show_default=True,
+    help="Side of a tile (m), aligned to the OS grid (a run with --scheduler).",
+)
 GRID_DIR = click.option(
     "--grid-dir",
     type=click.Path(file_okay=False, path_type=Path),

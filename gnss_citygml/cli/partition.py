@@ -1,0 +1,89 @@
+"""The ``partition`` subcommand: observations as Parquet partitioned by tile, for a run in
+tiles (``estimate FOLDER ... --scheduler``)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from .options import (
+    ANTENNA_HEIGHT,
+    DEM_CRS,
+    GRID_DIR,
+    MAX_ELEVATION,
+    MIN_ELEVATION,
+    OVERWRITE,
+    POSITION_WINDOW,
+    QUIET,
+    RECEIVER_HEIGHT,
+    TILE_SIZE,
+    dem_file,
+    output_dir,
+    progress,
+)
+
+
+@click.command()
+@click.argument(
+    "observations", nargs=-1, required=True, type=click.Path(dir_okay=False, path_type=Path)
+)
+@output_dir("The partition folder (partition.json, receivers/tile=NAME/part-K.parquet).")
+@dem_file("DEM raster in EPSG:27700, for the receivers' heights (--receiver-height dem).")
+@TILE_SIZE
+@MIN_ELEVATION
+@MAX_ELEVATION
+@RECEIVER_HEIGHT
+@ANTENNA_HEIGHT
+@POSITION_WINDOW
+@DEM_CRS
+@GRID_DIR
+@OVERWRITE
+@QUIET
+def partition(
+    observations,
+    output_dir,
+    dem,
+    tile_size,
+    min_elevation,
+    max_elevation,
+    receiver_height,
+    antenna_height,
+    position_window,
+    dem_crs,
+    grid_dir,
+    overwrite,
+    quiet,
+):
+    """Write observations as Parquet partitioned by tile, for a run in tiles.
+
+    Each of the OBSERVATIONS files (CSV or Parquet, read one at a time) is masked by elevation
+    and its receivers put in British National Grid + ODN with grid bearings; the rows go under
+    the tile that holds their receiver. `estimate OUTPUT_DIR FOOTPRINTS --dem DEM --scheduler ...`
+    then has each tile read only the partitions its rays can come from. A recording must lie
+    in one file.
+    """
+    from ..partition import partition_observations
+    from ..settings import PositionError, Rays, ReceiverHeights
+
+    with progress(len(observations), "files", quiet) as bar:
+
+        def next_file(name):
+            bar.set_description(Path(name).name)
+            bar.update(1)
+
+        index = partition_observations(
+            observations,
+            output_dir,
+            dem,
+            rays=Rays(min_elevation=min_elevation, max_elevation=max_elevation),
+            receiver_heights=ReceiverHeights(source=receiver_height, antenna_height=antenna_height),
+            position_error=PositionError(window=position_window),
+            tile_size=tile_size,
+            grid_dir=grid_dir,
+            dem_crs=dem_crs,
+            overwrite=overwrite,
+            progress=next_file,
+        )
+    tiles = len(index["tiles"])
+    click.echo(f"{index['signals']} signals in {tiles} tiles of {tile_size:g} m -> {output_dir}")

@@ -1,0 +1,134 @@
+"""Observations partitioned by tile (gnss-citygml partition) and a run in tiles that reads
+them tile by tile: the single run's heights, bit for bit."""
+
+import json
+
+import geopandas as gpd
+import numpy as np
+import pandas as pd
+import pytest
+from test_cli import run
+from test_outputs import CITY, estimate
+from test_tiled import assert_same_heights
+
+from gnss_citygml.errors import InputError
+from gnss_citygml.footprints import read_footprints
+from gnss_citygml.model.estimate import estimate_heights
+from gnss_citygml.observations import read_observations, write_observations
+from gnss_citygml.partition import INDEX, partition_observations, read_index
+from gnss_citygml.pipeline import in_mask, intersections, receivers
+from gnss_citygml.terrain import building_ground
+from gnss_citygml.tiled import partitioned_heights
+
+DEM = CITY / "dem.tif"
+
+
+@pytest.fixture(scope="module")
+def halves(tmp_path_factory):
+    """The sample city's observations as two files, one per half of its receivers."""
+    folder = tmp_path_factory.mktemp("halves")
+    obs = read_observations(CITY / "observations.parquet")
+    first = obs["receiver"].isin(sorted(obs["receiver"].unique())[::2])
+    paths = [folder / "a.parquet", folder / "b.parquet"]
+    for path, rows in zip(paths, (obs[first], obs[~first]), strict=True):
+        write_observations(rows.reset_index(drop=True), path)
+    return paths
+
+
+def test_a_partition_holds_each_receiver_under_its_tile(halves, tmp_path):
+    index = partition_observations(halves, tmp_path / "p", DEM, tile_size=100.0)
+    assert read_index(tmp_path / "p") == index
+    assert json.loads((tmp_path / "p" / INDEX).read_text())["tile_size"] == 100.0
+    tiles = sorted((tmp_path / "p" / "receivers").iterdir())
+    assert [t.name for t in tiles] == [f"tile={name}" for name in index["tiles"]]
+    assert all(name.startswith("TQ3") and len(name) == 8 for name in index["tiles"])
+    hive = pd.read_parquet(tmp_path / "p" / "receivers")  # the hive layout, as pyarrow reads it
+    assert len(hive) == index["signals"] == sum(t["rows"] for t in index["tiles"].values())
+    assert hive["signal"].sort_values().tolist() == list(range(index["signals"]))
+    for name, rows in hive.groupby("tile", observed=True):
+        spec = index["tiles"][name]
+        assert (rows["e"] // 100 == spec["ix"]).all() and (rows["n"] // 100 == spec["iy"]).all()
+    # the receivers are the pipeline's, file by file, numbered on across the files
+    a = receivers(in_mask(read_observations(halves[0])), DEM)
+    part = hive.sort_values("signal").iloc[: len(a)]
+    np.testing.assert_array_equal(part["e"], a["e"])
+    np.testing.assert_array_equal(part["bearing"], a["bearing"])
+    assert part["recording"].str.startswith(tuple(a["receiver"].unique())).all()
+
+
+def test_a_run_from_a_partition_gives_the_single_runs_heights(halves, tmp_path):
+    """Two observation files, partitioned into 100 m tiles, read tile by tile: equal to the
+    single run over both files (in one process here; on Dask in the command's test)."""
+    partition_observations(halves, tmp_path / "p", DEM, tile_size=100.0)
+    both = pd.concat([read_observations(p) for p in halves], ignore_index=True)
+    buildings = building_ground(read_footprints(CITY / "footprints.gpkg"), DEM)
+    single = estimate_heights(intersections(receivers(in_mask(both), DEM), buildings))
+    said = []
+    tiled, _ = partitioned_heights(tmp_path / "p", buildings, progress=said.append)
+    assert said[0] == "tile plan: 12 tiles of 100 m from 15 partitions"
+    assert single["converged"].sum() >= 10
+    assert_same_heights(tiled, single)
+
+
+def test_the_commands_partition_and_estimate_from_it_on_a_local_cluster(
+    halves, grid_args, tmp_path, capsys
+):
+    folder = tmp_path / "p"
+    args = ["partition", *map(str, halves), "-o", str(folder), "--dem", str(DEM), *grid_args]
+    code, out, err = run([*args, "--tile-size", "100", "-q"], capsys)
+    assert code == 0, err
+    assert out.strip() == f"38475 signals in 15 tiles of 100 m -> {folder}"
+    code, _, err = run([*args, "-q"], capsys)  # the folder exists now
+    assert code == 2 and "output exists" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["p"]  # no half-written folder
+    tiled = estimate(tmp_path, grid_args, "tiled.gpkg", "--scheduler", "local", "--workers", "2")
+    tiled[1] = str(folder)  # the partition folder in place of the observations
+    code, out, err = run(tiled, capsys)
+    assert code == 0, err
+    assert "buildings have a height" in out
+    both = pd.concat([read_observations(p) for p in halves], ignore_index=True)
+    write_observations(both, tmp_path / "both.parquet")
+    single = estimate(tmp_path, grid_args, "single.gpkg")
+    single[1] = str(tmp_path / "both.parquet")
+    code, _, err = run(single, capsys)
+    assert code == 0, err
+    a, b = (
+        gpd.read_file(tmp_path / f"{n}.gpkg", layer="heights").set_index("id").sort_index()
+        for n in ("single", "tiled")
+    )
+    assert (a["status"] == b["status"]).all() and a["converged"].sum() >= 10
+    for column in ("height", "height_lower", "height_upper", "relative_height"):
+        np.testing.assert_array_equal(b[column], a[column], err_msg=column)
+
+
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        ([], "a partition folder is read by a run in tiles"),
+        (["--scheduler", "local", "--min-elevation", "20"], "written with elevations 10-85 deg"),
+        (["--scheduler", "local", "--position-window", "30"], "window None, not 30.0"),
+        (["--scheduler", "local", "--antenna-height", "1.5"], "took the receivers' heights"),
+        (["--scheduler", "local", "--tile-size", "500"], "tiles are 100 m, not 500"),
+    ],
+)
+def test_a_run_unlike_its_partition_is_refused(halves, grid_args, tmp_path, capsys, extra, message):
+    partition_observations(halves[:1], tmp_path / "p", DEM, tile_size=100.0)
+    args = estimate(tmp_path, grid_args, "h.gpkg", *extra)
+    args[1] = str(tmp_path / "p")
+    code, _, err = run(args, capsys)
+    assert code == 2 and err.startswith("error: ") and message in err, err
+    assert not (tmp_path / "h.gpkg").exists()
+
+
+def test_a_folder_that_is_not_a_partition_is_a_clear_error(tmp_path):
+    with pytest.raises(InputError, match="not a partition folder: cannot read partition.json"):
+        read_index(tmp_path)
+    (tmp_path / INDEX).write_text('{"format": "something else"}')
+    with pytest.raises(InputError, match="is not gnss-citygml's"):
+        read_index(tmp_path)
+
+
+def test_a_failed_partition_leaves_no_folder(halves, tmp_path):
+    with pytest.raises(InputError, match="nope.parquet"):
+        partition_observations([halves[0], tmp_path / "nope.parquet"], tmp_path / "p", DEM)
+    assert list(tmp_path.iterdir()) == []

@@ -114,9 +114,13 @@ def estimate_file(
     true = None if truth is None else check_truth(read_table(truth), str(truth))
     steps = [*STAGES, "report"] if report is not None else list(STAGES)
     stages = iter(range(len(steps)))
+    done = 0.0
 
     def stage(name: str) -> None:
-        progress(name, next(stages) / len(steps))
+        nonlocal done
+        if name in steps:  # a stage starts; anything else is news within it (a tile run's)
+            done = next(stages) / len(steps)
+        progress(name, done)
 
     settings: dict[str, Any] = {
         "rays": rays,

@@ -306,7 +306,9 @@ def run(
     dem_crs
         CRS of a DEM that has none (e.g. ``"EPSG:27700"`` for an OS Terrain ASCII grid).
     progress
-        Optional callable told the name of each stage (:data:`STAGES`) as it starts.
+        Optional callable told the name of each stage (:data:`STAGES`) as it starts, and in
+        a run in tiles what the tiles are doing within it (the plan, each iteration, a tile
+        that failed).
 
     Returns
     -------
@@ -369,6 +371,7 @@ def _tiled(rx, buildings, rays, estimator, position_error, tiling, footprints, s
             position_error=position_error,
             tile_size=tiling.size,
             engine=engine,
+            progress=say,
         )
 
     heights, classifier = _on_cluster(in_tiles, buildings, estimator, tiling, footprints, say)
@@ -432,6 +435,7 @@ def run_partitioned(
             rays=rays,
             position_error=position_error,
             engine=engine,
+            progress=say,
         )
 
     return _on_cluster(in_tiles, buildings, estimator, tiling, footprints, say)

@@ -21,6 +21,7 @@ import numpy as np
 import pandas as pd
 import shapely
 
+from .errors import InputError
 from .model.classifier import Cn0Counts, SignalClassifier
 from .model.estimate import HEIGHTS_COLUMNS, intersections_part
 from .model.fourplb import Engine, InProcess, Part, Shared, Tally, run_parts
@@ -127,6 +128,11 @@ def partitioned_heights(
 
 def _run_tiles(tiles, casts, buildings, size, estimator, engine, say):
     """4PL-B over the tiles, each made by its cast (a function and its arguments)."""
+    if not tiles:
+        raise InputError(
+            "no building has a receiver within the rays' reach",
+            fix="give footprints that cover where the observations were made",
+        )
     engine = engine or InProcess()
     neighbours = _neighbours(tiles, building_tiles(buildings, size))
     run = uuid.uuid4().hex[:8]  # the steps' names are this run's alone on a shared cluster

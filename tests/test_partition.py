@@ -13,10 +13,12 @@ from test_tiled import assert_same_heights
 
 from gnss_citygml.errors import InputError
 from gnss_citygml.footprints import read_footprints
+from gnss_citygml.jobs import estimate_file
 from gnss_citygml.model.estimate import estimate_heights
 from gnss_citygml.observations import read_observations, write_observations
 from gnss_citygml.partition import INDEX, partition_observations, read_index
 from gnss_citygml.pipeline import in_mask, intersections, receivers
+from gnss_citygml.settings import Tiling
 from gnss_citygml.terrain import building_ground
 from gnss_citygml.tiled import partitioned_heights
 
@@ -132,3 +134,33 @@ def test_a_failed_partition_leaves_no_folder(halves, tmp_path):
     with pytest.raises(InputError, match="nope.parquet"):
         partition_observations([halves[0], tmp_path / "nope.parquet"], tmp_path / "p", DEM)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_footprints_no_partition_reaches_are_refused(halves, tmp_path):
+    partition_observations(halves[:1], tmp_path / "p", DEM, tile_size=100.0)
+    far = building_ground(read_footprints(CITY / "footprints.gpkg"), DEM)
+    far = far.set_geometry(far.geometry.translate(5000.0, 0.0))
+    with pytest.raises(InputError, match="no building has a receiver within the rays' reach"):
+        partitioned_heights(tmp_path / "p", far)
+
+
+def test_a_run_in_tiles_tells_its_progress_within_the_stages(halves, tmp_path):
+    """The job's progress (the command's bar, QGIS's): the stages in order, and between
+    them the tiles' news, at the share of the stage they belong to."""
+    partition_observations(halves, tmp_path / "p", DEM, tile_size=100.0)
+    said = []
+    estimate_file(
+        tmp_path / "p",
+        CITY / "footprints.gpkg",
+        DEM,
+        tmp_path / "h.gpkg",
+        tiling=Tiling("local", workers=1),
+        progress=lambda what, done: said.append((what, done)),
+    )
+    names = [what for what, _ in said]
+    assert names[:4] == ["observations", "receivers", "buildings", "ray casting"]
+    assert names[4].startswith("tile plan: 12 tiles of 100 m")
+    assert names[5] == "iteration 1" and names[-3:] == ["height model", "output", "done"]
+    shares = [done for _, done in said]
+    assert shares == sorted(shares) and shares[-1] == 1.0
+    assert all(done == shares[3] for what, done in said if what.startswith(("tile", "iter")))

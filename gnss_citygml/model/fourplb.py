@@ -496,20 +496,20 @@ class Part:
         g = np.asarray(groups, dtype=np.intp)
         h = np.asarray(height, dtype=float)
         by_group = np.lexsort((h, g))  # a building's rows together, by height: faster fits
-        g, h = g[by_group], h[by_group]
+        g, h = _compact(g[by_group]), h[by_group]
         sd = None if height_sd is None else np.asarray(height_sd, dtype=float)[by_group]
         if receiver is not None:  # coded in sorted order: the same order in any part
-            receiver = pd.factorize(np.asarray(receiver)[by_group], sort=True)[0]
+            receiver = _compact(pd.factorize(np.asarray(receiver)[by_group], sort=True)[0])
         if signal is not None:
-            sig = np.unique(np.asarray(signal)[by_group], return_inverse=True)[1]
+            sig = _compact(np.unique(np.asarray(signal)[by_group], return_inverse=True)[1])
         else:
-            sig = np.arange(g.size)  # each row is a signal of its own
+            sig = _compact(np.arange(g.size))  # each row is a signal of its own
         if order is not None:
-            order = np.asarray(order)[by_group]
+            order = _compact(np.asarray(order)[by_group])
         tracks = None if track is None else np.asarray(track)[by_group]
         looks = None  # found once: a row's look does not change as 4PL-B iterates
         if estimator.weighting == "looks" or (estimator.method == "4PL-B" and tracks is not None):
-            looks = look_ids(h, g, tracks)
+            looks = _compact(look_ids(h, g, tracks))
         occlusion = estimator.visibility and signal is not None
         seen = np.ones(h.size, dtype=bool)
         if occlusion and order is not None:
@@ -667,6 +667,21 @@ class LastFit:
     labels: np.ndarray
     own_map: np.ndarray
     change: np.ndarray
+
+
+def _compact(codes: np.ndarray) -> np.ndarray:
+    """Whole-number codes (a building's, a signal's, an order along the ray) as int32 where
+    they fit: a run in tiles holds every part's rows for the whole run, so 4 bytes a column
+    less is memory that a national run needs (68 -> 48 bytes a row). Anything else (an order
+    with gaps or fractions from a user's table) is kept as it is."""
+    if codes.size == 0:
+        return codes.astype(np.int32)
+    whole = codes.dtype.kind in "iu" or bool(
+        np.all(np.isfinite(codes) & (codes == np.floor(codes)))
+    )
+    if whole and -(2**31) <= codes.min() and codes.max() < 2**31:
+        return codes.astype(np.int32)
+    return codes
 
 
 def _lookup(building: np.ndarray, shared: Sequence[Shared]):

@@ -4,9 +4,12 @@ Each tile casts the rays that can reach its buildings against its buildings and 
 (:func:`~gnss_citygml.tiles.plan_tiles`), keeps the signals that cross one of its own
 buildings, and takes part in 4PL-B's map / exchange / reduce
 (:func:`~gnss_citygml.model.fourplb.run_parts`): the parts whose buildings its rays cross are
-its neighbours. Run in one process (the default engine) or on a Dask cluster (an engine of
-:mod:`gnss_citygml.engines`), the heights are those of :func:`~gnss_citygml.pipeline.run`
-on the same receivers (tested); only sums run in a different order, within floating point.
+its neighbours. Run in one process (the default engine) or on a Dask cluster
+(:mod:`gnss_citygml.cluster`), the heights are those of :func:`~gnss_citygml.pipeline.run`
+on the same receivers, bit for bit (tested): each building is summed the same way in a tile
+as in the whole run. :func:`tiled_heights` takes the receivers in memory;
+:func:`partitioned_heights` has each tile read its own from a partition folder
+(:mod:`gnss_citygml.partition`).
 """
 
 from __future__ import annotations
@@ -256,9 +259,10 @@ _NOT_FLOAT = ("id", "n_signals", "iterations", "converged", "method", "status")
 
 def _neighbours(tiles: list[Tile], owner: np.ndarray) -> list[list[int]]:
     """For each tile, the tiles (positions in ``tiles``) that own a building of its halo,
-    and itself: whose fits it needs each iteration."""
+    and itself: whose fits it needs each iteration. A tile left out of the run (no receiver
+    within reach of its buildings) owns buildings that no ray crosses: no one needs them."""
     at = {tile.name: k for k, tile in enumerate(tiles)}
     return [
-        sorted({k, *(at[name] for name in np.unique(owner[tile.halo]))})
+        sorted({k, *(at[name] for name in np.unique(owner[tile.halo]) if name in at)})
         for k, tile in enumerate(tiles)
     ]

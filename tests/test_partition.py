@@ -64,7 +64,14 @@ def test_a_run_from_a_partition_gives_the_single_runs_heights(halves, tmp_path):
     partition_observations(halves, tmp_path / "p", DEM, tile_size=100.0)
     both = pd.concat([read_observations(p) for p in halves], ignore_index=True)
     buildings = building_ground(read_footprints(CITY / "footprints.gpkg"), DEM)
+    # a building 750 m east of the city, in the (twice the reach) halo of its eastern tiles
+    # but out of every ray's reach: its tile is left out of the run
+    far = buildings.iloc[[0]].assign(id="far")
+    east = buildings.total_bounds[2] + 750.0 - far.total_bounds[0]
+    far = far.set_geometry(far.geometry.translate(east, 0.0))
+    buildings = pd.concat([buildings, far], ignore_index=True)
     single = estimate_heights(intersections(receivers(in_mask(both), DEM), buildings))
+    assert "far" not in set(single["id"])
     said = []
     tiled, _ = partitioned_heights(tmp_path / "p", buildings, progress=said.append)
     assert said[0] == "tile plan: 12 tiles of 100 m from 15 partitions"

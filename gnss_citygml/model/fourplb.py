@@ -370,7 +370,7 @@ def run_parts(
     return list(engine.gather(done)), classifier
 
 
-# The steps as functions of the part, for engines (a Part or a FailedPart alike).
+# The steps as functions of the part, for engines (a Part or a FailedTile alike).
 def _fitted(part: Part, classifier: SignalClassifier) -> Part:
     return part.fitted(classifier)
 

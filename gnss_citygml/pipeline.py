@@ -374,7 +374,9 @@ def _tiled(rx, buildings, rays, estimator, position_error, tiling, footprints, s
             progress=say,
         )
 
-    heights, classifier = _on_cluster(in_tiles, buildings, estimator, tiling, footprints, say)
+    heights, classifier = _on_cluster(
+        in_tiles, buildings, estimator, tiling, tiling.size, footprints, say
+    )
     return Run(heights, rx, None, buildings, classifier)
 
 
@@ -438,18 +440,24 @@ def run_partitioned(
             progress=say,
         )
 
-    return _on_cluster(in_tiles, buildings, estimator, tiling, footprints, say)
+    size = float(index["tile_size"])
+    return _on_cluster(in_tiles, buildings, estimator, tiling, size, footprints, say)
 
 
-def _on_cluster(in_tiles, buildings, estimator, tiling, footprints, say):
-    """``in_tiles(engine)`` on the cluster ``tiling`` names, joined onto the buildings."""
+def _on_cluster(in_tiles, buildings, estimator, tiling, size, footprints, say):
+    """``in_tiles(engine)`` on the cluster ``tiling`` names, joined onto the buildings, with
+    each building's ``tile`` (of ``size`` metres; the tile index of the output: a failed
+    tile's buildings, or one tile's, are a filter away)."""
     from .cluster import connect  # the [dask] extra: only when asked for
+    from .tiles import building_tiles
 
     with connect(tiling) as engine:
         table, classifier = in_tiles(engine)
     say(STAGES[4])
     say(STAGES[5])
-    return join_heights(buildings, table, estimator.method, id_field(footprints)), classifier
+    heights = join_heights(buildings, table, estimator.method, id_field(footprints))
+    heights.insert(len(heights.columns) - 1, "tile", building_tiles(buildings, size))
+    return heights, classifier
 
 
 def fit_heights(

@@ -21,6 +21,7 @@ from gnss_citygml.pipeline import in_mask, intersections, receivers
 from gnss_citygml.settings import Tiling
 from gnss_citygml.terrain import building_ground
 from gnss_citygml.tiled import partitioned_heights
+from gnss_citygml.tiles import building_tiles
 
 DEM = CITY / "dem.tif"
 
@@ -106,6 +107,12 @@ def test_the_commands_partition_and_estimate_from_it_on_a_local_cluster(
         for n in ("single", "tiled")
     )
     assert (a["status"] == b["status"]).all() and a["converged"].sum() >= 10
+    # the tile index: each building's tile, of the partition's size
+    footprints = read_footprints(CITY / "footprints.gpkg")
+    tiles = pd.Series(building_tiles(footprints, 100.0), index=footprints["id"].astype(str))
+    assert "tile" not in a.columns
+    assert b["tile"].tolist() == tiles.reindex(b.index).tolist()
+    assert b["tile"].nunique() == 12
     for column in ("height", "height_lower", "height_upper", "relative_height"):
         np.testing.assert_array_equal(b[column], a[column], err_msg=column)
 

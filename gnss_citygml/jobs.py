@@ -79,6 +79,7 @@ def estimate_file(
     from .compare import check_truth
     from .footprints import read_footprints
     from .observations import read_observations
+    from .partition import partition_run
     from .pipeline import STAGES, run, run_partitioned
     from .report import check_report, write_report
     from .styles import heights_qml
@@ -101,12 +102,8 @@ def estimate_file(
             fix="leave out --report, or --scheduler",
         )
     partitioned = Path(observations).is_dir()
-    if partitioned and not tiling.on:
-        raise InputError(
-            "a partition folder is read by a run in tiles",
-            where=str(observations),
-            fix="give --scheduler local (or the address of a Dask scheduler)",
-        )
+    if partitioned:
+        partition_run(observations, tiling)
     if output is not None:
         check_layer_output(output, "heights", overwrite=overwrite)
     if report is not None:

@@ -35,11 +35,27 @@ from .geodesy import CrsInput
 from .observations import read_observations
 from .paths import StrPath
 from .pipeline import in_mask, receivers, recordings
-from .settings import PositionError, Rays, ReceiverHeights
+from .settings import (
+    DEFAULT_TILE_SIZE,
+    PositionError,
+    Rays,
+    ReceiverHeights,
+    Tiling,
+    check_tile_size,
+)
 from .terrain import Dem
-from .tiles import DEFAULT_TILE_SIZE, tile_index, tile_names
+from .tiles import tile_index, tile_names
 
-__all__ = ["INDEX", "RECEIVERS", "check_partition", "partition_observations", "read_index"]
+__all__ = [
+    "INDEX",
+    "RECEIVERS",
+    "check_partition",
+    "partition_observations",
+    "partition_run",
+    "read_index",
+    "read_receivers",
+    "tile_files",
+]
 
 #: The partition's index, in its folder.
 INDEX = "partition.json"
@@ -57,14 +73,15 @@ def partition_observations(
     rays: Rays = Rays(),
     receiver_heights: ReceiverHeights = ReceiverHeights(),
     position_error: PositionError = PositionError(),
-    tile_size: float = DEFAULT_TILE_SIZE,
+    tile_size: float | None = None,
     grid_dir: StrPath | None = None,
     dem_crs: CrsInput | None = None,
     overwrite: bool = False,
     progress: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
     """Write the ``observations`` files' receivers into ``folder``, partitioned by tile of
-    ``tile_size`` metres; returns the index (also ``folder/partition.json``).
+    ``tile_size`` metres (default :data:`~gnss_citygml.settings.DEFAULT_TILE_SIZE`); returns
+    the index (also ``folder/partition.json``).
 
     The folder appears whole or not at all: it is written beside, under another name, and
     renamed into place at the end (replacing an old one only with ``overwrite``).
@@ -73,7 +90,8 @@ def partition_observations(
     """
     folder = Path(folder)
     check_partition_output(folder, overwrite=overwrite)
-    tile_names([0], [0], tile_size)  # the size's check, before any work
+    tile_size = DEFAULT_TILE_SIZE if tile_size is None else tile_size
+    check_tile_size(tile_size)
     say = progress or (lambda text: None)
     work = folder.with_name(f".{folder.name}.part-{uuid.uuid4().hex[:8]}")
     tiles: dict[str, dict[str, int]] = {}
@@ -170,14 +188,34 @@ def read_index(folder: StrPath) -> dict[str, Any]:
     return index
 
 
+def partition_run(folder: StrPath, tiling: Tiling) -> dict[str, Any]:
+    """The index of the partition ``folder`` for a run with ``tiling``, refusing a run that is
+    not in tiles (a partition is read tile by tile) or whose tile size is not the partition's.
+    """
+    index = read_index(folder)
+    if not tiling.on:
+        raise InputError(
+            "a partition folder is read by a run in tiles",
+            where=str(folder),
+            fix="give --scheduler local (or the address of a Dask scheduler)",
+        )
+    if tiling.size is not None and tiling.size != index["tile_size"]:
+        raise InputError(
+            f"the partition's tiles are {index['tile_size']:g} m, not {tiling.size:g}",
+            where=str(folder),
+            fix="leave out --tile-size, or partition again with it",
+        )
+    return index
+
+
 def check_partition(
     index: dict[str, Any],
     rays: Rays,
     position_error: PositionError,
-    receiver_heights: ReceiverHeights = ReceiverHeights(),
+    receiver_heights: ReceiverHeights | None = None,
 ) -> None:
-    """Refuse a run whose elevation mask, receiver heights or position-error window is not the
-    partition's: they were applied when it was written."""
+    """Refuse a run whose elevation mask, position-error window or (if given) receiver
+    heights are not the partition's: they were applied when it was written."""
     mask = index["rays"]
     if (mask["min_elevation"], mask["max_elevation"]) != (rays.min_elevation, rays.max_elevation):
         raise InputError(
@@ -185,7 +223,7 @@ def check_partition(
             f"{mask['max_elevation']:g} deg, not {rays.min_elevation:g}-{rays.max_elevation:g}",
             fix="give the partition's --min-elevation and --max-elevation, or partition again",
         )
-    if index["receiver_heights"] != asdict(receiver_heights):
+    if receiver_heights is not None and index["receiver_heights"] != asdict(receiver_heights):
         raise InputError(
             f"the partition took the receivers' heights as {index['receiver_heights']}, not "
             f"{asdict(receiver_heights)}",
@@ -199,9 +237,19 @@ def check_partition(
         )
 
 
-def tile_files(folder: StrPath, name: str) -> list[Path]:
-    """The Parquet files of one tile's receivers, in file order."""
-    return sorted((Path(folder) / RECEIVERS / f"tile={name}").glob("part-*.parquet"))
+def tile_files(folder: StrPath, index: dict[str, Any]) -> dict[str, list[Path]]:
+    """The Parquet files of each tile of the partition's ``index``, in file order, each
+    folder listed once; a tile of the index without files is a damaged partition."""
+    files = {}
+    for name in index["tiles"]:
+        files[name] = sorted((Path(folder) / RECEIVERS / f"tile={name}").glob("part-*.parquet"))
+        if not files[name]:
+            raise InputError(
+                f"damaged partition: tile {name} of {INDEX} has no files",
+                where=str(Path(folder) / RECEIVERS / f"tile={name}"),
+                fix="write the partition again (gnss-citygml partition)",
+            )
+    return files
 
 
 def read_receivers(files: Sequence[StrPath]) -> pd.DataFrame:

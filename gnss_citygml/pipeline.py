@@ -369,13 +369,13 @@ def _tiled(rx, buildings, rays, estimator, position_error, tiling, footprints, s
             estimator=estimator,
             rays=rays,
             position_error=position_error,
-            tile_size=tiling.size,
+            tile_size=tiling.side,
             engine=engine,
             progress=say,
         )
 
     heights, classifier = _on_cluster(
-        in_tiles, buildings, estimator, tiling, tiling.size, footprints, say
+        in_tiles, buildings, estimator, tiling, tiling.side, footprints, say
     )
     return Run(heights, rx, None, buildings, classifier)
 
@@ -399,27 +399,15 @@ def run_partitioned(
     final signal classifier. Each tile reads its own partitions
     (:func:`~gnss_citygml.tiled.partitioned_heights`). The settings the partition applied
     (elevation mask, receiver heights, position-error window) must be the run's."""
-    from .partition import check_partition, read_index
+    from .partition import check_partition, partition_run
     from .tiled import partitioned_heights
 
     say = progress or (lambda stage: None)
-    if not tiling.on:
-        raise InputError(
-            "a partition folder is read by a run in tiles",
-            where=str(folder),
-            fix="give --scheduler local (or the address of a Dask scheduler)",
-        )
+    index = partition_run(folder, tiling)
     tiling.check(estimator, Calibration())
     check_bng(footprints, "footprints")
     say(STAGES[0])
-    index = read_index(folder)
     check_partition(index, rays, position_error, receiver_heights)
-    if tiling.size not in (Tiling.size, index["tile_size"]):
-        raise InputError(
-            f"the partition's tiles are {index['tile_size']:g} m, not {tiling.size:g}",
-            where=str(folder),
-            fix="leave out --tile-size, or partition again with it",
-        )
     say(STAGES[1])  # the partition holds the receivers
     say(STAGES[2])
     buildings = footprints

@@ -30,6 +30,7 @@ from .model import METHODS
 
 __all__ = [
     "DEFAULT_POSITION_SD",
+    "DEFAULT_TILE_SIZE",
     "HEIGHT_RULES",
     "RECEIVER_HEIGHTS",
     "WEIGHTINGS",
@@ -40,6 +41,7 @@ __all__ = [
     "ReceiverHeights",
     "Rays",
     "Tiling",
+    "check_tile_size",
 ]
 
 #: Reweighting schemes of the 4PL height fit (:func:`~gnss_citygml.model.fourplb.height_weights`).
@@ -52,6 +54,9 @@ HEIGHT_RULES = ("inflection", "paper")
 
 #: Where receiver heights come from: the DEM plus an antenna height, or the log's own heights.
 RECEIVER_HEIGHTS = ("dem", "log")
+
+#: Side of a tile of a run in tiles (m): the OS 1 km square.
+DEFAULT_TILE_SIZE = 1000.0
 
 #: Position error (m per axis) of an observation that does not say (its ``position_sd`` empty):
 #: a point placed by hand on a large-scale map, as the paper's receivers were ("an estimated
@@ -70,6 +75,16 @@ def _count(value) -> bool:
 
 def _positive(value) -> bool:
     return _finite(value) and value > 0
+
+
+def check_tile_size(size: float) -> None:
+    """Refuse a tile size that is not a whole number of metres, 1 or more (tiles are named by
+    their south-west corner to the metre)."""
+    if not (_finite(size) and size >= 1 and float(size).is_integer()):
+        raise InputError(
+            f"a tile size must be a whole number of metres, at least 1, not {size!r}",
+            fix="give --tile-size in metres, e.g. 1000",
+        )
 
 
 @dataclass(frozen=True)
@@ -383,13 +398,13 @@ class Tiling:
     workers
         With ``"local"``: how many worker processes (default: one per core).
     size
-        Side of a tile (m, whole metres): 1000 by default, the OS 1 km square (tiles are named
-        by OS grid reference, ``TQ2982``).
+        Side of a tile (m, whole metres). ``None`` (default): :data:`DEFAULT_TILE_SIZE`, the OS
+        1 km square (tiles are named by OS grid reference, ``TQ2982``), or a partition's own.
     """
 
     scheduler: str | None = None
     workers: int | None = None
-    size: float = 1000.0
+    size: float | None = None
 
     def __post_init__(self):
         if self.scheduler is not None and not (
@@ -404,12 +419,9 @@ class Tiling:
                 f"--workers {self.workers} is for --scheduler local, a whole number 1 or more",
                 fix="leave it out: a running scheduler has its own workers",
             )
-        if not (_finite(self.size) and self.size >= 1 and float(self.size).is_integer()):
-            raise InputError(
-                f"a tile size must be a whole number of metres, at least 1, not {self.size!r}",
-                fix="give --tile-size in metres, e.g. 1000",
-            )
-        if self.scheduler is None and self.size != Tiling.size:
+        if self.size is not None:
+            check_tile_size(self.size)
+        if self.scheduler is None and self.size is not None:
             raise InputError(
                 "a tile size is for a run on a Dask scheduler",
                 fix="give --scheduler local (or tcp://host:port) too, or leave out --tile-size",
@@ -419,6 +431,11 @@ class Tiling:
     def on(self) -> bool:
         """Whether the run is cut into tiles on a Dask cluster."""
         return self.scheduler is not None
+
+    @property
+    def side(self) -> float:
+        """The tile size of a run from observations in memory (a partition has its own)."""
+        return DEFAULT_TILE_SIZE if self.size is None else float(self.size)
 
     def check(self, estimator: Estimator, calibration: Calibration) -> None:
         """Refuse what a run in tiles cannot do: a method other than 4PL-B or 4PL (the

@@ -31,11 +31,12 @@ from .model.fourplb import Engine, InProcess, Part, Shared, Tally, run_parts
 from .partition import check_partition, read_index, read_receivers, tile_files
 from .paths import StrPath
 from .pipeline import intersections, recordings
-from .settings import Estimator, PositionError, Rays
-from .tiles import DEFAULT_TILE_SIZE, Tile, building_tiles, plan_tiles, receiver_tiles
+from .settings import DEFAULT_TILE_SIZE, Estimator, PositionError, Rays
+from .tiles import Tile, building_tiles, plan_tiles, receiver_tiles
 
 __all__ = [
     "FailedTile",
+    "failed_tiles",
     "partition_part",
     "partitioned_heights",
     "tile_heights",
@@ -106,6 +107,7 @@ def partitioned_heights(
     check_partition(index, rays, position_error)
     size, reach = float(index["tile_size"]), rays.max_range
     squares = pd.DataFrame.from_dict(index["tiles"], orient="index")
+    parts = tile_files(folder, index)
     x0, y0 = squares["ix"].to_numpy() * size, squares["iy"].to_numpy() * size
     geometry = buildings.geometry.to_numpy()
     tree = shapely.STRtree(geometry)
@@ -121,7 +123,7 @@ def partitioned_heights(
             continue  # no ray can enter its buildings: they have no signal, as in one run
         halo = np.sort(tree.query(shapely.box(*(lo - reach), *(hi + reach))))
         halo = halo[names[halo] != key]
-        files = [f for name in squares.index[near] for f in tile_files(folder, str(name))]
+        files = [f for name in squares.index[near] for f in parts[name]]
         tiles.append(Tile(str(key), own, halo, np.empty(0, dtype=np.int64)))
         cast = buildings.iloc[np.concatenate([own, halo])]
         casts.append((partition_part, files, cast, own.size, size, estimator, rays, position_error))
@@ -248,13 +250,25 @@ class FailedTile:
                 "n_signals": np.zeros(n, dtype=np.int64),
                 "iterations": np.zeros(n, dtype=np.int64),
                 "converged": np.zeros(n, dtype=bool),
-                "status": f"tile {self.name} failed: {self.reason}",
+                "status": _FAILED.format(self.name, self.reason),
             }
         )
 
 
 #: The heights table's columns that are not floats (or are set apart).
 _NOT_FLOAT = ("id", "n_signals", "iterations", "converged", "method", "status")
+
+#: The status of a failed tile's buildings, and how it is read back (:func:`failed_tiles`).
+_FAILED = "tile {} failed: {}"
+_FAILED_RE = r"^tile (?P<tile>\S+) failed: (?P<reason>.*)$"
+
+
+def failed_tiles(heights: pd.DataFrame) -> pd.DataFrame:
+    """The tiles of a run whose cast failed (:class:`FailedTile`), from its heights: one row
+    per tile with ``tile``, ``reason`` and ``buildings`` (how many have no height for it)."""
+    status = heights["status"].astype(str)
+    failed = status[status.str.startswith("tile ")].str.extract(_FAILED_RE).dropna()
+    return failed.groupby(["tile", "reason"], sort=True).size().rename("buildings").reset_index()
 
 
 def _neighbours(tiles: list[Tile], owner: np.ndarray) -> list[list[int]]:

@@ -28,6 +28,7 @@ import pandas as pd
 import shapely
 
 from .errors import InputError
+from .settings import DEFAULT_TILE_SIZE, check_tile_size
 
 __all__ = [
     "DEFAULT_TILE_SIZE",
@@ -39,8 +40,6 @@ __all__ = [
     "tile_names",
 ]
 
-#: Side of a tile (m): the OS 1 km square.
-DEFAULT_TILE_SIZE = 1000.0
 
 #: Receivers per block of :func:`receiver_tiles`: its candidate pairs (9 per receiver for
 #: 1 km tiles and a 500 m reach) stay within tens of MB.
@@ -55,7 +54,7 @@ def tile_index(
     e: npt.ArrayLike, n: npt.ArrayLike, size: float = DEFAULT_TILE_SIZE
 ) -> tuple[np.ndarray, np.ndarray]:
     """Column and row (int64) of the tile holding each point (``e``, ``n`` in BNG metres)."""
-    _check_size(size)
+    check_tile_size(size)
     e, n = np.asarray(e, dtype=float), np.asarray(n, dtype=float)
     return np.floor(e / size).astype(np.int64), np.floor(n / size).astype(np.int64)
 
@@ -73,7 +72,7 @@ def tile_names(ix: npt.ArrayLike, iy: npt.ArrayLike, size: float = DEFAULT_TILE_
     >>> tile_names([1059], [364], 500).tolist()
     ['TQ2950082000-500m']
     """
-    _check_size(size)
+    check_tile_size(size)
     ix, iy = np.asarray(ix, dtype=np.int64), np.asarray(iy, dtype=np.int64)
     e, n = ix * size, iy * size
     outside = (e < 0) | (n < 0) | (e >= _GRID_E) | (n >= _GRID_N)
@@ -261,11 +260,3 @@ def _letters(e: np.ndarray, n: np.ndarray) -> np.ndarray:
     return np.array(
         [chr(65 + a) + chr(65 + b) for a, b in zip(first, second, strict=True)], dtype=object
     )
-
-
-def _check_size(size: float) -> None:
-    if not (np.isfinite(size) and size >= 1 and float(size).is_integer()):
-        raise InputError(
-            f"a tile size must be a whole number of metres, at least 1, not {size!r}",
-            fix="give --tile-size in metres, e.g. 1000",
-        )

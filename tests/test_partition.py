@@ -2,6 +2,7 @@
 them tile by tile: the single run's heights, bit for bit."""
 
 import json
+import shutil
 
 import geopandas as gpd
 import numpy as np
@@ -17,8 +18,8 @@ from gnss_citygml.jobs import estimate_file
 from gnss_citygml.model.estimate import estimate_heights
 from gnss_citygml.observations import read_observations, write_observations
 from gnss_citygml.partition import INDEX, partition_observations, read_index
-from gnss_citygml.pipeline import in_mask, intersections, receivers
-from gnss_citygml.settings import Tiling
+from gnss_citygml.pipeline import in_mask, intersections, receivers, run_partitioned
+from gnss_citygml.settings import ReceiverHeights, Tiling
 from gnss_citygml.terrain import building_ground
 from gnss_citygml.tiled import partitioned_heights
 from gnss_citygml.tiles import building_tiles
@@ -125,6 +126,7 @@ def test_the_commands_partition_and_estimate_from_it_on_a_local_cluster(
         (["--scheduler", "local", "--position-window", "30"], "window None, not 30.0"),
         (["--scheduler", "local", "--antenna-height", "1.5"], "took the receivers' heights"),
         (["--scheduler", "local", "--tile-size", "500"], "tiles are 100 m, not 500"),
+        (["--scheduler", "local", "--tile-size", "1000"], "tiles are 100 m, not 1000"),
     ],
 )
 def test_a_run_unlike_its_partition_is_refused(halves, grid_args, tmp_path, capsys, extra, message):
@@ -178,3 +180,26 @@ def test_a_run_in_tiles_tells_its_progress_within_the_stages(halves, tmp_path):
     shares = [done for _, done in said]
     assert shares == sorted(shares) and shares[-1] == 1.0
     assert all(done == shares[3] for what, done in said if what.startswith(("tile", "iter")))
+
+
+def test_a_partition_with_its_own_receiver_heights_is_read_with_them(halves, tmp_path):
+    """The run checks the receivers' heights once, against the run's own settings (it used to
+    check them again against the defaults, refusing a partition made with --antenna-height)."""
+    heights = ReceiverHeights(antenna_height=1.5)
+    partition_observations(halves, tmp_path / "p", DEM, receiver_heights=heights, tile_size=100.0)
+    footprints = read_footprints(CITY / "footprints.gpkg")
+    kept, _ = run_partitioned(
+        tmp_path / "p", footprints, DEM, receiver_heights=heights, tiling=Tiling("local", 1)
+    )
+    assert kept["converged"].sum() >= 10
+    with pytest.raises(InputError, match="took the receivers' heights"):
+        run_partitioned(tmp_path / "p", footprints, DEM, tiling=Tiling("local", 1))
+
+
+def test_a_damaged_partition_is_named(halves, tmp_path):
+    index = partition_observations(halves[:1], tmp_path / "p", DEM, tile_size=100.0)
+    name = next(iter(index["tiles"]))
+    shutil.rmtree(tmp_path / "p" / "receivers" / f"tile={name}")
+    buildings = building_ground(read_footprints(CITY / "footprints.gpkg"), DEM)
+    with pytest.raises(InputError, match=f"damaged partition: tile {name} of partition.json"):
+        partitioned_heights(tmp_path / "p", buildings)

@@ -22,7 +22,7 @@ from gnss_citygml.pipeline import intersections
 from gnss_citygml.settings import Estimator, Tiling
 from gnss_citygml.simulate import simulate
 from gnss_citygml.simulate.scenes import city_scene
-from gnss_citygml.tiled import tiled_heights
+from gnss_citygml.tiled import failed_tiles, tiled_heights
 from gnss_citygml.tiles import building_tiles
 
 #: The simulated city's corner in British National Grid (its grid is local): the city's
@@ -172,6 +172,9 @@ def test_a_tile_that_fails_twice_is_reported_by_name_and_the_others_go_on(scene,
     assert set(tiled.loc[lost, "id"]) == set(owner.index[owner == tile])
     assert not tiled.loc[lost, "converged"].any()
     assert tiled.loc[~lost, "converged"].sum() >= 3
+    summary = failed_tiles(tiled)  # what the command's warning says
+    assert summary["tile"].tolist() == [tile] and summary["buildings"].tolist() == [lost.sum()]
+    assert summary["reason"][0].startswith("InputError: height_sd must be a finite number")
     with pytest.raises(InputError, match="height_sd must be"):
         tiled_heights(broken, buildings, tile_size=100.0)
 

@@ -111,10 +111,13 @@ def estimate(output, report, scheduler, workers, tile_size, **options):
     heights = _run(output, report, tiling=tiling, **options)
     ok = int(heights["converged"].sum())
     click.echo(f"{ok} of {len(heights)} buildings have a height -> {output}")
-    failed = heights["status"].str.extract(r"^tile (\S+) failed: (.*)$").dropna()
-    for tile, why in failed.drop_duplicates().itertuples(index=False):
-        n = int((failed[0] == tile).sum())
-        click.echo(f"warning: tile {tile} failed ({why}): {n} buildings without a height", err=True)
+    if tiling.on:
+        from ..tiled import failed_tiles
+
+        for tile, why, n in failed_tiles(heights).itertuples(index=False):
+            click.echo(
+                f"warning: tile {tile} failed ({why}): {n} buildings without a height", err=True
+            )
     if report is not None:
         click.echo(f"report -> {report / 'report.html'}")
 

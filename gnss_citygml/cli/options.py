@@ -15,7 +15,14 @@ from typing import TYPE_CHECKING
 import click
 
 from ..model import METHODS
-from ..settings import HEIGHT_RULES, RECEIVER_HEIGHTS, Estimator, Rays, ReceiverHeights, Tiling
+from ..settings import (
+    DEFAULT_TILE_SIZE,
+    HEIGHT_RULES,
+    RECEIVER_HEIGHTS,
+    Estimator,
+    Rays,
+    ReceiverHeights,
+)
 
 __all__ = [
     "ANTENNA_HEIGHT",
@@ -83,9 +90,8 @@ POSITION_WINDOW = click.option(
 TILE_SIZE = click.option(
     "--tile-size",
     type=float,
-    default=Tiling.size,
-    show_default=True,
-    help="Side of a tile (m), aligned to the OS grid (a run with --scheduler).",
+    help=f"Side of a tile (m), aligned to the OS grid (a run with --scheduler). Default: "
+    f"{DEFAULT_TILE_SIZE:g}, or a partition's own.",
 )
 GRID_DIR = click.option(
     "--grid-dir",

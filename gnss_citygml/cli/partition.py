@@ -85,5 +85,5 @@ def partition(
             overwrite=overwrite,
             progress=next_file,
         )
-    tiles = len(index["tiles"])
-    click.echo(f"{index['signals']} signals in {tiles} tiles of {tile_size:g} m -> {output_dir}")
+    tiles, size = len(index["tiles"]), index["tile_size"]
+    click.echo(f"{index['signals']} signals in {tiles} tiles of {size:g} m -> {output_dir}")

@@ -45,8 +45,8 @@ ORIGIN = np.array([520_000.0, 180_000.0])
 GB_BUILDINGS, GB_SIGNALS, GB_KM2 = 47e6, 1e10, 230_000
 
 #: Tasks per tile and iteration of run_parts (fit, share, exchange, part, tally), and per tile
-#: once (cast, finish).
-TASKS_PER_ITERATION, TASKS_ONCE = 5, 2
+#: once (cast, finish, and the write of an output per tile).
+TASKS_PER_ITERATION, TASKS_ONCE = 5, 3
 
 #: Steps of run_parts and tiled_heights, by function name, as printed.
 STEPS = {
@@ -87,6 +87,24 @@ def _nbytes(part: Part) -> int:
     return sum(a.nbytes for a in arrays)
 
 
+def bng_city(km: float, walkers: int, seconds: float, seed: int) -> tuple[Any, Any]:
+    """The simulated city (``km`` square, blocks 60 m apart, ``walkers`` phones walking for
+    ``seconds`` each) moved into BNG at :data:`ORIGIN`: its rays and buildings."""
+    blocks = int(km * 1000 // 60)
+    scene = city_scene(
+        np.random.default_rng(seed),
+        blocks,
+        blocks,
+        walkers=walkers,
+        walk_seconds=seconds,
+        walk_length=600.0,
+    )
+    sim = simulate(scene, locations="gnss", seed=seed)
+    rx = sim.rays.assign(e=sim.rays["e"] + ORIGIN[0], n=sim.rays["n"] + ORIGIN[1])
+    moved = shapely.transform(sim.buildings.geometry.to_numpy(), lambda xy: xy + ORIGIN)
+    return rx, sim.buildings.set_geometry(moved).set_crs(27700)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--km", type=float, default=2.0, help="side of the city (km)")
@@ -95,19 +113,7 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
     t = time.perf_counter()
-    blocks = int(args.km * 1000 // 60)
-    scene = city_scene(
-        np.random.default_rng(args.seed),
-        blocks,
-        blocks,
-        walkers=args.walkers,
-        walk_seconds=args.seconds,
-        walk_length=600.0,
-    )
-    sim = simulate(scene, locations="gnss", seed=args.seed)
-    rx = sim.rays.assign(e=sim.rays["e"] + ORIGIN[0], n=sim.rays["n"] + ORIGIN[1])
-    moved = shapely.transform(sim.buildings.geometry.to_numpy(), lambda xy: xy + ORIGIN)
-    buildings = sim.buildings.set_geometry(moved).set_crs(27700)
+    rx, buildings = bng_city(args.km, args.walkers, args.seconds, args.seed)
     side = args.km * 1000.0
     print(
         f"{side / 1000:.2f} km city: {len(buildings):,} buildings, {len(rx):,} signals from "

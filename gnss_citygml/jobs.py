@@ -30,6 +30,7 @@ __all__ = [
     "convert_file",
     "estimate_file",
     "export_file",
+    "is_tile_folder",
     "read_buildings",
 ]
 
@@ -75,12 +76,16 @@ def estimate_file(
     :func:`gnss_citygml.pipeline.run` for the rest of the arguments). Both outputs are
     checked before any work; one of them must be given. ``observations`` may be a partition
     folder (:mod:`gnss_citygml.partition`), read tile by tile in a run with ``tiling``
-    (:func:`gnss_citygml.pipeline.run_partitioned`)."""
+    (:func:`gnss_citygml.pipeline.run_partitioned`). In a run with ``tiling``, an ``output``
+    without a suffix is a folder that each tile's worker writes its heights into
+    (:func:`~gnss_citygml.pipeline.write_tiles`): the heights are not gathered, and the tile
+    index is returned in their place."""
     from .compare import check_truth
     from .footprints import read_footprints
     from .observations import read_observations
     from .partition import partition_run
-    from .pipeline import STAGES, run, run_partitioned
+    from .paths import check_new_folder
+    from .pipeline import STAGES, run, run_partitioned, write_tiles
     from .report import check_report, write_report
     from .styles import heights_qml
     from .tables import check_layer_output, read_table, write_layer
@@ -104,7 +109,17 @@ def estimate_file(
     partitioned = Path(observations).is_dir()
     if partitioned:
         partition_run(observations, tiling)
-    if output is not None:
+    folder = output if output is not None and is_tile_folder(output) else None
+    if folder is not None and not tiling.on:
+        raise InputError(
+            "an output without a suffix is a folder of tiles, which only a run in tiles writes",
+            where=str(output),
+            fix="give --scheduler local (or a scheduler's address), or name the output .gpkg, "
+            ".fgb or .parquet",
+        )
+    if folder is not None:
+        check_new_folder(folder, overwrite=overwrite)
+    elif output is not None:
         check_layer_output(output, "heights", overwrite=overwrite)
     if report is not None:
         check_report(report, overwrite=overwrite)
@@ -128,6 +143,14 @@ def estimate_file(
         "dem_crs": dem_crs,
         "progress": stage,
     }
+    if folder is not None:  # each tile's heights are written by its worker
+        fp = read_footprints(footprints, layer=layer, id_field=id_field, grid_dir=grid_dir)
+        obs = observations if partitioned else read_observations(observations)
+        index = write_tiles(
+            obs, fp, dem, folder, grid_dir=grid_dir, overwrite=overwrite, **settings
+        )
+        progress("done", 1.0)
+        return index
     if partitioned:  # each tile reads its own partitions
         fp = read_footprints(footprints, layer=layer, id_field=id_field, grid_dir=grid_dir)
         heights, _ = run_partitioned(observations, fp, dem, **settings)
@@ -144,6 +167,12 @@ def estimate_file(
         write_report(result, report, truth=true, overwrite=overwrite)
     progress("done", 1.0)
     return heights
+
+
+def is_tile_folder(output: StrPath) -> bool:
+    """Whether ``output`` names a folder of tiles (no suffix; :mod:`gnss_citygml.tile_output`)
+    rather than one file."""
+    return Path(output).suffix == ""
 
 
 def read_buildings(

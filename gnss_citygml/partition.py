@@ -19,9 +19,6 @@ groups are found per file); each file's signals are numbered after the previous 
 from __future__ import annotations
 
 import json
-import os
-import shutil
-import uuid
 from collections.abc import Callable, Sequence
 from dataclasses import asdict
 from pathlib import Path
@@ -33,7 +30,7 @@ import pandas as pd
 from .errors import InputError
 from .geodesy import CrsInput
 from .observations import read_observations
-from .paths import StrPath
+from .paths import StrPath, atomic_folder
 from .pipeline import in_mask, receivers, recordings
 from .settings import (
     DEFAULT_TILE_SIZE,
@@ -88,15 +85,12 @@ def partition_observations(
     ``position_error.window`` decides the position-error groups here; the run in tiles must
     use the same (it checks). ``progress`` is told each file's name as it starts.
     """
-    folder = Path(folder)
-    check_partition_output(folder, overwrite=overwrite)
     tile_size = DEFAULT_TILE_SIZE if tile_size is None else tile_size
     check_tile_size(tile_size)
     say = progress or (lambda text: None)
-    work = folder.with_name(f".{folder.name}.part-{uuid.uuid4().hex[:8]}")
     tiles: dict[str, dict[str, int]] = {}
     signals = 0
-    try:
+    with atomic_folder(folder, overwrite=overwrite) as work:
         for k, path in enumerate(observations):
             say(str(path))
             obs = in_mask(read_observations(path), rays)
@@ -128,38 +122,8 @@ def partition_observations(
             "signals": signals,
             "tiles": dict(sorted(tiles.items())),
         }
-        work.mkdir(parents=True, exist_ok=True)
         (work / INDEX).write_text(json.dumps(index, indent=1))
-        _put_in_place(work, folder, overwrite)
-    finally:
-        shutil.rmtree(work, ignore_errors=True)
     return index
-
-
-def check_partition_output(folder: StrPath, *, overwrite: bool) -> None:
-    """Refuse, before any work, an output folder that exists (unless ``overwrite``) or is a
-    file."""
-    folder = Path(folder)
-    if folder.exists() and not folder.is_dir():
-        raise InputError("the partition folder is a file", where=str(folder), fix="give a folder")
-    if folder.exists() and not overwrite:
-        raise InputError(
-            "output exists", where=str(folder), fix="give another folder, or --overwrite"
-        )
-
-
-def _put_in_place(work: Path, folder: Path, overwrite: bool) -> None:
-    """Rename the finished ``work`` folder to ``folder``; an old one goes only once the new one
-    is there (a rename of a folder cannot replace a non-empty one)."""
-    old = None
-    if folder.exists():
-        if not overwrite:
-            raise InputError("output exists", where=str(folder), fix="give --overwrite")
-        old = folder.with_name(f".{folder.name}.old-{uuid.uuid4().hex[:8]}")
-        os.rename(folder, old)
-    os.rename(work, folder)
-    if old is not None:
-        shutil.rmtree(old, ignore_errors=True)
 
 
 def read_index(folder: StrPath) -> dict[str, Any]:

@@ -24,8 +24,10 @@ from .errors import InputError
 
 __all__ = [
     "StrPath",
+    "atomic_folder",
     "atomic_path",
     "check_output",
+    "check_new_folder",
     "check_output_folder",
     "input_file",
     "make_folder",
@@ -177,6 +179,56 @@ def make_folder(folder: StrPath) -> Path:
             fix=f"check the path and its permissions ({exc.strerror})",
         ) from None
     return folder
+
+
+def check_new_folder(folder: StrPath, *, overwrite: bool, what: str = "output folder") -> Path:
+    """Refuse, before any work, a folder output (written whole by :func:`atomic_folder`) that
+    is a file, or exists without ``overwrite``, or whose parent is missing."""
+    folder = Path(folder)
+    if folder.exists() and not folder.is_dir():
+        raise InputError(f"the {what} is a file", where=str(folder), fix="give a folder")
+    if folder.exists() and not overwrite:
+        raise InputError(
+            "output exists", where=str(folder), fix="give another folder, or --overwrite"
+        )
+    if not folder.absolute().parent.is_dir():
+        raise InputError(
+            "output folder does not exist",
+            where=str(folder.absolute().parent),
+            fix="create it first",
+        )
+    return folder
+
+
+@contextlib.contextmanager
+def atomic_folder(folder: StrPath, *, overwrite: bool = False) -> Iterator[Path]:
+    """Yield a new folder beside ``folder`` to fill; rename it to ``folder`` if the block
+    succeeds, else remove it. An old ``folder`` is replaced (with ``overwrite``) only once the
+    new one is complete: it is renamed aside first (a rename cannot replace a non-empty
+    folder) and removed after."""
+    folder = check_new_folder(folder, overwrite=overwrite)
+    work = folder.with_name(f".{folder.name}.part-{secrets.token_hex(4)}")
+    try:
+        work.mkdir()
+    except OSError as exc:
+        raise InputError(
+            "cannot write to the output folder",
+            where=str(folder.absolute().parent),
+            fix=f"check its permissions and free space ({exc.strerror})",
+        ) from None
+    try:
+        yield work
+        old = None
+        if folder.exists():
+            if not overwrite:
+                raise InputError("output exists", where=str(folder), fix="give --overwrite")
+            old = folder.with_name(f".{folder.name}.old-{secrets.token_hex(4)}")
+            os.rename(folder, old)
+        os.rename(work, folder)
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
 
 
 @contextlib.contextmanager

@@ -10,6 +10,7 @@ starts, so a command line or QGIS can show it.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -26,7 +27,7 @@ from .ids import id_field, source_named, with_id_field
 from .model.classifier import SignalClassifier
 from .model.estimate import HEIGHTS_COLUMNS, estimate_heights
 from .observations import check_observations, satellites
-from .paths import StrPath
+from .paths import StrPath, atomic_folder, check_new_folder
 from .raycast import footprint_entries
 from .recordings import position_groups
 from .settings import (
@@ -53,6 +54,7 @@ __all__ = [
     "recordings",
     "run",
     "run_partitioned",
+    "write_tiles",
 ]
 
 #: The stages :func:`estimate` reports to ``progress``, in order.
@@ -329,8 +331,26 @@ def run(
     """
     calibration.check_method(estimator)
     tiling.check(estimator, calibration)
-    check_bng(footprints, "footprints")
     say = progress or (lambda stage: None)
+    rx, buildings = _prepared(
+        observations, footprints, dem, rays, receiver_heights, grid_dir, dem_crs, say
+    )
+    if tiling.on:
+        in_tiles = _in_memory(rx, buildings, rays, estimator, position_error, tiling.side, say)
+        heights, classifier = _on_cluster(
+            in_tiles, buildings, estimator, tiling, tiling.side, footprints, say
+        )
+        return Run(heights, rx, None, buildings, classifier)
+    if calibration.on:
+        rx = calibrate_receivers(rx, buildings, calibration, estimator=estimator, rays=rays)
+    inter = intersections(rx, buildings, rays=rays, position_error=position_error)
+    heights, classifier = fit_heights(inter, buildings, estimator, id_field(footprints), say)
+    return Run(heights, rx, inter, buildings, classifier)
+
+
+def _prepared(observations, footprints, dem, rays, receiver_heights, grid_dir, dem_crs, say):
+    """The stages before the rays: the receivers table and the buildings with their ground."""
+    check_bng(footprints, "footprints")
     say(STAGES[0])
     obs = in_mask(observations, rays)
     if obs.empty:
@@ -343,41 +363,34 @@ def run(
     rx = receivers(obs, dem, heights=receiver_heights, grid_dir=grid_dir, dem_crs=dem_crs)
     _check_near(rx, footprints, rays.max_range)
     say(STAGES[2])
-    buildings = footprints
-    if dem is not None:
-        buildings = building_ground(footprints, dem, assume_crs=dem_crs)
-    elif "ground" not in buildings.columns:
-        raise InputError("building ground heights need a DEM", fix="give --dem")
+    buildings = _grounded(footprints, dem, dem_crs)
     say(STAGES[3])
-    if tiling.on:
-        return _tiled(rx, buildings, rays, estimator, position_error, tiling, footprints, say)
-    if calibration.on:
-        rx = calibrate_receivers(rx, buildings, calibration, estimator=estimator, rays=rays)
-    inter = intersections(rx, buildings, rays=rays, position_error=position_error)
-    heights, classifier = fit_heights(inter, buildings, estimator, id_field(footprints), say)
-    return Run(heights, rx, inter, buildings, classifier)
+    return rx, buildings
 
 
-def _tiled(rx, buildings, rays, estimator, position_error, tiling, footprints, say) -> Run:
-    """The ray casting and height model stages in tiles on a Dask cluster."""
+def _grounded(footprints, dem, dem_crs):
+    """The footprints with their ``ground`` from the DEM (or their own ``ground`` column)."""
+    if dem is not None:
+        return building_ground(footprints, dem, assume_crs=dem_crs)
+    if "ground" not in footprints.columns:
+        raise InputError("building ground heights need a DEM", fix="give --dem")
+    return footprints
+
+
+def _in_memory(rx, buildings, rays, estimator, position_error, size, say):
+    """The run in tiles of receivers in memory, given an engine (and an output folder)."""
     from .tiled import tiled_heights
 
-    def in_tiles(engine):
-        return tiled_heights(
-            rx,
-            buildings,
-            estimator=estimator,
-            rays=rays,
-            position_error=position_error,
-            tile_size=tiling.side,
-            engine=engine,
-            progress=say,
-        )
-
-    heights, classifier = _on_cluster(
-        in_tiles, buildings, estimator, tiling, tiling.side, footprints, say
+    return functools.partial(
+        tiled_heights,
+        rx,
+        buildings,
+        estimator=estimator,
+        rays=rays,
+        position_error=position_error,
+        tile_size=size,
+        progress=say,
     )
-    return Run(heights, rx, None, buildings, classifier)
 
 
 def run_partitioned(
@@ -399,10 +412,30 @@ def run_partitioned(
     final signal classifier. Each tile reads its own partitions
     (:func:`~gnss_citygml.tiled.partitioned_heights`). The settings the partition applied
     (elevation mask, receiver heights, position-error window) must be the run's."""
+    say = progress or (lambda stage: None)
+    in_tiles, buildings, size = _partitioned(
+        folder,
+        footprints,
+        dem,
+        rays,
+        receiver_heights,
+        estimator,
+        position_error,
+        tiling,
+        dem_crs,
+        say,
+    )
+    return _on_cluster(in_tiles, buildings, estimator, tiling, size, footprints, say)
+
+
+def _partitioned(
+    folder, footprints, dem, rays, receiver_heights, estimator, position_error, tiling, dem_crs, say
+):
+    """The stages before the rays of a partition's run in tiles: the run in tiles (given an
+    engine and an output folder), the buildings with their ground and the tile size."""
     from .partition import check_partition, partition_run
     from .tiled import partitioned_heights
 
-    say = progress or (lambda stage: None)
     index = partition_run(folder, tiling)
     tiling.check(estimator, Calibration())
     check_bng(footprints, "footprints")
@@ -410,37 +443,82 @@ def run_partitioned(
     check_partition(index, rays, position_error, receiver_heights)
     say(STAGES[1])  # the partition holds the receivers
     say(STAGES[2])
-    buildings = footprints
-    if dem is not None:
-        buildings = building_ground(footprints, dem, assume_crs=dem_crs)
-    elif "ground" not in buildings.columns:
-        raise InputError("building ground heights need a DEM", fix="give --dem")
+    buildings = _grounded(footprints, dem, dem_crs)
     say(STAGES[3])
+    in_tiles = functools.partial(
+        partitioned_heights,
+        folder,
+        buildings,
+        estimator=estimator,
+        rays=rays,
+        position_error=position_error,
+        progress=say,
+    )
+    return in_tiles, buildings, float(index["tile_size"])
 
-    def in_tiles(engine):
-        return partitioned_heights(
-            folder,
-            buildings,
-            estimator=estimator,
-            rays=rays,
-            position_error=position_error,
-            engine=engine,
-            progress=say,
+
+def write_tiles(
+    observations: pd.DataFrame | StrPath,
+    footprints: gpd.GeoDataFrame,
+    dem: Dem | None,
+    output: StrPath,
+    *,
+    rays: Rays = Rays(),
+    receiver_heights: ReceiverHeights = ReceiverHeights(),
+    estimator: Estimator = Estimator(),
+    position_error: PositionError = PositionError(),
+    tiling: Tiling = Tiling("local"),
+    grid_dir: StrPath | None = None,
+    dem_crs: CrsInput | None = None,
+    overwrite: bool = False,
+    progress: Callable[[str], None] | None = None,
+) -> gpd.GeoDataFrame:
+    """As :func:`run` in tiles (or :func:`run_partitioned`, when ``observations`` is a
+    partition folder), with each tile's heights written into the folder ``output`` by the
+    worker that fitted it (:mod:`gnss_citygml.tile_output`), never gathered on one machine.
+    Returns the tile index (also ``output/tiles.gpkg``). The folder appears whole or not at
+    all; an existing one is replaced only with ``overwrite`` (checked before any work)."""
+    check_new_folder(output, overwrite=overwrite)
+    say = progress or (lambda stage: None)
+    if isinstance(observations, pd.DataFrame):
+        tiling.check(estimator, Calibration())
+        rx, buildings = _prepared(
+            observations, footprints, dem, rays, receiver_heights, grid_dir, dem_crs, say
         )
+        size = tiling.side
+        in_tiles = _in_memory(rx, buildings, rays, estimator, position_error, size, say)
+    else:
+        settings = (rays, receiver_heights, estimator, position_error, tiling, dem_crs, say)
+        in_tiles, buildings, size = _partitioned(observations, footprints, dem, *settings)
+    index, _ = _on_cluster(
+        in_tiles, buildings, estimator, tiling, size, footprints, say, output, overwrite
+    )
+    return index
 
-    size = float(index["tile_size"])
-    return _on_cluster(in_tiles, buildings, estimator, tiling, size, footprints, say)
 
-
-def _on_cluster(in_tiles, buildings, estimator, tiling, size, footprints, say):
-    """``in_tiles(engine)`` on the cluster ``tiling`` names, joined onto the buildings, with
-    each building's ``tile`` (of ``size`` metres; the tile index of the output: a failed
-    tile's buildings, or one tile's, are a filter away)."""
+def _on_cluster(
+    in_tiles, buildings, estimator, tiling, size, footprints, say, output=None, overwrite=False
+):
+    """``in_tiles(engine=...)`` on the cluster ``tiling`` names, joined onto the buildings,
+    with each building's ``tile`` (of ``size`` metres; the tile index of the output: a
+    failed tile's buildings, or one tile's, are a filter away). With ``output``, the tiles
+    write their heights into that folder instead, and the tile index is returned."""
     from .cluster import connect  # the [dask] extra: only when asked for
+    from .tile_output import TileFolder, write_index
     from .tiles import building_tiles
 
     with connect(tiling) as engine:
-        table, classifier = in_tiles(engine)
+        if output is not None:
+            with atomic_folder(output, overwrite=overwrite) as work:
+                folder = TileFolder(
+                    str(work.absolute()), estimator.method, id_field(footprints), size
+                )
+                index, classifier = in_tiles(engine=engine, output=folder)
+                say(STAGES[4])
+                say(STAGES[5])
+                write_index(index, work)
+            return index, classifier
+        table, classifier = in_tiles(engine=engine)
     say(STAGES[4])
     say(STAGES[5])
     heights = join_heights(buildings, table, estimator.method, id_field(footprints))

@@ -14,6 +14,7 @@ as in the whole run. :func:`tiled_heights` takes the receivers in memory;
 
 from __future__ import annotations
 
+import functools
 import uuid
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
@@ -32,11 +33,13 @@ from .partition import check_partition, read_index, read_receivers, tile_files
 from .paths import StrPath
 from .pipeline import intersections, recordings
 from .settings import DEFAULT_TILE_SIZE, Estimator, PositionError, Rays
+from .tile_output import TileFolder, tile_index_frame
 from .tiles import Tile, building_tiles, plan_tiles, receiver_tiles
 
 __all__ = [
     "FailedTile",
     "failed_tiles",
+    "no_heights",
     "partition_part",
     "partitioned_heights",
     "tile_heights",
@@ -55,13 +58,16 @@ def tiled_heights(
     tile_size: float = DEFAULT_TILE_SIZE,
     engine: Engine | None = None,
     progress: Callable[[str], None] | None = None,
+    output: TileFolder | None = None,
 ) -> tuple[pd.DataFrame, SignalClassifier]:
     """The heights table of :func:`~gnss_citygml.model.estimate.estimate_heights` on
     :func:`~gnss_citygml.pipeline.intersections` of ``receivers`` (the pipeline's receivers
     table, :func:`~gnss_citygml.pipeline.receivers`) and ``buildings``, computed in tiles of
     ``tile_size`` metres, and the final signal classifier. The intersections are never
     gathered: each tile casts its own (on ``engine``'s workers). ``progress`` is told what is
-    being done ("tile plan: 16 tiles", "iteration 3").
+    being done ("tile plan: 16 tiles", "iteration 3"). With ``output``, each tile's worker
+    writes its heights there (:mod:`gnss_citygml.tile_output`), nobody gathers them, and the
+    table returned is the tile index instead.
     """
     say = progress or (lambda text: None)
     rx = receivers.reset_index(drop=True)
@@ -82,7 +88,7 @@ def tiled_heights(
         )
         for tile in tiles
     ]
-    return _run_tiles(tiles, casts, buildings, tile_size, estimator, engine, say)
+    return _run_tiles(tiles, casts, buildings, tile_size, estimator, engine, say, output)
 
 
 def partitioned_heights(
@@ -94,6 +100,7 @@ def partitioned_heights(
     position_error: PositionError = PositionError(),
     engine: Engine | None = None,
     progress: Callable[[str], None] | None = None,
+    output: TileFolder | None = None,
 ) -> tuple[pd.DataFrame, SignalClassifier]:
     """As :func:`tiled_heights`, from a partition folder
     (:func:`~gnss_citygml.partition.partition_observations`, whose tiles it uses): each tile
@@ -128,41 +135,59 @@ def partitioned_heights(
         cast = buildings.iloc[np.concatenate([own, halo])]
         casts.append((partition_part, files, cast, own.size, size, estimator, rays, position_error))
     say(f"tile plan: {len(tiles)} tiles of {size:g} m from {len(squares)} partitions")
-    return _run_tiles(tiles, casts, buildings, size, estimator, engine, say)
+    return _run_tiles(tiles, casts, buildings, size, estimator, engine, say, output)
 
 
-def _run_tiles(tiles, casts, buildings, size, estimator, engine, say):
-    """4PL-B over the tiles, each made by its cast (a function and its arguments)."""
+def _run_tiles(tiles, casts, buildings, size, estimator, engine, say, output):
+    """4PL-B over the tiles, each made by its cast (a function and its arguments): the
+    heights table, or with ``output`` the tile index of the tiles written there."""
     if not tiles:
         raise InputError(
             "no building has a receiver within the rays' reach",
             fix="give footprints that cover where the observations were made",
         )
     engine = engine or InProcess()
-    neighbours = _neighbours(tiles, building_tiles(buildings, size))
+    owner = building_tiles(buildings, size)
+    neighbours = _neighbours(tiles, owner)
     run = uuid.uuid4().hex[:8]  # the steps' names are this run's alone on a shared cluster
     names = [f"{tile.name}-{run}" for tile in tiles]
     parts = [
         engine.submit(*cast, key=f"cast-{name}") for cast, name in zip(casts, names, strict=True)
     ]
     ids = buildings["id"].astype(str).to_numpy()
+    failed = {}
     for k, why in engine.failures(parts).items():
         say(f"tile {tiles[k].name} failed: {why}")
         parts[k] = FailedTile(tiles[k].name, ids[tiles[k].buildings], why)
+        failed[tiles[k].name] = why
     tables, classifier = run_parts(
         parts,
         neighbours,
         estimator,
         engine,
         progress=lambda k: say(f"iteration {k}"),
-        finish=tile_heights,
+        finish=functools.partial(tile_heights, method=estimator.method),
         names=names,
     )
-    heights = pd.concat(tables, ignore_index=True)
-    heights["method"] = estimator.method
-    heights = heights[HEIGHTS_COLUMNS]
-    heights.attrs["signal_classifier"] = asdict(classifier)
-    return heights, classifier
+    if output is None:
+        heights = pd.concat(engine.gather(tables), ignore_index=True)
+        heights.attrs["signal_classifier"] = asdict(classifier)
+        return heights, classifier
+    made = {tile.name: table for tile, table in zip(tiles, tables, strict=True)}
+    groups = pd.Series(np.arange(len(owner))).groupby(owner)
+    say(f"writing {groups.ngroups} tiles")
+    rows = [
+        engine.submit(
+            output.write,
+            made.get(str(name), no_heights(ids[:0], estimator.method, "")),
+            buildings.iloc[own.to_numpy()],
+            str(name),
+            failed.get(str(name), ""),
+            key=f"write-{name}-{run}",
+        )
+        for name, own in groups
+    ]
+    return tile_index_frame(engine.gather(rows), size), classifier
 
 
 def partition_part(
@@ -206,12 +231,33 @@ def tile_part(
     return intersections_part(inter, estimator, own=own)[1]
 
 
-def tile_heights(part: Part | FailedTile, iterations: int) -> pd.DataFrame:
-    """The heights table's rows of a tile's own buildings (every one its signals cross)."""
+def tile_heights(part: Part | FailedTile, iterations: int, method: str) -> pd.DataFrame:
+    """The heights table's rows of a tile's own buildings (every one its signals cross),
+    fitted with ``method``."""
     if isinstance(part, FailedTile):
-        return part.heights()
+        return part.heights(method)
     fits = part.judged(iterations)
-    return pd.DataFrame({"id": part.building[: part.n_own], **fits.columns()})
+    table = pd.DataFrame({"id": part.building[: part.n_own], **fits.columns()})
+    table["method"] = method
+    return table[HEIGHTS_COLUMNS]
+
+
+def no_heights(ids: np.ndarray, method: str, status: str) -> pd.DataFrame:
+    """The heights table's rows of buildings ``ids`` that have no estimate, and why
+    (``status``), with the table's column types."""
+    n = ids.size
+    fits = {c: np.full(n, np.nan) for c in HEIGHTS_COLUMNS if c not in _NOT_FLOAT}
+    return pd.DataFrame(
+        {
+            "id": ids,
+            **fits,
+            "n_signals": np.zeros(n, dtype=np.int64),
+            "iterations": np.zeros(n, dtype=np.int64),
+            "converged": np.zeros(n, dtype=bool),
+            "method": method,
+            "status": pd.Series([status] * n, dtype=object),
+        }
+    )[HEIGHTS_COLUMNS]
 
 
 @dataclass(frozen=True)
@@ -239,20 +285,9 @@ class FailedTile:
         """No signal to count, no label to change."""
         return self, Tally(Cn0Counts.of([], []), plausible=False, change=0.0)
 
-    def heights(self) -> pd.DataFrame:
+    def heights(self, method: str) -> pd.DataFrame:
         """The heights table's rows of the tile's buildings: not estimated, and why."""
-        n = self.building.size
-        fits = {c: np.full(n, np.nan) for c in HEIGHTS_COLUMNS if c not in _NOT_FLOAT}
-        return pd.DataFrame(
-            {
-                "id": self.building,
-                **fits,
-                "n_signals": np.zeros(n, dtype=np.int64),
-                "iterations": np.zeros(n, dtype=np.int64),
-                "converged": np.zeros(n, dtype=bool),
-                "status": _FAILED.format(self.name, self.reason),
-            }
-        )
+        return no_heights(self.building, method, _FAILED.format(self.name, self.reason))
 
 
 #: The heights table's columns that are not floats (or are set apart).
@@ -264,8 +299,12 @@ _FAILED_RE = r"^tile (?P<tile>\S+) failed: (?P<reason>.*)$"
 
 
 def failed_tiles(heights: pd.DataFrame) -> pd.DataFrame:
-    """The tiles of a run whose cast failed (:class:`FailedTile`), from its heights: one row
-    per tile with ``tile``, ``reason`` and ``buildings`` (how many have no height for it)."""
+    """The tiles of a run whose cast failed (:class:`FailedTile`), from its heights or its
+    tile index (:mod:`gnss_citygml.tile_output`): one row per tile with ``tile``, ``reason``
+    and ``buildings`` (how many have no height for it)."""
+    if "failed" in heights.columns:  # a tile index
+        failed = heights.loc[heights["failed"] != "", ["tile", "failed", "buildings"]]
+        return failed.rename(columns={"failed": "reason"}).reset_index(drop=True)
     status = heights["status"].astype(str)
     failed = status[status.str.startswith("tile ")].str.extract(_FAILED_RE).dropna()
     return failed.groupby(["tile", "reason"], sort=True).size().rename("buildings").reset_index()

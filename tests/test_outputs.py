@@ -16,7 +16,7 @@ import shapely
 from test_cli import run
 
 from gnss_citygml.errors import InputError
-from gnss_citygml.paths import _HOST, atomic_path, stale_parts
+from gnss_citygml.paths import _HOST, atomic_folder, atomic_path, stale_parts
 from gnss_citygml.simulate.files import check_site
 from gnss_citygml.validate import validate_file
 
@@ -313,3 +313,33 @@ def test_simulate_into_a_file_or_over_a_site(tmp_path, capsys):
     code, _, err = run(["simulate", "ucl", "-o", str(tmp_path / "old")], capsys)
     assert code == 2 and "output exists" in err and "intersections.csv" in err
     assert [p.name for p in (tmp_path / "old").iterdir()] == ["intersections.csv"]
+
+
+def test_a_folder_output_appears_whole_or_not_at_all(tmp_path):
+    """atomic_folder: filled beside under another name, renamed into place when complete;
+    a failure leaves nothing; an old folder goes only with overwrite, once the new one is
+    there."""
+    out = tmp_path / "tiles"
+    with pytest.raises(RuntimeError, match="worker died"):
+        with atomic_folder(out) as work:
+            (work / "a.parquet").write_text("half")
+            raise RuntimeError("worker died")
+    assert list(tmp_path.iterdir()) == []
+    with atomic_folder(out) as work:
+        assert work.parent == tmp_path and work.name.startswith(".tiles.part-")
+        (work / "a.parquet").write_text("old")
+    assert [p.name for p in tmp_path.iterdir()] == ["tiles"]
+    with pytest.raises(InputError, match="output exists"):
+        with atomic_folder(out):
+            pytest.fail("the block must not run")
+    with atomic_folder(out, overwrite=True) as work:
+        (work / "b.parquet").write_text("new")
+    assert [p.name for p in tmp_path.iterdir()] == ["tiles"]
+    assert [p.name for p in out.iterdir()] == ["b.parquet"]
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(InputError, match="is a file"):
+        with atomic_folder(tmp_path / "file", overwrite=True):
+            pass
+    with pytest.raises(InputError, match="output folder does not exist"):
+        with atomic_folder(tmp_path / "missing" / "tiles"):
+            pass

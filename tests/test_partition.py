@@ -21,6 +21,7 @@ from gnss_citygml.partition import INDEX, partition_observations, read_index
 from gnss_citygml.pipeline import in_mask, intersections, receivers, run_partitioned
 from gnss_citygml.settings import ReceiverHeights, Tiling
 from gnss_citygml.terrain import building_ground
+from gnss_citygml.tile_output import TileFolder
 from gnss_citygml.tiled import partitioned_heights
 from gnss_citygml.tiles import building_tiles
 
@@ -79,6 +80,29 @@ def test_a_run_from_a_partition_gives_the_single_runs_heights(halves, tmp_path):
     assert said[0] == "tile plan: 12 tiles of 100 m from 15 partitions"
     assert single["converged"].sum() >= 10
     assert_same_heights(tiled, single)
+    # written tile by tile: the same heights, read back whole; the far tile has its building
+    out = TileFolder(str(tmp_path / "t"), "4PL-B", "id", 100.0)
+    index, _ = partitioned_heights(tmp_path / "p", buildings, output=out)
+    written = gpd.read_parquet(tmp_path / "t" / "heights")
+    assert sorted(written["id"]) == sorted(buildings["id"])
+    assert written.crs == buildings.crs
+    alone = written.set_index("id").loc["far"]
+    assert alone["status"] == "no signal's ray enters the footprint" and not alone["converged"]
+    assert alone["tile"] == building_tiles(far, 100.0)[0]
+    kept = written.set_index("id").drop(index="far").sort_index()
+    one = single.set_index("id").sort_index()
+    assert kept.index.tolist() == one.index.tolist() and (kept["status"] == one["status"]).all()
+    for column in ("height", "height_lower", "height_upper", "c", "n_signals", "iterations"):
+        np.testing.assert_array_equal(kept[column], one[column], err_msg=column)
+    assert len(index) == 13 and index["tile"].is_unique and (index["failed"] == "").all()
+    assert index["buildings"].sum() == len(buildings)
+    assert index["with_height"].sum() == single["converged"].sum()
+    for row in index.itertuples():  # each tile's square holds its buildings; its file is there
+        mine = written[written["tile"] == row.tile]
+        assert len(mine) == row.buildings and mine["converged"].sum() == row.with_height
+        assert row.geometry.area == 100.0**2
+        assert row.geometry.contains(mine.geometry.representative_point()).all()
+        assert (tmp_path / "t" / row.location).is_file()
 
 
 def test_the_commands_partition_and_estimate_from_it_on_a_local_cluster(
@@ -116,6 +140,24 @@ def test_the_commands_partition_and_estimate_from_it_on_a_local_cluster(
     assert b["tile"].nunique() == 12
     for column in ("height", "height_lower", "height_upper", "relative_height"):
         np.testing.assert_array_equal(b[column], a[column], err_msg=column)
+    # written tile by tile into a folder (no suffix), by the workers
+    tiled[tiled.index("-o") + 1] = str(tmp_path / "tiles")
+    code, out, err = run(tiled, capsys)
+    assert code == 0, err
+    assert out.strip().endswith(f"buildings have a height -> {tmp_path / 'tiles'} (12 tiles)")
+    c = gpd.read_parquet(tmp_path / "tiles" / "heights").set_index("id").sort_index()
+    assert c.index.tolist() == b.index.tolist() and (c["status"] == b["status"]).all()
+    assert c["tile"].astype(str).tolist() == b["tile"].tolist()
+    for column in ("height", "height_lower", "height_upper", "relative_height"):
+        np.testing.assert_array_equal(c[column], a[column], err_msg=column)
+    index = gpd.read_file(tmp_path / "tiles" / "tiles.gpkg", layer="tiles")
+    assert sorted(index["tile"]) == sorted(b["tile"].unique())
+    assert index["with_height"].sum() == a["converged"].sum()
+    code, _, err = run(tiled, capsys)  # the folder exists now
+    assert code == 2 and "output exists" in err and "--overwrite" in err
+    code, _, err = run([*tiled, "--overwrite"], capsys)
+    assert code == 0, err
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".")) == []
 
 
 @pytest.mark.parametrize(

@@ -22,6 +22,7 @@ from gnss_citygml.pipeline import intersections
 from gnss_citygml.settings import Estimator, Tiling
 from gnss_citygml.simulate import simulate
 from gnss_citygml.simulate.scenes import city_scene
+from gnss_citygml.tile_output import TileFolder
 from gnss_citygml.tiled import failed_tiles, tiled_heights
 from gnss_citygml.tiles import building_tiles
 
@@ -150,7 +151,7 @@ def test_killing_a_worker_mid_run_does_not_change_the_heights(scene, single, eng
     assert_same_heights(tiled, single)
 
 
-def test_a_tile_that_fails_twice_is_reported_by_name_and_the_others_go_on(scene, engine):
+def test_a_tile_that_fails_twice_is_reported_by_name_and_the_others_go_on(scene, engine, tmp_path):
     """One signal, whose ray crosses the buildings of one tile only, has a negative position
     error: that tile refuses its rows (twice: Dask retries it), its buildings say so, and the
     other tiles estimate theirs. In one process the same input stops the run."""
@@ -175,6 +176,14 @@ def test_a_tile_that_fails_twice_is_reported_by_name_and_the_others_go_on(scene,
     summary = failed_tiles(tiled)  # what the command's warning says
     assert summary["tile"].tolist() == [tile] and summary["buildings"].tolist() == [lost.sum()]
     assert summary["reason"][0].startswith("InputError: height_sd must be a finite number")
+    # written tile by tile: the failed tile is in the index, its file says why
+    out = TileFolder(str(tmp_path / "t"), "4PL-B", "id", 100.0)
+    flat = buildings.assign(ground=0.0)  # the simulator's ground
+    index, _ = tiled_heights(broken, flat, tile_size=100.0, engine=engine, output=out)
+    pd.testing.assert_frame_equal(failed_tiles(index), summary)
+    written = gpd.read_parquet(tmp_path / "t" / "heights" / f"tile={tile}")
+    assert written["status"].str.startswith(f"tile {tile} failed: InputError: ").all()
+    assert set(written["id"]) == set(owner.index[owner == tile])
     with pytest.raises(InputError, match="height_sd must be"):
         tiled_heights(broken, buildings, tile_size=100.0)
 
@@ -236,12 +245,14 @@ def test_the_command_line_runs_in_tiles_on_a_local_cluster(grid_args, tmp_path, 
         (["--tile-size", "500"], "a tile size is for a run on a Dask scheduler"),
         (["--scheduler", "local", "--method", "hinge"], "runs 4PL-B or 4PL, not hinge"),
         (["--scheduler", "local", "--calibration-sd", "5"], "self-calibration is not available"),
+        ([], "an output without a suffix is a folder of tiles, which only a run in tiles"),
     ],
 )
 def test_what_a_run_in_tiles_cannot_do_is_refused_before_any_work(
     grid_args, tmp_path, capsys, extra, message
 ):
     extra = [str(tmp_path / e) if e == "r" else e for e in extra]
-    code, _, err = run(estimate(tmp_path, grid_args, "h.gpkg", *extra), capsys)
+    output = "h.gpkg" if extra else "tiles"
+    code, _, err = run(estimate(tmp_path, grid_args, output, *extra), capsys)
     assert code == 2 and err.startswith("error: ") and message in err, err
     assert not list(tmp_path.iterdir())

@@ -28,7 +28,6 @@ from .options import (
     TRUTH,
     dem_file,
     output_dir,
-    output_file,
     progress,
     together,
 )
@@ -81,9 +80,15 @@ _RUN_OPTIONS = together(
 
 
 @click.command()
-@output_file(
-    "Output layer 'heights': a GeoPackage (.gpkg; other layers of an existing one are kept), "
-    "FlatGeobuf (.fgb) or GeoParquet (.parquet)."
+@click.option(
+    "--output",
+    "-o",
+    type=click.Path(path_type=Path),
+    required=True,
+    help="Output layer 'heights': a GeoPackage (.gpkg; other layers of an existing one are "
+    "kept), FlatGeobuf (.fgb) or GeoParquet (.parquet). With --scheduler, a name without a "
+    "suffix is a folder the workers write tile by tile: heights/tile=NAME/part-0.parquet "
+    "and the tile index tiles.gpkg.",
 )
 @REPORT
 @_RUN_OPTIONS
@@ -107,14 +112,20 @@ def estimate(output, report, scheduler, workers, tile_size, **options):
     GeoPackage or any polygon layer, or OS MasterMap Topography GML. The output holds each
     footprint with its estimate; buildings with too little data have empty heights.
     """
+    from ..jobs import is_tile_folder
+
     tiling = Tiling(scheduler=scheduler, workers=workers, size=tile_size)
-    heights = _run(output, report, tiling=tiling, **options)
-    ok = int(heights["converged"].sum())
-    click.echo(f"{ok} of {len(heights)} buildings have a height -> {output}")
+    table = _run(output, report, tiling=tiling, **options)
+    if tiling.on and is_tile_folder(output):  # the tile index
+        ok, n = int(table["with_height"].sum()), int(table["buildings"].sum())
+        click.echo(f"{ok} of {n} buildings have a height -> {output} ({len(table)} tiles)")
+    else:
+        ok = int(table["converged"].sum())
+        click.echo(f"{ok} of {len(table)} buildings have a height -> {output}")
     if tiling.on:
         from ..tiled import failed_tiles
 
-        for tile, why, n in failed_tiles(heights).itertuples(index=False):
+        for tile, why, n in failed_tiles(table).itertuples(index=False):
             click.echo(
                 f"warning: tile {tile} failed ({why}): {n} buildings without a height", err=True
             )

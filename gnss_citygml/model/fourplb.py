@@ -312,8 +312,10 @@ def run_parts(
     classifier (:meth:`Part.exchanged`); the counts are summed and refit the classifier once
     (:class:`Tally`), and the largest change of labels decides whether to go on. ``progress``
     is told each iteration's number as it ends. Returns what ``finish(part, iterations)``
-    gives of each part (default: its :class:`BuildingFits`, :meth:`Part.judged`), and the
-    classifier. ``names`` (one per part, e.g. its tile's) name the steps for the engine.
+    gives of each part (default: its :class:`BuildingFits`, :meth:`Part.judged`), as the
+    engine's handles (the values themselves in one process; futures on a cluster, left
+    where they were made: gather them, or pass them on), and the classifier. ``names`` (one per
+    part, e.g. its tile's) name the steps for the engine.
     A part may be anything with :class:`Part`'s steps, e.g. a failed tile's stand-in
     (:class:`gnss_citygml.tiled.FailedTile`).
     """
@@ -367,7 +369,7 @@ def run_parts(
         engine.submit(finish, p, iterations, key=f"finish-{name}")
         for p, name in zip(parts, names, strict=True)
     ]
-    return list(engine.gather(done)), classifier
+    return done, classifier
 
 
 # The steps as functions of the part, for engines (a Part or a FailedTile alike).

@@ -1,7 +1,8 @@
 """Building footprints: the *buildings* table of DESIGN.md, before its ``ground``.
 
-Footprints come from any polygon layer pyogrio reads (GeoPackage, Shapefile, GeoJSON, ...) or
-from OS MasterMap Topography Layer GML; they leave :func:`read_footprints` as a GeoDataFrame in
+Footprints come from any polygon layer pyogrio reads (GeoPackage, Shapefile, GeoJSON, ...),
+from OS MasterMap Topography Layer GML, or from GeoParquet (a file or a hive folder, such as
+a run's heights written per tile); they leave :func:`read_footprints` as a GeoDataFrame in
 EPSG:27700 with a text ``id``, valid Polygon/MultiPolygon geometries and the input attributes.
 The ground under them comes from a DEM, in :mod:`gnss_citygml.terrain`.
 
@@ -81,7 +82,9 @@ def read_footprints(
         GML file (``.gml`` or ``.gml.gz``; its TopographicArea features whose descriptiveGroup
         includes ``Building`` are read). GML is read with ``WRITE_GFS=NO``: no ``.gfs`` sidecar
         is written next to it. It is checked to be well-formed XML first: GDAL reads no
-        feature at all from a file cut short, without an error.
+        feature at all from a file cut short, without an error. Or GeoParquet: a file, or a
+        folder in the hive layout such as the heights a run in tiles wrote per tile
+        (``FOLDER/heights``, :mod:`gnss_citygml.tile_output`), read by GeoPandas.
     layer
         The layer to read. By default: the only polygon layer of the source, or
         ``TopographicArea`` for MasterMap.
@@ -117,11 +120,20 @@ def read_footprints(
     if kind:  # GDAL reads no feature at all from a GML file that is not well-formed
         _check_xml(Path(where))
     options = {"WRITE_GFS": "NO"} if kind else {}
-    with _nothing_written_beside(where):
-        if layer is None:
-            layer = "TopographicArea" if kind == "mastermap" else _polygon_layer(where, kind)
-        where = f"{where}, layer {layer}" if layer is not None else where
-        frame = _read_layer(path, layer, where, options)
+    if local and _is_geoparquet(Path(where)):
+        if layer is not None:
+            raise InputError(
+                f"GeoParquet has no layers to choose (--layer {layer})",
+                where=where,
+                fix="leave out --layer",
+            )
+        frame = _read_geoparquet(Path(where))
+    else:
+        with _nothing_written_beside(where):
+            if layer is None:
+                layer = "TopographicArea" if kind == "mastermap" else _polygon_layer(where, kind)
+            where = f"{where}, layer {layer}" if layer is not None else where
+            frame = _read_layer(path, layer, where, options)
     if kind == "mastermap" and "descriptiveGroup" in frame.columns:
         frame = frame[_has_building_group(frame["descriptiveGroup"])]
         if id_field is None:
@@ -246,6 +258,32 @@ def _read_layer(path, layer: str | None, where: str, options: dict) -> gpd.GeoDa
         shapely.errors.GEOSException,
     ) as exc:
         raise _unreadable(exc, where) from None
+
+
+def _is_geoparquet(path: Path) -> bool:
+    """A GeoParquet file, or a folder of them (in the hive layout: a run's heights written per
+    tile, :mod:`gnss_citygml.tile_output`, or one tile's folder): GeoPandas reads them, GDAL
+    only with Arrow."""
+    if path.is_dir():
+        return next(path.rglob("*.parquet"), None) is not None
+    return path.suffix.lower() == ".parquet"
+
+
+def _read_geoparquet(path: Path) -> gpd.GeoDataFrame:
+    """A GeoParquet file or hive folder, its partition keys (``tile``) as text; an
+    :class:`InputError` if it cannot be read as GeoParquet."""
+    try:
+        frame = gpd.read_parquet(path)
+    except (OSError, ValueError, TypeError) as exc:  # pyarrow's errors are these too
+        raise InputError(
+            f"cannot read the footprints as GeoParquet ({first_line(exc)})",
+            where=str(path),
+            fix="give a GeoParquet file (with its geometry metadata), or a GeoPackage",
+        ) from None
+    for column in frame.columns:
+        if isinstance(frame[column].dtype, pd.CategoricalDtype):
+            frame[column] = frame[column].astype(str)
+    return frame
 
 
 def _has_building_group(groups: pd.Series) -> np.ndarray:

@@ -334,10 +334,11 @@ def building_ground(
                 where=ds.name,
                 fix="use a DEM that covers every footprint, or drop those footprints",
             )
-        index, values = _cells_under(ds, band, geoms, row0, row1, col0, col1)
-        nodata = np.unique(index[np.isnan(values)])
+        ground, over_nodata, fallback = _ground_under(
+            ds, band, geoms, row0, row1, col0, col1, statistic
+        )
+        nodata = np.flatnonzero(over_nodata)
         inside = shapely.point_on_surface(geoms)
-        fallback = np.bincount(index, minlength=len(geoms)) == 0
         heights, _, small_nodata = _bilinear(
             ds, band, shapely.get_x(inside[fallback]), shapely.get_y(inside[fallback])
         )
@@ -349,7 +350,6 @@ def building_ground(
                 where=ds.name,
                 fix="fill the DEM's gaps (e.g. gdal_fillnodata) or drop those footprints",
             )
-    ground = _grouped(index, values, statistic, len(geoms))
     ground[fallback] = heights
     out["ground"] = ground
     return out
@@ -365,10 +365,16 @@ def _pixel_bounds(ds: DatasetReader, bounds: np.ndarray):
     return row0, row1, col0, col1
 
 
-def _cells_under(ds, band, geoms, row0, row1, col0, col1):
-    """(building index, DEM value) for every cell whose centre a footprint contains."""
+def _ground_under(ds, band, geoms, row0, row1, col0, col1, statistic):
+    """Per footprint: the ``statistic`` of the DEM cells whose centres it contains, whether
+    one of them is nodata, and whether it contains none (then its ground is NaN here).
+
+    A footprint's cells all come from one burn: its block group's window and its overlap
+    pass. Each burn is reduced at once, so memory is that of one window, not of every cell
+    under every footprint (8 M cells for 16,000 central-London buildings on a 1 m DEM)."""
+    n = len(geoms)
+    ground, nodata, empty = np.full(n, np.nan), np.zeros(n, dtype=bool), np.ones(n, dtype=bool)
     layer = _overlap_layers(geoms)
-    found_index, found_values = [], []
     for group in _block_groups(row0, col0):
         r0, c0 = row0[group].min(), col0[group].min()
         window = Window(c0, r0, col1[group].max() - c0, row1[group].max() - r0)
@@ -377,16 +383,18 @@ def _cells_under(ds, band, geoms, row0, row1, col0, col1):
         for pass_ in np.unique(layer[group]):
             members = group[layer[group] == pass_]
             burnt = rasterio.features.rasterize(
-                zip(geoms[members], members + 1, strict=True),
+                zip(geoms[members], np.arange(1, members.size + 1), strict=True),
                 out_shape=block.shape,
                 transform=transform,
                 fill=0,
                 dtype="int32",
             )
             under = burnt > 0
-            found_index.append(burnt[under] - 1)
-            found_values.append(block[under])
-    return np.concatenate(found_index).astype(np.int64), np.concatenate(found_values)
+            index, values = burnt[under].astype(np.int64) - 1, block[under]
+            ground[members] = _grouped(index, values, statistic, members.size)
+            nodata[members[np.unique(index[np.isnan(values)])]] = True
+            empty[members] = np.bincount(index, minlength=members.size) == 0
+    return ground, nodata, empty
 
 
 def _overlap_layers(geoms: np.ndarray) -> np.ndarray:

@@ -385,3 +385,36 @@ def test_reading_writes_nothing_beside_the_input(tmp_path):
     with pytest.raises(InputError, match="cannot read the footprints"):
         read_footprints(path)
     assert [p.name for p in tmp_path.iterdir()] == ["tile.gml"]
+
+
+def test_geoparquet_footprints_a_file_or_a_hive_folder(tmp_path):
+    """GeoParquet (GDAL here has no Arrow): a file, and a hive folder such as a run's heights
+    written per tile, whose partition key comes as a text column; the rules hold as for any
+    source (the bow-tie is repaired)."""
+    frame = gpd.GeoDataFrame(
+        {"toid": ["sq", "court", "bow", "multi"], "storeys": [2, 5, 1, 3]},
+        geometry=[SQUARE, COURTYARD, BOWTIE, TWO_PARTS],
+        crs=BNG,
+    )
+    frame.to_parquet(tmp_path / "one.parquet")
+    for tile, rows in (("A", [0, 1]), ("B", [2, 3])):
+        (tmp_path / "hive" / f"tile={tile}").mkdir(parents=True)
+        frame.iloc[rows].to_parquet(tmp_path / "hive" / f"tile={tile}" / "part-0.parquet")
+    with pytest.warns(UserWarning, match="bow"):
+        one = read_footprints(tmp_path / "one.parquet")
+    assert one["id"].tolist() == ["sq", "court", "bow", "multi"] and one.crs == BNG
+    with pytest.warns(UserWarning, match="bow"):
+        hive = read_footprints(tmp_path / "hive")
+    assert sorted(hive["id"]) == sorted(one["id"])
+    assert hive.set_index("id")["tile"].to_dict() == {
+        "sq": "A",
+        "court": "A",
+        "bow": "B",
+        "multi": "B",
+    }
+    assert read_footprints(tmp_path / "hive" / "tile=A")["id"].tolist() == ["sq", "court"]
+    with pytest.raises(InputError, match="GeoParquet has no layers to choose"):
+        read_footprints(tmp_path / "one.parquet", layer="buildings")
+    (tmp_path / "plain.parquet").write_bytes(b"PAR1 not really")
+    with pytest.raises(InputError, match="cannot read the footprints as GeoParquet"):
+        read_footprints(tmp_path / "plain.parquet")

@@ -157,6 +157,18 @@ def test_the_commands_partition_and_estimate_from_it_on_a_local_cluster(
     assert code == 2 and "output exists" in err and "--overwrite" in err
     code, _, err = run([*tiled, "--overwrite"], capsys)
     assert code == 0, err
+    # the city model of every tile, or of one, from the folder (GeoParquet in, CityJSONSeq out)
+    city = tmp_path / "city.city.jsonl"
+    code, out, err = run(["convert", str(tmp_path / "tiles" / "heights"), "-o", str(city)], capsys)
+    assert code == 0, err
+    assert out.strip().startswith(f"{a['converged'].sum()} buildings, ") and "valid" in out
+    first = index.sort_values("tile").iloc[0]
+    one = tmp_path / "tiles" / first["location"]
+    code, out, err = run(
+        ["convert", str(one.parent), "-o", str(tmp_path / "one.city.json")], capsys
+    )
+    assert code == 0, err
+    assert out.strip().startswith(f"{first['with_height']} buildings, ")
     assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".")) == []
 
 

@@ -154,7 +154,9 @@ def convert(
     """Turn footprints with a height attribute into CityJSON, CityJSONSeq or CityGML LOD1.
 
     INPUT is the heights layer of `estimate` or any polygon source with a height field (e.g.
-    OS Building Height Attribute's abshmax, or relh2 with --relative).
+    OS Building Height Attribute's abshmax, or relh2 with --relative). The heights a run in
+    tiles wrote into a folder are read as GeoParquet: FOLDER/heights for all of them,
+    FOLDER/heights/tile=TQ2982 for one tile.
     """
     from ..jobs import convert_file
 

@@ -109,8 +109,8 @@ def estimate(output, report, scheduler, workers, tile_size, **options):
 
     OBSERVATIONS is the observations table (CSV or Parquet: time_utc, receiver, lat, lon, h,
     constellation, svid, azimuth, elevation, cn0 with empty = blocked). FOOTPRINTS is a
-    GeoPackage or any polygon layer, or OS MasterMap Topography GML. The output holds each
-    footprint with its estimate; buildings with too little data have empty heights.
+    GeoPackage or any polygon layer, OS MasterMap Topography GML, or GeoParquet. The output
+    holds each footprint with its estimate; buildings with too little data have empty heights.
     """
     from ..jobs import is_tile_folder
 

@@ -55,14 +55,15 @@ class TileFolder:
     def write(
         self, table: pd.DataFrame, buildings: gpd.GeoDataFrame, name: str, failed: str
     ) -> dict[str, Any]:
-        """Write tile ``name``'s heights (its rows of the heights table, ``table``) joined onto its
-        own ``buildings``; return its row of the index.
-        ``failed`` is why its cast failed (empty if it did not)."""
+        """Write tile ``name``'s heights (its rows of the heights table, ``table``) joined onto
+        its own ``buildings``; return its row of the index. ``failed`` is why its cast failed
+        (empty if it did not). Run again (Dask's retry, or a dead worker's task recomputed),
+        it replaces its file with the same one."""
         heights = join_heights(buildings, table, self.method, self.id_name)
         location = Path(HEIGHTS) / f"tile={name}" / "part-0.parquet"
         target = Path(self.path) / location
         try:
-            target.parent.mkdir(parents=True)
+            target.parent.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise InputError(
                 f"cannot write tile {name} ({exc.strerror})",

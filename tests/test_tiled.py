@@ -23,7 +23,7 @@ from gnss_citygml.settings import Estimator, Tiling
 from gnss_citygml.simulate import simulate
 from gnss_citygml.simulate.scenes import city_scene
 from gnss_citygml.tile_output import TileFolder
-from gnss_citygml.tiled import failed_tiles, tiled_heights
+from gnss_citygml.tiled import failed_tiles, no_heights, tiled_heights
 from gnss_citygml.tiles import building_tiles
 
 #: The simulated city's corner in British National Grid (its grid is local): the city's
@@ -256,3 +256,19 @@ def test_what_a_run_in_tiles_cannot_do_is_refused_before_any_work(
     code, _, err = run(estimate(tmp_path, grid_args, output, *extra), capsys)
     assert code == 2 and err.startswith("error: ") and message in err, err
     assert not list(tmp_path.iterdir())
+
+
+def test_a_tile_written_again_replaces_its_file(scene, tmp_path):
+    """Dask runs a write again when it failed or its worker died: the tile's file is written
+    again, the same, and nothing else is left beside it."""
+    _, buildings = scene
+    own = buildings.iloc[:3].assign(ground=0.0)
+    out = TileFolder(str(tmp_path), "4PL-B", "id", 100.0)
+    table = no_heights(np.empty(0, dtype=object), "4PL-B", "")  # a tile no ray reaches
+    first = out.write(table, own, "TQ2981", "")
+    assert first["buildings"] == 3 and first["with_height"] == 0 and first["failed"] == ""
+    written = gpd.read_parquet(tmp_path / first["location"])
+    assert out.write(table, own, "TQ2981", "") == first
+    pd.testing.assert_frame_equal(gpd.read_parquet(tmp_path / first["location"]), written)
+    assert [p.name for p in (tmp_path / first["location"]).parent.iterdir()] == ["part-0.parquet"]
+    assert (written["status"] == "no signal's ray enters the footprint").all()

@@ -105,13 +105,19 @@ def bng_city(km: float, walkers: int, seconds: float, seed: int) -> tuple[Any, A
     return rx, sim.buildings.set_geometry(moved).set_crs(27700)
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def city_arguments(description: str) -> argparse.Namespace:
+    """The command line of a benchmark on :func:`bng_city`: its side, walkers, walk length
+    and seed."""
+    parser = argparse.ArgumentParser(description=description)
     parser.add_argument("--km", type=float, default=2.0, help="side of the city (km)")
     parser.add_argument("--walkers", type=int, default=60)
     parser.add_argument("--seconds", type=float, default=300.0, help="each walk's length (s)")
     parser.add_argument("--seed", type=int, default=0)
-    args = parser.parse_args()
+    return parser.parse_args()
+
+
+def main() -> None:
+    args = city_arguments(__doc__.splitlines()[0])
     t = time.perf_counter()
     rx, buildings = bng_city(args.km, args.walkers, args.seconds, args.seed)
     side = args.km * 1000.0

@@ -14,7 +14,6 @@ gathered ones, bit for bit.
 
 from __future__ import annotations
 
-import argparse
 import os
 import tempfile
 import time
@@ -22,7 +21,7 @@ from pathlib import Path
 
 import geopandas as gpd
 import numpy as np
-from dask_tiles import bng_city
+from dask_tiles import bng_city, city_arguments
 
 from gnss_citygml.cluster import connect
 from gnss_citygml.pipeline import join_heights
@@ -33,12 +32,7 @@ from gnss_citygml.tiled import tiled_heights
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--km", type=float, default=2.0, help="side of the city (km)")
-    parser.add_argument("--walkers", type=int, default=60)
-    parser.add_argument("--seconds", type=float, default=300.0, help="each walk's length (s)")
-    parser.add_argument("--seed", type=int, default=0)
-    args = parser.parse_args()
+    args = city_arguments(__doc__.splitlines()[0])
     rx, buildings = bng_city(args.km, args.walkers, args.seconds, args.seed)
     buildings = buildings.assign(ground=0.0)  # the simulator's ground
     print(

@@ -84,11 +84,11 @@ def estimate_file(
     from .footprints import read_footprints
     from .observations import read_observations
     from .partition import partition_run
-    from .paths import check_new_folder
     from .pipeline import STAGES, run, run_partitioned, write_tiles
     from .report import check_report, write_report
     from .styles import heights_qml
     from .tables import check_layer_output, read_table, write_layer
+    from .tile_output import check_tile_folder
 
     if output is None and report is None:
         raise InputError("nothing to write", fix="give an output file or a report folder")
@@ -110,15 +110,8 @@ def estimate_file(
     if partitioned:
         partition_run(observations, tiling)
     folder = output if output is not None and is_tile_folder(output) else None
-    if folder is not None and not tiling.on:
-        raise InputError(
-            "an output without a suffix is a folder of tiles, which only a run in tiles writes",
-            where=str(output),
-            fix="give --scheduler local (or a scheduler's address), or name the output .gpkg, "
-            ".fgb or .parquet",
-        )
     if folder is not None:
-        check_new_folder(folder, overwrite=overwrite)
+        check_tile_folder(folder, tiling, overwrite=overwrite)
     elif output is not None:
         check_layer_output(output, "heights", overwrite=overwrite)
     if report is not None:
@@ -143,21 +136,19 @@ def estimate_file(
         "dem_crs": dem_crs,
         "progress": stage,
     }
+    obs = None if partitioned else read_observations(observations)  # a partition: per tile
+    fp = read_footprints(footprints, layer=layer, id_field=id_field, grid_dir=grid_dir)
     if folder is not None:  # each tile's heights are written by its worker
-        fp = read_footprints(footprints, layer=layer, id_field=id_field, grid_dir=grid_dir)
-        obs = observations if partitioned else read_observations(observations)
+        given = observations if obs is None else obs
         index = write_tiles(
-            obs, fp, dem, folder, grid_dir=grid_dir, overwrite=overwrite, **settings
+            given, fp, dem, folder, grid_dir=grid_dir, overwrite=overwrite, **settings
         )
         progress("done", 1.0)
         return index
-    if partitioned:  # each tile reads its own partitions
-        fp = read_footprints(footprints, layer=layer, id_field=id_field, grid_dir=grid_dir)
+    if obs is None:
         heights, _ = run_partitioned(observations, fp, dem, **settings)
         result = None
     else:
-        obs = read_observations(observations)
-        fp = read_footprints(footprints, layer=layer, id_field=id_field, grid_dir=grid_dir)
         result = run(obs, fp, dem, calibration=calibration, grid_dir=grid_dir, **settings)
         heights = result.heights
     if output is not None:

@@ -90,7 +90,7 @@ def partition_observations(
     say = progress or (lambda text: None)
     tiles: dict[str, dict[str, int]] = {}
     signals = 0
-    with atomic_folder(folder, overwrite=overwrite) as work:
+    with atomic_folder(folder, overwrite=overwrite, mark=INDEX) as work:
         for k, path in enumerate(observations):
             say(str(path))
             obs = in_mask(read_observations(path), rays)

@@ -181,39 +181,47 @@ def make_folder(folder: StrPath) -> Path:
     return folder
 
 
-def check_new_folder(folder: StrPath, *, overwrite: bool, what: str = "output folder") -> Path:
+def check_new_folder(folder: StrPath, *, overwrite: bool, mark: str) -> Path:
     """Refuse, before any work, a folder output (written whole by :func:`atomic_folder`) that
-    is a file, or exists without ``overwrite``, or whose parent is missing."""
-    folder = Path(folder)
+    is a file, or exists without ``overwrite``, or whose parent is missing; return it as an
+    absolute path. ``overwrite`` replaces only a folder an output of this kind wrote (it holds
+    the file ``mark``, e.g. its index) or an empty one: a folder name given by mistake (``-o
+    Documents``) must not take the user's files with it."""
+    folder = Path(folder).absolute()
     if folder.exists() and not folder.is_dir():
-        raise InputError(f"the {what} is a file", where=str(folder), fix="give a folder")
+        raise InputError("the output folder is a file", where=str(folder), fix="give a folder")
     if folder.exists() and not overwrite:
         raise InputError(
             "output exists", where=str(folder), fix="give another folder, or --overwrite"
         )
-    if not folder.absolute().parent.is_dir():
+    if folder.exists() and not (folder / mark).is_file() and any(folder.iterdir()):
         raise InputError(
-            "output folder does not exist",
-            where=str(folder.absolute().parent),
-            fix="create it first",
+            f"the folder holds files this output did not write (it has no {mark}), and "
+            "--overwrite replaces only such an output",
+            where=str(folder),
+            fix="give a new folder, or empty this one",
+        )
+    if not folder.parent.is_dir():
+        raise InputError(
+            "output folder does not exist", where=str(folder.parent), fix="create it first"
         )
     return folder
 
 
 @contextlib.contextmanager
-def atomic_folder(folder: StrPath, *, overwrite: bool = False) -> Iterator[Path]:
+def atomic_folder(folder: StrPath, *, overwrite: bool = False, mark: str) -> Iterator[Path]:
     """Yield a new folder beside ``folder`` to fill; rename it to ``folder`` if the block
-    succeeds, else remove it. An old ``folder`` is replaced (with ``overwrite``) only once the
-    new one is complete: it is renamed aside first (a rename cannot replace a non-empty
-    folder) and removed after."""
-    folder = check_new_folder(folder, overwrite=overwrite)
+    succeeds, else remove it. An old ``folder`` is replaced (with ``overwrite``, and only one
+    that holds ``mark``: :func:`check_new_folder`) only once the new one is complete: it is
+    renamed aside first (a rename cannot replace a non-empty folder) and removed after."""
+    folder = check_new_folder(folder, overwrite=overwrite, mark=mark)
     work = folder.with_name(f".{folder.name}.part-{secrets.token_hex(4)}")
     try:
         work.mkdir()
     except OSError as exc:
         raise InputError(
             "cannot write to the output folder",
-            where=str(folder.absolute().parent),
+            where=str(folder.parent),
             fix=f"check its permissions and free space ({exc.strerror})",
         ) from None
     try:

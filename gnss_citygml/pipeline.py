@@ -27,7 +27,7 @@ from .ids import id_field, source_named, with_id_field
 from .model.classifier import SignalClassifier
 from .model.estimate import HEIGHTS_COLUMNS, estimate_heights
 from .observations import check_observations, satellites
-from .paths import StrPath, atomic_folder, check_new_folder
+from .paths import StrPath, atomic_folder
 from .raycast import footprint_entries
 from .recordings import position_groups
 from .settings import (
@@ -477,8 +477,11 @@ def write_tiles(
     partition folder), with each tile's heights written into the folder ``output`` by the
     worker that fitted it (:mod:`gnss_citygml.tile_output`), never gathered on one machine.
     Returns the tile index (also ``output/tiles.gpkg``). The folder appears whole or not at
-    all; an existing one is replaced only with ``overwrite`` (checked before any work)."""
-    check_new_folder(output, overwrite=overwrite)
+    all; an existing one is replaced only with ``overwrite`` (checked before any work), and
+    only if it is a folder of tiles (:func:`~gnss_citygml.tile_output.check_tile_folder`)."""
+    from .tile_output import check_tile_folder
+
+    check_tile_folder(output, tiling, overwrite=overwrite)
     say = progress or (lambda stage: None)
     if isinstance(observations, pd.DataFrame):
         tiling.check(estimator, Calibration())
@@ -504,15 +507,13 @@ def _on_cluster(
     failed tile's buildings, or one tile's, are a filter away). With ``output``, the tiles
     write their heights into that folder instead, and the tile index is returned."""
     from .cluster import connect  # the [dask] extra: only when asked for
-    from .tile_output import TileFolder, write_index
+    from .tile_output import INDEX, TileFolder, write_index
     from .tiles import building_tiles
 
     with connect(tiling) as engine:
         if output is not None:
-            with atomic_folder(output, overwrite=overwrite) as work:
-                folder = TileFolder(
-                    str(work.absolute()), estimator.method, id_field(footprints), size
-                )
+            with atomic_folder(output, overwrite=overwrite, mark=INDEX) as work:
+                folder = TileFolder(str(work), estimator.method, id_field(footprints), size)
                 index, classifier = in_tiles(engine=engine, output=folder)
                 say(STAGES[4])
                 say(STAGES[5])

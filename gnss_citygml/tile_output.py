@@ -29,16 +29,40 @@ import pandas as pd
 import shapely
 
 from .errors import InputError
+from .paths import StrPath, check_new_folder
 from .pipeline import join_heights
+from .settings import Tiling
 from .tables import write_layer
 from .tiles import tile_index
 
-__all__ = ["HEIGHTS", "INDEX", "TileFolder", "tile_index_frame", "write_index"]
+__all__ = [
+    "HEIGHTS",
+    "INDEX",
+    "TileFolder",
+    "check_tile_folder",
+    "tile_index_frame",
+    "write_index",
+]
 
 #: The tile index, in the folder (a GeoPackage with the layer ``tiles``).
 INDEX = "tiles.gpkg"
 #: The folder of the tiles' heights, in the folder.
 HEIGHTS = "heights"
+
+
+def check_tile_folder(folder: StrPath, tiling: Tiling, *, overwrite: bool) -> Path:
+    """Refuse, before any work, a folder of tiles that cannot be written: in a run that is not
+    in tiles (``tiling``), or a file, an existing folder without ``overwrite``, one that is
+    not a folder of tiles (no :data:`INDEX`: it is never replaced), a missing parent
+    (:func:`~gnss_citygml.paths.check_new_folder`). Returns it as an absolute path."""
+    if not tiling.on:
+        raise InputError(
+            "an output without a suffix is a folder of tiles, which only a run in tiles writes",
+            where=str(folder),
+            fix="give --scheduler local (or a scheduler's address), or name the output .gpkg, "
+            ".fgb or .parquet",
+        )
+    return check_new_folder(folder, overwrite=overwrite, mark=INDEX)
 
 
 @dataclass(frozen=True)

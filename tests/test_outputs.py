@@ -321,25 +321,50 @@ def test_a_folder_output_appears_whole_or_not_at_all(tmp_path):
     there."""
     out = tmp_path / "tiles"
     with pytest.raises(RuntimeError, match="worker died"):
-        with atomic_folder(out) as work:
+        with atomic_folder(out, mark="a.parquet") as work:
             (work / "a.parquet").write_text("half")
             raise RuntimeError("worker died")
     assert list(tmp_path.iterdir()) == []
-    with atomic_folder(out) as work:
+    with atomic_folder(out, mark="a.parquet") as work:
         assert work.parent == tmp_path and work.name.startswith(".tiles.part-")
         (work / "a.parquet").write_text("old")
     assert [p.name for p in tmp_path.iterdir()] == ["tiles"]
     with pytest.raises(InputError, match="output exists"):
-        with atomic_folder(out):
+        with atomic_folder(out, mark="a.parquet"):
             pytest.fail("the block must not run")
-    with atomic_folder(out, overwrite=True) as work:
+    with atomic_folder(out, overwrite=True, mark="a.parquet") as work:
         (work / "b.parquet").write_text("new")
     assert [p.name for p in tmp_path.iterdir()] == ["tiles"]
     assert [p.name for p in out.iterdir()] == ["b.parquet"]
     (tmp_path / "file").write_text("x")
     with pytest.raises(InputError, match="is a file"):
-        with atomic_folder(tmp_path / "file", overwrite=True):
+        with atomic_folder(tmp_path / "file", overwrite=True, mark="a.parquet"):
             pass
     with pytest.raises(InputError, match="output folder does not exist"):
-        with atomic_folder(tmp_path / "missing" / "tiles"):
+        with atomic_folder(tmp_path / "missing" / "tiles", mark="a.parquet"):
             pass
+
+
+def test_overwrite_replaces_only_a_folder_the_output_wrote(tmp_path, monkeypatch):
+    """A folder without the output's mark (its index) is someone's: --overwrite does not take
+    it, nor its files; an empty folder, or one the output wrote, is replaced."""
+    mine = tmp_path / "Documents"
+    mine.mkdir()
+    (mine / "thesis.txt").write_text("years of work")
+    with pytest.raises(InputError, match="has no tiles.gpkg") as caught:
+        with atomic_folder(mine, overwrite=True, mark="tiles.gpkg"):
+            pytest.fail("the block must not run")
+    assert caught.value.fix == "give a new folder, or empty this one"
+    assert [p.name for p in mine.iterdir()] == ["thesis.txt"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["Documents"]
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    for folder in (empty, empty):  # empty, then one it wrote
+        with atomic_folder(folder, overwrite=True, mark="tiles.gpkg") as work:
+            (work / "tiles.gpkg").write_text("index")
+        assert [p.name for p in folder.iterdir()] == ["tiles.gpkg"]
+    monkeypatch.chdir(mine)  # "-o ." names the folder one is in
+    with pytest.raises(InputError, match="has no tiles.gpkg"):
+        with atomic_folder(".", overwrite=True, mark="tiles.gpkg"):
+            pytest.fail("the block must not run")
+    assert [p.name for p in mine.iterdir()] == ["thesis.txt"]

@@ -18,7 +18,7 @@ from test_outputs import estimate
 from gnss_citygml.cluster import connect
 from gnss_citygml.errors import InputError
 from gnss_citygml.model.estimate import estimate_heights
-from gnss_citygml.pipeline import intersections
+from gnss_citygml.pipeline import intersections, write_tiles
 from gnss_citygml.settings import Estimator, Tiling
 from gnss_citygml.simulate import simulate
 from gnss_citygml.simulate.scenes import city_scene
@@ -272,3 +272,19 @@ def test_a_tile_written_again_replaces_its_file(scene, tmp_path):
     pd.testing.assert_frame_equal(gpd.read_parquet(tmp_path / first["location"]), written)
     assert [p.name for p in (tmp_path / first["location"]).parent.iterdir()] == ["part-0.parquet"]
     assert (written["status"] == "no signal's ray enters the footprint").all()
+
+
+def test_a_tile_folder_is_written_only_by_a_run_in_tiles_and_never_over_a_users_folder(
+    grid_args, tmp_path, capsys
+):
+    """The Python API refuses a folder output without a scheduler, as the command does; and
+    --overwrite never replaces a folder that is not a folder of tiles (``-o Documents``)."""
+    with pytest.raises(InputError, match="which only a run in tiles writes"):
+        write_tiles(pd.DataFrame(), gpd.GeoDataFrame(), None, tmp_path / "tiles", tiling=Tiling())
+    mine = tmp_path / "Documents"
+    mine.mkdir()
+    (mine / "thesis.txt").write_text("years of work")
+    tiled = ["--scheduler", "local", "--overwrite"]
+    code, _, err = run(estimate(tmp_path, grid_args, "Documents", *tiled), capsys)
+    assert code == 2 and "it has no tiles.gpkg" in err and "empty this one" in err, err
+    assert [p.name for p in mine.iterdir()] == ["thesis.txt"]

@@ -327,7 +327,7 @@ def _with_ids(
     repeated = text[text.duplicated()].unique()
     if repeated.size:
         raise InputError(
-            f"{repeated.size} duplicate id(s) in {user_text(name)!r}: {listing(repeated)}",
+            f"{repeated.size} duplicate id(s) in '{user_text(name)}': {listing(repeated)}",
             where=where,
             fix="give each footprint its own id, or choose another --id-field",
         )
@@ -349,7 +349,7 @@ def _id_text(ids: pd.Series, name: str, where: str) -> pd.Series:
         rows = np.flatnonzero(missing)
         raise InputError(
             f"{rows.size} feature(s) without an id (missing, blank or with a NUL character)"
-            f" in {user_text(name)!r}: rows {listing(rows)}",
+            f" in '{user_text(name)}': rows {listing(rows)}",
             where=where,
             fix="fill in the ids or choose another --id-field",
         )

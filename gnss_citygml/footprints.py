@@ -32,7 +32,6 @@ Rules
 from __future__ import annotations
 
 import contextlib
-import gzip
 import os
 import tempfile
 import warnings
@@ -51,7 +50,7 @@ from pandas.api.types import is_list_like
 from .errors import InputError, MissingColumnError, first_line, listing, user_text
 from .geodesy import CrsError, OutsideExtentError, is_bng, to_bng
 from .ids import missing_ids, with_id_field
-from .paths import StrPath, input_file
+from .paths import StrPath, gunzipped, input_file
 
 __all__ = ["check_polygonal", "read_footprints"]
 
@@ -167,9 +166,11 @@ def _sniff_gml(path: Path) -> str | None:
 
 @contextlib.contextmanager
 def _gunzipped(path: Path) -> Iterator:
-    """A gzipped file opened for reading; a damaged one (while read too) is an InputError."""
+    """A gzipped file opened for reading as a capped stream (:func:`~gnss_citygml.paths.
+    gunzipped`: a decompression bomb is an InputError); a damaged one (while read too) is an
+    InputError."""
     try:
-        with gzip.open(path, "rb") as unzipped:
+        with gunzipped(path, "footprint file") as unzipped:
             yield unzipped
     except (OSError, EOFError, zlib.error) as exc:  # BadGzipFile is an OSError
         raise InputError(

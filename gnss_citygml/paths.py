@@ -87,14 +87,14 @@ def gunzipped(path: StrPath, what: str = "file") -> Iterator[BinaryIO]:
 class _Capped(io.RawIOBase):
     """A binary stream that refuses to give more than ``limit`` bytes (:func:`gunzipped`)."""
 
-    def __init__(self, inner: BinaryIO, limit: int, path: Path, what: str):
+    def __init__(self, inner: gzip.GzipFile, limit: int, path: Path, what: str):
         self.inner, self.limit, self.path, self.what, self.given = inner, limit, path, what, 0
 
     def readable(self) -> bool:
         return True
 
-    def readinto(self, buffer) -> int:  # type: ignore[no-untyped-def]
-        n = self.inner.readinto(buffer)  # type: ignore[attr-defined]
+    def readinto(self, buffer) -> int:
+        n = self.inner.readinto(buffer)
         self.given += n
         if self.given > self.limit:
             size = self.path.stat().st_size

@@ -4,8 +4,12 @@ Every error a user can cause is a :class:`GnssCityGMLError`. Its message says *w
 wrong, *where* (file, line, column, feature id) and *how to fix it*, so that the command line
 can print it as one line (``error: <what> (<where>): <how to fix>``) without a traceback.
 :func:`listing` (the first items and how many more), :func:`first_line` (what a library's own
-error says, in one line) and :func:`escape_controls` (one line whatever the data holds) shape
-the messages, the same way in every module.
+error says, in one line), :func:`escape_controls` (one line whatever the data holds) and
+:func:`user_text` (one value from the user's files: escaped and cut to a readable length) shape
+the messages, the same way in every module. Every text from the user's files that goes into a
+message (ids, receiver names, layer and file names, field values) goes through :func:`user_text`
+(or :func:`listing`, which uses it): a newline in an id cannot forge an ``error:`` line, an ANSI
+escape cannot recolour the terminal, a bidi override cannot reorder what is read.
 """
 
 from __future__ import annotations
@@ -22,19 +26,49 @@ __all__ = [
     "first_line",
     "internal_error",
     "listing",
+    "user_text",
 ]
 
+#: What a message must not hold as is: C0/C1 controls (line ends, ESC of ANSI sequences), the
+#: Unicode line and paragraph separators, the bidi controls and invisible format characters
+#: (U+202E reverses what follows), lone surrogates (not encodable) and the BOM.
+_CONTROL = re.compile(
+    "[\x00-\x1f\x7f-\x9f\u061c\u200b-\u200f\u2028-\u202e\u2060-\u2069\ufeff\ud800-\udfff]"
+)
 
-_CONTROL = re.compile("[\x00-\x1f\x7f-\x9f\u2028\u2029]")
+#: The longest value :func:`user_text` gives whole (characters, after escaping).
+TEXT_LENGTH = 60
 
 
 def escape_controls(text: str) -> str:
-    """``text`` with its control characters (line ends too) escaped as ``repr`` does: one line."""
+    r"""``text`` with its control, bidi and invisible characters (line ends too) escaped as
+    ``repr`` does: one line that reads as it is stored.
+
+    >>> print(escape_controls("a" + chr(10) + "error: b" + chr(0x202E)))
+    a\nerror: b\u202e
+    """
     return _CONTROL.sub(lambda m: repr(m.group())[1:-1], text)
 
 
+def user_text(value: object, length: int = TEXT_LENGTH) -> str:
+    r"""One value from the user's files as a message shows it: escaped (:func:`escape_controls`)
+    and, past ``length`` characters, cut with how long it was.
+
+    >>> print(user_text("osgb1" + chr(27) + "[31m"))
+    osgb1\x1b[31m
+    >>> user_text("x" * 100, 10)
+    'xxxxxxxxxx... (100 characters)'
+    """
+    text = str(value)
+    escaped = escape_controls(text)
+    if len(escaped) <= length:
+        return escaped
+    return f"{escaped[:length]}... ({len(text)} characters)"
+
+
 def listing(items: Iterable, shown: int = 10, *, total: int | None = None) -> str:
-    """The items for a message, comma-separated; past the first ``shown``, how many more.
+    """The items for a message, comma-separated (each :func:`user_text`); past the first
+    ``shown``, how many more.
 
     ``total`` is how many there are in all when ``items`` holds only the first few (to spare
     formatting thousands of items a message will not show).
@@ -48,7 +82,7 @@ def listing(items: Iterable, shown: int = 10, *, total: int | None = None) -> st
     """
     items = list(items)
     total = len(items) if total is None else total
-    text = ", ".join(str(item) for item in items[:shown])
+    text = ", ".join(user_text(item) for item in items[:shown])
     return text + (f" and {total - shown} more" if total > shown else "")
 
 

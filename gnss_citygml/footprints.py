@@ -32,7 +32,6 @@ Rules
 from __future__ import annotations
 
 import contextlib
-import gzip
 import os
 import tempfile
 import warnings
@@ -48,10 +47,10 @@ import pyogrio
 import shapely
 from pandas.api.types import is_list_like
 
-from .errors import InputError, MissingColumnError, first_line, listing
+from .errors import InputError, MissingColumnError, first_line, listing, user_text
 from .geodesy import CrsError, OutsideExtentError, is_bng, to_bng
-from .ids import with_id_field
-from .paths import StrPath, input_file
+from .ids import missing_ids, with_id_field
+from .paths import StrPath, gunzipped, input_file
 
 __all__ = ["check_polygonal", "read_footprints"]
 
@@ -167,9 +166,11 @@ def _sniff_gml(path: Path) -> str | None:
 
 @contextlib.contextmanager
 def _gunzipped(path: Path) -> Iterator:
-    """A gzipped file opened for reading; a damaged one (while read too) is an InputError."""
+    """A gzipped file opened for reading as a capped stream (:func:`~gnss_citygml.paths.
+    gunzipped`: a decompression bomb is an InputError); a damaged one (while read too) is an
+    InputError."""
     try:
-        with gzip.open(path, "rb") as unzipped:
+        with gunzipped(path, "footprint file") as unzipped:
             yield unzipped
     except (OSError, EOFError, zlib.error) as exc:  # BadGzipFile is an OSError
         raise InputError(
@@ -327,7 +328,7 @@ def _with_ids(
     repeated = text[text.duplicated()].unique()
     if repeated.size:
         raise InputError(
-            f"{repeated.size} duplicate id(s) in {name!r}: {listing(repeated)}",
+            f"{repeated.size} duplicate id(s) in '{user_text(name)}': {listing(repeated)}",
             where=where,
             fix="give each footprint its own id, or choose another --id-field",
         )
@@ -342,11 +343,14 @@ def _output_name(field: str | None, mastermap: bool) -> str:
 
 
 def _id_text(ids: pd.Series, name: str, where: str) -> pd.Series:
-    missing = ids.isna().to_numpy()
+    """The ids as text; an :class:`InputError` naming the features (row of the source, from 0)
+    whose id is missing, blank or holds a NUL (:func:`~gnss_citygml.ids.missing_ids`)."""
+    missing = missing_ids(ids)
     if missing.any():
         rows = np.flatnonzero(missing)
         raise InputError(
-            f"{rows.size} feature(s) without an id in {name!r}: rows {listing(rows)}",
+            f"{rows.size} feature(s) without an id (missing, blank or with a NUL character)"
+            f" in '{user_text(name)}': rows {listing(rows)}",
             where=where,
             fix="fill in the ids or choose another --id-field",
         )

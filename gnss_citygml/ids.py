@@ -21,17 +21,32 @@ from __future__ import annotations
 
 from typing import TypeVar
 
+import numpy as np
 import pandas as pd
 
 from .errors import InputError
 
-__all__ = ["ID_FIELD", "id_field", "id_named", "source_named", "with_id_field"]
+__all__ = ["ID_FIELD", "id_field", "id_named", "missing_ids", "source_named", "with_id_field"]
 
 #: The key of ``DataFrame.attrs`` holding the name of the source's id field.
 ID_FIELD = "id_field"
 
 #: A table, or a GeoDataFrame: what goes in comes out.
 Frame = TypeVar("Frame", bound=pd.DataFrame)
+
+
+def missing_ids(ids: pd.Series) -> np.ndarray:
+    """Where ``ids`` hold no usable id: missing (NULL, NaN), empty or only blanks (a blank id
+    names nothing a user can find or join on), or with a NUL character (C libraries, GDAL
+    among them, cut a text there: two ids would become one, or one become another).
+
+    >>> missing_ids(pd.Series(["osgb1", None, "", "  ", "a" + chr(0) + "b"])).tolist()
+    [False, True, True, True, True]
+    """
+    missing = np.array(ids.isna(), dtype=bool)
+    text = ids[~missing].astype(str)
+    missing[~missing] = (text.str.strip().eq("") | text.str.contains("\0", regex=False)).to_numpy()
+    return missing
 
 
 def id_field(frame: pd.DataFrame) -> str:

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import gzip
+import io
 import os
 import re
 import secrets
@@ -18,7 +20,7 @@ import shutil
 import socket
 from collections.abc import Iterator
 from pathlib import Path
-from typing import TypeAlias
+from typing import BinaryIO, TypeAlias
 
 from .errors import InputError
 
@@ -29,6 +31,7 @@ __all__ = [
     "check_output",
     "check_new_folder",
     "check_output_folder",
+    "gunzipped",
     "input_file",
     "make_folder",
     "stale_parts",
@@ -58,6 +61,51 @@ def input_file(path: StrPath, what: str = "file") -> Path:
     if not os.access(path, os.R_OK):
         raise InputError(f"{what} is not readable", where=str(path), fix="check its permissions")
     return path
+
+
+#: A gzipped input may expand to this many times its size: text and XML compress 5 to 30
+#: times (an OS MasterMap tile about 15), a decompression bomb up to gzip's 1,032.
+MAX_EXPANSION = 100
+#: Bytes a gzipped input may always expand to, whatever its ratio (small, very regular files).
+FREE_EXPANSION = 64 * 2**20
+
+
+@contextlib.contextmanager
+def gunzipped(path: StrPath, what: str = "file") -> Iterator[BinaryIO]:
+    """A gzipped input opened for reading as a stream, which stops with an
+    :class:`InputError` (naming the file, the ratio and the way round it) once it has given
+    more than ``MAX_EXPANSION`` times the file's size (and more than ``FREE_EXPANSION``): a
+    0.8 MB file that expands to 600 MB is a decompression bomb, not a map or an orbit file.
+    Readers stream it (memory stays that of a buffer), so a large legitimate file costs
+    nothing more than its reading."""
+    path = Path(path)
+    limit = max(FREE_EXPANSION, MAX_EXPANSION * path.stat().st_size)
+    with gzip.open(path, "rb") as inner:
+        yield io.BufferedReader(_Capped(inner, limit, path, what))
+
+
+class _Capped(io.RawIOBase):
+    """A binary stream that refuses to give more than ``limit`` bytes (:func:`gunzipped`)."""
+
+    def __init__(self, inner: gzip.GzipFile, limit: int, path: Path, what: str):
+        self.inner, self.limit, self.path, self.what, self.given = inner, limit, path, what, 0
+
+    def readable(self) -> bool:
+        return True
+
+    def readinto(self, buffer) -> int:
+        n = self.inner.readinto(buffer)
+        self.given += n
+        if self.given > self.limit:
+            size = self.path.stat().st_size
+            raise InputError(
+                f"the gzipped {self.what} expands more than {MAX_EXPANSION} times its size"
+                f" ({size} bytes to over {self.given}, past the limit of {self.limit}):"
+                " a decompression bomb?",
+                where=str(self.path),
+                fix="if it is genuine, decompress it yourself (gzip -dk FILE) and give that",
+            )
+        return n
 
 
 def check_output(

@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import pandas as pd
 
-from .errors import InputError
+from .errors import InputError, user_text
 from .ids import id_named
 from .model.fourpl import logistic4
 from .paths import StrPath, atomic_path, check_output_folder, make_folder
@@ -67,6 +67,11 @@ FIT_WINDOW = 25.0
 
 #: Colours of the signal states (open, closed, blocked) and of the two final labels.
 STATE_COLOURS = {"open": "#21918c", "closed": "#fde725", "blocked": "#440154"}
+
+#: matplotlib settings of the figures: every text drawn literally. Ids and receiver names
+#: (log file names) are the user's: ``$...$`` would be parsed as math text (and a bad one
+#: stop the report), ``\`` ``_`` ``^`` as TeX with usetex.
+_LITERAL = {"text.parse_math": False, "text.usetex": False, "axes.formatter.use_mathtext": False}
 
 #: Hatches of the buildings without a height, one per status.
 HATCHES = ["////", "\\\\\\\\", "xxxx", "....", "oo", "++", "--", "||"]
@@ -189,9 +194,10 @@ def write_report(
     table = _table(run, truth)
     states = signal_states(run)
     sections = []
-    for name, heading, draw in _FIGURES:  # every figure drawn before any file is written
-        say(name)
-        sections.append((heading, name, _png(plt, draw(plt, run, table, states))))
+    with plt.rc_context(_LITERAL):
+        for name, heading, draw in _FIGURES:  # every figure drawn before any file is written
+            say(name)
+            sections.append((heading, name, _png(plt, draw(plt, run, table, states))))
     say("page")
     page = _page(title, run, table, sections)
     folder = make_folder(folder)
@@ -368,8 +374,8 @@ def _fits(plt: Any, run: Run, table: pd.DataFrame, states: pd.DataFrame) -> Any:
             ax.axvspan(fit["height_lower"], fit["height_upper"], color="#fde725", alpha=0.35)
             ax.axvline(fit["height"], color="#303030", linewidth=1)
         ax.set_ylim(-0.05, 1.05)
-        ax.set_title(f"{row.why}: {row.id}\nn = {fit['n_signals']}, {fit['status']}"[:70],
-                     fontsize=8)  # fmt: skip
+        ax.set_title(f"{row.why}: {user_text(row.id, 40)}\nn = {fit['n_signals']}, "
+                     f"{fit['status']}", fontsize=8)  # fmt: skip
         ax.set_xlabel("intersection height (m ODN)", fontsize=8)
         ax.set_ylabel("share open", fontsize=8)
         ax.tick_params(labelsize=7)
@@ -400,7 +406,7 @@ def _skyplots(plt: Any, run: Run, table: pd.DataFrame, states: pd.DataFrame) -> 
         ax.set_yticks([30, 60])
         ax.set_yticklabels(["60°", "30°"], fontsize=6)
         ax.tick_params(labelsize=6)
-        ax.set_title(f"{receiver} ({len(mine)})"[:40], fontsize=8)
+        ax.set_title(f"{user_text(receiver, 30)} ({len(mine)})", fontsize=8)
     axes.flat[0].legend(loc="lower left", bbox_to_anchor=(-0.25, -0.2), fontsize=7, markerscale=3)
     figure.tight_layout()
     return figure

@@ -14,6 +14,13 @@ Rules
   CRS (an ESRI ASCII grid without ``.prj``) is taken as EPSG:27700 only when the caller says
   so with ``assume_crs``. A building or receiver off the DEM, or over its nodata
   cells, is a :class:`DemCoverageError` listing them.
+- **Units**: heights come out in metres. A DEM's stored values are taken through the band's
+  scale and offset (GDAL's metadata: an int16 DEM in decimetres has scale 0.1; rasterio's
+  ``read`` does not apply them) and the unit the file states, the band's (``units``) or its
+  compound CRS's vertical axis, is converted exactly when it is a length GDAL files write
+  (``ft``, ``US survey foot``, ``cm``, ...); no unit stated means metres. Any other unit,
+  units that contradict each other, or a vertical datum other than ODN is an error naming it,
+  never heights read as metres (a ground of 20 m stored in feet would be read 45.6 m high).
 """
 
 from __future__ import annotations
@@ -26,6 +33,7 @@ from typing import TypeAlias
 import geopandas as gpd
 import numpy as np
 import numpy.typing as npt
+import pyproj
 import rasterio
 import rasterio.features
 import shapely
@@ -33,7 +41,7 @@ from pyproj.exceptions import CRSError
 from rasterio.io import DatasetReader
 from rasterio.windows import Window
 
-from .errors import InputError, MissingColumnError, first_line, listing
+from .errors import InputError, MissingColumnError, first_line, listing, user_text
 from .footprints import check_polygonal
 from .geodesy import CrsInput, check_bng, is_bng
 from .paths import StrPath
@@ -53,6 +61,29 @@ Dem: TypeAlias = StrPath | DatasetReader
 STATISTICS = ("median", "min", "mean")
 #: Side (cells) of the DEM blocks read at once.
 _BLOCK = 1024
+#: Metres per unit of the lengths a DEM's band or vertical CRS may state (lower case, the
+#: spellings GDAL and PROJ write and their plurals); '' (no unit stated) is metres.
+_METRES_PER_UNIT = {
+    **dict.fromkeys(["", "m", "metre", "metres", "meter", "meters"], 1.0),
+    **dict.fromkeys(["ft", "foot", "feet", "international foot", "ft (international)"], 0.3048),
+    **dict.fromkeys(
+        [
+            "us survey foot",
+            "us survey feet",
+            "us-ft",
+            "us_ft",
+            "ftus",
+            "foot_us",
+            "us foot",
+            "survey foot",
+        ],
+        1200 / 3937,
+    ),  # fmt: skip
+    **dict.fromkeys(["dm", "decimetre", "decimetres", "decimeter", "decimeters"], 0.1),
+    **dict.fromkeys(["cm", "centimetre", "centimetres", "centimeter", "centimeters"], 0.01),
+    **dict.fromkeys(["mm", "millimetre", "millimetres", "millimeter", "millimeters"], 0.001),
+    **dict.fromkeys(["km", "kilometre", "kilometres", "kilometer", "kilometers"], 1000.0),
+}
 
 
 class DemCoverageError(InputError):
@@ -120,6 +151,60 @@ def _check_dem(ds: DatasetReader, assume_crs, band: int) -> None:
             where=ds.name,
             fix="resample it north up, e.g. gdalwarp dem.tif dem_north_up.tif",
         )
+    _to_metres(ds, band)
+
+
+def _to_metres(ds: DatasetReader, band: int) -> tuple[float, float]:
+    """``(scale, offset)`` taking the band's stored values to metres: its own scale and offset
+    (GDAL's), then the unit it states (the band's, or its compound CRS's vertical axis).
+    An :class:`InputError` for a unit that is not a length converted here, two units that
+    disagree, or a vertical datum other than ODN."""
+    name = ds.units[band - 1] or ""
+    band_unit = _METRES_PER_UNIT.get(name.strip().lower())
+    if band_unit is None:
+        raise InputError(
+            f"the DEM's heights are in '{user_text(name)}', not a unit of length read here",
+            where=ds.name,
+            fix="give heights in metres (or ft, US survey foot, cm, mm); if they are metres,"
+            " say so: gdal_edit.py -units m DEM",
+        )
+    metres = band_unit
+    vertical = _vertical_crs(ds)
+    if vertical is not None:
+        datum = vertical.datum.name if vertical.datum is not None else ""
+        if "newlyn" not in datum.lower():
+            raise InputError(
+                f"the DEM's heights are {user_text(vertical.name)}, not ODN (Newlyn) heights",
+                where=ds.name,
+                fix="give ODN heights (EPSG:5701), e.g. convert them with the OSGM15 grid",
+            )
+        axis = vertical.axis_info[0]
+        if name.strip() and not np.isclose(axis.unit_conversion_factor, band_unit, rtol=1e-9):
+            raise InputError(
+                f"the DEM's band says its heights are in '{user_text(name)}' but its CRS"
+                f" says {axis.unit_name!r}",
+                where=ds.name,
+                fix="set the right one: gdal_edit.py -units UNIT DEM, or -a_srs EPSG:7405",
+            )
+        metres = axis.unit_conversion_factor
+    scale = ds.scales[band - 1] if ds.scales[band - 1] is not None else 1.0
+    offset = ds.offsets[band - 1] if ds.offsets[band - 1] is not None else 0.0
+    if not (np.isfinite(scale) and np.isfinite(offset) and scale != 0):
+        raise InputError(
+            f"the DEM's band has scale {scale} and offset {offset}",
+            where=ds.name,
+            fix="set a finite, non-zero scale: gdal_edit.py -scale 1 -offset 0 DEM",
+        )
+    return scale * metres, offset * metres
+
+
+def _vertical_crs(ds: DatasetReader) -> pyproj.CRS | None:
+    """The vertical part of the DEM's CRS, when it has one (a compound CRS: BNG + height)."""
+    if ds.crs is None:
+        return None
+    crs = pyproj.CRS.from_wkt(ds.crs.to_wkt())
+    crs = crs.source_crs if crs.is_bound and crs.source_crs is not None else crs
+    return next((sub for sub in crs.sub_crs_list if sub.is_vertical), None)
 
 
 def _to_pixel(ds: DatasetReader, x, y):
@@ -129,9 +214,15 @@ def _to_pixel(ds: DatasetReader, x, y):
 
 
 def _read(ds: DatasetReader, band: int, window: Window) -> np.ndarray:
-    """One window of the DEM as float64, with NaN for nodata (masked) cells."""
+    """One window of the DEM in metres (:func:`_to_metres`) as float64, with NaN for nodata
+    (masked) cells."""
     values = ds.read(band, window=window, masked=True)
-    return np.ma.filled(values.astype(np.float64), np.nan)
+    scale, offset = _to_metres(ds, band)
+    metres = np.ma.filled(values.astype(np.float64), np.nan)
+    if scale != 1.0 or offset != 0.0:
+        metres *= scale
+        metres += offset
+    return metres
 
 
 def _block_groups(rows: np.ndarray, cols: np.ndarray) -> list[np.ndarray]:
@@ -208,7 +299,7 @@ def sample_ground(
     Returns
     -------
     numpy.ndarray
-        The ground height of each point (the DEM's units, m ODN for OS Terrain).
+        The ground height of each point (m ODN; the DEM's stated units converted).
 
     Raises
     ------
@@ -286,7 +377,8 @@ def building_ground(
     Returns
     -------
     geopandas.GeoDataFrame
-        A copy of ``buildings`` with the column ``ground`` (float, the DEM's units).
+        A copy of ``buildings`` with the column ``ground`` (float, m ODN; the DEM's stated
+        units converted).
 
     Raises
     ------

@@ -6,6 +6,8 @@ read in place from the shared data folder.
 """
 
 import gzip
+import subprocess
+import sys
 
 import geopandas as gpd
 import numpy as np
@@ -320,7 +322,7 @@ def test_duplicate_ids(tmp_path):
 
 def test_missing_ids_and_clashing_id_column(tmp_path):
     path = write_layer(tmp_path / "gap.gpkg", [SQUARE, COURTYARD], toid=["a", None])
-    with pytest.raises(InputError, match=r"1 feature\(s\) without an id in 'toid': rows 1"):
+    with pytest.raises(InputError, match=r"1 feature\(s\) without an id .* in 'toid': rows 1"):
         read_footprints(path)
     path = write_layer(tmp_path / "two.gpkg", [SQUARE], toid=["a"], ID=[1])
     with pytest.raises(InputError, match=r"column 'ID' besides the id field 'toid'"):
@@ -418,3 +420,66 @@ def test_geoparquet_footprints_a_file_or_a_hive_folder(tmp_path):
     (tmp_path / "plain.parquet").write_bytes(b"PAR1 not really")
     with pytest.raises(InputError, match="cannot read the footprints as GeoParquet"):
         read_footprints(tmp_path / "plain.parquet")
+
+
+# --- decompression bombs (issue 26) ------------------------------------------------------------
+
+
+def _gzip_bomb(path, head: str, filler: bytes, size: int, tail: str = ""):
+    """A gzip file of ``head``, ``size`` bytes of ``filler`` and ``tail``: about size / 1000
+    bytes on disk."""
+    with gzip.open(path, "wb", compresslevel=9) as out:
+        out.write(head.encode())
+        chunk = filler * (2**20 // len(filler))
+        for _ in range(size // len(chunk)):
+            out.write(chunk)
+        out.write(tail.encode())
+    return path
+
+
+def test_a_gzip_bomb_is_refused_in_bounded_memory(tmp_path):
+    """A 0.3 MB .gml.gz of 300 MB (spaces inside a MasterMap file, well-formed) is one error
+    naming the ratio and the way round it, read as a stream: memory stays small."""
+    start = MASTERMAP_GZ.index("  <osgb:topographicMember>")
+    path = _gzip_bomb(
+        tmp_path / "bomb.gml.gz", MASTERMAP_GZ[:start], b" ", 300 * 2**20, MASTERMAP_GZ[start:]
+    )
+    assert path.stat().st_size < 2**20
+    script = (
+        "import resource, sys\n"
+        "from gnss_citygml.errors import InputError\n"
+        "from gnss_citygml.footprints import read_footprints\n"
+        "try:\n"
+        f"    read_footprints({str(path)!r})\n"
+        "    print('read')\n"
+        "except InputError as exc:\n"
+        "    print(exc.one_line())\n"
+        "print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss // 1024)\n"
+    )
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
+    message, rss_mb = done.stdout.splitlines()
+    assert "expands more than 100 times its size" in message, done.stdout + done.stderr
+    assert "bomb.gml.gz" in message and "gzip -dk" in message
+    assert int(rss_mb) < 400, rss_mb  # was 863 MB for 600 MB
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bomb.gml.gz"]
+
+
+def test_an_orbit_file_gzip_bomb_is_refused(tmp_path, orbits_dir):
+    from gnss_citygml.gnss.orbits import load_orbits
+
+    first = (orbits_dir / "grg21553.sp3").read_text().splitlines(keepends=True)
+    path = _gzip_bomb(tmp_path / "bomb.sp3.gz", "".join(first[:40]), b" " * 79 + b"\n", 80 * 2**20)
+    with pytest.raises(InputError, match=r"gzipped orbit file expands more than 100 times"):
+        load_orbits(path)
+
+
+def test_a_real_mastermap_tile_gzipped_is_read(shared_data, tmp_path, monkeypatch):
+    """OS MasterMap compresses about 15 times: well inside the cap, which holds alone here."""
+    import gnss_citygml.paths
+
+    monkeypatch.setattr(gnss_citygml.paths, "FREE_EXPANSION", 0)
+    text = (shared_data / "footprints" / "mastermap-topo_3473984_0.gml").read_bytes()
+    path = tmp_path / "tile.gml.gz"
+    path.write_bytes(gzip.compress(text))
+    assert 10 < len(text) / path.stat().st_size < 100
+    assert len(read_footprints(path)) > 0

@@ -17,7 +17,7 @@ from lxml import etree
 from test_cli import run
 
 from gnss_citygml.cli import main
-from gnss_citygml.errors import InputError
+from gnss_citygml.errors import InputError, escape_controls
 from gnss_citygml.export import write_citygml, write_cityjson
 from gnss_citygml.footprints import read_footprints
 from gnss_citygml.ids import id_field, id_named, source_named, with_id_field
@@ -245,3 +245,67 @@ def test_id_field_fid_is_the_feature_id(tmp_path):
     named = read_footprints(tmp_path / "f.gpkg", id_field="fid")
     assert named["id"].tolist() == read_footprints(tmp_path / "f.gpkg")["id"].tolist()
     assert named["id"].iloc[0] == "1"
+
+
+# --- ids in messages, and ids that are no ids (issue 26) -------------------------------------
+
+#: Ids that could forge or garble a line of output: a line end followed by a fake error, a
+#: tab, a carriage return, an ANSI colour, the Unicode line separator, a bidi override.
+TAMPERED = ["a\nerror: forged", "b\tc", "d\re", "\x1b[31mred", "f\u2028g", "h\u202eevil"]
+
+
+@pytest.mark.parametrize("tampered", TAMPERED)
+def test_an_id_is_shown_escaped_in_every_message(tmp_path, capsys, tampered):
+    # a skipped building's line, an error listing ids and a warning listing ids
+    boxes = [*BOXES, shapely.box(529540, 182300, 529550, 182308)]
+    table = gpd.GeoDataFrame(
+        {"id": [tampered, "ok", "tall"], "ground": [20.0, 20, 20], "height": [1e9, 30, 30]},
+        geometry=boxes,
+        crs="EPSG:27700",
+    )
+    source = tmp_path / "heights.gpkg"
+    table.to_file(source, layer="heights", driver="GPKG")
+    code, _, err = run(["convert", str(source), "-o", str(tmp_path / "c.city.json")], capsys)
+    assert code == 0, err
+    twice = table.assign(id=[tampered, tampered, "x"]).rename(columns={"id": "toid"})
+    twice.to_file(tmp_path / "twice.gpkg", driver="GPKG")
+    code2, _, err2 = run(["convert", str(tmp_path / "twice.gpkg"), "-o", "-"], capsys)
+    assert code2 == 2
+    corners = [(529500, 182300), (529510, 182310), (529510, 182300), (529500, 182310)]
+    bowtie = shapely.Polygon(corners)
+    table.assign(geometry=[bowtie, *boxes[1:]]).to_file(tmp_path / "bow.gpkg", driver="GPKG")
+    with pytest.warns(UserWarning) as caught:
+        read_footprints(tmp_path / "bow.gpkg")
+    warned = str(caught[0].message)
+    for text in (err, err2, warned):
+        assert escape_controls(tampered) in text, text
+        assert all(ch not in text for ch in "\t\r\x1b\u2028\u202e"), text
+    assert len(err.splitlines()) == 1 and err.startswith("skipped "), err
+    assert len(err2.splitlines()) == 1 and err2.startswith("error: "), err2
+
+
+def test_a_long_id_is_cut_in_messages(tmp_path):
+    long = "x" * 5000
+    path = tmp_path / "long.gpkg"
+    frame = gpd.GeoDataFrame({"toid": [long, long]}, geometry=BOXES, crs="EPSG:27700")
+    frame.to_file(path, driver="GPKG")
+    with pytest.raises(InputError) as caught:
+        read_footprints(path)
+    assert "... (5000 characters)" in str(caught.value) and len(str(caught.value)) < 400
+
+
+@pytest.mark.parametrize("blank", ["", " ", "\t ", "\u3000", "a\x00b"])
+def test_blank_ids_and_ids_with_a_nul_are_refused_like_missing_ones(tmp_path, blank):
+    # GeoParquet keeps a NUL (GDAL would cut the id there: "a\0b" would become "a")
+    frame = gpd.GeoDataFrame({"toid": ["ok", blank]}, geometry=BOXES, crs="EPSG:27700")
+    frame.to_parquet(tmp_path / "f.parquet")
+    with pytest.raises(InputError, match=r"1 feature\(s\) without an id .* in 'toid': rows 1"):
+        read_footprints(tmp_path / "f.parquet")
+    if "\x00" not in blank:
+        frame.to_file(tmp_path / "f.gpkg", driver="GPKG")
+        with pytest.raises(InputError, match=r"without an id .* in 'toid': rows 1"):
+            read_footprints(tmp_path / "f.gpkg")
+    # a heights table handed to convert: the same rule
+    heights = frame.rename(columns={"toid": "id"}).assign(ground=20.0, height=30.0)
+    with pytest.raises(InputError, match=r"1 building\(s\) without an id .*rows 1"):
+        write_cityjson(heights, tmp_path / "c.city.json")

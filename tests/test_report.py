@@ -199,3 +199,46 @@ def test_a_truth_table_without_a_report_is_refused(grid_args, tmp_path, capsys):
         [*args, "-o", str(tmp_path / "h.gpkg"), "--truth", str(CITY / "truth.csv")], capsys
     )
     assert code == 2 and "no report was asked for" in err and not (tmp_path / "h.gpkg").exists()
+
+
+#: Names matplotlib would read as math text or TeX (and fail on, or draw otherwise), with a
+#: line end, a control character and one far too long for a title.
+TAMPERED_NAMES = ["$\\frac{$", "$x^2$", "a_b^c", "50% {x}", "back\\slash", "$a$\n$b$", "z" * 300]
+
+
+def test_names_are_drawn_literally(city_run, tmp_path):
+    """Ids and receiver names (log file names) are the user's text: none is math text."""
+    import dataclasses
+
+    ids = city_run.heights["id"].astype(str).unique()
+    new_ids = {old: f"{TAMPERED_NAMES[i % len(TAMPERED_NAMES)]}{i}" for i, old in enumerate(ids)}
+    receivers = city_run.receivers["receiver"].astype(str).unique()
+    new_receivers = {old: f"{TAMPERED_NAMES[i % 7]}{i}" for i, old in enumerate(receivers)}
+    tampered = dataclasses.replace(
+        city_run,
+        heights=city_run.heights.assign(id=city_run.heights["id"].map(new_ids)),
+        buildings=city_run.buildings.assign(id=city_run.buildings["id"].map(new_ids)),
+        intersections=city_run.intersections.assign(
+            building=city_run.intersections["building"].map(new_ids)
+        ),
+        receivers=city_run.receivers.assign(
+            receiver=city_run.receivers["receiver"].map(new_receivers)
+        ),
+    )
+    page = write_report(tampered, tmp_path / "r", title="$\\bad{$ report")
+    text = page.read_text()
+    assert "<h1>$\\bad{$ report</h1>" in text
+    assert sorted(p.name for p in (tmp_path / "r" / "figures").iterdir()) == FIGURES
+
+
+def test_estimate_report_with_a_math_receiver_name(grid_args, tmp_path, capsys):
+    """A receiver is named after its log file: `$...$` in it must not stop the report after the
+    heights were written."""
+    obs = pd.read_parquet(CITY / "observations.parquet")
+    obs["receiver"] = "$\\undefined{$_" + obs["receiver"].astype(str)
+    obs.to_parquet(tmp_path / "obs.parquet")
+    args = [str(tmp_path / "obs.parquet"), str(CITY / "footprints.gpkg")]
+    args += ["--dem", str(CITY / "dem.tif"), *grid_args, "-q", "-o", str(tmp_path / "h.gpkg")]
+    code, _, err = run_cli(["estimate", *args, "--report", str(tmp_path / "r")], capsys)
+    assert code == 0, err
+    assert (tmp_path / "r" / REPORT).is_file()

@@ -14,7 +14,7 @@ import shapely
 from rasterio.transform import from_origin
 from test_footprints import BNG, COURTYARD, SQUARE, write_footprints
 
-from gnss_citygml.errors import InputError
+from gnss_citygml.errors import InputError, escape_controls
 from gnss_citygml.footprints import read_footprints
 from gnss_citygml.terrain import DemCoverageError, building_ground, sample_ground
 
@@ -206,3 +206,84 @@ def test_other_bad_arguments(dem):
         building_ground(b.set_crs("EPSG:4326", allow_override=True), dem)
     with pytest.raises(InputError, match=r"must be a GeoDataFrame, not list"):
         building_ground([1, 2], dem)  # was an AttributeError
+
+
+# --- heights in the units the DEM states (issue 26) ------------------------------------------
+
+
+def write_stored_dem(path, units, per_unit, *, scale=1.0, offset=0.0, dtype="float64", crs=BNG):
+    """The synthetic DEM stored as GDAL files hold heights: value = (metres / per_unit - offset)
+    / scale, with the band's ``units`` (None: not stated), scale and offset."""
+    cols, rows = np.meshgrid(np.arange(WIDTH), np.arange(HEIGHT))
+    stored = plane(WEST + (cols + 0.5) * CELL, NORTH - (rows + 0.5) * CELL) / per_unit - offset
+    stored /= scale
+    with rasterio.open(
+        path, "w", driver="GTiff", width=WIDTH, height=HEIGHT, count=1, dtype=dtype, crs=crs,
+        transform=from_origin(WEST, NORTH, CELL, CELL),
+    ) as ds:  # fmt: skip
+        if units is not None:
+            ds.units = (units,)
+        ds.scales, ds.offsets = (scale,), (offset,)
+        ds.write(np.round(stored) if dtype == "int16" else stored, 1)
+    return path
+
+
+@pytest.mark.parametrize(
+    ("units", "per_unit"),
+    [
+        *[(u, 0.3048) for u in ("ft", "feet", "foot", "Foot", "international foot")],
+        *[(u, 1200 / 3937) for u in ("US survey foot", "us-ft", "ftUS", "foot_us")],
+        *[(u, 1.0) for u in (None, "", "m", "metre", "meter", "metres", "Meters")],
+        ("cm", 0.01),
+        ("mm", 0.001),
+        ("dm", 0.1),
+        ("km", 1000.0),
+    ],
+)
+def test_heights_are_converted_from_the_units_the_dem_states(tmp_path, units, per_unit, rng):
+    path = write_stored_dem(tmp_path / "dem.tif", units, per_unit)
+    e, n = rng.uniform(500010, 500990, 50), rng.uniform(200210, 200990, 50)
+    assert sample_ground(path, e, n) == pytest.approx(plane(e, n), abs=1e-9)
+    ground = building_ground(buildings_table(["sq", "court"], [SQUARE, COURTYARD]), path)
+    expected = [np.median(cells_under(SQUARE)), np.median(cells_under(COURTYARD))]
+    assert ground["ground"].tolist() == pytest.approx(expected, abs=1e-9)
+
+
+def test_the_band_scale_and_offset_are_applied(tmp_path, rng):
+    # decimetres as int16 (scale 0.1), with an offset; and feet with a scale: GDAL's rule is
+    # unit value = stored * scale + offset
+    e, n = rng.uniform(500010, 500990, 50), rng.uniform(200210, 200990, 50)
+    for units, per_unit, scale, offset in (("m", 1.0, 0.1, -5.0), ("ft", 0.3048, 0.5, 100.0)):
+        path = write_stored_dem(
+            tmp_path / f"{units}.tif", units, per_unit, scale=scale, offset=offset, dtype="int16"
+        )
+        half_step = scale * per_unit  # rounding to int16, then bilinear: within one step
+        assert sample_ground(path, e, n) == pytest.approx(plane(e, n), abs=half_step)
+        ground = building_ground(buildings_table(["sq"], [SQUARE]), path)["ground"]
+        assert ground[0] == pytest.approx(np.median(cells_under(SQUARE)), abs=half_step)
+
+
+@pytest.mark.parametrize("units", ["furlong", "dB", "degree", "hPa", "ft\n error: x", "m/s"])
+def test_heights_in_units_not_of_length_are_refused(tmp_path, units):
+    path = write_stored_dem(tmp_path / "dem.tif", units, 1.0)
+    for read in (
+        lambda: sample_ground(path, [500500.0], [200500.0]),
+        lambda: building_ground(buildings_table(["sq"], [SQUARE]), path),
+    ):
+        with pytest.raises(InputError) as caught:
+            read()
+        message = caught.value.one_line()
+        assert "dem.tif" in message and "gdal_edit.py -units m" in message, message
+        assert escape_controls(units) in message and "\n" not in message
+
+
+def test_a_compound_crs_must_hold_odn_heights_in_the_band_s_units(tmp_path):
+    b = buildings_table(["sq"], [SQUARE])
+    odn = write_stored_dem(tmp_path / "odn.tif", None, 1.0, crs="EPSG:27700+5701")
+    assert building_ground(b, odn)["ground"][0] == pytest.approx(np.median(cells_under(SQUARE)))
+    feet = write_stored_dem(tmp_path / "feet.tif", "ft", 0.3048, crs="EPSG:27700+5701")
+    with pytest.raises(InputError, match=r"band says .*'ft' but its CRS says 'metre'"):
+        building_ground(b, feet)
+    navd = write_stored_dem(tmp_path / "navd.tif", "ft", 0.3048, crs="EPSG:27700+8228")
+    with pytest.raises(InputError, match=r"NAVD88 height \(ft\), not ODN"):
+        sample_ground(navd, [500500.0], [200500.0])

@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING
 
 import click
 
-from ..errors import InputError, escape_controls
+from ..errors import InputError, escape_controls, user_text
 from .options import (
     DEM_CRS,
     GRID_DIR,
@@ -63,7 +63,7 @@ def _run(job: Callable[..., ExportResult], output: Path, quiet: bool, **options)
 
         result = job(path, progress=told, **options)
     for building, reason in result.skipped.itertuples(index=False):
-        click.echo(f"skipped {building}: {reason}", err=True)
+        click.echo(f"skipped {user_text(building)}: {reason}", err=True)
     to = "standard output" if output == STDOUT else str(output)
     click.echo(result.summary(to), err=output == STDOUT)
 

@@ -34,7 +34,7 @@ import shapely
 from ..contracts import HEIGHTS, load
 from ..errors import InputError, MissingColumnError, listing
 from ..geodesy import check_bng
-from ..ids import id_field, id_named, with_id_field
+from ..ids import id_field, id_named, missing_ids, with_id_field
 from ..paths import StrPath
 from ..validate import Report
 from .output import ExportResult
@@ -356,7 +356,7 @@ class _Checks:
 
     def add(self, frame: gpd.GeoDataFrame, first: int) -> None:
         """Check the buildings ``frame``, which start at position ``first`` of the table."""
-        self.no_id.append(np.flatnonzero(frame["id"].isna().to_numpy()) + first)
+        self.no_id.append(np.flatnonzero(missing_ids(frame["id"])) + first)
         ids = frame["id"].astype(str).to_numpy(dtype=object)
         self.hashes[first : first + len(ids)] = hash_texts(ids)
         geoms = frame.geometry.to_numpy()
@@ -388,7 +388,8 @@ class _Checks:
         no_id = np.concatenate(self.no_id) if self.no_id else np.zeros(0, dtype=np.int64)
         if no_id.size:
             raise InputError(
-                f"{no_id.size} building(s) without an id (rows {listing(no_id)})",
+                f"{no_id.size} building(s) without an id (missing, blank or with a NUL"
+                f" character; rows {listing(no_id)})",
                 where="buildings",
                 fix="give every building an id",
             )

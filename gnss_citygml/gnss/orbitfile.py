@@ -10,15 +10,17 @@ first line to tell the two kinds apart) read them one way.
 
 from __future__ import annotations
 
+import contextlib
 import datetime
-import gzip
+import io
+import zlib
 from typing import Literal, overload
 
 import numpy as np
 
 from gnss_citygml.errors import InputError
 from gnss_citygml.gnss.gpstime import NS_PER_S
-from gnss_citygml.paths import StrPath, input_file
+from gnss_citygml.paths import StrPath, gunzipped, input_file
 
 __all__ = ["fortran_float", "garbled", "location", "read_lines", "record_epoch"]
 
@@ -48,11 +50,14 @@ def read_lines(path: StrPath, first_only: bool = False) -> str | list[str]:
         raise InputError(
             "Unix-compressed (.Z) files are not read", where=str(path), fix="run `gzip -d` first"
         )
-    opener = gzip.open if path.suffix == ".gz" else open
     try:
-        with opener(path, "rt", encoding="ascii", errors="replace") as f:
+        with contextlib.ExitStack() as stack:
+            raw = stack.enter_context(
+                gunzipped(path, "orbit file") if path.suffix == ".gz" else open(path, "rb")
+            )
+            f = stack.enter_context(io.TextIOWrapper(raw, encoding="ascii", errors="replace"))
             return f.readline() if first_only else f.read().splitlines()
-    except (OSError, EOFError) as exc:
+    except (OSError, EOFError, zlib.error) as exc:
         raise InputError(f"cannot read the file ({exc})", where=str(path)) from exc
 
 

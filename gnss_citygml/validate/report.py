@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass, field
 from typing import NamedTuple
+
+from ..errors import escape_controls
 
 __all__ = ["Issue", "Report"]
 
@@ -19,18 +20,11 @@ class Issue(NamedTuple):
     def line(self) -> str:
         """The issue as one line: object id (``-`` for the file), rule and message, tab-separated.
 
-        Control characters and lone surrogates (an id or a quoted value can hold them) are
-        escaped, so that an issue is always one printable line."""
+        Control characters, bidi controls and lone surrogates (an id or a quoted value can
+        hold them) are escaped (:func:`~gnss_citygml.errors.escape_controls`), so that an
+        issue is always one printable line."""
         fields = (self.object_id or "-", self.rule, self.message)
-        return "\t".join(map(_printable, fields))
-
-
-_UNPRINTABLE = re.compile(r"[\x00-\x1f\x7f-\x9f\ud800-\udfff]")
-
-
-def _printable(text: str) -> str:
-    """``text`` with its control characters and lone surrogates escaped (``\\n``, ``\\udc80``)."""
-    return _UNPRINTABLE.sub(lambda m: m.group().encode("unicode_escape").decode("ascii"), text)
+        return "\t".join(map(escape_controls, fields))
 
 
 @dataclass
@@ -73,7 +67,7 @@ class Report:
     def summary(self) -> str:
         """One line: the file, its format, valid or how many errors, the checks run."""
         verdict = "valid" if self.valid else f"INVALID, {len(self.errors)} error(s)"
-        return _printable(
+        return escape_controls(
             f"{self.path}: {self.format}, {self.n_objects} object(s): {verdict} "
             f"(checks: {', '.join(self.checks)})"
         )

@@ -21,17 +21,27 @@ from __future__ import annotations
 
 from typing import TypeVar
 
+import numpy as np
 import pandas as pd
 
 from .errors import InputError
 
-__all__ = ["ID_FIELD", "id_field", "id_named", "source_named", "with_id_field"]
+__all__ = ["ID_FIELD", "id_field", "id_named", "id_text", "source_named", "with_id_field"]
 
 #: The key of ``DataFrame.attrs`` holding the name of the source's id field.
 ID_FIELD = "id_field"
 
 #: A table, or a GeoDataFrame: what goes in comes out.
 Frame = TypeVar("Frame", bound=pd.DataFrame)
+
+
+def id_text(ids: pd.Series) -> pd.Series:
+    """Building ids as text, as the source stores them: text kept as it is (``"001"``,
+    ``"1.0"``), integers written out, whole numbers stored as REAL without their ``.0`` (a
+    Shapefile's or a spreadsheet's numeric ids). The one rule for every reader of ids."""
+    if pd.api.types.is_float_dtype(ids) and np.all(np.mod(ids.to_numpy(), 1) == 0):
+        ids = ids.astype(np.int64)
+    return ids.astype(str)
 
 
 def id_field(frame: pd.DataFrame) -> str:

@@ -700,9 +700,7 @@ def _current_values(path: Path, layer: str, key: str, ids: pd.Series) -> pd.Data
     return table.set_index("id").reindex(ids.astype(str), columns=list(COLUMNS))
 
 
-def _key_column(
-    path: Path, layer: str, candidates: list, ids: pd.Series
-) -> tuple[str, pd.Series]:
+def _key_column(path: Path, layer: str, candidates: list, ids: pd.Series) -> tuple[str, pd.Series]:
     """The column of the layer's table that holds the building ids: the first of
     ``candidates`` (the id field, as read and as asked for; GDAL's ``fid``, the primary key)
     whose values are the buildings' ids; and its values as stored, by id (the rows are

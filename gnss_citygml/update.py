@@ -17,7 +17,11 @@ with SQL on the layer's own table, by building id.
   model on all of the evidence, so its result is that of one run over all the observations.
   The model is refitted whole, not only for the buildings the new signals touch: 4PL-B
   co-trains one signal classifier on every building's signals, so new signals anywhere move
-  the labels, and with them the fits, everywhere.
+  the labels, and with them the fits, everywhere. The evidence is the layer's as SQLite names
+  it (in any letter case), and records what it was cast with: a later update with other
+  settings (elevation mask, receiver heights) or a DEM that gives other antenna heights where
+  signals were cast from is refused, never mixed in. A damaged evidence table is a one-line
+  error. A map given as a symbolic link is the file it names (updated; the link stays).
 - **Idempotent.** The same observations again add no evidence and change no value; a
   building's ``updated_utc`` changes only when one of its values does, and a run that
   changes nothing writes nothing.

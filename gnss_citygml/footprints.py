@@ -49,7 +49,7 @@ from pandas.api.types import is_list_like
 
 from .errors import InputError, MissingColumnError, first_line, listing, user_text
 from .geodesy import CrsError, OutsideExtentError, is_bng, to_bng
-from .ids import missing_ids, with_id_field
+from .ids import id_text, missing_ids, with_id_field
 from .paths import StrPath, gunzipped, input_file
 
 __all__ = ["check_polygonal", "read_footprints"]
@@ -354,9 +354,7 @@ def _id_text(ids: pd.Series, name: str, where: str) -> pd.Series:
             where=where,
             fix="fill in the ids or choose another --id-field",
         )
-    if pd.api.types.is_float_dtype(ids) and np.all(np.mod(ids.to_numpy(), 1) == 0):
-        ids = ids.astype(np.int64)
-    return ids.astype(str)
+    return id_text(ids)
 
 
 def _looks_like_degrees(bounds: np.ndarray) -> bool:

@@ -26,7 +26,15 @@ import pandas as pd
 
 from .errors import InputError
 
-__all__ = ["ID_FIELD", "id_field", "id_named", "missing_ids", "source_named", "with_id_field"]
+__all__ = [
+    "ID_FIELD",
+    "id_field",
+    "id_named",
+    "id_text",
+    "missing_ids",
+    "source_named",
+    "with_id_field",
+]
 
 #: The key of ``DataFrame.attrs`` holding the name of the source's id field.
 ID_FIELD = "id_field"
@@ -47,6 +55,15 @@ def missing_ids(ids: pd.Series) -> np.ndarray:
     text = ids[~missing].astype(str)
     missing[~missing] = (text.str.strip().eq("") | text.str.contains("\0", regex=False)).to_numpy()
     return missing
+
+
+def id_text(ids: pd.Series) -> pd.Series:
+    """Building ids as text, as the source stores them: text kept as it is (``"001"``,
+    ``"1.0"``), integers written out, whole numbers stored as REAL without their ``.0`` (a
+    Shapefile's or a spreadsheet's numeric ids). The one rule for every reader of ids."""
+    if pd.api.types.is_float_dtype(ids) and np.all(np.mod(ids.to_numpy(), 1) == 0):
+        ids = ids.astype(np.int64)
+    return ids.astype(str)
 
 
 def id_field(frame: pd.DataFrame) -> str:

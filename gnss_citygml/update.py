@@ -17,7 +17,11 @@ with SQL on the layer's own table, by building id.
   model on all of the evidence, so its result is that of one run over all the observations.
   The model is refitted whole, not only for the buildings the new signals touch: 4PL-B
   co-trains one signal classifier on every building's signals, so new signals anywhere move
-  the labels, and with them the fits, everywhere.
+  the labels, and with them the fits, everywhere. The evidence is the layer's as SQLite names
+  it (in any letter case), and records what it was cast with: a later update with other
+  settings (elevation mask, receiver heights) or a DEM that gives other antenna heights where
+  signals were cast from is refused, never mixed in. A damaged evidence table is a one-line
+  error. A map given as a symbolic link is the file it names (updated; the link stays).
 - **Idempotent.** The same observations again add no evidence and change no value; a
   building's ``updated_utc`` changes only when one of its values does, and a run that
   changes nothing writes nothing.
@@ -27,6 +31,8 @@ from __future__ import annotations
 
 import contextlib
 import datetime as dt
+import json
+import os
 import shutil
 import sqlite3
 from collections.abc import Callable, Sequence
@@ -37,7 +43,8 @@ import numpy as np
 import pandas as pd
 
 from .errors import InputError
-from .geopackage import connect, has_table, quoted
+from .geopackage import connect, quoted
+from .ids import id_text
 from .paths import StrPath, atomic_path, input_file
 from .settings import Estimator, Rays, ReceiverHeights
 
@@ -96,8 +103,14 @@ _EVIDENCE_COLUMNS = [
     "recording",
 ]
 
-#: What the evidence keeps of every signal cast: for the report's skyplots and tracks.
-_SIGNAL_COLUMNS = ["signal_key", "receiver", "time_utc", "e", "n", "azimuth", "elevation", "cn0"]
+#: What the evidence keeps of every signal cast: for the report's skyplots and tracks, and
+#: the antenna's height ``z`` it was cast from (checked against the DEM of a later update).
+_SIGNAL_COLUMNS = [
+    "signal_key", "receiver", "time_utc", "e", "n", "azimuth", "elevation", "cn0", "z"
+]  # fmt: skip
+
+#: The columns of the evidence table that every update reads.
+_TABLE_COLUMNS = ["id", "layer", "kind", "footprints", "data"]
 
 #: The types of the evidence's columns (for an empty table).
 _DTYPES = {
@@ -116,6 +129,7 @@ _DTYPES = {
     "n": "float64",
     "azimuth": "float64",
     "elevation": "float64",
+    "z": "float64",
 }
 
 
@@ -224,22 +238,30 @@ def update_map(
         raise InputError(f"min_signals must be 1 or more, not {min_signals}", fix="give N >= 1")
     say("reading", 0.0)
     read_at = _stamp(path)
+    name = _layer_name(path, layer)  # (as the database names it: the evidence's key)
     buildings = read_buildings(
-        path, layer=layer, id_field=id_field, dem=dem, dem_crs=dem_crs, grid_dir=grid_dir
+        path,
+        layer=None if layer is None else name,
+        id_field=id_field,
+        dem=dem,
+        dem_crs=dem_crs,
+        grid_dir=grid_dir,
     )
-    name = _layer_name(path, layer)
     id_column = source_id_field(buildings)
     outlines = _outlines(buildings)
-    key = _key_column(path, name, [id_column, id_field, "fid"], buildings["id"])
+    key, stored_ids = _key_column(path, name, [id_column, id_field, "fid"], buildings["id"])
     current = _current_values(path, name, key, buildings["id"])  # (checks our columns' types)
-    stored = _read_evidence(path, name, INTERSECTIONS, _EVIDENCE_COLUMNS)
+    before = _read_evidence(path, name, with_signals=report is not None)
+    settings = _cast_settings(rays, receiver_heights)
+    _check_cast_with(path, before, settings)
+    _check_receiver_heights(before.cast, dem, receiver_heights, dem_crs)
+    stored, cast_before = before.intersections, before.cast
     gone = ~stored["building"].isin(buildings["id"].astype(str)).to_numpy()
     stored = stored[~gone].reset_index(drop=True)  # footprints deleted since: their evidence
     obs = in_mask(pd.concat([read_observations(p) for p in observations], ignore_index=True), rays)
     keys = _keys(obs)
     repeated = keys.duplicated().to_numpy()
     obs, keys = obs[~repeated].reset_index(drop=True), keys[~repeated].reset_index(drop=True)
-    cast_before = _read_evidence(path, name, CAST, _SIGNAL_COLUMNS if report else ["signal_key"])
     unseen = ~keys.isin(cast_before["signal_key"]).to_numpy()
     new = obs[unseen].reset_index(drop=True)
     fresh, signals = stored.iloc[:0], pd.DataFrame(columns=_SIGNAL_COLUMNS)
@@ -278,7 +300,7 @@ def update_map(
         result.notes.append(
             f"{int(gone.sum())} intersections with footprints no longer in the layer left out"
         )
-    if _last_outlines(path, name) not in (None, outlines):
+    if before.outlines not in (None, outlines):
         result.notes.append(
             "the footprints changed since the evidence was cast; signals cast before are "
             "not cast again against new or edited outlines (to cast everything again, delete "
@@ -286,7 +308,7 @@ def update_map(
         )
     if report is not None:
         say("report", 0.6)
-        everything = pd.concat([cast_before, signals], ignore_index=True)
+        everything = pd.concat([cast_before, signals], ignore_index=True).drop(columns="z")
         run = Run(
             heights=with_id_field(estimate, id_column),
             receivers=everything,
@@ -311,10 +333,11 @@ def update_map(
         )
     with atomic_path(path, overwrite=True, update=True) as tmp:
         if len(fresh):
-            _append_evidence(tmp, name, INTERSECTIONS, fresh, outlines)
+            _append_evidence(tmp, name, INTERSECTIONS, fresh, outlines, settings)
         if len(signals):
-            _append_evidence(tmp, name, CAST, signals, outlines)
-        _write_columns(tmp, name, key, values[table["changed"].to_numpy()])
+            _append_evidence(tmp, name, CAST, signals, outlines, settings)
+        changed = values[table["changed"].to_numpy()]
+        _write_columns(tmp, name, key, changed.assign(id=changed["id"].map(stored_ids)))
         if backup:
             result.backup = _backup(path)
     result.written = True
@@ -323,8 +346,9 @@ def update_map(
 
 
 def _check_map(path: StrPath) -> Path:
-    """The map: an existing GeoPackage that no other program is writing to."""
-    path = input_file(path, "map")
+    """The map: an existing GeoPackage that no other program is writing to; the file itself
+    when ``path`` is a symbolic link (the update replaces the file, and the link stays)."""
+    path = Path(os.path.realpath(input_file(path, "map")))
     if path.suffix.lower() != ".gpkg":
         raise InputError(
             "the map must be a GeoPackage (.gpkg): only there can the evidence and the columns "
@@ -373,18 +397,6 @@ def _outlines(buildings: pd.DataFrame) -> str:
     return digest.hexdigest()
 
 
-def _last_outlines(path: Path, layer: str) -> str | None:
-    """The footprints' digest the last evidence of ``layer`` was cast against (None: none)."""
-    with contextlib.closing(sqlite3.connect(path)) as db:
-        if not has_table(db, EVIDENCE):
-            return None
-        row = db.execute(
-            f"SELECT footprints FROM {EVIDENCE} WHERE layer = ? ORDER BY id DESC LIMIT 1",
-            (layer,),
-        ).fetchone()
-    return None if row is None else str(row[0])
-
-
 def _stamp(path: Path) -> tuple[int, int, int]:
     """The file's inode, size and modification time: what changes when it is written."""
     info = path.stat()
@@ -392,11 +404,19 @@ def _stamp(path: Path) -> tuple[int, int, int]:
 
 
 def _layer_name(path: Path, layer: str | None) -> str:
-    """The footprint layer's table: ``layer``, or the file's only polygon layer."""
+    """The footprint layer's table: ``layer`` as the database names it (SQLite's names are
+    the same in any letter case: ``FOOTPRINTS`` is the table ``footprints``, and its evidence
+    is that table's), or the file's only polygon layer."""
     import pyogrio
 
     if layer is not None:
-        return layer
+        with contextlib.closing(sqlite3.connect(path)) as db:
+            row = db.execute(
+                "SELECT table_name FROM gpkg_contents WHERE table_name = ? COLLATE NOCASE "
+                "UNION ALL SELECT name FROM sqlite_master WHERE name = ? COLLATE NOCASE",
+                (layer, layer),
+            ).fetchone()
+        return layer if row is None else str(row[0])  # (none: read_footprints says so)
     layers = pyogrio.list_layers(path)
     spatial = [str(n) for n, kind in layers if kind is not None]
     polygons = [n for n, kind in layers if kind and "Polygon" in str(kind)]
@@ -416,28 +436,123 @@ def _keys(rows: pd.DataFrame) -> pd.Series:
     return pd.Series(hashed.to_numpy().view(np.int64), index=rows.index)
 
 
-def _read_evidence(path: Path, layer: str, kind: str, columns: list[str]) -> pd.DataFrame:
-    """Every row of one kind of evidence, in the order the updates added them."""
+@dataclass
+class _Stored:
+    """A layer's evidence so far: its intersections, the signals cast, and what the last
+    update cast them against (the footprints' digest) and with (:func:`_cast_settings`)."""
+
+    intersections: pd.DataFrame
+    cast: pd.DataFrame
+    outlines: str | None
+    cast_with: str | None
+
+
+def _read_evidence(path: Path, layer: str, *, with_signals: bool) -> _Stored:
+    """The evidence of ``layer`` (every row of the layer in any letter case, as SQLite
+    compares names), in the order the updates added it; of the signals cast, their keys and
+    positions (all their columns ``with_signals``, for the report). A damaged table is a
+    one-line error (:func:`_damaged`), before any work."""
+    signal_columns = _SIGNAL_COLUMNS if with_signals else ["signal_key", "e", "n", "z"]
+    empty = {
+        kind: pd.DataFrame({c: pd.Series(dtype=_DTYPES[c]) for c in columns})
+        for kind, columns in ((INTERSECTIONS, _EVIDENCE_COLUMNS), (CAST, signal_columns))
+    }
+    try:
+        with contextlib.closing(sqlite3.connect(path)) as db:
+            have = _evidence_columns(db, path)
+            if have is None:
+                return _Stored(empty[INTERSECTIONS], empty[CAST], None, None)
+            cast_with = "cast_with" if "cast_with" in have else "NULL"
+            rows = db.execute(
+                f"SELECT kind, footprints, {cast_with}, n_rows, data FROM {EVIDENCE} "
+                "WHERE layer = ? COLLATE NOCASE ORDER BY id",
+                (layer,),
+            ).fetchall()
+    except sqlite3.DatabaseError as exc:
+        raise _damaged(path, f"it cannot be read ({exc})") from None
+    parts: dict[str, list[pd.DataFrame]] = {INTERSECTIONS: [], CAST: []}
+    for kind, _, _, n_rows, blob in rows:
+        if kind in parts:
+            columns = _EVIDENCE_COLUMNS if kind == INTERSECTIONS else signal_columns
+            parts[kind].append(_parquet_rows(path, blob, columns, n_rows))
+    tables = {}
+    for kind, frames in parts.items():
+        table = pd.concat([empty[kind], *frames], ignore_index=True)
+        try:
+            tables[kind] = table.astype({c: _DTYPES[c] for c in table.columns})
+        except (TypeError, ValueError) as exc:
+            raise _damaged(path, f"its {kind} hold values of another type ({exc})") from None
+    last = rows[-1] if rows else (None, None, None, None, None)
+    return _Stored(
+        tables[INTERSECTIONS],
+        tables[CAST],
+        None if last[1] is None else str(last[1]),
+        None if last[2] is None else str(last[2]),
+    )
+
+
+def _evidence_columns(db: sqlite3.Connection, path: Path) -> set[str] | None:
+    """The columns of the evidence table (lower case), None if the map has none; a table of
+    that name without the evidence's columns is a one-line error."""
+    row = db.execute(
+        "SELECT type FROM sqlite_master WHERE name = ? COLLATE NOCASE", (EVIDENCE,)
+    ).fetchone()
+    if row is None:
+        return None
+    have = {str(r[1]).lower() for r in db.execute(f"PRAGMA table_info({EVIDENCE})")}
+    missing = [c for c in [*_TABLE_COLUMNS, "n_rows"] if c not in have]
+    if row[0] != "table" or missing:
+        what = f"a {row[0]}" if row[0] != "table" else "a table"
+        raise _damaged(
+            path,
+            f"{what} {EVIDENCE} is there without the evidence's column(s) "
+            f"{', '.join(missing) or 'of its own'} (damaged, or another program's)",
+        )
+    return have
+
+
+def _parquet_rows(path: Path, blob, columns: list[str], n_rows) -> pd.DataFrame:
+    """One update's rows of evidence (Parquet in a blob); what is not such a blob, lacks the
+    columns every version wrote, or holds another number of rows than recorded is damage."""
     import pyarrow as pa
     import pyarrow.parquet as pq
 
-    with contextlib.closing(sqlite3.connect(path)) as db:
-        if not has_table(db, EVIDENCE):
-            return pd.DataFrame({c: pd.Series(dtype=_DTYPES[c]) for c in columns})
-        blobs = db.execute(
-            f"SELECT data FROM {EVIDENCE} WHERE layer = ? AND kind = ? ORDER BY id", (layer, kind)
-        ).fetchall()
-    if not blobs:
-        return pd.DataFrame({c: pd.Series(dtype=_DTYPES[c]) for c in columns})
-    tables = [_columns(pq.read_table(pa.BufferReader(blob)), columns) for (blob,) in blobs]
-    return pa.concat_tables(tables).to_pandas()[columns]
+    if not isinstance(blob, bytes):
+        raise _damaged(path, f"a row holds {type(blob).__name__ if blob is not None else 'NULL'}"
+                       " where its Parquet data belongs")  # fmt: skip
+    try:
+        file = pq.ParquetFile(pa.BufferReader(blob))
+        names = file.schema_arrow.names
+        table = file.read(columns=[c for c in columns if c in names])
+    except (pa.ArrowException, OSError, ValueError) as exc:
+        raise _damaged(path, f"a row's data is not Parquet ({exc})") from None
+    lacking = [c for c in columns if c not in names and c not in _FILLED]
+    if lacking:
+        raise _damaged(path, f"a row's data has no column {', '.join(lacking)}")
+    if isinstance(n_rows, int) and n_rows != table.num_rows:
+        raise _damaged(path, f"a row holds {table.num_rows} rows of data, not {n_rows}")
+    return _columns(table, columns).to_pandas()
+
+
+#: The columns that earlier versions did not store (:func:`_columns` fills them).
+_FILLED = frozenset({"satellite", "height_sd", "recording", *_SIGNAL_COLUMNS[1:]})
+
+
+def _damaged(path: Path, why: str) -> InputError:
+    """The one-line error for an evidence table that cannot be used as it is."""
+    return InputError(
+        f"the evidence table {EVIDENCE} is damaged: {why}",
+        where=str(path),
+        fix=f"restore the map from its backup ({path.stem}.bak{path.suffix}), or delete the "
+        f"table {EVIDENCE} (DROP TABLE {EVIDENCE}) and update again with all the observations",
+    )
 
 
 def _columns(table, columns: list[str]):
     """``columns`` of a stored table. A column that an earlier version did not store is filled
     as that version fitted: the satellite empty; the height error 0 and the recording the
     receiver (evidence kept before position errors were modelled by default counts as cast
-    from exact positions)."""
+    from exact positions); a position or antenna height unknown (NaN)."""
     import pyarrow as pa
 
     for name in columns:
@@ -447,26 +562,106 @@ def _columns(table, columns: list[str]):
             column = pa.array(np.zeros(len(table)))
         elif name == "recording":
             column = table.column("receiver")
+        elif _DTYPES[name] == "float64":
+            column = pa.array(np.full(len(table), np.nan))
         else:
             column = pa.nulls(len(table), pa.string())
         table = table.append_column(name, column)
     return table.select(columns)
 
 
-def _append_evidence(path: Path, layer: str, kind: str, rows: pd.DataFrame, outlines: str) -> None:
+def _cast_settings(rays: Rays, receiver_heights: ReceiverHeights) -> str:
+    """What the rays were cast with besides the DEM (checked by :func:`_check_receiver_heights`):
+    the elevation mask, reach and curvature, and where the antenna's height came from."""
+    settings = {
+        "min_elevation": float(rays.min_elevation),
+        "max_elevation": float(rays.max_elevation),
+        "max_range": float(rays.max_range),
+        "earth_curvature": bool(rays.earth_curvature),
+        "receiver_height": receiver_heights.source,
+    }
+    if receiver_heights.source == "dem":
+        settings["antenna_height"] = float(receiver_heights.antenna_height)
+    return json.dumps(settings, sort_keys=True)
+
+
+def _check_cast_with(path: Path, before: _Stored, settings: str) -> None:
+    """Refuse to add evidence cast with other settings than the evidence so far: the fit
+    would mix them silently. (Evidence of versions that did not record them: not checked.)"""
+    if before.cast_with is None or before.cast_with == settings:
+        return
+    try:
+        old = json.loads(before.cast_with)
+        if not isinstance(old, dict):
+            raise ValueError(before.cast_with)
+    except ValueError:
+        raise _damaged(path, f"its cast settings are not readable ({before.cast_with!r})") from None
+    new = json.loads(settings)
+    changed = [
+        f"{k} {old.get(k, 'unset')} (the evidence) vs {new.get(k, 'unset')} (now)"
+        for k in sorted(set(old) | set(new))
+        if old.get(k) != new.get(k)
+    ]
+    raise InputError(
+        "the evidence in the map was cast with other settings: " + "; ".join(changed),
+        where=str(path),
+        fix="update with the settings the evidence was cast with, or delete the table "
+        f"{EVIDENCE} and update again with all the observations",
+    )
+
+
+def _check_receiver_heights(
+    cast: pd.DataFrame, dem: StrPath, heights: ReceiverHeights, dem_crs: str | None
+) -> None:
+    """Refuse a DEM that gives other antenna heights than the evidence was cast from (another
+    DEM, or the same one edited): the signals cast before would keep the old heights, the new
+    ones get the new, and the fit would mix them silently. Each position cast from is sampled
+    again (once)."""
+    from .terrain import sample_ground
+
+    if heights.source != "dem":
+        return
+    known = cast.dropna(subset=["e", "n", "z"]).drop_duplicates(["e", "n"])
+    if known.empty:
+        return
+    e, n, z = (known[c].to_numpy(float) for c in ("e", "n", "z"))
+    try:
+        now = sample_ground(dem, e, n, assume_crs=dem_crs) + heights.antenna_height
+    except InputError as exc:
+        now, outside = np.full(len(z), np.nan), str(exc)
+    else:
+        outside = ""
+    off = ~(np.abs(now - z) <= 1e-6)
+    if off.any():
+        worst = np.nanmax(np.abs(now - z)) if np.isfinite(now - z).any() else np.nan
+        by = f", by up to {worst:.2f} m" if np.isfinite(worst) else f" ({outside})"
+        raise InputError(
+            f"the DEM is not the one the evidence in the map was cast with: it gives other "
+            f"receiver heights at {int(off.sum())} of {len(z)} positions{by}",
+            where=str(dem),
+            fix="give the DEM of the earlier updates, or delete the table "
+            f"{EVIDENCE} from the map and update again with all the observations",
+        )
+
+
+def _append_evidence(
+    path: Path, layer: str, kind: str, rows: pd.DataFrame, outlines: str, cast_with: str
+) -> None:
     """Add ``rows`` of one kind of evidence to the GeoPackage (the table made if new, as an
-    attribute table that GDAL and QGIS list)."""
+    attribute table that GDAL and QGIS list), with the footprints' digest and the settings
+    they were cast with."""
     import pyarrow as pa
     import pyarrow.parquet as pq
 
     buffer = pa.BufferOutputStream()
     pq.write_table(pa.Table.from_pandas(rows, preserve_index=False), buffer, compression="zstd")
     with contextlib.closing(sqlite3.connect(path)) as db, db:
-        if not has_table(db, EVIDENCE):
+        have = _evidence_columns(db, path)
+        if have is None:
             db.execute(
                 f"CREATE TABLE {EVIDENCE} (id INTEGER PRIMARY KEY AUTOINCREMENT NOT NULL, "
                 "layer TEXT NOT NULL, kind TEXT NOT NULL, footprints TEXT, created_utc DATETIME, "
-                "n_rows INTEGER, data BLOB)"
+                "n_rows INTEGER, data BLOB, cast_with TEXT)"
             )
             db.execute(
                 "INSERT INTO gpkg_contents (table_name, data_type, identifier, description, "
@@ -474,10 +669,12 @@ def _append_evidence(path: Path, layer: str, kind: str, rows: pd.DataFrame, outl
                 "'now'))",
                 (EVIDENCE, EVIDENCE, "gnss-citygml update: the evidence, as Parquet"),
             )
+        elif "cast_with" not in have:  # (kept by an earlier version)
+            db.execute(f"ALTER TABLE {EVIDENCE} ADD COLUMN cast_with TEXT")
         db.execute(
-            f"INSERT INTO {EVIDENCE} (layer, kind, footprints, created_utc, n_rows, data) "
-            "VALUES (?, ?, ?, strftime('%Y-%m-%dT%H:%M:%fZ', 'now'), ?, ?)",
-            (layer, kind, outlines, len(rows), buffer.getvalue().to_pybytes()),
+            f"INSERT INTO {EVIDENCE} (layer, kind, footprints, created_utc, n_rows, data, "
+            "cast_with) VALUES (?, ?, ?, strftime('%Y-%m-%dT%H:%M:%fZ', 'now'), ?, ?, ?)",
+            (layer, kind, outlines, len(rows), buffer.getvalue().to_pybytes(), cast_with),
         )
 
 
@@ -503,24 +700,16 @@ def _current_values(path: Path, layer: str, key: str, ids: pd.Series) -> pd.Data
         query = ", ".join(quoted(c) for c in [key, *present])
         rows = db.execute(f"SELECT {query} FROM {quoted(layer)}").fetchall()
     table = pd.DataFrame(rows, columns=["id", *present])
-    table["id"] = _id_texts(table["id"])
+    table["id"] = id_text(pd.Series(table["id"].tolist()))
     return table.set_index("id").reindex(ids.astype(str), columns=list(COLUMNS))
 
 
-def _id_texts(values: pd.Series) -> pd.Series:
-    """Ids as :func:`~gnss_citygml.footprints.read_footprints` writes them: whole numbers
-    stored as REAL without their ``.0``."""
-    numbers = pd.to_numeric(values, errors="coerce")
-    if numbers.notna().all() and np.all(np.mod(numbers.to_numpy(float), 1) == 0):
-        return numbers.astype(np.int64).astype(str)
-    return values.astype(str)
-
-
-def _key_column(path: Path, layer: str, candidates: list, ids: pd.Series) -> str:
+def _key_column(path: Path, layer: str, candidates: list, ids: pd.Series) -> tuple[str, pd.Series]:
     """The column of the layer's table that holds the building ids: the first of
     ``candidates`` (the id field, as read and as asked for; GDAL's ``fid``, the primary key)
-    whose values are the buildings' ids. None is a one-line error, never a silent update of
-    nothing."""
+    whose values are the buildings' ids; and its values as stored, by id (the rows are
+    written by them: ``"001"`` is not ``1``). None is a one-line error, never a silent update
+    of nothing."""
     with contextlib.closing(sqlite3.connect(path)) as db:
         info = list(db.execute(f"PRAGMA table_info({quoted(layer)})"))
         columns = {row[1].lower(): row[1] for row in info}
@@ -533,8 +722,9 @@ def _key_column(path: Path, layer: str, candidates: list, ids: pd.Series) -> str
             if column is None:
                 continue
             values = [row[0] for row in db.execute(f"SELECT {quoted(column)} FROM {quoted(layer)}")]
-            if set(_id_texts(pd.Series(values))) == wanted:
-                return column
+            texts = id_text(pd.Series(values))
+            if set(texts) == wanted and not texts.duplicated().any():
+                return column, pd.Series(values, index=texts.to_numpy(), dtype=object)
     raise InputError(
         "cannot find the column of the layer that holds the building ids",
         where=f"{path.name}, layer {layer}",
@@ -588,7 +778,9 @@ def _write_columns(path: Path, layer: str, key: str, values: pd.DataFrame) -> No
                 db.execute(f"ALTER TABLE {quoted(layer)} ADD COLUMN {quoted(column)} {kind}")
         columns = list(COLUMNS)
         assignments = ", ".join(f"{quoted(c)} = ?" for c in columns)
-        rows = [[_sql(row[c]) for c in columns] + [row["id"]] for row in values.to_dict("records")]
+        rows = [
+            [_sql(row[c]) for c in columns] + [_sql(row["id"])] for row in values.to_dict("records")
+        ]
         done = db.executemany(
             f"UPDATE {quoted(layer)} SET {assignments} WHERE {quoted(key)} = ?", rows
         ).rowcount

@@ -5,6 +5,7 @@ user's own, and two halves of the observations arriving one after the other."""
 
 import contextlib
 import hashlib
+import io
 import signal
 import sqlite3
 import subprocess
@@ -346,3 +347,199 @@ def test_older_evidence_reads_as_it_was_fitted():
     assert table.column("satellite").null_count == 2
     assert table.column("height_sd").to_pylist() == [0.0, 0.0]
     assert table.column("recording").to_pylist() == ["r", "s"]
+
+
+def _heights(path: Path, layer: str = "buildings") -> pd.Series:
+    table = pyogrio.read_dataframe(path, layer=layer, read_geometry=False)
+    return table["height_gnss"]
+
+
+def test_a_layer_is_the_same_in_any_letter_case(city_map, halves, grid_dir, tmp_path):
+    """SQLite's names are the same in any letter case, and so is the evidence they key
+    (issue 26): BUILDINGS then buildings is two updates of one layer, as if spelled alike;
+    so is evidence kept under another spelling by an earlier version."""
+    twin = tmp_path / "twin.gpkg"
+    twin.write_bytes(city_map.read_bytes())
+    update_map(city_map, [halves[0]], DEM, layer="BUILDINGS", grid_dir=grid_dir)
+    second = update_map(city_map, [halves[1]], DEM, layer="buildings", grid_dir=grid_dir)
+    for half in halves:
+        update_map(twin, [half], DEM, layer="buildings", grid_dir=grid_dir)
+    pd.testing.assert_series_equal(_heights(city_map), _heights(twin))
+    assert second.skipped.empty and not any("footprints changed" in x for x in second.lines())
+    with contextlib.closing(sqlite3.connect(city_map)) as db, db:
+        assert {r[0] for r in db.execute(f"SELECT layer FROM {EVIDENCE}")} == {"buildings"}
+        db.execute(f"UPDATE {EVIDENCE} SET layer = 'Buildings'")  # as an earlier version kept it
+    again = update_map(city_map, [*halves], DEM, layer="bUILDINGS", grid_dir=grid_dir)
+    assert again.new_signals == 0 and not again.written
+
+
+def _shifted_dem(folder: Path, by: float, name: str = "dem.tif") -> str:
+    import rasterio
+
+    with rasterio.open(DEM) as src:
+        profile, data = src.profile, src.read(1)
+    path = folder / name
+    with rasterio.open(path, "w", **profile) as dst:
+        dst.write(data + np.asarray(by, dtype=data.dtype), 1)
+    return str(path)
+
+
+def test_a_dem_changed_between_updates_is_refused(city_map, halves, grid_dir, tmp_path, capsys):
+    """Evidence cast from one DEM and new signals from another would be fitted together
+    (issue 26: 12 buildings lost their height); refused in one line, the map as it was. The
+    same DEM under another name is no change."""
+    update_map(city_map, [halves[0]], DEM, layer="buildings", grid_dir=grid_dir)
+    original = digest(city_map)
+    grids = [] if grid_dir is None else ["--grid-dir", str(grid_dir)]
+    for by in (10.0, 0.25):
+        higher = _shifted_dem(tmp_path, by, f"dem{by}.tif")
+        args = ["update", str(city_map), "--observations", str(halves[1]), "--dem", higher,
+                "--layer", "buildings", "-q", *grids]  # fmt: skip
+        code, out, err = run(args, capsys)
+        assert code == 2 and len(err.strip().splitlines()) == 1, err
+        assert err.startswith("error: the DEM is not the one the evidence in the map was cast")
+        assert f"by up to {by:.2f} m" in err and "delete the table gnss_evidence" in err
+        assert digest(city_map) == original
+    copy = _shifted_dem(tmp_path, 0.0, "same.tif")
+    assert update_map(city_map, [halves[1]], copy, layer="buildings", grid_dir=grid_dir).written
+
+
+@pytest.mark.parametrize(
+    "setting, message",
+    [
+        ({"receiver_heights": "antenna"}, "antenna_height 1.0 \\(the evidence\\) vs 1.5 \\(now\\)"),
+        ({"rays": "mask"}, "min_elevation 10.0 \\(the evidence\\) vs 15.0 \\(now\\)"),
+        ({"receiver_heights": "log"}, "receiver_height dem \\(the evidence\\) vs log \\(now\\)"),
+    ],
+)
+def test_other_cast_settings_between_updates_are_refused(
+    setting, message, city_map, halves, grid_dir
+):
+    from gnss_citygml.settings import Rays, ReceiverHeights
+
+    chosen = {
+        "antenna": ReceiverHeights(antenna_height=1.5),
+        "log": ReceiverHeights(source="log"),
+        "mask": Rays(min_elevation=15.0),
+    }
+    update_map(city_map, [halves[0]], DEM, layer="buildings", grid_dir=grid_dir)
+    original = digest(city_map)
+    options = {k: chosen[v] for k, v in setting.items()}
+    with pytest.raises(InputError, match="cast with other settings: .*" + message):
+        update_map(city_map, [halves[1]], DEM, layer="buildings", grid_dir=grid_dir, **options)
+    assert digest(city_map) == original
+
+
+def test_a_map_through_a_symbolic_link(city_map, halves, grid_dir, tmp_path):
+    """The file the link names is updated; the link stays a link (issue 26)."""
+    link = tmp_path / "elsewhere" / "link.gpkg"
+    link.parent.mkdir()
+    link.symlink_to(city_map)
+    result = update_map(link, [halves[0]], DEM, layer="buildings", grid_dir=grid_dir)
+    assert result.written and link.is_symlink() and link.resolve() == city_map
+    assert _heights(city_map).notna().sum() > 10
+    assert result.backup == city_map.with_name("map.bak.gpkg") and result.backup.is_file()
+    assert sorted(p.name for p in link.parent.iterdir()) == ["link.gpkg"]
+
+
+@pytest.mark.parametrize("spelling", ["{:03d}", "{}.0", "{:02d}A", "{:02d}.50", "integer"])
+def test_ids_are_kept_as_the_layer_stores_them(spelling, halves, grid_dir, tmp_path):
+    """Text ids are text ("001" is not 1, "1.0" is not "1"); an INTEGER id column is
+    written by its integers (issue 26). Two updates give the heights of the sample's ids."""
+    footprints = pyogrio.read_dataframe(CITY / "footprints.gpkg")
+    plain = tmp_path / "plain.gpkg"
+    pyogrio.write_dataframe(footprints, plain, layer="buildings")
+    numbers = np.arange(1, len(footprints) + 1)
+    ids = numbers if spelling == "integer" else [spelling.format(i) for i in numbers]
+    path = tmp_path / "m.gpkg"
+    pyogrio.write_dataframe(footprints.assign(id=ids), path, layer="buildings")
+    before = layer_rows(path, "buildings")
+    for half in halves:
+        update_map(plain, [half], DEM, layer="buildings", grid_dir=grid_dir)
+        assert update_map(path, [half], DEM, layer="buildings", grid_dir=grid_dir).written
+    after = layer_rows(path, "buildings")
+    assert [row[: len(before[0])] for row in after] == before  # the ids as they were
+    pd.testing.assert_series_equal(_heights(path), _heights(plain))
+    assert not update_map(path, [halves[0]], DEM, layer="buildings", grid_dir=grid_dir).written
+
+
+@pytest.fixture(scope="module")
+def updated_map(tmp_path_factory, halves, grid_dir):
+    """The sample's footprints after one update: a map with evidence."""
+    path = tmp_path_factory.mktemp("updated") / "map.gpkg"
+    pyogrio.write_dataframe(pyogrio.read_dataframe(CITY / "footprints.gpkg"), path,
+                            layer="buildings")  # fmt: skip
+    update_map(path, [halves[0]], DEM, layer="buildings", grid_dir=grid_dir, backup=False)
+    return path
+
+
+def _parquet(**columns) -> bytes:
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    buffer = pa.BufferOutputStream()
+    pq.write_table(pa.table(columns), buffer)
+    return buffer.getvalue().to_pybytes()
+
+
+_DAMAGE = {
+    "random blob": ("UPDATE gnss_evidence SET data = randomblob(200)", "is not Parquet"),
+    "NULL data": ("UPDATE gnss_evidence SET data = NULL", "a row holds NULL where"),
+    "text data": ("UPDATE gnss_evidence SET data = 'hello'", "a row holds str where"),
+    "dropped column": ("ALTER TABLE gnss_evidence DROP COLUMN kind", "column\\(s\\) kind"),
+    "dropped data": ("ALTER TABLE gnss_evidence DROP COLUMN data", "column\\(s\\) data"),
+    "another table": (
+        "DROP TABLE gnss_evidence; CREATE TABLE GNSS_Evidence (a TEXT, b INTEGER)",
+        "without the evidence's column\\(s\\) id, layer, kind",
+    ),
+    "a view": (
+        "DROP TABLE gnss_evidence; CREATE VIEW gnss_evidence AS SELECT 1 AS x",
+        "a view gnss_evidence is there",
+    ),
+    "rows counted wrong": ("UPDATE gnss_evidence SET n_rows = n_rows + 1", "rows of data, not"),
+    "other parquet": ("UPDATE gnss_evidence SET data = ?", "has no column signal_key"),
+    "heights as text": ("UPDATE gnss_evidence SET data = ?", "values of another type"),
+    "settings": ("UPDATE gnss_evidence SET cast_with = 'x{'", "cast settings are not readable"),
+}
+
+
+@pytest.mark.parametrize("damage", list(_DAMAGE))
+def test_a_damaged_evidence_table_is_one_line(damage, updated_map, halves, grid_dir, tmp_path):
+    """Whatever happened to gnss_evidence: one line naming the map and the fix, before any
+    work, the map as it was (issue 26: these were internal errors)."""
+    path = tmp_path / "map.gpkg"
+    path.write_bytes(updated_map.read_bytes())
+    sql, message = _DAMAGE[damage]
+    with contextlib.closing(sqlite3.connect(path)) as db, db:
+        if damage == "other parquet":
+            db.execute(sql, (_parquet(x=[1, 2]),))
+        elif damage == "heights as text":
+            (blob,) = db.execute("SELECT data FROM gnss_evidence WHERE kind = 'intersections'")
+            columns = pd.read_parquet(io.BytesIO(blob[0])).head(3).assign(height="high")
+            db.execute(sql + ", n_rows = 3 WHERE kind = 'intersections'",
+                       (_parquet(**{c: columns[c].tolist() for c in columns}),))  # fmt: skip
+        else:
+            db.executescript(sql)
+    original = digest(path)
+    stages = []
+    with pytest.raises(InputError, match=message) as error:
+        update_map(path, [halves[1]], DEM, layer="buildings", grid_dir=grid_dir,
+                   progress=lambda what, done: stages.append(what))  # fmt: skip
+    text = str(error.value)
+    assert "gnss_evidence" in text and str(path) in text and "\n" not in text
+    assert "map.bak.gpkg" in text and stages == ["reading"]
+    assert digest(path) == original
+
+
+@pytest.mark.parametrize(
+    "change", ["DELETE FROM gnss_evidence", "UPDATE gnss_evidence SET layer = 'gone'"]
+)
+def test_an_empty_evidence_table_or_other_layers_rows(change, updated_map, halves, grid_dir,
+                                                       tmp_path):  # fmt: skip
+    """No rows for the layer: everything is cast again, as for a new map."""
+    path = tmp_path / "map.gpkg"
+    path.write_bytes(updated_map.read_bytes())
+    with contextlib.closing(sqlite3.connect(path)) as db, db:
+        db.execute(change)
+    result = update_map(path, [halves[0]], DEM, layer="buildings", grid_dir=grid_dir)
+    assert result.new_signals > 0 and result.skipped.empty

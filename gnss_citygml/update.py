@@ -222,6 +222,11 @@ def update_map(
         true = None if truth is None else check_truth(read_table(truth), str(truth))
     if min_signals < 1:
         raise InputError(f"min_signals must be 1 or more, not {min_signals}", fix="give N >= 1")
+    if not (np.isfinite(threshold) and threshold >= 0):
+        raise InputError(
+            f"the change threshold must be a number of metres, 0 or more, not {threshold}",
+            fix="give --threshold in metres, e.g. 0.5",
+        )
     say("reading", 0.0)
     read_at = _stamp(path)
     buildings = read_buildings(

@@ -199,7 +199,7 @@ def update_map(
     """
     from .ids import id_field as source_id_field
     from .jobs import read_buildings
-    from .observations import read_observations
+    from .observations import read_observation_files
     from .pipeline import fit_heights, in_mask, intersections, receivers
 
     say = progress or (lambda what, done: None)
@@ -240,10 +240,8 @@ def update_map(
     stored = _read_evidence(path, name, INTERSECTIONS, _EVIDENCE_COLUMNS)
     gone = ~stored["building"].isin(buildings["id"].astype(str)).to_numpy()
     stored = stored[~gone].reset_index(drop=True)  # footprints deleted since: their evidence
-    obs = in_mask(pd.concat([read_observations(p) for p in observations], ignore_index=True), rays)
+    obs = in_mask(read_observation_files(observations), rays)  # each signal once (it warns)
     keys = _keys(obs)
-    repeated = keys.duplicated().to_numpy()
-    obs, keys = obs[~repeated].reset_index(drop=True), keys[~repeated].reset_index(drop=True)
     cast_before = _read_evidence(path, name, CAST, _SIGNAL_COLUMNS if report else ["signal_key"])
     unseen = ~keys.isin(cast_before["signal_key"]).to_numpy()
     new = obs[unseen].reset_index(drop=True)
@@ -277,8 +275,6 @@ def update_map(
     result = UpdateResult(
         len(new), len(fresh), table, threshold, frozenset(fresh["building"].astype(str))
     )
-    if repeated.any():
-        result.notes.append(f"{int(repeated.sum())} repeated observations counted once")
     if gone.any():
         result.notes.append(
             f"{int(gone.sum())} intersections with footprints no longer in the layer left out"

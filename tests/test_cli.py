@@ -200,6 +200,27 @@ def test_options_outside_their_physical_range_are_refused(grid_args, tmp_path, c
     assert not (tmp_path / "heights.gpkg").exists() and not (tmp_path / "part").exists()
 
 
+def test_estimate_refuses_a_signal_both_received_and_blocked(grid_args, tmp_path, capsys):
+    """The observations plus a copy with C/N0 flipped once gave no heights and exit 0; now one
+    line naming both lines. An exact copy counts once, with a warning; azimuths in radians
+    draw a warning."""
+    simulated_site(tmp_path, grid_args, capsys, interval="120")
+    table = pd.read_csv(tmp_path / "observations.csv")
+    flipped = table.assign(cn0=table["cn0"].isna() * 40.0).replace(0.0, float("nan"))
+    pd.concat([table, flipped]).to_csv(tmp_path / "flipped.csv", index=False)
+    code, _, err = run(estimate_args(tmp_path, grid_args, "flipped.csv"), capsys)
+    assert code == 2 and err.count("\n") == 1
+    assert err.startswith("error: the same signal twice with different values")
+    assert f"flipped.csv, line 2 and {tmp_path / 'flipped.csv'}, line {len(table) + 2}" in err
+    assert not (tmp_path / "heights.gpkg").exists()
+    pd.concat([table, table]).to_csv(tmp_path / "twice.csv", index=False)
+    code, _, err = run(estimate_args(tmp_path, grid_args, "twice.csv"), capsys)
+    assert code == 0 and f"warning: {len(table)} repeated observation(s)" in err
+    table.assign(azimuth=table["azimuth"] / 57.3).to_csv(tmp_path / "rad.csv", index=False)
+    code, _, err = run([*estimate_args(tmp_path, grid_args, "rad.csv"), "--overwrite"], capsys)
+    assert "warning: every azimuth is within 0..6.28: radians?" in err
+
+
 def test_estimate_with_position_errors(grid_args, tmp_path, capsys):
     simulated_site(tmp_path, grid_args, capsys, interval="60")
     code, _, err = run([*estimate_args(tmp_path, grid_args), "--position-sd", "-1"], capsys)

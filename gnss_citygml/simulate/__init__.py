@@ -172,7 +172,7 @@ def simulate(
 def _check_arguments(seed, interval, max_range, start) -> pd.Timestamp:
     """Refuse, in one line, a seed, interval, ray length or start the simulator cannot use;
     the start as a timestamp."""
-    if isinstance(seed, bool) or not (isinstance(seed, numbers.Integral) and seed >= 0):
+    if isinstance(seed, bool) or not (isinstance(seed, numbers.Integral) and int(seed) >= 0):
         raise InputError(
             f"the seed must be a whole number, 0 or more, not {seed!r}", fix="give --seed, e.g. 0"
         )
@@ -190,11 +190,11 @@ def _check_arguments(seed, interval, max_range, start) -> pd.Timestamp:
         )
     try:
         first = pd.Timestamp(start)
+        if isinstance(first, pd.Timestamp) and first.tzinfo is None:
+            first = first.tz_localize("UTC")  # as the observations' reader takes it
     except (TypeError, ValueError, OverflowError):
         first = pd.NaT
-    if first is not pd.NaT and first.tzinfo is None:
-        first = first.tz_localize("UTC")
-    if first is pd.NaT or not STARTS[0] <= first <= STARTS[1]:
+    if not (isinstance(first, pd.Timestamp) and STARTS[0] <= first <= STARTS[1]):
         raise InputError(
             f"the start {start!r} is not a UTC time from {STARTS[0]:%Y-%m-%d} to "
             f"{STARTS[1]:%Y-%m-%d}",

@@ -20,8 +20,10 @@ Positions
 
 from __future__ import annotations
 
+import math
 import numbers
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -59,14 +61,14 @@ class SignalModel:
     def __post_init__(self):
         """Refuse physics that is no physics: every value finite, spreads not negative,
         shares fractions, C/N0s as the observations' (0 to 100 dB-Hz)."""
-        values = {name: getattr(self, name) for name in self.__dataclass_fields__}
+        values: dict[str, Any] = {name: getattr(self, name) for name in self.__dataclass_fields__}
         bad = [
             name
             for name, value in values.items()
-            if not (isinstance(value, numbers.Real) and np.isfinite(value))
-            or (name.endswith("_sd") and value < 0)
-            or (name.startswith("reflected_") and not 0 <= value <= 1)
-            or (name in ("zenith_cn0", "tracking_threshold") and not 0 <= value <= 100)
+            if not (isinstance(value, numbers.Real) and math.isfinite(value))
+            or (name.endswith("_sd") and float(value) < 0)
+            or (name.startswith("reflected_") and not 0 <= float(value) <= 1)
+            or (name in ("zenith_cn0", "tracking_threshold") and not 0 <= float(value) <= 100)
         ]
         if bad:
             raise InputError(

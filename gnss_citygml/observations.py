@@ -85,6 +85,8 @@ def read_observations(path: StrPath) -> pd.DataFrame:
 def read_observation_files(paths: Sequence[StrPath]) -> pd.DataFrame:
     """Read observations tables (CSV or Parquet) as one, checked (:func:`check_observations`):
     a signal in two of the files is a repeat too, and its lines are named in their files."""
+    if not paths:
+        raise InputError("no observations file", fix="give one or more observations tables")
     tables, places = [], []
     for path in paths:
         is_csv = Path(path).suffix.lower() == ".csv"

@@ -8,6 +8,12 @@ i.e. blocked) and ``position_sd`` (m per axis: how far the reported position may
 empty when unknown). :func:`check_observations` turns any table a user hands in into that schema or
 says exactly which row is wrong and why.
 
+A table holds each signal once: the same receiver, satellite and time (within a millisecond)
+twice with different values is refused, naming both lines, and exact repeats are counted once
+with a warning, within a file and across the files read together
+(:func:`read_observation_files`). A column whose whole range says it is in other units
+(azimuths all within 2 pi: radians) draws a warning.
+
 The columns, which of them are required, their types, the constellation letters and the ranges
 come from the published JSON Schema of a row (``schemas/observations.schema.json``, see
 :mod:`gnss_citygml.contracts`); the checks themselves run on whole columns at once.
@@ -16,7 +22,8 @@ come from the published JSON Schema of a row (``schemas/observations.schema.json
 from __future__ import annotations
 
 import csv
-from collections.abc import Callable
+import warnings
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +39,7 @@ __all__ = [
     "OBSERVATION_COLUMNS",
     "check_observations",
     "satellites",
+    "read_observation_files",
     "read_observations",
     "write_observations",
 ]
@@ -71,10 +79,29 @@ def read_observations(path: StrPath) -> pd.DataFrame:
 
     Errors name the file and, for bad values, the line of the CSV file (or the Parquet row).
     """
-    table = read_table(path)
-    is_csv = Path(path).suffix.lower() == ".csv"
-    line_of = (lambda row: _csv_line(path, row)) if is_csv else None
-    return check_observations(table, where=str(path), line_of=line_of)
+    return read_observation_files([path])
+
+
+def read_observation_files(paths: Sequence[StrPath]) -> pd.DataFrame:
+    """Read observations tables (CSV or Parquet) as one, checked (:func:`check_observations`):
+    a signal in two of the files is a repeat too, and its lines are named in their files."""
+    if not paths:
+        raise InputError("no observations file", fix="give one or more observations tables")
+    tables, places = [], []
+    for path in paths:
+        is_csv = Path(path).suffix.lower() == ".csv"
+        line_of = (lambda row, path=path: _csv_line(path, row)) if is_csv else None
+        places.append(_locator(str(path), line_of))
+        tables.append(_normalised(read_table(path), str(path), places[-1]))
+    starts = np.cumsum([0] + [len(t) for t in tables])
+
+    def locate(row: int) -> str:
+        k = int(np.searchsorted(starts, row, side="right")) - 1
+        return places[k](row - int(starts[k]))
+
+    where = ", ".join(str(p) for p in paths)
+    out = tables[0] if len(tables) == 1 else pd.concat(tables, ignore_index=True)
+    return _checked(out, where, locate)
 
 
 def _csv_line(path, row: int) -> int | None:
@@ -158,6 +185,38 @@ def check_observations(
     ...
     gnss_citygml.errors.InputError: elevation 95 outside -90..90 (observations, row 0): ...
     """
+    locate = _locator(where, line_of)
+    return _checked(_normalised(table, where, locate), where, locate)
+
+
+def _locator(where: str, line_of: Callable[[int], int | None] | None) -> Callable[[int], str]:
+    """Where a 0-based row is, for a message: its file line when ``line_of`` knows it."""
+
+    def locate(row: int) -> str:
+        line = None if line_of is None else line_of(row)
+        return f"{where}, row {row}" if line is None else f"{where}, line {line}"
+
+    return locate
+
+
+def _checked(out: pd.DataFrame, where: str, locate: Callable[[int], str]) -> pd.DataFrame:
+    """A normalised table with each signal once (:func:`_single_signals`), numbered from 0, and
+    warned about once if a column looks like other units (a table checked before is not)."""
+    if not out.attrs.get(_CHECKED):
+        _unit_warnings(out, where)
+    out = _single_signals(out, where, locate).reset_index(drop=True)
+    out.attrs[_CHECKED] = True
+    return out
+
+
+#: Marks a table :func:`check_observations` made, so that checking it again (the pipeline checks
+#: what it is given) does not warn twice.
+_CHECKED = "gnss_citygml.observations.checked"
+
+
+def _normalised(table: pd.DataFrame, where: str, locate: Callable[[int], str]) -> pd.DataFrame:
+    """The table in the schema's columns and types, its rows as they were, or the first bad
+    row's error."""
     twice = sorted({_name(c) for c in table.columns[table.columns.duplicated()]})
     if twice:
         raise InputError(
@@ -172,11 +231,6 @@ def check_observations(
     for column in _OPTIONAL:
         if column not in out.columns:
             out[column] = np.nan
-
-    def locate(row: int) -> str:
-        line = None if line_of is None else line_of(row)
-        return f"{where}, row {row}" if line is None else f"{where}, line {line}"
-
     out["time_utc"] = _times(out["time_utc"], locate)
     for column in _NUMBERS:
         out[column] = _numbers(out[column], column, locate)
@@ -206,6 +260,117 @@ def check_observations(
             )
     others = [c for c in out.columns if c not in OBSERVATION_COLUMNS]
     return out[OBSERVATION_COLUMNS + others].reset_index(drop=True)
+
+
+#: Observations of one satellite by one receiver closer in time than this (ns) are one signal
+#: (a time written twice, rounded or in another zone): no receiver logs 1000 epochs a second.
+_SAME_TIME = 1_000_000
+
+
+def _single_signals(out: pd.DataFrame, where: str, locate: Callable[[int], str]) -> pd.DataFrame:
+    """The table with each signal (receiver, satellite, time) once.
+
+    A signal given twice with different values (received and blocked, another azimuth) is an
+    :class:`InputError` naming both lines: which one is right cannot be told, and counting both
+    would pull the heights towards nothing. Exact repeats (a file given twice, a log merged
+    twice) are dropped with a warning that counts them: they would count twice in the fits.
+    """
+    n = len(out)
+    time = np.asarray(out["time_utc"].array.asi8)
+    receiver = pd.factorize(out["receiver"])[0]
+    satellite = pd.factorize(pd.MultiIndex.from_arrays([out["constellation"], out["svid"]]))[0]
+    order = np.lexsort((np.arange(n), time, satellite, receiver))
+    r, s, t = receiver[order], satellite[order], time[order]
+    same = (r[1:] == r[:-1]) & (s[1:] == s[:-1]) & (np.diff(t) < _SAME_TIME)
+    if not same.any():
+        return out
+    first, second = order[:-1][same], order[1:][same]
+    values = out[_NUMBERS].to_numpy(dtype=float)
+    a, b = values[first], values[second]
+    differ = ~((a == b) | (np.isnan(a) & np.isnan(b)))
+    clash = differ.any(axis=1)
+    if clash.any():
+        later = np.maximum(first, second)
+        k = int(np.flatnonzero(clash)[np.argmin(later[clash])])
+        i, j = sorted((int(first[k]), int(second[k])))
+        column = _NUMBERS[int(np.flatnonzero(differ[k])[0])]
+        row = out.iloc[i]
+        shown = [_cell(out[column].iloc[x]) for x in (i, j)]
+        raise InputError(
+            f"the same signal twice with different values: receiver {_show(row['receiver'])}, "
+            f"satellite {row['constellation']}{row['svid']:02d} at "
+            f"{row['time_utc']:%Y-%m-%dT%H:%M:%S.%f}Z, {column} {shown[0]} and {shown[1]}"
+            + (f" ({int(clash.sum())} such pairs)" if clash.sum() > 1 else ""),
+            where=f"{locate(i)} and {locate(j)}",
+            fix="keep one row per receiver, satellite and time (were two recordings given the "
+            "same receiver name, or a file merged with an edited copy?)",
+        )
+    repeats = np.unique(second)
+    i, j = sorted((int(first[0]), int(second[0])))
+    warnings.warn(
+        f"{repeats.size} repeated observation(s) (the same receiver, satellite, time and values) "
+        f"counted once ({where}; first: {locate(j)} repeats {locate(i)})",
+        UserWarning,
+        stacklevel=4,
+    )
+    keep = np.ones(n, dtype=bool)
+    keep[repeats] = False
+    return out[keep]
+
+
+def _cell(value: float) -> str:
+    return "empty" if np.isnan(value) else f"{value:g}"
+
+
+#: Whole-range evidence of other units: a column warned about only with at least this many rows
+#: of at least this many satellites (a few rows of one satellite may lie anywhere).
+_EVIDENCE_ROWS, _EVIDENCE_SATELLITES = 20, 5
+#: C/N0s (dB-Hz) a GNSS receiver tracks on the ground: none above, and none can track below.
+_CN0_TRACKED = (10.0, 60.0)
+#: Position errors (m per axis) beyond any fix a recording's every row can have.
+_POSITION_SD_MOST = 100.0
+
+
+def _unit_warnings(out: pd.DataFrame, where: str) -> None:
+    """Warn, one line each, where a column's whole range says it is in other units than the
+    schema's: azimuths all within 2 pi or elevations within pi/2 over many rows of many
+    satellites (radians), latitudes and longitudes within pi/2 and pi (radians: in degrees,
+    the sea off West Africa), every C/N0 below or above what receivers track (another scale),
+    every position_sd over 100 m (not metres). A warning, not an error: such values are
+    possible, only not all of them together."""
+    many = len(out) >= _EVIDENCE_ROWS and (
+        len(out[["constellation", "svid"]].drop_duplicates()) >= _EVIDENCE_SATELLITES
+    )
+    said = []
+    if many and out["azimuth"].max() <= 2 * np.pi:
+        said.append(
+            f"every azimuth is within 0..{2 * np.pi:.2f}: radians? (give azimuths in degrees)"
+        )
+    if many and out["elevation"].abs().max() <= np.pi / 2:
+        said.append(
+            f"every elevation is within +-{np.pi / 2:.2f}: radians? (give elevations in degrees)"
+        )
+    if len(out) and out["lat"].abs().max() <= np.pi / 2 and out["lon"].abs().max() <= np.pi:
+        said.append(
+            f"every lat is within +-{np.pi / 2:.2f} and lon within +-{np.pi:.2f}: radians? "
+            "(give latitudes and longitudes in degrees)"
+        )
+    cn0 = out["cn0"].dropna()
+    lo, hi = _CN0_TRACKED
+    if len(cn0) >= _EVIDENCE_ROWS and (cn0.max() < lo or cn0.min() > hi):
+        said.append(
+            f"every C/N0 is {'below' if cn0.max() < lo else 'above'} "
+            f"{lo if cn0.max() < lo else hi:g} dB-Hz (receivers track from about {lo:g} to "
+            f"{hi:g}): another scale? (give C/N0 in dB-Hz)"
+        )
+    sd = out["position_sd"].dropna()
+    if len(sd) >= _EVIDENCE_ROWS and sd.min() > _POSITION_SD_MOST:
+        said.append(
+            f"every position_sd is over {_POSITION_SD_MOST:g} m: not metres? (give the "
+            "position error in metres per axis, or leave it empty)"
+        )
+    for text in said:
+        warnings.warn(f"{text} ({where})", UserWarning, stacklevel=4)
 
 
 _RANGE_FIX = {

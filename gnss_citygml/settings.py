@@ -77,6 +77,37 @@ def _positive(value) -> bool:
     return _finite(value) and value > 0
 
 
+def _within(value, bounds: tuple[float, float], *, above: bool = False) -> bool:
+    """A finite number from ``bounds[0]`` (excluded with ``above``) to ``bounds[1]``."""
+    lo, hi = bounds
+    return _finite(value) and (value > lo if above else value >= lo) and value <= hi
+
+
+#: The physical range of each option with a unit, checked where its object is made (the
+#: command line, the Python API and the QGIS plugin all build the objects, so all refuse alike):
+#: antenna above the ground (m): not below it, and no higher than the tallest buildings;
+ANTENNA_HEIGHTS = (0.0, 500.0)
+#: a ray's horizontal length (m, above 0): a building 10 km away rises less than 2 deg;
+MAX_RANGES = (0.0, 10_000.0)
+#: C/N0 (dB-Hz), as the observations' cn0 (schemas/observations.schema.json);
+CN0S = (0.0, 100.0)
+#: a position error or a calibration prior (m per axis), as the observations' position_sd;
+POSITION_SDS = (0.0, 1000.0)
+#: a position error's or calibration offset's window (s, above 0): at most a day, as longer
+#: windows are a whole recording (leave the window out);
+WINDOWS = (0.0, 86_400.0)
+#: a converged estimate's widest height range (m, above 0);
+UNCERTAINTIES = (0.0, 1000.0)
+#: 4PL-B's iterations and the calibration's rounds: each is a full fit of every building.
+ITERATIONS = (1, 1000)
+ROUNDS = (1, 100)
+
+
+def _count_within(value, bounds: tuple[int, int]) -> bool:
+    """A whole number from ``bounds[0]`` to ``bounds[1]``."""
+    return _count(value) and bounds[0] <= int(value) <= bounds[1]
+
+
 def check_tile_size(size: float) -> None:
     """Refuse a tile size that is not a whole number of metres, 1 or more (tiles are named by
     their south-west corner to the metre)."""
@@ -112,12 +143,14 @@ class Rays:
         if not (all(map(_finite, band)) and -90.0 <= band[0] < band[1] <= 90.0):
             raise InputError(
                 f"elevation mask {band[0]}..{band[1]} deg is not a band of elevations",
-                fix="give -90 <= min_elevation < max_elevation <= 90, e.g. 10 and 85",
+                fix="give --min-elevation and --max-elevation in degrees, -90 <= min < max <= 90, "
+                "e.g. 10 and 85",
             )
-        if not _positive(self.max_range):
+        if not _within(self.max_range, MAX_RANGES, above=True):
             raise InputError(
-                f"max_range must be a positive number of metres, not {self.max_range}",
-                fix="e.g. 500",
+                f"max_range must be a positive number of metres up to {MAX_RANGES[1]:g}, "
+                f"not {self.max_range}",
+                fix="give --max-range in metres, e.g. 500",
             )
 
 
@@ -143,10 +176,11 @@ class ReceiverHeights:
                 f"unknown receiver height source {self.source!r}",
                 fix="use one of " + ", ".join(RECEIVER_HEIGHTS),
             )
-        if not _finite(self.antenna_height):
+        if not _within(self.antenna_height, ANTENNA_HEIGHTS):
             raise InputError(
-                f"antenna_height must be a number of metres, not {self.antenna_height}",
-                fix="e.g. 1 for a phone held in the hand",
+                f"antenna_height must be a number of metres above the ground, "
+                f"{ANTENNA_HEIGHTS[0]:g} to {ANTENNA_HEIGHTS[1]:g}, not {self.antenna_height}",
+                fix="give --antenna-height in metres, e.g. 1 for a phone held in the hand",
             )
 
 
@@ -194,10 +228,11 @@ class Acceptance:
                 f"min_separation must be a probability from 0 to 1, not {self.min_separation}",
                 fix="e.g. 0.3",
             )
-        if not _positive(self.max_uncertainty):
+        if not _within(self.max_uncertainty, UNCERTAINTIES, above=True):
             raise InputError(
-                f"max_uncertainty must be a positive number of metres, not {self.max_uncertainty}",
-                fix="e.g. 10",
+                f"max_uncertainty must be a positive number of metres up to "
+                f"{UNCERTAINTIES[1]:g}, not {self.max_uncertainty}",
+                fix="e.g. 10 (CityGML's LOD1 accuracy class: within 5 m)",
             )
 
 
@@ -254,11 +289,17 @@ class Estimator:
                 f"unknown height rule {self.height_rule!r}",
                 fix="use one of " + ", ".join(HEIGHT_RULES),
             )
-        if not _finite(self.init_threshold):
-            raise ModelError("init_threshold must be a finite C/N0 in dB-Hz", fix="e.g. 30")
-        if not _count(self.max_iter):
+        if not _within(self.init_threshold, CN0S):
             raise InputError(
-                f"max_iter must be a whole number, 1 or more, not {self.max_iter}", fix="e.g. 10"
+                f"init_threshold must be a C/N0 in dB-Hz, {CN0S[0]:g} to {CN0S[1]:g}, "
+                f"not {self.init_threshold}",
+                fix="give --init-threshold in dB-Hz, e.g. 30",
+            )
+        if not _count_within(self.max_iter, ITERATIONS):
+            raise InputError(
+                f"max_iter must be a whole number, {ITERATIONS[0]} to {ITERATIONS[1]}, "
+                f"not {self.max_iter}",
+                fix="e.g. 10",
             )
         if not self.fourpl:
             plain = Estimator(acceptance=Acceptance(min_signals=self.acceptance.min_signals))
@@ -307,15 +348,18 @@ class PositionError:
     window: float | None = None
 
     def __post_init__(self):
-        if self.sd is not None and not (_finite(self.sd) and self.sd >= 0):
+        if self.sd is not None and not _within(self.sd, POSITION_SDS):
             raise InputError(
-                f"the position error must be a number of metres, 0 or more, not {self.sd}",
+                f"the position error must be a number of metres, {POSITION_SDS[0]:g} to "
+                f"{POSITION_SDS[1]:g}, not {self.sd}",
                 fix="give --position-sd, e.g. 1 m for points placed by hand (0: exact positions)",
             )
-        if self.window is not None and not _positive(self.window):
+        if self.window is not None and not _within(self.window, WINDOWS, above=True):
             raise InputError(
-                f"the position window must be a positive number of seconds, not {self.window}",
-                fix="give --position-window, e.g. 30 for a walker's traced path",
+                f"the position window must be a positive number of seconds up to "
+                f"{WINDOWS[1]:g} (a day), not {self.window}",
+                fix="give --position-window, e.g. 30 for a walker's traced path, or leave it "
+                "out for the whole recording",
             )
 
     @property
@@ -348,9 +392,10 @@ class Calibration:
     rounds: int = 3
 
     def __post_init__(self):
-        if self.prior_sd is not None and not _positive(self.prior_sd):
+        if self.prior_sd is not None and not _within(self.prior_sd, POSITION_SDS, above=True):
             raise InputError(
-                f"the calibration prior must be a positive number of metres, not {self.prior_sd}",
+                f"the calibration prior must be a positive number of metres up to "
+                f"{POSITION_SDS[1]:g}, not {self.prior_sd}",
                 fix="give --calibration-sd, e.g. 1 m for hand-placed points, 5 m for phone fixes",
             )
         if self.window is not None and self.prior_sd is None:
@@ -358,14 +403,17 @@ class Calibration:
                 "a calibration window without self-calibration",
                 fix="give the calibration prior (--calibration-sd) too, e.g. 5 m for phone fixes",
             )
-        if self.window is not None and not _positive(self.window):
+        if self.window is not None and not _within(self.window, WINDOWS, above=True):
             raise InputError(
-                f"the calibration window must be a positive number of seconds, not {self.window}",
-                fix="give --calibration-window, e.g. 30 for phone fixes",
+                f"the calibration window must be a positive number of seconds up to "
+                f"{WINDOWS[1]:g} (a day), not {self.window}",
+                fix="give --calibration-window, e.g. 30 for phone fixes, or leave it out for "
+                "one offset per recording",
             )
-        if not _count(self.rounds):
+        if not _count_within(self.rounds, ROUNDS):
             raise InputError(
-                f"calibration rounds must be a whole number, 1 or more, not {self.rounds}",
+                f"calibration rounds must be a whole number, {ROUNDS[0]} to {ROUNDS[1]}, "
+                f"not {self.rounds}",
                 fix="e.g. 3",
             )
 

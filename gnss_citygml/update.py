@@ -213,7 +213,7 @@ def update_map(
     """
     from .ids import id_field as source_id_field
     from .jobs import read_buildings
-    from .observations import read_observations
+    from .observations import read_observation_files
     from .pipeline import fit_heights, in_mask, intersections, receivers
 
     say = progress or (lambda what, done: None)
@@ -236,6 +236,11 @@ def update_map(
         true = None if truth is None else check_truth(read_table(truth), str(truth))
     if min_signals < 1:
         raise InputError(f"min_signals must be 1 or more, not {min_signals}", fix="give N >= 1")
+    if not (np.isfinite(threshold) and threshold >= 0):
+        raise InputError(
+            f"the change threshold must be a number of metres, 0 or more, not {threshold}",
+            fix="give --threshold in metres, e.g. 0.5",
+        )
     say("reading", 0.0)
     read_at = _stamp(path)
     name = _layer_name(path, layer)  # (as the database names it: the evidence's key)
@@ -258,10 +263,8 @@ def update_map(
     stored, cast_before = before.intersections, before.cast
     gone = ~stored["building"].isin(buildings["id"].astype(str)).to_numpy()
     stored = stored[~gone].reset_index(drop=True)  # footprints deleted since: their evidence
-    obs = in_mask(pd.concat([read_observations(p) for p in observations], ignore_index=True), rays)
+    obs = in_mask(read_observation_files(observations), rays)  # each signal once (it warns)
     keys = _keys(obs)
-    repeated = keys.duplicated().to_numpy()
-    obs, keys = obs[~repeated].reset_index(drop=True), keys[~repeated].reset_index(drop=True)
     unseen = ~keys.isin(cast_before["signal_key"]).to_numpy()
     new = obs[unseen].reset_index(drop=True)
     fresh, signals = stored.iloc[:0], pd.DataFrame(columns=_SIGNAL_COLUMNS)
@@ -294,8 +297,6 @@ def update_map(
     result = UpdateResult(
         len(new), len(fresh), table, threshold, frozenset(fresh["building"].astype(str))
     )
-    if repeated.any():
-        result.notes.append(f"{int(repeated.sum())} repeated observations counted once")
     if gone.any():
         result.notes.append(
             f"{int(gone.sum())} intersections with footprints no longer in the layer left out"

@@ -150,6 +150,77 @@ def test_estimate_from_simulated_files(grid_args, tmp_path, capsys):
     assert not list(tmp_path.glob(".*part*"))
 
 
+def test_simulate_options_are_checked_in_one_line(tmp_path, capsys):
+    """Every numeric option of simulate: a bad value is one error line naming the option,
+    before any work or memory is spent (1e-9 s once ran out of memory), and nothing written."""
+    folder = tmp_path / "site"
+    for option, value in [
+        ("--interval", "1e-9"),
+        ("--interval", "nan"),
+        ("--interval", "inf"),
+        ("--interval", "-1"),
+        ("--interval", "0.001"),
+        ("--seed", "-1"),
+    ]:
+        code, _, err = run(["simulate", "hermitage", "-o", str(folder), option, value], capsys)
+        assert code == 2 and err.startswith("error: ") and err.count("\n") == 1, err
+        assert option in err and "internal error" not in err
+    code, _, err = run(["simulate", "hermitage", "-o", str(folder), "--interval", "0.02"], capsys)
+    assert code == 2 and "epochs" in err and "give --interval 0.05 or more" in err
+    assert not folder.exists() or not any(folder.iterdir())
+
+
+def test_options_outside_their_physical_range_are_refused(grid_args, tmp_path, capsys):
+    """A physical option out of its range (a roof below the ground from --antenna-height -50,
+    rays of 1e9 m, NaN) is refused in one line before any work, by the settings every
+    interface builds; nothing is written."""
+    simulated_site(tmp_path, grid_args, capsys, interval="120")
+    for option, value in [
+        ("--antenna-height", "-50"),
+        ("--antenna-height", "1e9"),
+        ("--antenna-height", "nan"),
+        ("--max-range", "1e9"),
+        ("--max-range", "-1"),
+        ("--min-elevation", "nan"),
+        ("--max-elevation", "inf"),
+        ("--init-threshold", "-5"),
+        ("--init-threshold", "1e6"),
+        ("--position-sd", "nan"),
+        ("--position-sd", "1e6"),
+        ("--position-window", "inf"),
+        ("--calibration-sd", "-5"),
+        ("--calibration-sd", "1e9"),
+    ]:
+        code, _, err = run([*estimate_args(tmp_path, grid_args), option, value], capsys)
+        assert code == 2 and err.startswith("error: ") and err.count("\n") == 1, (option, err)
+        assert option in err, err
+    args = ["partition", str(tmp_path / "observations.csv"), "-o", str(tmp_path / "part")]
+    code, _, err = run([*args, "--antenna-height", "-50", *grid_args], capsys)
+    assert code == 2 and "--antenna-height" in err and err.count("\n") == 1
+    assert not (tmp_path / "heights.gpkg").exists() and not (tmp_path / "part").exists()
+
+
+def test_estimate_refuses_a_signal_both_received_and_blocked(grid_args, tmp_path, capsys):
+    """The observations plus a copy with C/N0 flipped once gave no heights and exit 0; now one
+    line naming both lines. An exact copy counts once, with a warning; azimuths in radians
+    draw a warning."""
+    simulated_site(tmp_path, grid_args, capsys, interval="120")
+    table = pd.read_csv(tmp_path / "observations.csv")
+    flipped = table.assign(cn0=table["cn0"].isna() * 40.0).replace(0.0, float("nan"))
+    pd.concat([table, flipped]).to_csv(tmp_path / "flipped.csv", index=False)
+    code, _, err = run(estimate_args(tmp_path, grid_args, "flipped.csv"), capsys)
+    assert code == 2 and err.count("\n") == 1
+    assert err.startswith("error: the same signal twice with different values")
+    assert f"flipped.csv, line 2 and {tmp_path / 'flipped.csv'}, line {len(table) + 2}" in err
+    assert not (tmp_path / "heights.gpkg").exists()
+    pd.concat([table, table]).to_csv(tmp_path / "twice.csv", index=False)
+    code, _, err = run(estimate_args(tmp_path, grid_args, "twice.csv"), capsys)
+    assert code == 0 and f"warning: {len(table)} repeated observation(s)" in err
+    table.assign(azimuth=table["azimuth"] / 57.3).to_csv(tmp_path / "rad.csv", index=False)
+    code, _, err = run([*estimate_args(tmp_path, grid_args, "rad.csv"), "--overwrite"], capsys)
+    assert "warning: every azimuth is within 0..6.28: radians?" in err
+
+
 def test_estimate_with_position_errors(grid_args, tmp_path, capsys):
     simulated_site(tmp_path, grid_args, capsys, interval="60")
     code, _, err = run([*estimate_args(tmp_path, grid_args), "--position-sd", "-1"], capsys)

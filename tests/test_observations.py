@@ -8,6 +8,7 @@ from gnss_citygml.errors import InputError, MissingColumnError
 from gnss_citygml.observations import (
     OBSERVATION_COLUMNS,
     check_observations,
+    read_observation_files,
     read_observations,
     satellites,
     write_observations,
@@ -202,3 +203,112 @@ def test_satellites_name_each_rows_satellite():
     names = satellites(table)
     assert list(names) == ["G05", "E21", "G05", "R03"]
     assert list(names.categories) == ["G05", "E21", "R03"]  # each satellite once
+
+
+def _first_rows(observations, n=40):
+    """The first ``n`` rows with the schema's columns only (as a user's file has them)."""
+    return observations[OBSERVATION_COLUMNS].head(n).reset_index(drop=True)
+
+
+def test_a_signal_received_and_blocked_is_refused_naming_both_lines(tmp_path, observations):
+    table = _first_rows(observations)
+    flipped = table.assign(cn0=np.where(table["cn0"].isna(), 40.0, np.nan))
+    path = tmp_path / "obs.csv"
+    pd.concat([table, flipped], ignore_index=True).to_csv(path, index=False)
+    with pytest.raises(InputError, match="the same signal twice with different values") as caught:
+        read_observations(path)
+    message = caught.value.one_line()
+    assert f"{path}, line 2 and {path}, line {2 + len(table)}" in message
+    assert "cn0" in message and "empty" in message and "\n" not in message
+
+
+@pytest.mark.parametrize(
+    "change",
+    [
+        {"azimuth": 0.01},  # the same signal, slightly another direction
+        {"elevation": -0.01},
+        {"lat": 1e-6},
+        {"position_sd": 1.0},
+    ],
+)
+def test_a_signal_with_slightly_other_values_is_refused(observations, change):
+    table = _first_rows(observations)
+    ((column, step),) = change.items()
+    other = table.iloc[[3]].copy()
+    other[column] = other[column].fillna(0.0) + step
+    with pytest.raises(InputError, match=f"same signal twice .* {column} "):
+        check_observations(pd.concat([table, other], ignore_index=True))
+
+
+def test_exact_repeats_count_once_with_a_warning(observations):
+    table = _first_rows(observations)
+    with pytest.warns(UserWarning, match=r"40 repeated observation\(s\) .* counted once"):
+        out = check_observations(pd.concat([table, table], ignore_index=True))
+    pd.testing.assert_frame_equal(out, check_observations(table))
+
+
+def test_repeats_are_found_however_the_signal_is_written(observations):
+    """The same signal written another way: svid as text, the constellation in lower case,
+    the time in another zone or a fraction of a millisecond off; a receiver name with spaces."""
+    table = _first_rows(observations, 5)
+    other = table.assign(
+        svid=table["svid"].astype(str),
+        constellation=table["constellation"].str.lower(),
+        time_utc=(table["time_utc"] + pd.Timedelta("0.3ms"))
+        .dt.tz_convert("Europe/Paris")
+        .map(lambda t: t.isoformat()),
+        receiver=" " + table["receiver"] + " ",
+    )
+    with pytest.warns(UserWarning, match=r"5 repeated observation\(s\)"):
+        out = check_observations(pd.concat([table, other], ignore_index=True))
+    assert len(out) == 5
+    flipped = other.assign(cn0=np.where(table["cn0"].isna(), 40.0, np.nan))
+    with pytest.raises(InputError, match="same signal twice"):
+        check_observations(pd.concat([table, flipped], ignore_index=True))
+
+
+def test_repeats_across_files_read_together(tmp_path, observations):
+    table = _first_rows(observations)
+    a, b = tmp_path / "a.csv", tmp_path / "b.parquet"
+    table.to_csv(a, index=False)
+    table.iloc[10:].to_parquet(b)
+    with pytest.warns(UserWarning, match=r"30 repeated .* first: .*b.parquet, row 0 repeats"):
+        out = read_observation_files([a, b])
+    assert len(out) == len(table)
+    table.iloc[10:].assign(cn0=table["cn0"].iloc[10:].fillna(20.0) + 1).to_parquet(b)
+    with pytest.raises(InputError, match=r"a.csv, line 12 and .*b.parquet, row 0"):
+        read_observation_files([a, b])
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        ({"azimuth": np.radians}, "every azimuth is within 0..6.28: radians"),
+        ({"elevation": np.radians}, "every elevation is within \\+-1.57: radians"),
+        ({"lat": np.radians, "lon": np.radians}, "every lat is within .* radians"),
+        ({"cn0": lambda c: c / 10}, "every C/N0 is below 10 dB-Hz"),
+        ({"cn0": lambda c: c + 100 - c.max()}, None),  # above 60 only at the top: no warning
+        ({"cn0": lambda c: c * 0 + 75}, "every C/N0 is above 60 dB-Hz"),
+        ({"position_sd": lambda s: s.fillna(2.0) * 100}, "every position_sd is over 100 m"),
+    ],
+)
+def test_a_column_in_other_units_is_warned_about(observations, change, message, recwarn):
+    table = observations.assign(**{c: f(observations[c]) for c, f in change.items()})
+    out = check_observations(table)
+    said = [str(w.message) for w in recwarn.list]
+    if message is None:
+        assert not said
+    else:
+        assert len(said) == 1 and pd.Series(said).str.contains(message).all(), said
+    assert len(out) == len(table)  # a warning: the values are kept
+
+
+def test_no_unit_warning_for_good_or_scant_data(observations, recwarn):
+    check_observations(observations)
+    # a few rows of two satellites may all be in the north-east: no evidence of radians
+    few = _first_rows(observations, 6).assign(azimuth=[1.0, 2.0, 3.0, 4.0, 5.0, 6.0])
+    check_observations(few)
+    checked = check_observations(observations.assign(azimuth=np.radians(observations["azimuth"])))
+    recwarn.clear()
+    check_observations(checked)  # checked before (the pipeline checks what it is given): once
+    assert not recwarn.list

@@ -41,7 +41,7 @@ def test_settings_are_frozen():
         (lambda: Rays(max_range=0.0), "max_range"),
         (lambda: ReceiverHeights(source="gps"), "unknown receiver height source 'gps'"),
         (lambda: ReceiverHeights(antenna_height=float("inf")), "antenna_height"),
-        (lambda: PositionError(sd=-1.0), "position error must be a number of metres, 0 or"),
+        (lambda: PositionError(sd=-1.0), "position error must be a number of metres, 0 to"),
         (lambda: PositionError(sd=float("inf")), "position error must be a number of metres"),
         (lambda: PositionError(sd=1.0, window=0.0), "position window must be a positive"),
         (lambda: Calibration(prior_sd=float("nan")), "calibration prior must be a positive"),
@@ -59,6 +59,56 @@ def test_bad_values_are_refused_in_one_line(settings, message):
     with pytest.raises((InputError, ModelError), match=message) as caught:
         settings()
     assert "\n" not in str(caught.value) and ": " in str(caught.value)  # what: how to fix
+
+
+NAN, INF = float("nan"), float("inf")
+
+
+@pytest.mark.parametrize(
+    "settings, message",
+    [
+        # each option with a unit has a range from its physics; NaN and inf are refused
+        (lambda: ReceiverHeights(antenna_height=-50.0), "antenna_height .* above the ground"),
+        (lambda: ReceiverHeights(antenna_height=1e9), "antenna_height"),
+        (lambda: ReceiverHeights(antenna_height=NAN), "antenna_height"),
+        (lambda: Rays(max_range=1e9), "max_range must be a positive number of metres up to"),
+        (lambda: Rays(max_range=NAN), "max_range"),
+        (lambda: Rays(min_elevation=NAN), "elevation mask"),
+        (lambda: Rays(max_elevation=INF), "elevation mask"),
+        (lambda: Estimator(init_threshold=-5.0), "init_threshold must be a C/N0"),
+        (lambda: Estimator(init_threshold=1e6), "init_threshold"),
+        (lambda: Estimator(init_threshold=INF), "init_threshold"),
+        (lambda: Estimator(max_iter=10**9), "max_iter must be a whole number, 1 to 1000"),
+        (lambda: Estimator(max_iter=2.5), "max_iter"),
+        (lambda: Acceptance(max_uncertainty=1e9), "max_uncertainty"),
+        (lambda: Acceptance(max_uncertainty=NAN), "max_uncertainty"),
+        (lambda: Acceptance(label_tol=NAN), "label_tol"),
+        (lambda: Acceptance(min_separation=INF), "min_separation"),
+        (lambda: PositionError(sd=1e6), "position error must be a number of metres, 0 to 1000"),
+        (lambda: PositionError(sd=NAN), "position error"),
+        (lambda: PositionError(window=-30.0), "position window"),
+        (lambda: PositionError(window=1e12), "position window .* up to 86400"),
+        (lambda: PositionError(window=NAN), "position window"),
+        (lambda: Calibration(prior_sd=0.0), "calibration prior"),
+        (lambda: Calibration(prior_sd=1e9), "calibration prior .* up to 1000"),
+        (lambda: Calibration(prior_sd=5.0, window=INF), "calibration window"),
+        (lambda: Calibration(prior_sd=5.0, window=1e12), "calibration window"),
+        (lambda: Calibration(prior_sd=5.0, rounds=10**6), "calibration rounds .* 1 to 100"),
+    ],
+)
+def test_options_outside_their_physical_range_are_refused(settings, message):
+    with pytest.raises((InputError, ModelError), match=message) as caught:
+        settings()
+    assert "\n" not in str(caught.value) and ": " in str(caught.value)
+
+
+def test_options_at_the_ends_of_their_ranges_are_taken():
+    ReceiverHeights(antenna_height=0.0)
+    ReceiverHeights(antenna_height=500.0)
+    Rays(max_range=10_000.0, min_elevation=-90.0, max_elevation=90.0)
+    Estimator(init_threshold=0.0, max_iter=1000)
+    PositionError(sd=1000.0, window=86_400.0)
+    Calibration(prior_sd=1000.0, window=86_400.0, rounds=100)
 
 
 def test_calibration_only_with_4plb():

@@ -119,6 +119,45 @@ def test_bad_arguments():
         simulate("ucl", locations="psychic")
 
 
+@pytest.mark.parametrize(
+    "arguments, message",
+    [
+        ({"interval": 1e-9}, "--interval must be a number of seconds from 0.01 to 3600"),
+        ({"interval": float("nan")}, "--interval .* not nan"),
+        ({"interval": float("inf")}, "--interval"),
+        ({"interval": -1.0}, "--interval"),
+        ({"interval": 0.0}, "--interval"),
+        ({"interval": 1e300}, "--interval"),
+        # counts that would exhaust memory are refused from their size, before any work
+        ({"interval": 0.02}, "417,500 epochs .* more than the 200,000 .* --interval 0.05 or more"),
+        ({"seed": -1}, "the seed must be a whole number, 0 or more"),
+        ({"seed": 1.5}, "the seed"),
+        ({"max_range": float("nan")}, "max_range"),
+        ({"max_range": 0.0}, "max_range"),
+        ({"start": "yesterday-ish"}, "the start 'yesterday-ish' is not a UTC time"),
+        ({"start": "1066-10-14"}, "not a UTC time from 1980-01-06"),
+    ],
+)
+def test_numeric_arguments_are_checked_before_any_work(arguments, message):
+    with pytest.raises(InputError, match=message) as caught:
+        simulate("hermitage", **arguments)
+    assert "\n" not in str(caught.value)
+
+
+@pytest.mark.parametrize(
+    "bad", [{"fading_sd": -1.0}, {"zenith_cn0": float("nan")}, {"reflected_open": 2.0}]
+)
+def test_a_signal_model_that_is_no_physics_is_refused(bad):
+    with pytest.raises(InputError, match=f"signal model {next(iter(bad))}"):
+        SignalModel(**bad)
+
+
+def test_a_start_without_a_zone_is_utc():
+    a = simulate("goodchild", interval=600.0, start="2020-02-11T10:00:00")
+    b = simulate("goodchild", interval=600.0)
+    pd.testing.assert_frame_equal(a.observations, b.observations)
+
+
 def test_observations_carry_wgs84_positions_matching_the_grid(sims):
     o = sims[("ucl", "manual")].observations
     assert o["h"].isna().all()  # receiver heights come from the DEM, as in the paper

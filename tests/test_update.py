@@ -243,9 +243,11 @@ def test_repeated_observations_count_once(city_map, halves, grid_dir, tmp_path):
     twin = tmp_path / "twin.gpkg"
     twin.write_bytes(city_map.read_bytes())
     once = update_map(twin, [halves[0]], DEM, layer="buildings", grid_dir=grid_dir)
-    twice = update_map(city_map, [halves[0], halves[0]], DEM, layer="buildings", grid_dir=grid_dir)
+    with pytest.warns(UserWarning, match=r"repeated observation\(s\) .* counted once"):
+        twice = update_map(
+            city_map, [halves[0], halves[0]], DEM, layer="buildings", grid_dir=grid_dir
+        )
     assert twice.new_signals == once.new_signals
-    assert any("repeated observations counted once" in line for line in twice.lines())
     read = [
         pyogrio.read_dataframe(p, layer="buildings", read_geometry=False) for p in (twin, city_map)
     ]

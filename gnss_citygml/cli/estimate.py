@@ -51,7 +51,7 @@ _RUN_OPTIONS = together(
     ),
     click.option(
         "--position-sd",
-        type=click.FloatRange(min=0.0),
+        type=float,
         help="How far every receiver position may be off (m per axis; about 1 for points placed "
         "by hand), overriding the observations' position_sd: the fits model the height errors "
         "that follow and the ranges widen. 0: positions taken as exact, as in the paper. "
@@ -61,13 +61,13 @@ _RUN_OPTIONS = together(
     POSITION_WINDOW,
     click.option(
         "--calibration-sd",
-        type=click.FloatRange(min=0.0, min_open=True),
+        type=float,
         help="Self-calibrate one position offset per recording with this prior (m per axis; "
         "about 1 for hand-placed points, 5 for phone fixes; method 4PL-B only). Off by default.",
     ),
     click.option(
         "--calibration-window",
-        type=click.FloatRange(min=0.0, min_open=True),
+        type=float,
         help="With --calibration-sd: one offset per this many seconds of a recording (about 30 "
         "for phone fixes, whose errors drift) instead of one per recording.",
     ),

@@ -2,7 +2,9 @@
 
 An option that two commands take is declared here, so that it has one name, one type, one
 default and one help text everywhere. The defaults of the model's options are those of
-:mod:`gnss_citygml.settings`, the objects the commands build from them.
+:mod:`gnss_citygml.settings`, the objects the commands build from them. Options with a unit
+are plain numbers here: their ranges are checked once, when those objects are made, and a bad
+value is the toolkit's one-line error naming the option.
 """
 
 from __future__ import annotations
@@ -82,7 +84,7 @@ ANTENNA_HEIGHT = click.option(
 )
 POSITION_WINDOW = click.option(
     "--position-window",
-    type=click.FloatRange(min=0.0, min_open=True),
+    type=float,
     help="Seconds one position error of a moving receiver lasts (a walker's traced path, "
     "a phone's fixes). Default: its whole recording. A receiver standing at one point (a "
     "point placed by hand) shares one error over its stay either way.",

@@ -24,10 +24,10 @@ from .options import GRID_DIR, OVERWRITE, SEED, output_dir
 @SEED
 @click.option(
     "--interval",
-    type=click.FloatRange(min=0.0, min_open=True),
+    type=float,
     default=1.0,
     show_default=True,
-    help="Seconds between epochs.",
+    help="Seconds between epochs (0.01 to 3600).",
 )
 @click.option(
     "--format", "fmt", type=click.Choice(["csv", "parquet"]), default="csv", show_default=True

@@ -38,14 +38,14 @@ from .options import (
 @ID_FIELD
 @click.option(
     "--min-signals",
-    type=click.IntRange(min=1),
+    type=int,
     default=1,
     show_default=True,
     help="A building gets values when the evidence holds at least this many of its signals.",
 )
 @click.option(
     "--threshold",
-    type=click.FloatRange(min=0.0),
+    type=float,
     default=0.5,
     show_default=True,
     help="List the buildings whose height changes by more than this (m).",

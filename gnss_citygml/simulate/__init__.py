@@ -18,6 +18,8 @@ azimuths over the few hundred metres of a scene).
 
 from __future__ import annotations
 
+import math
+import numbers
 from dataclasses import dataclass
 
 import geopandas as gpd
@@ -29,6 +31,7 @@ from pyproj import Transformer
 from ..errors import InputError
 from ..observations import satellites
 from ..raycast import footprint_entries
+from ..settings import MAX_RANGES
 from .constellations import satellite_ecef, sky
 from .scenes import PRESETS, Scene, Session, make_scene
 from .signals import SignalModel, ar1, diffraction_loss, gnss_fix_errors
@@ -43,6 +46,16 @@ EPOCH = pd.Timestamp("2020-02-11T10:00:00Z")
 
 #: Antenna height above the ground the pipeline assumes (m), as in the paper.
 ASSUMED_ANTENNA = 1.0
+
+#: Seconds between epochs: from 100 Hz (beyond any phone's logging) to one an hour.
+INTERVALS = (0.01, 3600.0)
+
+#: Most epochs (of all sessions) a simulation makes: each holds about 40 signals and their
+#: satellites' orbits, so this many is a few GB in memory.
+MAX_EPOCHS = 200_000
+
+#: The simulated recordings may start from the GPS epoch to 2200 (nanosecond times reach 2262).
+STARTS = (pd.Timestamp("1980-01-06T00:00:00Z"), pd.Timestamp("2200-01-01T00:00:00Z"))
 
 
 @dataclass(frozen=True)
@@ -127,8 +140,10 @@ def simulate(
         raise InputError(
             f"unknown locations {locations!r}", fix="use one of " + ", ".join(LOCATIONS)
         )
+    start = _check_arguments(seed, interval, max_range, start)
     rng = np.random.default_rng(seed)
     scene = preset if isinstance(preset, Scene) else make_scene(preset, rng)
+    _check_size(scene, interval)
     parts = [(p, top) for b in scene.buildings for p, top in b.parts]
     site = _Site(
         scene=scene,
@@ -137,7 +152,7 @@ def simulate(
         footprints=np.array([b.footprint for b in scene.buildings], dtype=object),
         device=rng.normal(0.0, physics.device_sd),
         physics=physics,
-        start=pd.Timestamp(start),
+        start=start,
     )
     frames = [_session(rng, site, s, locations, interval) for s in scene.sessions]
     obs = pd.concat(frames, ignore_index=True)
@@ -152,6 +167,58 @@ def simulate(
         }
     )
     return Simulation(scene, obs, inter, truth)
+
+
+def _check_arguments(seed, interval, max_range, start) -> pd.Timestamp:
+    """Refuse, in one line, a seed, interval, ray length or start the simulator cannot use;
+    the start as a timestamp."""
+    if isinstance(seed, bool) or not (isinstance(seed, numbers.Integral) and int(seed) >= 0):
+        raise InputError(
+            f"the seed must be a whole number, 0 or more, not {seed!r}", fix="give --seed, e.g. 0"
+        )
+    lo, hi = INTERVALS
+    if not (_real(interval) and lo <= interval <= hi):
+        raise InputError(
+            f"--interval must be a number of seconds from {lo:g} to {hi:g}, not {interval!r}",
+            fix="give --interval in seconds between epochs, e.g. 1 (1 Hz, as a phone logs)",
+        )
+    if not (_real(max_range) and MAX_RANGES[0] < max_range <= MAX_RANGES[1]):
+        raise InputError(
+            f"max_range must be a positive number of metres up to {MAX_RANGES[1]:g}, "
+            f"not {max_range!r}",
+            fix="e.g. 500",
+        )
+    try:
+        first = pd.Timestamp(start)
+        if isinstance(first, pd.Timestamp) and first.tzinfo is None:
+            first = first.tz_localize("UTC")  # as the observations' reader takes it
+    except (TypeError, ValueError, OverflowError):
+        first = pd.NaT
+    if not (isinstance(first, pd.Timestamp) and STARTS[0] <= first <= STARTS[1]):
+        raise InputError(
+            f"the start {start!r} is not a UTC time from {STARTS[0]:%Y-%m-%d} to "
+            f"{STARTS[1]:%Y-%m-%d}",
+            fix="give the start as ISO 8601, e.g. 2020-02-11T10:00:00Z",
+        )
+    return first
+
+
+def _real(value) -> bool:
+    return isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _check_size(scene: Scene, interval: float) -> None:
+    """Refuse, before anything is made, a simulation whose epochs would not fit in memory."""
+    seconds = sum(s.duration for s in scene.sessions)
+    epochs = sum(math.ceil(s.duration / interval) for s in scene.sessions)
+    if epochs > MAX_EPOCHS:
+        least = seconds / MAX_EPOCHS
+        raise InputError(
+            f"--interval {interval:g} s makes {epochs:,} epochs of {seconds:g} s of recordings, "
+            f"more than the {MAX_EPOCHS:,} a simulation holds in memory",
+            where=f"scene {scene.name}",
+            fix=f"give --interval {math.ceil(least * 100) / 100:g} or more",
+        )
 
 
 @dataclass(frozen=True)

@@ -20,11 +20,16 @@ Positions
 
 from __future__ import annotations
 
+import math
+import numbers
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 from scipy.signal import lfilter
+
+from ..errors import InputError
 
 __all__ = ["SignalModel", "ar1", "diffraction_loss", "gnss_fix_errors"]
 
@@ -52,6 +57,25 @@ class SignalModel:
     reflected_open: float = 0.25
     tracking_threshold: float = 12.0  # below this nothing is tracked
     manual_sd: float = 1.0  # error of a position placed by hand (m per axis, per session)
+
+    def __post_init__(self):
+        """Refuse physics that is no physics: every value finite, spreads not negative,
+        shares fractions, C/N0s as the observations' (0 to 100 dB-Hz)."""
+        values: dict[str, Any] = {name: getattr(self, name) for name in self.__dataclass_fields__}
+        bad = [
+            name
+            for name, value in values.items()
+            if not (isinstance(value, numbers.Real) and math.isfinite(value))
+            or (name.endswith("_sd") and float(value) < 0)
+            or (name.startswith("reflected_") and not 0 <= float(value) <= 1)
+            or (name in ("zenith_cn0", "tracking_threshold") and not 0 <= float(value) <= 100)
+        ]
+        if bad:
+            raise InputError(
+                f"signal model {bad[0]} = {values[bad[0]]!r} is not physical",
+                fix="give finite numbers: spreads (_sd) 0 or more, shares (reflected_) from 0 "
+                "to 1, C/N0s from 0 to 100 dB-Hz",
+            )
 
 
 def diffraction_loss(

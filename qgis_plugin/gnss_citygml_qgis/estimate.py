@@ -78,8 +78,13 @@ class EstimateAlgorithm(Algorithm):
     def define(self):
         from gnss_citygml.model import METHODS
         from gnss_citygml.settings import (
+            ANTENNA_HEIGHTS,
+            CN0S,
             HEIGHT_RULES,
+            MAX_RANGES,
+            POSITION_SDS,
             RECEIVER_HEIGHTS,
+            WINDOWS,
             Estimator,
             Rays,
             ReceiverHeights,
@@ -141,6 +146,8 @@ class EstimateAlgorithm(Algorithm):
                 "Antenna height above the ground (m)",
                 double,
                 ReceiverHeights.antenna_height,
+                minValue=ANTENNA_HEIGHTS[0],
+                maxValue=ANTENNA_HEIGHTS[1],
             )
         )
         self.addParameter(
@@ -149,6 +156,8 @@ class EstimateAlgorithm(Algorithm):
                 "Initial C/N0 threshold (dB-Hz)",
                 double,
                 Estimator.init_threshold,
+                minValue=CN0S[0],
+                maxValue=CN0S[1],
             )
         )
         self.addParameter(choice("METHOD", "Method", METHODS, Estimator.method))
@@ -156,7 +165,12 @@ class EstimateAlgorithm(Algorithm):
         self.addParameter(
             advanced(
                 QgsProcessingParameterNumber(
-                    "MAX_RANGE", "Ray length (m)", double, Rays.max_range, minValue=0
+                    "MAX_RANGE",
+                    "Ray length (m)",
+                    double,
+                    Rays.max_range,
+                    minValue=MAX_RANGES[0],
+                    maxValue=MAX_RANGES[1],
                 )
             )
         )
@@ -168,19 +182,32 @@ class EstimateAlgorithm(Algorithm):
                     "empty; 0: exact)",
                     double,
                     optional=True,
-                    minValue=0,
+                    minValue=POSITION_SDS[0],
+                    maxValue=POSITION_SDS[1],
                 )
             )
         )
-        for name, description in (
-            ("POSITION_WINDOW", "Position error of a moving receiver lasts (s; default: all)"),
-            ("CALIBRATION_SD", "Self-calibrate receiver offsets with prior (m; 4PL-B only)"),
-            ("CALIBRATION_WINDOW", "One calibration offset per (s; default: per recording)"),
+        for name, description, (low, high) in (
+            (
+                "POSITION_WINDOW",
+                "Position error of a moving receiver lasts (s; default: all)",
+                WINDOWS,
+            ),
+            (
+                "CALIBRATION_SD",
+                "Self-calibrate receiver offsets with prior (m; 4PL-B only)",
+                POSITION_SDS,
+            ),
+            (
+                "CALIBRATION_WINDOW",
+                "One calibration offset per (s; default: per recording)",
+                WINDOWS,
+            ),
         ):
             self.addParameter(
                 advanced(
                     QgsProcessingParameterNumber(
-                        name, description, double, optional=True, minValue=0
+                        name, description, double, optional=True, minValue=low, maxValue=high
                     )
                 )
             )

@@ -48,7 +48,7 @@ class UpdateAlgorithm(Algorithm):
 
     def define(self):
         from gnss_citygml.model import METHODS
-        from gnss_citygml.settings import HEIGHT_RULES, Estimator
+        from gnss_citygml.settings import CN0S, HEIGHT_RULES, Estimator
 
         self.addParameter(
             QgsProcessingParameterVectorLayer(
@@ -101,6 +101,8 @@ class UpdateAlgorithm(Algorithm):
                     "Initial C/N0 threshold (dB-Hz)",
                     QgsProcessingParameterNumber.Double,
                     Estimator.init_threshold,
+                    minValue=CN0S[0],
+                    maxValue=CN0S[1],
                 )
             )
         )

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 import numbers
+import re
 from dataclasses import dataclass, field
 
 from .errors import InputError, ModelError
@@ -42,6 +43,7 @@ __all__ = [
     "Rays",
     "Tiling",
     "check_tile_size",
+    "scheduler_address",
 ]
 
 #: Reweighting schemes of the 4PL height fit (:func:`~gnss_citygml.model.fourplb.height_weights`).
@@ -106,6 +108,29 @@ ROUNDS = (1, 100)
 def _count_within(value, bounds: tuple[int, int]) -> bool:
     """A whole number from ``bounds[0]`` to ``bounds[1]``."""
     return _count(value) and bounds[0] <= int(value) <= bounds[1]
+
+
+#: The port a Dask scheduler listens on when not told otherwise (``dask scheduler --port``).
+SCHEDULER_PORT = 8786
+
+#: A Dask scheduler's address: ``tcp://`` (or ``tls://``), a host name or address (IPv6 in
+#: brackets), and a port (default :data:`SCHEDULER_PORT`).
+_SCHEDULER = re.compile(r"(tcp|tls)://(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9._-]+)(?::([0-9]{1,5}))?")
+
+
+def scheduler_address(scheduler: str | None) -> tuple[str, str, int]:
+    """The protocol, host and port of a Dask scheduler's address (``tcp://host:port``), or a
+    one-line error naming it: Dask's own parsing lets ``tcp://`` or ``tcp://host:notaport``
+    through to an internal error when connecting."""
+    match = _SCHEDULER.fullmatch(scheduler) if isinstance(scheduler, str) else None
+    port = int(match.group(3) or SCHEDULER_PORT) if match else 0
+    if match is None or not 1 <= port <= 65535:
+        raise InputError(
+            f"unknown scheduler {scheduler!r}",
+            fix="give --scheduler local, or the address of a running Dask scheduler, "
+            "tcp://HOST:PORT, as `dask scheduler` prints it (e.g. tcp://192.168.1.5:8786)",
+        )
+    return match.group(1), match.group(2).strip("[]"), port
 
 
 def check_tile_size(size: float) -> None:
@@ -455,13 +480,8 @@ class Tiling:
     size: float | None = None
 
     def __post_init__(self):
-        if self.scheduler is not None and not (
-            self.scheduler == "local" or self.scheduler.startswith(("tcp://", "tls://"))
-        ):
-            raise InputError(
-                f"unknown scheduler {self.scheduler!r}",
-                fix="give --scheduler local, or the address of a Dask scheduler (tcp://host:port)",
-            )
+        if self.scheduler not in (None, "local"):
+            scheduler_address(self.scheduler)
         if self.workers is not None and (self.scheduler != "local" or not _count(self.workers)):
             raise InputError(
                 f"--workers {self.workers} is for --scheduler local, a whole number 1 or more",

@@ -203,13 +203,6 @@ def test_tiling_options_are_checked(options, message):
         Tiling(**options)
 
 
-def test_an_unreachable_scheduler_is_a_clear_error(monkeypatch):
-    monkeypatch.setattr("gnss_citygml.cluster.CONNECT_TIMEOUT", 2.0)
-    with pytest.raises(InputError, match="cannot reach the Dask scheduler at tcp://127.0.0.1:9"):
-        with connect(Tiling("tcp://127.0.0.1:9")):
-            pass
-
-
 def test_the_core_does_not_import_dask():
     code = (
         "import sys, gnss_citygml, gnss_citygml.cli, gnss_citygml.tiled; "

@@ -6,8 +6,12 @@ exactly what is missing and the command that installs it into *that* Python. Thi
 nothing newer than Python 3.7, so that even a QGIS on an old Python gets the message.
 """
 
+import configparser
+import importlib
+import importlib.util
 import os
 import re
+import shutil
 import sys
 from importlib import metadata
 
@@ -31,9 +35,13 @@ def version():
 def unavailable():
     """Why the algorithms cannot run in this QGIS, with what to do; None when they can.
 
-    Reads the installed distributions' metadata only (no compiled module is loaded into
-    QGIS): Python's version, gnss-citygml and each of its requirements at its minimum version.
-    A broken install that still fails is reported when a job runs, with the child's message.
+    Python's version; the Python that runs the jobs, when one is configured; the installed
+    distributions' metadata (gnss-citygml, at this plugin's version, and each of its
+    requirements at its minimum version); and the library's pure-Python modules that the
+    algorithms' parameters read (:data:`MODULES`), imported: a half-installed library (its
+    metadata without its modules, or modules that fail to import) must not stop QGIS loading
+    the plugin. No compiled module is loaded into QGIS; a broken one is reported when a job
+    runs, with the child's message.
     """
     if sys.version_info[:2] < PYTHON:
         return (
@@ -42,10 +50,94 @@ def unavailable():
                 TITLE, *PYTHON, *sys.version_info[:2]
             )
         )
+    return _configured_python() or _installed() or _not_importable()
+
+
+def _configured_python():
+    """What is wrong with ``$GNSS_CITYGML_PYTHON``, when it is set: a Python that is not
+    there, or not a program."""
+    python = os.environ.get(PYTHON_VARIABLE)
+    if not python or shutil.which(python):
+        return None
+    return (
+        f"{PYTHON_VARIABLE} names {python}, which {_not_a_program(python)}: set it to a Python "
+        "that has gnss-citygml (e.g. a virtual environment's bin/python), or unset it to run "
+        "the jobs in QGIS's own Python; then restart QGIS"
+    )
+
+
+def _not_a_program(path):
+    """Why ``path`` cannot be run, in words."""
+    if not os.path.exists(path):
+        return "does not exist"
+    if os.path.isdir(path):
+        return "is a folder"
+    return "is not executable"
+
+
+def _installed():
+    """What is wrong with the installed distributions: the library missing, or installed
+    without its metadata, a requirement missing or too old, or a library of another release
+    than this plugin's."""
     missing = _missing_requirements()
+    if missing == _NO_LIBRARY:
+        found = _spec("gnss_citygml")
+        if found is not None:
+            folder = list(found.submodule_search_locations or []) or [found.origin]
+            return install(
+                f"QGIS's Python has gnss_citygml ({folder[0]}) without its installed metadata "
+                "(a copy, or what an uninstall left): remove that folder, and install the "
+                "library properly"
+            )
     if missing:
         return install(f"{missing} missing from QGIS's Python")
+    library, plugin = version(), plugin_version()
+    if plugin and library != plugin:
+        return install(
+            f"QGIS's Python has gnss-citygml {library} and this plugin is {plugin}, which "
+            f"work together only as the same release: update the plugin to {library}, or "
+            "install the plugin's release of the library",
+            f"gnss-citygml=={plugin}",
+        )
     return None
+
+
+_NO_LIBRARY = "the gnss-citygml library is"
+
+#: The library's modules that the algorithms import in QGIS's own process, for their
+#: parameters' options and defaults (pure Python: no compiled module).
+MODULES = ("gnss_citygml.model", "gnss_citygml.settings")
+
+
+def _spec(module):
+    """Where ``module`` would be imported from (not importing it), or None."""
+    try:
+        return importlib.util.find_spec(module)
+    except (ImportError, ValueError):
+        return None
+
+
+def _not_importable():
+    """Why the library's :data:`MODULES` do not import in QGIS's Python, or None."""
+    for module in MODULES:
+        try:
+            importlib.import_module(module)
+        except Exception as exc:  # a broken install: any error of its import
+            lines = str(exc).strip().splitlines() or [""]
+            why = f"{type(exc).__name__}: {lines[0]}".rstrip(": ")
+            return install(
+                f"the gnss-citygml library in QGIS's Python is broken: import {module} "
+                f"fails ({why})",
+                reinstall=True,
+            )
+    return None
+
+
+def plugin_version():
+    """This plugin's version (its metadata.txt), or None when it does not say."""
+    meta = configparser.ConfigParser(interpolation=None)
+    meta.read(os.path.join(os.path.dirname(__file__), "metadata.txt"), encoding="utf-8")
+    return meta.get("general", "version", fallback=None)
 
 
 def _missing_requirements():
@@ -53,7 +145,7 @@ def _missing_requirements():
     try:
         requires = metadata.requires(DISTRIBUTION) or []
     except metadata.PackageNotFoundError:
-        return "the gnss-citygml library is"
+        return _NO_LIBRARY
     for requirement in requires:
         if "extra ==" in requirement:
             continue
@@ -73,9 +165,13 @@ def _numbers(text):
     return tuple(int(part) for part in re.findall(r"\d+", text.split("rc")[0].split("+")[0])[:3])
 
 
-def install(what):
-    """The message: what is wrong, and the command that installs the library into this Python."""
-    command = f'"{interpreter()}" -m pip install --user --upgrade gnss-citygml'
+def install(what, requirement=DISTRIBUTION, reinstall=False):
+    """The message: what is wrong, and the command that installs the library into this Python
+    (``requirement``, e.g. a release; ``reinstall``: its files and its requirements' again)."""
+    command = f'"{interpreter()}" -m pip install --user --upgrade '
+    command += "--force-reinstall " * reinstall + (
+        requirement if requirement == DISTRIBUTION else f'"{requirement}"'
+    )
     if _numpy_below_2():
         # QGIS's own compiled modules (GDAL's Python bindings) are built for numpy 1
         command += ' "numpy<2"'
@@ -86,7 +182,8 @@ def install(what):
     ):
         # Debian/Ubuntu: pip refuses the system Python unless told; --user keeps it in ~/.local
         command += " --break-system-packages"
-    return f"{what}. Install it there, then restart QGIS: {command} (more in {README})"
+    verb = "Reinstall" if reinstall else "Install"
+    return f"{what}. {verb} it there, then restart QGIS: {command} (more in {README})"
 
 
 def _numpy_below_2():

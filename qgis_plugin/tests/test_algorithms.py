@@ -244,7 +244,7 @@ def test_a_python_without_the_library_is_named_with_the_fix(
     assert "No module named 'gnss_citygml'" in message
     assert '"/usr/bin/python3" -m pip install --user --upgrade gnss-citygml' in message
     monkeypatch.setenv("GNSS_CITYGML_PYTHON", str(tmp_path / "no-python"))
-    with pytest.raises(QgsProcessingException, match="cannot start .*no-python"):
+    with pytest.raises(QgsProcessingException, match="GNSS_CITYGML_PYTHON names .*no-python, wh"):
         processing_framework.run("gnsscitygml:estimate", _inputs(scene, tmp_path / "h.gpkg"))
 
 

@@ -3,10 +3,10 @@ and a QGIS whose Python has no gnss-citygml (the plugin loads and says what to i
 
 import configparser
 import subprocess
-import textwrap
 
-from conftest import PLUGIN, PLUGINS
-from qgis.core import QgsApplication
+import pytest
+from conftest import PLUGIN, PLUGINS, ROOT
+from qgis.core import QgsApplication, QgsProcessingException
 from qgis.PyQt.QtGui import QIcon
 
 import gnss_citygml
@@ -74,37 +74,42 @@ def test_estimate_parameters_take_the_librarys_defaults(plugin):
     assert method.options()[default["METHOD"]] == Estimator.method
 
 
-def test_without_the_library_the_plugin_loads_and_says_what_to_install(tmp_path):
-    """QGIS's own Python with Debian's packages only (no site folders, so no gnss-citygml,
-    however this machine's Python is set up): the plugin loads, and running an algorithm
-    gives the message naming the library and the pip command for this Python."""
-    script = textwrap.dedent(
-        f"""
-        import sys
-        sys.path[:0] = ["/usr/lib/python3/dist-packages", "/usr/share/qgis/python/plugins",
-                        {str(PLUGINS)!r}]
-        from qgis.core import QgsApplication
-        app = QgsApplication([], False)
-        app.initQgis()
-        messages = []
-        QgsApplication.messageLog().messageReceived.connect(
-            lambda text, tag, level: messages.append((tag, text)))
-        from processing.core.Processing import Processing
-        Processing.initialize()
-        import processing
-        import gnss_citygml_qgis
-        plugin = gnss_citygml_qgis.classFactory(None)
-        plugin.initGui()
-        assert QgsApplication.processingRegistry().providerById("gnsscitygml") is not None
-        for tag, text in messages:
-            if tag == "gnss-citygml":
-                print("LOG:", text)
-        try:
-            processing.run("gnsscitygml:estimate", {{}})
-        except Exception as exc:
-            print("RUN:", str(exc).replace(chr(10), " "))
-        """
-    )
+#: A QGIS with its Python's Debian packages only (no site folders, so no gnss-citygml however
+#: this machine's Python is set up), then ``SITE``'s folders: it loads the plugin as QGIS
+#: does and runs an algorithm, printing the plugin's log (LOG), the algorithms (ALGORITHMS)
+#: and the run's error (RUN).
+SCRIPT = """
+import sys
+sys.path[:0] = ["/usr/lib/python3/dist-packages", "/usr/share/qgis/python/plugins", PLUGINS]
+sys.path[3:3] = SITE
+from qgis.core import QgsApplication
+app = QgsApplication([], False)
+app.initQgis()
+messages = []
+QgsApplication.messageLog().messageReceived.connect(
+    lambda text, tag, level: messages.append((tag, text)))
+from processing.core.Processing import Processing
+Processing.initialize()
+import processing
+import gnss_citygml_qgis
+plugin = gnss_citygml_qgis.classFactory(None)
+plugin.initGui()
+provider = QgsApplication.processingRegistry().providerById("gnsscitygml")
+print("ALGORITHMS:", sorted(a.id() for a in provider.algorithms()))
+for tag, text in messages:
+    if tag == "gnss-citygml":
+        print("LOG:", text)
+try:
+    processing.run("gnsscitygml:estimate", {})
+except Exception as exc:
+    print("RUN:", str(exc).replace(chr(10), " "))
+"""
+
+
+def plugin_in_qgis(tmp_path, site=()):
+    """Load the plugin in a QGIS of Debian's packages and ``site``'s folders, run estimate:
+    the plugin's messages by kind (LOG, RUN, ALGORITHMS); it must load without an error."""
+    script = f"PLUGINS = {str(PLUGINS)!r}\nSITE = {[str(s) for s in site]!r}\n{SCRIPT}"
     process = subprocess.run(
         ["/usr/bin/python3", "-I", "-S", "-c", script],
         capture_output=True,
@@ -113,8 +118,97 @@ def test_without_the_library_the_plugin_loads_and_says_what_to_install(tmp_path)
         timeout=120,
     )
     assert process.returncode == 0, process.stderr
+    assert "Traceback" not in process.stderr, process.stderr
     lines = dict(line.split(": ", 1) for line in process.stdout.splitlines() if ": " in line)
+    assert lines["ALGORITHMS"] == repr(ALGORITHMS)
+    return lines
+
+
+def test_without_the_library_the_plugin_loads_and_says_what_to_install(tmp_path):
+    """No gnss-citygml: the plugin loads, and running an algorithm gives the message naming
+    the library and the pip command for this Python."""
+    lines = plugin_in_qgis(tmp_path)
     for key in ("LOG", "RUN"):
         message = lines[key]
         assert "the gnss-citygml library is missing from QGIS's Python" in message
         assert "-m pip install --user --upgrade gnss-citygml" in message
+
+
+def half_installed(folder, version=gnss_citygml.__version__, init=None):
+    """A site folder with gnss-citygml's installed metadata (at ``version``) and, when
+    ``init`` is given, a package gnss_citygml whose __init__.py is that."""
+    info = folder / f"gnss_citygml-{version}.dist-info"
+    info.mkdir(parents=True)
+    (info / "METADATA").write_text(
+        f"Metadata-Version: 2.1\nName: gnss-citygml\nVersion: {version}\n"
+    )
+    if init is not None:
+        (folder / "gnss_citygml").mkdir()
+        (folder / "gnss_citygml" / "__init__.py").write_text(init)
+    return folder
+
+
+@pytest.mark.parametrize(
+    "init, why",
+    [
+        (None, "ModuleNotFoundError: No module named 'gnss_citygml'"),
+        ("raise ImportError('libgeos_c.so.1: cannot open shared object file')", "ImportError"),
+        ("import pyproj_gone", "ModuleNotFoundError: No module named 'pyproj_gone'"),
+        ("def broken(:\n", "SyntaxError"),
+        ("raise RuntimeError('numpy is broken')", "RuntimeError: numpy is broken"),
+        ("", "No module named 'gnss_citygml.model'"),
+    ],
+)
+def test_a_half_installed_library_is_said_and_the_plugin_loads(tmp_path, init, why):
+    """The library's metadata installed, its module missing or failing to import (its own
+    error, a missing or broken dependency, a syntax error, a part missing): the plugin loads
+    with its algorithms, and says what is wrong and the command that reinstalls it."""
+    lines = plugin_in_qgis(tmp_path, [half_installed(tmp_path / "site", init=init)])
+    for key in ("LOG", "RUN"):
+        message = lines[key]
+        assert "the gnss-citygml library in QGIS's Python is broken: import gnss_citygml" in (
+            message
+        )
+        assert why in message
+        assert "-m pip install --user --upgrade --force-reinstall gnss-citygml" in message
+
+
+def test_a_library_of_another_release_or_without_metadata_is_said(tmp_path):
+    """The library's modules (this repository's, in a site folder of their own) with the
+    metadata of another release, or with none (a copy, or what an uninstall left): the plugin
+    loads and says so."""
+    modules = tmp_path / "modules"
+    modules.mkdir()
+    (modules / "gnss_citygml").symlink_to(ROOT / "gnss_citygml")
+    other = half_installed(tmp_path / "site", version="0.0.1")
+    lines = plugin_in_qgis(tmp_path, [other, modules])
+    for key in ("LOG", "RUN"):
+        assert "QGIS's Python has gnss-citygml 0.0.1 and this plugin is " in lines[key]
+        assert f'--upgrade "gnss-citygml=={gnss_citygml.__version__}"' in lines[key]
+    lines = plugin_in_qgis(tmp_path, [modules])
+    for key in ("LOG", "RUN"):
+        message = lines[key]
+        assert f"has gnss_citygml ({modules / 'gnss_citygml'}) without its installed" in message
+        assert "-m pip install --user --upgrade gnss-citygml" in message
+
+
+@pytest.mark.parametrize("kind", ["missing", "a folder", "not executable"])
+def test_a_configured_python_that_cannot_run_is_said(
+    plugin, processing_framework, tmp_path, monkeypatch, kind
+):
+    """``$GNSS_CITYGML_PYTHON`` naming no program: the algorithms show, and running one
+    says what is wrong with the variable, not to install into a Python that is not there."""
+    python = tmp_path / "bin" / "python"
+    if kind == "a folder":
+        python.mkdir(parents=True)
+    elif kind == "not executable":
+        python.parent.mkdir()
+        python.write_text("#!/bin/sh\n")
+    monkeypatch.setenv("GNSS_CITYGML_PYTHON", str(python))
+    registry = QgsApplication.processingRegistry()
+    assert sorted(a.id() for a in registry.providerById("gnsscitygml").algorithms()) == ALGORITHMS
+    with pytest.raises(QgsProcessingException) as error:
+        processing_framework.run("gnsscitygml:validate", {"INPUT": str(tmp_path / "city.gml")})
+    message = str(error.value)
+    assert f"GNSS_CITYGML_PYTHON names {python}, which " in message
+    assert "unset it" in message and "pip install" not in message

@@ -440,3 +440,14 @@ def test_a_part_replaced_with_its_size_kept_is_refused_by_the_command(
     assert code == 2 and err.startswith("error: ") and err.count("\n") == 1, err
     assert "part-00000.parquet" in err and "SHA-256" in err
     assert not (tmp_path / "h.gpkg").exists()
+
+
+def test_a_partition_whose_tiles_are_too_small_for_the_runs_rays_is_refused(
+    written, city_buildings
+):
+    """100 m tiles serve rays of up to 1000 m; longer ones are refused before any tile is
+    read (their candidate tiles around each receiver grow as the square of the reach)."""
+    from gnss_citygml.settings import Rays
+
+    with pytest.raises(InputError, match="tiles of 100 m are too small for rays of 2000 m"):
+        partitioned_heights(written, city_buildings, rays=Rays(max_range=2000.0))

@@ -67,6 +67,7 @@ def test_a_tile_size_out_of_bounds_is_one_line_from_the_commands(
 
     if command == "partition":
         args = ["partition", str(CITY / "observations.parquet"), "-o", str(tmp_path / "p")]
+        args += ["--dem", str(CITY / "dem.tif"), *grid_args]
     else:
         args = [*estimate(tmp_path, grid_args, "h.gpkg"), "--scheduler", "local"]
     code, _, err = run([*args, "--tile-size", size], capsys)

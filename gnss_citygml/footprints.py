@@ -32,6 +32,7 @@ Rules
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import tempfile
 import warnings
@@ -272,10 +273,13 @@ def _is_geoparquet(path: Path) -> bool:
 
 def _read_geoparquet(path: Path) -> gpd.GeoDataFrame:
     """A GeoParquet file or hive folder, its partition keys (``tile``) as text; an
-    :class:`InputError` if it cannot be read as GeoParquet."""
+    :class:`InputError` if it cannot be read as GeoParquet (:func:`_check_geoparquet` first:
+    GeoPandas's own errors on a metadata it does not expect are not one line)."""
+    _check_geoparquet(path)
     try:
         frame = gpd.read_parquet(path)
-    except (OSError, ValueError, TypeError) as exc:  # pyarrow's errors are these too
+    except (OSError, ValueError, TypeError, shapely.errors.GEOSException) as exc:
+        # pyarrow's errors are these too; GEOS's: WKB it cannot parse
         raise InputError(
             f"cannot read the footprints as GeoParquet ({first_line(exc)})",
             where=str(path),
@@ -285,6 +289,87 @@ def _read_geoparquet(path: Path) -> gpd.GeoDataFrame:
         if isinstance(frame[column].dtype, pd.CategoricalDtype):
             frame[column] = frame[column].astype(str)
     return frame
+
+
+#: The geometry encodings of GeoParquet 1.1 (WKB, and GeoArrow's native ones) and the Arrow
+#: types that hold them: binary, or lists (of lists ...) of structs of coordinates.
+_ENCODINGS = {
+    "WKB": ("binary", "large_binary"),
+    **{
+        kind: ("list", "large_list", "struct")
+        for kind in ("point", "linestring", "polygon", "multipoint", "multilinestring")
+    },
+    "multipolygon": ("list", "large_list"),
+}
+
+
+def _check_geoparquet(path: Path) -> None:
+    """Refuse, in one line, a file (or any file of a folder) that GeoPandas cannot read as
+    GeoParquet: not Parquet, no ``geo`` metadata (plain Parquet), metadata that is not the
+    standard's, or a geometry whose encoding is not one of :data:`_ENCODINGS` (WKT is not
+    GeoParquet) or not what its column holds. Reads the files' footers only."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+    import pyproj
+
+    fix = "write it as GeoParquet (geopandas' to_parquet, or ogr2ogr with Arrow), or a GeoPackage"
+    files = [path]
+    if path.is_dir():  # as pyarrow reads a folder: not the hidden files (._x, .x.part-...)
+        files = sorted(
+            f
+            for f in path.rglob("*.parquet")
+            if not any(p.startswith((".", "_")) for p in f.relative_to(path).parts)
+        )
+    for file in files:
+        try:
+            schema = pq.read_schema(file)
+        except (OSError, pa.ArrowException) as exc:
+            raise InputError(
+                f"cannot read the footprints as GeoParquet: not a Parquet file ({first_line(exc)})",
+                where=str(file),
+                fix="give a GeoParquet file, or a GeoPackage",
+            ) from None
+        try:
+            geo = json.loads((schema.metadata or {})[b"geo"])
+        except (KeyError, ValueError):
+            raise InputError(
+                "the footprints' Parquet has no GeoParquet metadata ('geo'): which column is "
+                "the geometry, in which CRS, is not said",
+                where=str(file),
+                fix=fix,
+            ) from None
+        columns = geo.get("columns") if isinstance(geo, dict) else None
+        primary = geo.get("primary_column") if isinstance(geo, dict) else None
+        if not (isinstance(columns, dict) and primary in columns and primary in schema.names):
+            raise InputError(
+                "the footprints' GeoParquet metadata ('geo') names no geometry column of the "
+                f"file (primary_column {primary!r}, columns {listing(schema.names)})",
+                where=str(file),
+                fix=fix,
+            )
+        for name, spec in columns.items():
+            if name not in schema.names:
+                continue
+            encoding = spec.get("encoding") if isinstance(spec, dict) else None
+            kind = str(schema.field(name).type).split("<")[0]
+            if encoding not in _ENCODINGS or kind not in _ENCODINGS[encoding]:
+                raise InputError(
+                    f"the footprints' geometry column {name!r} is encoded as {encoding!r} "
+                    f"and holds {kind}: GeoParquet reads WKB (binary) or GeoArrow's native "
+                    f"encodings ({listing(list(_ENCODINGS)[1:])}), and WKT is not GeoParquet",
+                    where=str(file),
+                    fix=fix,
+                )
+            try:
+                if spec.get("crs") is not None:
+                    pyproj.CRS.from_user_input(spec["crs"])
+            except pyproj.exceptions.CRSError as exc:
+                raise InputError(
+                    f"the footprints' geometry column {name!r} has a CRS that is not one "
+                    f"({first_line(exc)})",
+                    where=str(file),
+                    fix="write the file again with its CRS (e.g. EPSG:27700)",
+                ) from None
 
 
 def _has_building_group(groups: pd.Series) -> np.ndarray:

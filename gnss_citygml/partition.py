@@ -8,26 +8,37 @@ mask, the receivers in British National Grid + ODN with grid bearings
 signal's number over all the files. It writes the rows under the tile that holds the
 receiver, in the hive layout that Dask, pyarrow, DuckDB and GDAL read::
 
-    FOLDER/partition.json                       what was done, the tiles and their rows
+    FOLDER/partition.json                       what was done, the tiles, their files
     FOLDER/receivers/tile=TQ2982/part-00000.parquet   rows of file 0 in TQ2982
 
 A run in tiles (:func:`gnss_citygml.tiled.partitioned_heights`) then has each tile read only
 the partitions its rays can come from. A recording must lie in one file (the position-error
 groups are found per file); each file's signals are numbered after the previous file's.
+
+The index lists every file with its rows, size and SHA-256, and a run reads only a partition
+that matches it (:func:`read_index`), so a sync tool's stray copy, a file deleted, cut short
+or replaced, a tile folder renamed or added, or an index edited by hand is refused by name,
+never read as other data: the folder's listing and each file's size are checked on the
+client before any work (a few ``stat`` calls per tile), each file's SHA-256 by the workers
+before any tile is cast (:func:`check_digests`: each file is read once more, where it is).
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
+import os
+import re
 from collections.abc import Callable, Sequence
 from dataclasses import asdict
+from numbers import Real
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
-from .errors import InputError
+from .errors import InputError, listing
 from .geodesy import CrsInput
 from .observations import read_observations
 from .paths import StrPath, atomic_folder
@@ -41,16 +52,18 @@ from .settings import (
     check_tile_size,
 )
 from .terrain import Dem
-from .tiles import tile_index, tile_names
+from .tiles import check_reach, check_tile_count, tile_index, tile_names
 
 __all__ = [
     "INDEX",
     "RECEIVERS",
+    "check_digests",
     "check_partition",
     "partition_observations",
     "partition_run",
     "read_index",
     "read_receivers",
+    "refuse_changed",
     "tile_files",
 ]
 
@@ -58,8 +71,12 @@ __all__ = [
 INDEX = "partition.json"
 #: The folder of the receivers' partitions, in the partition's folder.
 RECEIVERS = "receivers"
-#: The index's format version.
-VERSION = 1
+#: The index's format version: 2 lists each tile's files (with rows, size and SHA-256).
+VERSION = 2
+#: The name of a tile's file: its observation file's number.
+_PART = re.compile(r"part-\d{5}\.parquet")
+#: How to mend a partition that does not match its index.
+_AGAIN = "write the partition again (gnss-citygml partition)"
 
 
 def partition_observations(
@@ -88,7 +105,7 @@ def partition_observations(
     tile_size = DEFAULT_TILE_SIZE if tile_size is None else tile_size
     check_tile_size(tile_size)
     say = progress or (lambda text: None)
-    tiles: dict[str, dict[str, int]] = {}
+    tiles: dict[str, dict[str, Any]] = {}
     signals = 0
     with atomic_folder(folder, overwrite=overwrite, mark=INDEX) as work:
         for k, path in enumerate(observations):
@@ -100,16 +117,27 @@ def partition_observations(
             if not position_error.exact:
                 rx["recording"] = np.asarray(recordings(rx, position_error), dtype=object)
             ix, iy = tile_index(rx["e"], rx["n"], tile_size)
+            new = np.unique(np.stack([ix, iy]), axis=1)  # counted before a folder is made
+            check_tile_count(new.shape[1], tile_size)
+            had = {(spec["ix"], spec["iy"]) for spec in tiles.values()}
+            check_tile_count(len(had | set(map(tuple, new.T.tolist()))), tile_size)
             names = tile_names(ix, iy, tile_size) if len(rx) else np.empty(0, dtype=object)
             for name, rows in rx.groupby(names, sort=True):
                 part = work / RECEIVERS / f"tile={name}"
                 part.mkdir(parents=True, exist_ok=True)
-                rows.to_parquet(part / f"part-{k:05d}.parquet", index=False)
+                file = part / f"part-{k:05d}.parquet"
+                rows.to_parquet(file, index=False)
                 entry = tiles.setdefault(
                     str(name),
                     {"ix": int(ix[rows.index[0]]), "iy": int(iy[rows.index[0]]), "rows": 0},
                 )
                 entry["rows"] += len(rows)
+                size, digest = _digest(file)
+                entry.setdefault("files", {})[file.name] = {
+                    "rows": len(rows),
+                    "bytes": size,
+                    "sha256": digest,
+                }
         index = {
             "format": "gnss-citygml partition",
             "version": VERSION,
@@ -127,7 +155,10 @@ def partition_observations(
 
 
 def read_index(folder: StrPath) -> dict[str, Any]:
-    """The index of a partition folder, or a one-line error saying what is wrong with it."""
+    """The index of a partition folder, checked against the folder (every file and tile
+    folder it lists is there with its size, nothing else is under ``receivers``), or a
+    one-line error naming what is wrong and how to mend it. The files' SHA-256 are checked
+    where they are read (:func:`check_digests`)."""
     path = Path(folder) / INDEX
     try:
         index = json.loads(path.read_text())
@@ -145,11 +176,164 @@ def read_index(folder: StrPath) -> dict[str, Any]:
         )
     if index.get("version") != VERSION:
         raise InputError(
-            f"partition format version {index.get('version')}, this toolkit reads {VERSION}",
+            f"partition format version {index.get('version')}, this toolkit reads {VERSION} "
+            "(which lists every file, to check the folder against)",
             where=str(path),
             fix="write the partition again with this version (gnss-citygml partition)",
         )
+    problem = _index_problem(index)
+    if problem:
+        raise InputError(f"damaged {INDEX}: {problem}", where=str(path), fix=_AGAIN)
+    _check_files(Path(folder), index)
     return index
+
+
+def _index_problem(index: dict[str, Any]) -> str | None:
+    """What is wrong with an index's content (keys, types, sums, names), or None."""
+    kinds: dict[str, Any] = {
+        "tile_size": Real,
+        "rays": dict,
+        "receiver_heights": dict,
+        "position_window": (Real, type(None)),
+        "signals": int,
+        "tiles": dict,
+    }
+    for key, kind in kinds.items():
+        if key not in index:
+            return f"no {key!r}"
+        if not isinstance(index[key], kind) or isinstance(index[key], bool):
+            return f"{key!r} is {index[key]!r}"
+    if not all(isinstance(index["rays"].get(k), Real) for k in ("min_elevation", "max_elevation")):
+        return f"'rays' is {index['rays']!r}"
+    try:
+        check_tile_size(index["tile_size"])
+    except InputError as exc:
+        return exc.what
+    total = 0
+    for name, spec in index["tiles"].items():
+        for key in ("ix", "iy", "rows", "files"):
+            if not isinstance(spec, dict) or key not in spec:
+                return f"no {key!r} in tile {name}"
+        files = spec["files"]
+        if not (isinstance(files, dict) and files and all(map(_PART.fullmatch, files))):
+            return f"tile {name}'s files are {listing(files)}"
+        for file, entry in files.items():
+            kinds = {"rows": int, "bytes": int, "sha256": str}
+            if not isinstance(entry, dict) or not all(
+                isinstance(entry.get(k), t) for k, t in kinds.items()
+            ):
+                return f"tile {name}'s {file} is {entry!r}"
+        rows = sum(entry["rows"] for entry in files.values())
+        if spec["rows"] != rows:
+            return f"tile {name} has {spec['rows']!r} rows, its files {rows}"
+        total += rows
+        if not all(isinstance(spec[k], int) for k in ("ix", "iy")):
+            return f"tile {name} is at {spec['ix']!r}, {spec['iy']!r}"
+        try:
+            at = tile_names([spec["ix"]], [spec["iy"]], index["tile_size"])[0]
+        except InputError as exc:
+            return exc.what
+        if at != name:
+            return f"tile {name} is at the place of tile {at}"
+    if index["signals"] != total:
+        return f"{index['signals']} signals, its tiles hold {total}"
+    return None
+
+
+def _check_files(folder: Path, index: dict[str, Any]) -> None:
+    """Refuse a partition folder whose files are not its index's: a file or tile folder the
+    index does not list (a sync tool's copy, a tile taken out of the index), one it lists
+    that is missing, or one of another size."""
+    top = folder / RECEIVERS
+    listed = {f"tile={name}": spec["files"] for name, spec in index["tiles"].items()}
+    found = _entries(top)
+    for entry in sorted(found.keys() - listed.keys()):
+        raise InputError(
+            f"damaged partition: {RECEIVERS}/{entry} is not in {INDEX}",
+            where=str(top / entry),
+            fix=f"remove it if it is a stray copy, or {_AGAIN}",
+        )
+    for tile, files in listed.items():
+        if tile not in found:
+            raise InputError(
+                f"damaged partition: {RECEIVERS}/{tile} of {INDEX} is missing",
+                where=str(top / tile),
+                fix=_AGAIN,
+            )
+        sizes = _entries(top / tile)
+        for name in sorted(sizes.keys() - files.keys()):
+            raise InputError(
+                f"damaged partition: {tile}/{name} is not in {INDEX}",
+                where=str(top / tile / name),
+                fix=f"remove it if it is a stray copy, or {_AGAIN}",
+            )
+        for name, entry in files.items():
+            if name not in sizes:
+                raise InputError(
+                    f"damaged partition: {tile}/{name} of {INDEX} is missing",
+                    where=str(top / tile / name),
+                    fix=_AGAIN,
+                )
+            if sizes[name] != entry["bytes"]:
+                raise InputError(
+                    f"damaged partition: {tile}/{name} has {sizes[name]} bytes, not the "
+                    f"{entry['bytes']} of {INDEX}",
+                    where=str(top / tile / name),
+                    fix=_AGAIN,
+                )
+
+
+def _entries(folder: Path) -> dict[str, int]:
+    """The names in ``folder`` with their sizes (-1 for a folder); none if it is missing."""
+    try:
+        with os.scandir(folder) as entries:
+            return {e.name: -1 if e.is_dir() else e.stat().st_size for e in entries}
+    except FileNotFoundError:
+        return {}
+    except OSError as exc:
+        raise InputError(
+            f"cannot read the partition's folder ({exc.strerror})",
+            where=str(folder),
+            fix="check its permissions",
+        ) from None
+
+
+def _digest(path: StrPath) -> tuple[int, str]:
+    """The size and SHA-256 (hex) of a file, read in blocks."""
+    digest = hashlib.sha256()
+    size = 0
+    with open(path, "rb") as file:
+        while block := file.read(1 << 20):
+            digest.update(block)
+            size += len(block)
+    return size, digest.hexdigest()
+
+
+def check_digests(files: Sequence[tuple[StrPath, str]]) -> list[str]:
+    """The ``files`` (path, SHA-256 of the index) whose content is not the file the partition
+    wrote, each as ``path``: run on the workers, where the files are, before a run reads them
+    (each file once), so a file replaced by another of the same size is refused by name."""
+    bad = []
+    for path, expected in files:
+        try:
+            digest = _digest(path)[1]
+        except OSError as exc:
+            digest = f"unreadable ({exc.strerror})"
+        if digest != expected:
+            bad.append(str(path))
+    return bad
+
+
+def refuse_changed(bad: Sequence[str]) -> None:
+    """Refuse a run whose partition files :func:`check_digests` found changed, naming them."""
+    if bad:
+        raise InputError(
+            f"damaged partition: {Path(bad[0]).parent.name}/{Path(bad[0]).name} is not the file "
+            f"partition wrote (its SHA-256 differs from {INDEX}'s)"
+            + (f"; {len(bad) - 1} more files too" if len(bad) > 1 else ""),
+            where=str(bad[0]),
+            fix=_AGAIN,
+        )
 
 
 def partition_run(folder: StrPath, tiling: Tiling) -> dict[str, Any]:
@@ -179,7 +363,9 @@ def check_partition(
     receiver_heights: ReceiverHeights | None = None,
 ) -> None:
     """Refuse a run whose elevation mask, position-error window or (if given) receiver
-    heights are not the partition's: they were applied when it was written."""
+    heights are not the partition's: they were applied when it was written; and tiles too
+    small for the run's rays (:func:`~gnss_citygml.tiles.check_reach`)."""
+    check_reach(index["tile_size"], rays.max_range)
     mask = index["rays"]
     if (mask["min_elevation"], mask["max_elevation"]) != (rays.min_elevation, rays.max_elevation):
         raise InputError(
@@ -202,18 +388,13 @@ def check_partition(
 
 
 def tile_files(folder: StrPath, index: dict[str, Any]) -> dict[str, list[Path]]:
-    """The Parquet files of each tile of the partition's ``index``, in file order, each
-    folder listed once; a tile of the index without files is a damaged partition."""
-    files = {}
-    for name in index["tiles"]:
-        files[name] = sorted((Path(folder) / RECEIVERS / f"tile={name}").glob("part-*.parquet"))
-        if not files[name]:
-            raise InputError(
-                f"damaged partition: tile {name} of {INDEX} has no files",
-                where=str(Path(folder) / RECEIVERS / f"tile={name}"),
-                fix="write the partition again (gnss-citygml partition)",
-            )
-    return files
+    """The Parquet files of each tile of the partition's ``index`` (checked against the
+    folder by :func:`read_index`), in file order."""
+    top = Path(folder) / RECEIVERS
+    return {
+        name: [top / f"tile={name}" / file for file in sorted(spec["files"])]
+        for name, spec in index["tiles"].items()
+    }
 
 
 def read_receivers(files: Sequence[StrPath]) -> pd.DataFrame:

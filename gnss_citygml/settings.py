@@ -34,6 +34,7 @@ __all__ = [
     "DEFAULT_TILE_SIZE",
     "HEIGHT_RULES",
     "RECEIVER_HEIGHTS",
+    "TILE_SIZES",
     "WEIGHTINGS",
     "Acceptance",
     "Calibration",
@@ -59,6 +60,10 @@ RECEIVER_HEIGHTS = ("dem", "log")
 
 #: Side of a tile of a run in tiles (m): the OS 1 km square.
 DEFAULT_TILE_SIZE = 1000.0
+#: The tile sizes a run takes (m): from a few buildings' width (a tile's work is its rays'
+#: reach around it: smaller tiles only repeat it; see also :func:`gnss_citygml.tiles.check_reach`)
+#: to the OS 100 km square (a larger one has too few tiles to share among workers).
+TILE_SIZES = (50.0, 100_000.0)
 
 #: Position error (m per axis) of an observation that does not say (its ``position_sd`` empty):
 #: a point placed by hand on a large-scale map, as the paper's receivers were ("an estimated
@@ -134,11 +139,13 @@ def scheduler_address(scheduler: str | None) -> tuple[str, str, int]:
 
 
 def check_tile_size(size: float) -> None:
-    """Refuse a tile size that is not a whole number of metres, 1 or more (tiles are named by
-    their south-west corner to the metre)."""
-    if not (_finite(size) and size >= 1 and float(size).is_integer()):
+    """Refuse a tile size that is not a whole number of metres (tiles are named by their
+    south-west corner to the metre) within :data:`TILE_SIZES`."""
+    low, high = TILE_SIZES
+    if not (_finite(size) and low <= size <= high and float(size).is_integer()):
         raise InputError(
-            f"a tile size must be a whole number of metres, at least 1, not {size!r}",
+            f"a tile size must be a whole number of metres from {low:g} to {high:,.0f}, "
+            f"not {size!r}",
             fix="give --tile-size in metres, e.g. 1000",
         )
 
@@ -471,8 +478,9 @@ class Tiling:
     workers
         With ``"local"``: how many worker processes (default: one per core).
     size
-        Side of a tile (m, whole metres). ``None`` (default): :data:`DEFAULT_TILE_SIZE`, the OS
-        1 km square (tiles are named by OS grid reference, ``TQ2982``), or a partition's own.
+        Side of a tile (m, whole metres, :data:`TILE_SIZES`). ``None`` (default):
+        :data:`DEFAULT_TILE_SIZE`, the OS 1 km square (tiles are named by OS grid reference,
+        ``TQ2982``), or a partition's own.
     """
 
     scheduler: str | None = None

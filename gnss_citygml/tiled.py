@@ -29,12 +29,19 @@ from .errors import InputError
 from .model.classifier import Cn0Counts, SignalClassifier
 from .model.estimate import HEIGHTS_COLUMNS, intersections_part
 from .model.fourplb import Engine, InProcess, Part, Shared, Tally, run_parts
-from .partition import check_partition, read_index, read_receivers, tile_files
+from .partition import (
+    check_digests,
+    check_partition,
+    read_index,
+    read_receivers,
+    refuse_changed,
+    tile_files,
+)
 from .paths import StrPath
 from .pipeline import intersections, recordings
 from .settings import DEFAULT_TILE_SIZE, Estimator, PositionError, Rays
 from .tile_output import TileFolder, tile_index_frame
-from .tiles import Tile, building_tiles, plan_tiles, receiver_tiles
+from .tiles import Tile, building_tiles, check_reach, plan_tiles, receiver_tiles
 
 __all__ = [
     "FailedTile",
@@ -70,6 +77,7 @@ def tiled_heights(
     table returned is the tile index instead.
     """
     say = progress or (lambda text: None)
+    check_reach(tile_size, rays.max_range)  # before the recordings are named
     rx = receivers.reset_index(drop=True)
     if not position_error.exact:  # one position error may span tiles: name it over the run
         rx["recording"] = recordings(rx, position_error)
@@ -108,13 +116,25 @@ def partitioned_heights(
     workers), and keeps the rows whose rays can enter them. Its halo is every building within
     twice the reach of its buildings' extent: more than the rays need, which adds only
     crossings the single run has too. The partition's elevation mask and position-error
-    window must be the run's (:func:`~gnss_citygml.partition.check_partition`)."""
+    window must be the run's (:func:`~gnss_citygml.partition.check_partition`). The
+    partition's files are checked against its index first: their listing and sizes here, their
+    SHA-256 on the engine's workers (one task per partition tile), before any tile reads them."""
     say = progress or (lambda text: None)
     index = read_index(folder)
     check_partition(index, rays, position_error)
     size, reach = float(index["tile_size"]), rays.max_range
     squares = pd.DataFrame.from_dict(index["tiles"], orient="index")
     parts = tile_files(folder, index)
+    engine = engine or InProcess()
+    checks = [
+        engine.submit(
+            check_digests,
+            [(f, index["tiles"][name]["files"][f.name]["sha256"]) for f in files],
+            key=f"sha256-{name}-{uuid.uuid4().hex[:8]}",
+        )
+        for name, files in parts.items()
+    ]
+    refuse_changed([f for bad in engine.gather(checks) for f in bad])
     x0, y0 = squares["ix"].to_numpy() * size, squares["iy"].to_numpy() * size
     geometry = buildings.geometry.to_numpy()
     tree = shapely.STRtree(geometry)

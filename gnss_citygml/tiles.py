@@ -32,8 +32,11 @@ from .settings import DEFAULT_TILE_SIZE, check_tile_size
 
 __all__ = [
     "DEFAULT_TILE_SIZE",
+    "MAX_TILES",
     "Tile",
     "building_tiles",
+    "check_reach",
+    "check_tile_count",
     "plan_tiles",
     "receiver_tiles",
     "tile_index",
@@ -44,6 +47,14 @@ __all__ = [
 #: Receivers per block of :func:`receiver_tiles`: its candidate pairs (9 per receiver for
 #: 1 km tiles and a 500 m reach) stay within tens of MB.
 _CHUNK = 1 << 16
+
+#: The most tiles a run makes: more than the 910,000 1 km squares of the whole national grid
+#: (a run's tasks, each iteration, are a few per tile).
+MAX_TILES = 1_000_000
+
+#: A tile is at least the rays' reach over this: each receiver is tested against the
+#: ``(2 x reach / size + 1)^2`` tiles around it (441 at most; 9 for 1 km tiles, 500 m rays).
+_REACH_PER_TILE = 10.0
 
 #: The extent of the OS national grid's lettered 100 km squares (m): eastings 0-700 km,
 #: northings 0-1300 km.
@@ -106,12 +117,36 @@ def tile_names(ix: npt.ArrayLike, iy: npt.ArrayLike, size: float = DEFAULT_TILE_
     )
 
 
+def check_tile_count(count: int, size: float) -> None:
+    """Refuse a run in more than :data:`MAX_TILES` tiles of ``size`` metres (counted before
+    any is made)."""
+    if count > MAX_TILES:
+        raise InputError(
+            f"tiles of {size:g} m would make {count:,} tiles, more than a run takes "
+            f"({MAX_TILES:,})",
+            fix="give a larger --tile-size, e.g. 1000",
+        )
+
+
+def check_reach(size: float, max_range: float) -> None:
+    """Refuse tiles of ``size`` metres much smaller than the rays' reach (``max_range``): each
+    tile's work is its buildings' surroundings within the reach, so smaller tiles repeat it
+    over more tiles, and each receiver is tested against more of them."""
+    if size * _REACH_PER_TILE < max_range:
+        raise InputError(
+            f"tiles of {size:g} m are too small for rays of {max_range:g} m (a tile at least "
+            f"1/{_REACH_PER_TILE:g} of the reach)",
+            fix=f"give --tile-size {np.ceil(max_range / _REACH_PER_TILE):.0f} or more",
+        )
+
+
 def building_tiles(buildings: gpd.GeoDataFrame, size: float = DEFAULT_TILE_SIZE) -> np.ndarray:
     """The name of the one tile each building belongs to: the tile of its representative point
     (a point inside the footprint, so an L-shaped building is not placed by a corner outside
-    it)."""
+    it). More than :data:`MAX_TILES` tiles are refused before any is named."""
     points = shapely.point_on_surface(buildings.geometry.to_numpy())
     ix, iy = tile_index(shapely.get_x(points), shapely.get_y(points), size)
+    check_tile_count(np.unique(_key(ix, iy)).size, size)
     return tile_names(ix, iy, size)
 
 
@@ -138,6 +173,8 @@ def receiver_tiles(
     e, n = np.asarray(e, dtype=float), np.asarray(n, dtype=float)
     if not (np.isfinite(max_range) and max_range > 0):
         raise InputError(f"max_range must be a positive number of metres, not {max_range!r}")
+    check_tile_size(size)
+    check_reach(size, max_range)
     if len(buildings) == 0:
         return pd.DataFrame({"row": np.empty(0, dtype=np.int64), "tile": np.empty(0, dtype=object)})
     points = shapely.point_on_surface(buildings.geometry.to_numpy())
@@ -161,8 +198,9 @@ def receiver_tiles(
     dx, dy = (g.ravel() for g in np.meshgrid(np.arange(span), np.arange(span), indexing="ij"))
     keys = _key(tx, ty)  # sorted: the groupby sorted the tiles
     rows, tiles = [], []
-    for start in range(0, e.size, _CHUNK):  # a chunk's candidates stay within memory
-        part = slice(start, start + _CHUNK)
+    chunk = max(1, _CHUNK * 9 // dx.size)  # a chunk's candidates stay within memory
+    for start in range(0, e.size, chunk):
+        part = slice(start, start + chunk)
         px, py = np.repeat(e[part], dx.size), np.repeat(n[part], dx.size)
         ix0, iy0 = tile_index(e[part] - beyond, n[part] - beyond, size)
         candidate = _key(

@@ -483,3 +483,103 @@ def test_a_real_mastermap_tile_gzipped_is_read(shared_data, tmp_path, monkeypatc
     path.write_bytes(gzip.compress(text))
     assert 10 < len(text) / path.stat().st_size < 100
     assert len(read_footprints(path)) > 0
+
+
+def _geoparquet_variants(folder):
+    """The sample city's footprints as Parquet files that are not GeoParquet GeoPandas reads
+    (each a one-line error now; several were an internal error), by name."""
+    import json
+
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+    from test_outputs import CITY
+
+    frame = read_footprints(CITY / "footprints.gpkg")[["id", "geometry"]]
+    frame.to_parquet(folder / "wkb.parquet")
+    table = pq.read_table(folder / "wkb.parquet")
+    geo = json.loads(table.schema.metadata[b"geo"])
+
+    def write(name, table, spec=None, raw=None, drop=False):
+        meta = dict(table.schema.metadata)
+        column = {**geo["columns"]["geometry"], **(spec or {})}
+        meta[b"geo"] = (
+            raw
+            if raw is not None
+            else json.dumps({**geo, "columns": {"geometry": column}}).encode()
+        )
+        if drop:
+            del meta[b"geo"]
+        pq.write_table(table.replace_schema_metadata(meta), folder / f"{name}.parquet")
+
+    text = table.set_column(
+        table.schema.get_field_index("geometry"),
+        "geometry",
+        pa.array(shapely.to_wkt(frame.geometry.to_numpy())),
+    )
+    write("wkt", text, {"encoding": "WKT"})
+    write("wkt_said_wkb", text)
+    write("point_said_of_wkb", table, {"encoding": "point"})
+    write("polygon_said_of_wkb", table, {"encoding": "polygon"})
+    write("no_geo", table, drop=True)
+    write("geo_not_an_object", table, raw=b"[1, 2]")
+    write("geo_not_json", table, raw=b"{geo")
+    write("crs_not_a_crs", table, {"crs": "nonsense"})
+    pq.write_table(
+        table.replace_schema_metadata(
+            {
+                **table.schema.metadata,
+                b"geo": json.dumps({**geo, "primary_column": "geom"}).encode(),
+            }
+        ),
+        folder / "primary_not_a_column.parquet",
+    )
+    (folder / "not_parquet.parquet").write_text("id,geometry\n")
+    return frame
+
+
+@pytest.mark.parametrize(
+    "name, message",
+    [
+        ("wkt", "encoded as 'WKT' and holds string"),
+        ("wkt_said_wkb", "encoded as 'WKB' and holds string"),
+        ("point_said_of_wkb", "encoded as 'point' and holds binary"),
+        ("polygon_said_of_wkb", "encoded as 'polygon' and holds binary"),
+        ("no_geo", "has no GeoParquet metadata"),
+        ("geo_not_an_object", "names no geometry column"),
+        ("geo_not_json", "has no GeoParquet metadata"),
+        ("crs_not_a_crs", "has a CRS that is not one"),
+        ("primary_not_a_column", "names no geometry column"),
+        ("not_parquet", "not a Parquet file"),
+    ],
+)
+def test_parquet_footprints_that_are_not_geoparquet_are_one_line_errors(
+    tmp_path, capsys, name, message
+):
+    """WKT, a native encoding said of WKB, no or damaged 'geo' metadata, a CRS that is none,
+    not Parquet: one line naming the file and how to mend it (exit 2), never an internal
+    error."""
+    from test_cli import run
+
+    _geoparquet_variants(tmp_path)
+    with pytest.raises(InputError, match=message):
+        read_footprints(tmp_path / f"{name}.parquet")
+    code, _, err = run(
+        ["convert", str(tmp_path / f"{name}.parquet"), "-o", str(tmp_path / "x.city.json")], capsys
+    )
+    assert code == 2 and err.startswith("error: ") and err.count("\n") == 1, err
+    assert f"{name}.parquet" in err and "internal error" not in err
+
+
+def test_geoparquet_footprints_in_geoarrow_or_another_geometry_column_are_read(tmp_path):
+    """What can be read is: GeoArrow's native polygon encoding, a geometry column of another
+    name, a hive folder with a hidden file pyarrow does not read either."""
+    frame = _geoparquet_variants(tmp_path)
+    frame.to_parquet(tmp_path / "arrow.parquet", geometry_encoding="geoarrow")
+    frame.rename_geometry("geom").to_parquet(tmp_path / "geom.parquet")
+    (tmp_path / "hive" / "tile=A").mkdir(parents=True)
+    frame.to_parquet(tmp_path / "hive" / "tile=A" / "part-0.parquet")
+    (tmp_path / "hive" / "tile=A" / "._part-0.parquet").write_bytes(b"resource fork")
+    for name in ("wkb.parquet", "arrow.parquet", "geom.parquet", "hive"):
+        got = read_footprints(tmp_path / name)
+        assert got["id"].tolist() == frame["id"].tolist(), name
+        assert shapely.equals(got.geometry.to_numpy(), frame.geometry.to_numpy()).all(), name

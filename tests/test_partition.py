@@ -255,5 +255,199 @@ def test_a_damaged_partition_is_named(halves, tmp_path):
     name = next(iter(index["tiles"]))
     shutil.rmtree(tmp_path / "p" / "receivers" / f"tile={name}")
     buildings = building_ground(read_footprints(CITY / "footprints.gpkg"), DEM)
-    with pytest.raises(InputError, match=f"damaged partition: tile {name} of partition.json"):
+    with pytest.raises(
+        InputError, match=f"damaged partition: receivers/tile={name} of partition.json is missing"
+    ):
         partitioned_heights(tmp_path / "p", buildings)
+
+
+@pytest.fixture(scope="module")
+def written(halves, tmp_path_factory):
+    """One partition of both halves in 100 m tiles, to copy and tamper with."""
+    folder = tmp_path_factory.mktemp("written") / "p"
+    partition_observations(halves, folder, DEM, tile_size=100.0)
+    return folder
+
+
+@pytest.fixture(scope="module")
+def city_buildings():
+    return building_ground(read_footprints(CITY / "footprints.gpkg"), DEM)
+
+
+def _two_file_tile(folder):
+    """A tile folder of the partition with two files (the halves both have receivers there)."""
+    return next(t for t in sorted((folder / "receivers").iterdir()) if len(list(t.iterdir())) > 1)
+
+
+def _edit_index(edit):
+    def tamper(folder):
+        index = json.loads((folder / INDEX).read_text())
+        edit(index)
+        (folder / INDEX).write_text(json.dumps(index))
+
+    return tamper
+
+
+def _flip_bytes(path):
+    """The same size, other bytes: a file replaced by another of the same length."""
+    data = bytearray(path.read_bytes())
+    middle = len(data) // 2
+    data[middle : middle + 8] = bytes(b ^ 0xFF for b in data[middle : middle + 8])
+    path.write_bytes(bytes(data))
+
+
+def _drop_first_tile(index):
+    """A tile taken out of the index, its signals too (the sums agree)."""
+    index["signals"] -= index["tiles"].pop(next(iter(index["tiles"])))["rows"]
+
+
+def _drop_key(*keys):
+    def edit(index):
+        at = index
+        for key in keys[:-1]:
+            at = at[key] if key != "*" else next(iter(at.values()))
+        del at[keys[-1]]
+
+    return edit
+
+
+def _old_version(index):
+    index["version"] = 1
+    for spec in index["tiles"].values():
+        del spec["files"]
+
+
+TAMPERING = {
+    "a stray copy beside a part (a sync tool's)": (
+        lambda f: shutil.copy(
+            _two_file_tile(f) / "part-00000.parquet", _two_file_tile(f) / "part-00000 (1).parquet"
+        ),
+        r"part-00000 \(1\)\.parquet.* not in partition\.json",
+    ),
+    "a part deleted": (
+        lambda f: (_two_file_tile(f) / "part-00001.parquet").unlink(),
+        r"part-00001\.parquet.* is missing",
+    ),
+    "a part cut short": (
+        lambda f: (_two_file_tile(f) / "part-00000.parquet").write_bytes(
+            (_two_file_tile(f) / "part-00000.parquet").read_bytes()[:-100]
+        ),
+        r"part-00000\.parquet.* bytes, not",
+    ),
+    "a part of another schema": (
+        lambda f: pd.DataFrame({"x": [1.0, 2.0]}).to_parquet(
+            _two_file_tile(f) / "part-00000.parquet"
+        ),
+        r"part-00000\.parquet.* bytes, not",
+    ),
+    "a part's bytes replaced, its size kept": (
+        lambda f: _flip_bytes(_two_file_tile(f) / "part-00001.parquet"),
+        r"part-00001\.parquet.* not the file partition wrote \(its SHA-256 differs",
+    ),
+    "a tile taken out of partition.json": (
+        _edit_index(_drop_first_tile),
+        r"tile=TQ\S+.* not in partition\.json",
+    ),
+    "a tile folder renamed": (
+        lambda f: _two_file_tile(f).rename(f / "receivers" / "tile=TQ999999"),
+        r"tile=TQ\S+.* (is missing|not in partition\.json)",
+    ),
+    "an extra tile folder": (
+        lambda f: shutil.copytree(_two_file_tile(f), f / "receivers" / "tile=TQ000000"),
+        r"tile=TQ000000.* not in partition\.json",
+    ),
+    "partition.json not JSON": (
+        lambda f: (f / INDEX).write_text('{"format": "gnss-citygml partition", "vers'),
+        r"cannot read partition\.json",
+    ),
+    "partition.json without its tiles": (
+        _edit_index(_drop_key("tiles")),
+        r"damaged partition\.json: no 'tiles'",
+    ),
+    "partition.json without a tile's files": (
+        _edit_index(_drop_key("tiles", "*", "files")),
+        r"damaged partition\.json: no 'files'",
+    ),
+    "partition.json with a tile's rows changed": (
+        _edit_index(lambda i: next(iter(i["tiles"].values())).update(rows=1)),
+        r"damaged partition\.json",
+    ),
+    "partition.json with a file's row count changed": (
+        _edit_index(
+            lambda i: next(iter(next(iter(i["tiles"].values()))["files"].values())).update(rows=1)
+        ),
+        r"damaged partition\.json",
+    ),
+    "partition.json with a file outside its tile": (
+        _edit_index(
+            lambda i: next(iter(i["tiles"].values()))["files"].update(
+                {"../../x.parquet": {"rows": 0, "bytes": 1, "sha256": "0" * 64}}
+            )
+        ),
+        r"damaged partition\.json",
+    ),
+    "a partition of the previous version, without its file list": (
+        _edit_index(_old_version),
+        r"partition format version 1, this toolkit reads 2",
+    ),
+}
+
+
+@pytest.mark.parametrize("tampering", list(TAMPERING))
+def test_a_partition_that_does_not_match_its_index_is_refused(
+    written, city_buildings, tmp_path, tampering
+):
+    """Every file of a partition is listed in its index with its rows, size and SHA-256: a
+    stray file, a missing or changed one, a tile folder the index does not know or an index
+    edited by hand is refused, naming the file (it used to be read: a stray copy gave other
+    heights, a tile taken out of the index dropped its rows; all silently)."""
+    folder = tmp_path / "p"
+    shutil.copytree(written, folder)
+    tamper, message = TAMPERING[tampering]
+    tamper(folder)
+    with pytest.raises(InputError, match=message) as caught:
+        partitioned_heights(folder, city_buildings)
+    assert "\n" not in caught.value.one_line() and "partition" in caught.value.fix
+
+
+def test_a_stray_copy_in_a_partition_is_refused_by_the_command(
+    written, grid_args, tmp_path, capsys
+):
+    """The issue's case: a sync tool's copy of a part; one line, exit 2, nothing written."""
+    folder = tmp_path / "p"
+    shutil.copytree(written, folder)
+    tile = _two_file_tile(folder)
+    shutil.copy(tile / "part-00000.parquet", tile / "part-00000 (1).parquet")
+    args = estimate(tmp_path, grid_args, "h.gpkg", "--scheduler", "local", "--workers", "1")
+    args[1] = str(folder)
+    code, _, err = run(args, capsys)
+    assert code == 2 and err.startswith("error: ") and err.count("\n") == 1, err
+    assert "part-00000 (1).parquet" in err and "remove it" in err
+    assert not (tmp_path / "h.gpkg").exists()
+
+
+def test_a_part_replaced_with_its_size_kept_is_refused_by_the_command(
+    written, grid_args, tmp_path, capsys
+):
+    """The SHA-256 is checked by the workers, before any tile is cast: one line, exit 2 (not
+    a failed tile and exit 0)."""
+    folder = tmp_path / "p"
+    shutil.copytree(written, folder)
+    _flip_bytes(_two_file_tile(folder) / "part-00000.parquet")
+    args = estimate(tmp_path, grid_args, "h.gpkg", "--scheduler", "local", "--workers", "1")
+    args[1] = str(folder)
+    code, _, err = run(args, capsys)
+    assert code == 2 and err.startswith("error: ") and err.count("\n") == 1, err
+    assert "part-00000.parquet" in err and "SHA-256" in err
+    assert not (tmp_path / "h.gpkg").exists()
+
+
+def test_a_partition_whose_tiles_are_too_small_for_the_runs_rays_is_refused(
+    written, city_buildings
+):
+    """100 m tiles serve rays of up to 1000 m; longer ones are refused before any tile is
+    read (their candidate tiles around each receiver grow as the square of the reach)."""
+    from gnss_citygml.settings import Rays
+
+    with pytest.raises(InputError, match="tiles of 100 m are too small for rays of 2000 m"):
+        partitioned_heights(written, city_buildings, rays=Rays(max_range=2000.0))

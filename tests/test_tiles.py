@@ -47,10 +47,57 @@ def test_a_tile_outside_the_national_grid_is_refused(e, n):
         name(e, n)
 
 
-@pytest.mark.parametrize("size", [0, 0.5, 250.5, float("nan"), -1000])
+@pytest.mark.parametrize(
+    "size", [0, 0.5, 250.5, float("nan"), -1000, 1, 10, 49, 100_001, float("inf"), 1e12]
+)
 def test_a_tile_size_must_be_whole_metres(size):
-    with pytest.raises(InputError, match="whole number of metres"):
+    """Whole metres from 50 m (a few buildings) to 100 km (an OS lettered square): 1 m tiles
+    were a MemoryError of 318 GiB in a run, and a folder per square metre in a partition."""
+    with pytest.raises(InputError, match="whole number of metres from 50 to 100,000"):
         tile_index([0.0], [0.0], size)
+
+
+@pytest.mark.parametrize("size", ["1", "0", "-5", "nan", "inf", "1.5", "1e9", "49"])
+@pytest.mark.parametrize("command", ["partition", "estimate"])
+def test_a_tile_size_out_of_bounds_is_one_line_from_the_commands(
+    tmp_path, capsys, grid_args, command, size
+):
+    from test_cli import run
+    from test_outputs import CITY, estimate
+
+    if command == "partition":
+        args = ["partition", str(CITY / "observations.parquet"), "-o", str(tmp_path / "p")]
+        args += ["--dem", str(CITY / "dem.tif"), *grid_args]
+    else:
+        args = [*estimate(tmp_path, grid_args, "h.gpkg"), "--scheduler", "local"]
+    code, _, err = run([*args, "--tile-size", size], capsys)
+    assert code == 2 and err.startswith("error: a tile size must be a whole number"), err
+    assert err.count("\n") == 1 and "--tile-size" in err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_tiles_much_smaller_than_the_rays_reach_are_refused():
+    """A tile at least a tenth of the reach: each receiver is tested against at most 441
+    tiles around it (the candidates of 1 m tiles and 500 m rays were 10^6 a receiver)."""
+    one = gpd.GeoDataFrame(geometry=[box(529_000, 182_000, 529_010, 182_010)], crs=27700)
+    with pytest.raises(InputError, match="tiles of 60 m are too small for rays of 1000 m"):
+        receiver_tiles([529_000.0], [182_000.0], one, 1000.0, 60.0)
+    with pytest.raises(InputError, match="give --tile-size 100 or more"):
+        plan_tiles([529_000.0], [182_000.0], one, 1000.0, 60.0)
+    assert receiver_tiles([529_000.0], [182_000.0], one, 1000.0, 100.0)["tile"].tolist() == [
+        "TQ290820"
+    ]
+
+
+def test_a_run_of_more_tiles_than_the_national_grid_has_is_refused_before_naming_them():
+    """1,001,000 buildings 50 m apart, in 50 m tiles: refused with the count, before a tile
+    is named or planned (no allocation per tile)."""
+    x, y = np.meshgrid(np.arange(1001) * 50.0, np.arange(1000) * 50.0)
+    corners = np.column_stack([x.ravel() + 100_000, y.ravel() + 100_000])
+    many = gpd.GeoDataFrame(geometry=shapely.box(*corners.T, *(corners + 5).T), crs=27700)
+    with pytest.raises(InputError, match="would make 1,001,000 tiles, more than a run takes"):
+        plan_tiles([100_000.0], [100_000.0], many, 500.0, 50.0)
+    assert len(set(building_tiles(many.iloc[:1000], 50.0))) == 1000
 
 
 def test_a_building_belongs_to_the_tile_of_a_point_inside_it():

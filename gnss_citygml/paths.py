@@ -85,12 +85,15 @@ def _within(inner: StrPath, outer: StrPath) -> bool:
     ) or same_file(inner, outer)
 
 
-def check_not_input(output: StrPath, inputs: Iterable[object], *, what: str = "output") -> None:
+def check_not_input(
+    output: StrPath, inputs: Iterable[object], *, what: str = "output", folders: bool = True
+) -> None:
     """Refuse, before any work, an output that would write over one of the command's
     ``inputs``: the same file by any spelling (``./x``, a relative path, a symbolic or hard
     link), a folder output that holds an input (it is replaced whole), or an output inside
-    an input that is a folder (a partition, a folder of GeoParquet). ``inputs`` may hold
-    None and objects that are not paths (a DEM already open): they are no file."""
+    an input that is a folder (a partition, a folder of GeoParquet; ``folders=False``: the
+    inputs are files, and their reader says when one is a folder). ``inputs`` may hold None
+    and objects that are not paths (a DEM already open): they are no file."""
     if str(output) == "-":
         return
     for given in inputs:
@@ -99,16 +102,15 @@ def check_not_input(output: StrPath, inputs: Iterable[object], *, what: str = "o
         if not os.path.exists(given):  # (a GDAL path such as zip://...!/x.asc: never written)
             continue
         if _within(given, output):
-            problem = "is one of the inputs" if same_file(given, output) else "holds an input"
-        elif os.path.isdir(given) and _within(output, given):
-            problem = "is inside an input folder"
+            if same_file(given, output):
+                problem = f"would replace the input {given}"
+            else:
+                problem = f"is a folder that holds the input {given}, which it would replace"
+        elif folders and os.path.isdir(given) and _within(output, given):
+            problem = f"is inside the input folder {given}, which writing it would change"
         else:
             continue
-        raise InputError(
-            f"the {what} {problem} ({given}), which writing it would replace",
-            where=str(output),
-            fix="write to another name",
-        )
+        raise InputError(f"the {what} {problem}", where=str(output), fix="write to another name")
 
 
 def check_output(
@@ -283,17 +285,24 @@ def _alive(pid: int) -> bool:
 
 
 def check_output_folder(
-    folder: StrPath, files: list[Path], *, overwrite: bool, what: str = "output folder"
+    folder: StrPath,
+    files: list[Path],
+    *,
+    overwrite: bool,
+    what: str = "output folder",
+    inputs: Iterable[object] = (),
 ) -> None:
     """Check a folder that a command fills with ``files``, before the work: a file named as
-    the folder is an error; in an existing folder each file is checked (:func:`check_output`).
-    A missing folder is fine: :func:`make_folder` creates it when the writing starts."""
+    the folder is an error; in an existing folder each file is checked (:func:`check_output`,
+    and none may be one of the command's ``inputs``: :func:`check_not_input`). A missing
+    folder is fine: :func:`make_folder` creates it when the writing starts."""
     folder = Path(folder)
     if folder.exists() and not folder.is_dir():
         raise InputError(f"the {what} is a file", where=str(folder), fix="give a folder")
-    if folder.is_dir():
-        for path in files:
+    for path in files:
+        if folder.is_dir():
             check_output(path, overwrite=overwrite)
+        check_not_input(path, inputs)
 
 
 def make_folder(folder: StrPath) -> Path:

@@ -38,7 +38,7 @@ import pandas as pd
 
 from .errors import InputError
 from .geopackage import connect, has_table, quoted
-from .paths import StrPath, atomic_path, input_file
+from .paths import StrPath, atomic_path, check_not_input, input_file
 from .settings import Estimator, Rays, ReceiverHeights
 
 __all__ = ["COLUMNS", "EVIDENCE", "UpdateResult", "update_map"]
@@ -204,6 +204,9 @@ def update_map(
 
     say = progress or (lambda what, done: None)
     path = _check_map(path)
+    inputs = [path, *observations, dem, truth]
+    if backup:  # (the map itself is written through a copy: a new layer's columns, not a file)
+        check_not_input(_backup_path(path), inputs, what="backup")
     if truth is not None and report is None:
         raise InputError(
             "a truth table is for the report, and no report was asked for",
@@ -218,7 +221,7 @@ def update_map(
         from .report import check_report, write_report
         from .tables import read_table
 
-        check_report(report, overwrite=True)
+        check_report(report, overwrite=True, inputs=inputs)
         true = None if truth is None else check_truth(read_table(truth), str(truth))
     if min_signals < 1:
         raise InputError(f"min_signals must be 1 or more, not {min_signals}", fix="give N >= 1")
@@ -614,9 +617,14 @@ def _sql(value):
     return value
 
 
+def _backup_path(path: Path) -> Path:
+    """Where the map as it was is kept: ``MAP.bak.gpkg``, a GeoPackage QGIS opens."""
+    return path.with_name(path.stem + ".bak" + path.suffix)
+
+
 def _backup(path: Path) -> Path:
     """``MAP.bak.gpkg``: the map as it was, written atomically beside it."""
-    target = path.with_name(path.stem + ".bak" + path.suffix)  # a GeoPackage QGIS opens
+    target = _backup_path(path)
     with atomic_path(target, overwrite=True) as tmp:
         shutil.copyfile(path, tmp)
     return target

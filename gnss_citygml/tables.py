@@ -16,6 +16,7 @@ import numpy as np
 import pandas as pd
 
 from .errors import InputError, first_line
+from .geopackage import check_no_triggers
 from .ids import source_named
 from .paths import StrPath, atomic_path, check_not_input, check_output, input_file, same_file
 from .styles import save_default_style
@@ -126,6 +127,8 @@ def check_layer_output(
         )
     gpkg = path.suffix.lower() == ".gpkg"
     check_output(path, overwrite=overwrite, suffixes=tuple(LAYER_FORMATS), exists_ok=gpkg)
+    if gpkg and path.exists():
+        check_no_triggers(path)
     inputs = list(inputs)
     if gpkg and any(same_file(given, path) for given in inputs):
         if _replaces_layer_read(path, layer, read_layer):
@@ -203,6 +206,8 @@ def write_layer(
         if driver == "GeoParquet":
             out.to_parquet(tmp, index=False)
         elif driver == "GPKG":
+            if update:  # the copy GDAL writes to (the file may have changed since the check)
+                check_no_triggers(tmp)
             version = None if update else {"VERSION": "1.2"}
             out.to_file(tmp, layer=layer, driver=driver, dataset_options=version)
             if style is not None:

@@ -37,7 +37,7 @@ import numpy as np
 import pandas as pd
 
 from .errors import InputError
-from .geopackage import connect, has_table, quoted
+from .geopackage import check_no_triggers, check_table_layer, connect, has_table, quoted, refused
 from .paths import StrPath, atomic_path, check_not_input, input_file
 from .settings import Estimator, Rays, ReceiverHeights
 
@@ -204,6 +204,7 @@ def update_map(
 
     say = progress or (lambda what, done: None)
     path = _check_map(path)
+    check_no_triggers(path)
     inputs = [path, *observations, dem, truth]
     if backup:  # (the map itself is written through a copy: a new layer's columns, not a file)
         check_not_input(_backup_path(path), inputs, what="backup")
@@ -231,6 +232,7 @@ def update_map(
         path, layer=layer, id_field=id_field, dem=dem, dem_crs=dem_crs, grid_dir=grid_dir
     )
     name = _layer_name(path, layer)
+    check_table_layer(path, name)
     id_column = source_id_field(buildings)
     outlines = _outlines(buildings)
     key = _key_column(path, name, [id_column, id_field, "fid"], buildings["id"])
@@ -312,7 +314,7 @@ def update_map(
             where=str(path),
             fix="run again once the other program has finished with it",
         )
-    with atomic_path(path, overwrite=True, update=True) as tmp:
+    with atomic_path(path, overwrite=True, update=True) as tmp, refused(path):
         if len(fresh):
             _append_evidence(tmp, name, INTERSECTIONS, fresh, outlines)
         if len(signals):

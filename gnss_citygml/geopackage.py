@@ -4,11 +4,108 @@
 
 from __future__ import annotations
 
+import contextlib
+import re
 import sqlite3
+from collections.abc import Iterator
 
-from .paths import StrPath
+from .errors import InputError, first_line
+from .paths import StrPath, write_error
 
-__all__ = ["connect", "has_table", "quoted"]
+__all__ = ["check_no_triggers", "check_table_layer", "connect", "has_table", "quoted", "refused"]
+
+#: A statement of a trigger's body that writes a table, and the table (quoted or not).
+_WRITES = re.compile(
+    r"\b(?:INSERT(?:\s+OR\s+\w+)?\s+INTO|REPLACE\s+INTO|DELETE\s+FROM|UPDATE(?:\s+OR\s+\w+)?)"
+    r"""\s+("(?:[^"]|"")*"|`[^`]*`|\[[^\]]*\]|'(?:[^']|'')*'|[\w$]+)""",
+    re.IGNORECASE,
+)
+_BEGIN = re.compile(r"\bBEGIN\b", re.IGNORECASE)
+_RAISE = re.compile(r"\bRAISE\s*\(", re.IGNORECASE)
+_TEXT = re.compile(r"'(?:[^']|'')*'")
+#: The GeoPackage tables whose constraints the standard checks with RAISE-only triggers.
+_CHECKED = {"gpkg_tile_matrix", "gpkg_metadata_reference"}
+
+
+def check_no_triggers(path: StrPath) -> None:
+    """Refuse a GeoPackage that holds a trigger other than GeoPackage's and GDAL's own,
+    before anything writes to it: a user's trigger runs on the writes of the toolkit (and of
+    GDAL, which cannot be confined) and could change other tables silently, or abort.
+
+    Known triggers are told by what they do, not only by their name (which anyone can
+    give): an R-tree index's (``rtree_T_...``) writes only an R-tree table of its table T;
+    GDAL's feature count (``trigger_..._feature_count_T``) only ``gpkg_ogr_contents``; the
+    standard's checks on ``gpkg_tile_matrix`` and ``gpkg_metadata_reference`` write nothing.
+    """
+    with contextlib.closing(sqlite3.connect(path)) as db:
+        rows = db.execute(
+            "SELECT name, tbl_name, sql FROM sqlite_master WHERE type = 'trigger' ORDER BY name"
+        ).fetchall()
+    strange = [str(name) for name, table, sql in rows if not _known(name, table, sql or "")]
+    if strange:
+        names = ", ".join(repr(n) for n in strange[:5]) + (" ..." if len(strange) > 5 else "")
+        raise InputError(
+            f"the GeoPackage has triggers of its own ({names}), which would run on this "
+            "command's writes",
+            where=str(path),
+            fix="drop them (DROP TRIGGER name, e.g. in sqlite3 or QGIS's DB Manager) in a copy, "
+            "or write to another file",
+        )
+
+
+def _known(name: str, table: str, sql: str) -> bool:
+    """Whether a trigger is one of GeoPackage's or GDAL's own (see :func:`check_no_triggers`)."""
+    body = sql[m.end() :] if (m := _BEGIN.search(sql)) else sql
+    body = _TEXT.sub("'_'", body)  # (a message's words are no statement; a table so named is)
+    written = {_unquoted(t).lower() for t in _WRITES.findall(body)}
+    raises = bool(_RAISE.search(body))
+    name, table = name.lower(), table.lower()
+    if name.startswith(f"rtree_{table}_"):
+        return not raises and all(t.startswith(f"rtree_{table}_") for t in written)
+    if name in (f"trigger_insert_feature_count_{table}", f"trigger_delete_feature_count_{table}"):
+        return not raises and written <= {"gpkg_ogr_contents"}
+    return table in _CHECKED and name.startswith(table) and not written
+
+
+def _unquoted(name: str) -> str:
+    if name[:1] in "\"'`[":
+        return name[1:-1].replace(name[0] * 2, name[0]) if name[0] != "[" else name[1:-1]
+    return name
+
+
+def check_table_layer(path: StrPath, layer: str) -> None:
+    """Refuse a layer that is not a table of the GeoPackage (a view: its rows cannot take
+    columns or values of their own)."""
+    with contextlib.closing(sqlite3.connect(path)) as db:
+        row = db.execute(
+            "SELECT type FROM sqlite_master WHERE lower(name) = lower(?) "
+            "AND type IN ('table', 'view')",
+            (layer,),
+        ).fetchone()
+    if row is not None and row[0] != "table":
+        raise InputError(
+            f"the layer {layer!r} is a {row[0]}, not a table: its rows cannot be updated",
+            where=str(path),
+            fix="give the layer of the table it shows (--layer)",
+        )
+
+
+@contextlib.contextmanager
+def refused(path: StrPath) -> Iterator[None]:
+    """Turn SQLite's refusal of a write to the GeoPackage ``path`` (a constraint of the
+    user's schema: NOT NULL, UNIQUE, CHECK; a trigger's RAISE) into a one-line error; a full
+    disk is left to :func:`gnss_citygml.paths.atomic_path`."""
+    try:
+        yield
+    except sqlite3.DatabaseError as exc:
+        if write_error(exc, str(path)) is not None:
+            raise
+        raise InputError(
+            f"the GeoPackage refused the write: {first_line(exc)}",
+            where=str(path),
+            fix="drop the constraint or trigger of the layer that refuses it, or write to "
+            "another file",
+        ) from None
 
 
 def connect(path: StrPath) -> sqlite3.Connection:
@@ -23,8 +120,9 @@ def connect(path: StrPath) -> sqlite3.Connection:
 
 
 def has_table(db: sqlite3.Connection, name: str) -> bool:
-    """Whether the database has a table ``name``."""
-    query = "SELECT count(*) FROM sqlite_master WHERE type = 'table' AND name = ?"
+    """Whether the database has a table ``name``, in any letter case (as SQLite names tables:
+    ``Layer_Styles`` is ``layer_styles``)."""
+    query = "SELECT count(*) FROM sqlite_master WHERE type = 'table' AND name = ? COLLATE NOCASE"
     return bool(db.execute(query, (name,)).fetchone()[0])
 
 

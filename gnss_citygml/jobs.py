@@ -11,7 +11,7 @@ cancel button), which leaves no output behind.
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -84,6 +84,7 @@ def estimate_file(
     from .footprints import read_footprints
     from .observations import read_observations
     from .partition import partition_run
+    from .paths import check_not_input
     from .pipeline import STAGES, run, run_partitioned, write_tiles
     from .report import check_report, write_report
     from .styles import heights_qml
@@ -109,13 +110,14 @@ def estimate_file(
     partitioned = Path(observations).is_dir()
     if partitioned:
         partition_run(observations, tiling)
+    inputs = [observations, footprints, dem, truth]  # never written over (nor into)
     folder = output if output is not None and is_tile_folder(output) else None
     if folder is not None:
-        check_tile_folder(folder, tiling, overwrite=overwrite)
+        check_not_input(check_tile_folder(folder, tiling, overwrite=overwrite), inputs)
     elif output is not None:
-        check_layer_output(output, "heights", overwrite=overwrite)
+        check_layer_output(output, "heights", overwrite=overwrite, inputs=inputs, read_layer=layer)
     if report is not None:
-        check_report(report, overwrite=overwrite)
+        check_report(report, overwrite=overwrite, inputs=inputs)
     true = None if truth is None else check_truth(read_table(truth), str(truth))
     steps = [*STAGES, "report"] if report is not None else list(STAGES)
     stages = iter(range(len(steps)))
@@ -185,15 +187,20 @@ def read_buildings(
 
 
 def _model_writer(
-    output: StrPath, *, overwrite: bool = False, typed_attributes: bool = False
+    output: StrPath,
+    *,
+    overwrite: bool = False,
+    typed_attributes: bool = False,
+    inputs: Iterable[object] = (),
 ) -> Callable[..., ExportResult]:
     """The writer for the format ``output``'s suffix names (:data:`MODEL_SUFFIXES`), checked
-    before any work (typed attributes are CityJSON's: CityGML's generic attributes are typed
-    already)."""
+    before any work, also against the job's ``inputs`` (typed attributes are CityJSON's:
+    CityGML's generic attributes are typed already)."""
     from .export import write_citygml, write_cityjson, write_cityjsonseq
-    from .paths import check_output
+    from .paths import check_not_input, check_output
 
     path = check_output(output, overwrite=overwrite, suffixes=MODEL_SUFFIXES)
+    check_not_input(path, inputs)
     suffix = path.suffix.lower()
     writer: Callable[..., ExportResult] = {
         ".jsonl": write_cityjsonseq,
@@ -219,11 +226,14 @@ def _model_job(
     schema_dir: StrPath | None,
     typed_attributes: bool,
     progress: Progress,
+    inputs: Iterable[object],
 ) -> ExportResult:
-    """Check the output, make the buildings (with ``ground`` and ``height``) with
-    ``buildings``, write them as the city model ``output`` (validated unless ``validate`` is
-    false); the result lists the buildings skipped and why."""
-    writer = _model_writer(output, overwrite=overwrite, typed_attributes=typed_attributes)
+    """Check the output (none of the job's ``inputs``), make the buildings (with ``ground``
+    and ``height``) with ``buildings``, write them as the city model ``output`` (validated
+    unless ``validate`` is false); the result lists the buildings skipped and why."""
+    writer = _model_writer(
+        output, overwrite=overwrite, typed_attributes=typed_attributes, inputs=inputs
+    )
     progress("reading", 0.0)
     frame = buildings()
     total = max(len(frame), 1)
@@ -289,8 +299,9 @@ def convert_file(
         )
 
     return _model_job(
-        output, buildings, overwrite, strict, validate, schema_dir, typed_attributes, progress
-    )
+        output, buildings, overwrite, strict, validate, schema_dir, typed_attributes, progress,
+        [source, dem],
+    )  # fmt: skip
 
 
 def export_file(
@@ -323,5 +334,6 @@ def export_file(
         return footprints_with_heights(frame, table, where=str(heights))
 
     return _model_job(
-        output, buildings, overwrite, strict, validate, schema_dir, typed_attributes, progress
-    )
+        output, buildings, overwrite, strict, validate, schema_dir, typed_attributes, progress,
+        [heights, footprints, dem],
+    )  # fmt: skip

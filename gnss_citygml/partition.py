@@ -41,7 +41,7 @@ import pandas as pd
 from .errors import InputError, listing
 from .geodesy import CrsInput
 from .observations import read_observations
-from .paths import StrPath, atomic_folder
+from .paths import StrPath, atomic_folder, check_not_input
 from .pipeline import in_mask, receivers, recordings
 from .settings import (
     DEFAULT_TILE_SIZE,
@@ -104,6 +104,7 @@ def partition_observations(
     """
     tile_size = DEFAULT_TILE_SIZE if tile_size is None else tile_size
     check_tile_size(tile_size)
+    check_not_input(folder, [*observations, dem])  # (it is replaced whole)
     say = progress or (lambda text: None)
     tiles: dict[str, dict[str, Any]] = {}
     signals = 0

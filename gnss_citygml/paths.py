@@ -18,7 +18,7 @@ import re
 import secrets
 import shutil
 import socket
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import BinaryIO, TypeAlias
 
@@ -32,9 +32,12 @@ __all__ = [
     "check_new_folder",
     "check_output_folder",
     "gunzipped",
+    "check_not_input",
     "input_file",
     "make_folder",
+    "same_file",
     "stale_parts",
+    "write_error",
 ]
 
 #: A file or folder a caller names: a string or any path-like object (:class:`~pathlib.Path`).
@@ -108,6 +111,56 @@ class _Capped(io.RawIOBase):
         return n
 
 
+def same_file(a: object, b: object) -> bool:
+    """Whether the paths ``a`` and ``b`` name one file (or folder) that exists: the same inode,
+    reached by whatever spelling, symbolic link or hard link. Anything that is not a path
+    (None, ``-``, a table in memory) names no file."""
+    try:
+        return os.path.samefile(a, b)  # type: ignore[arg-type]
+    except (OSError, TypeError, ValueError):
+        return False
+
+
+def _spellings(path: StrPath) -> set[Path]:
+    """``path`` as an absolute path, as given and with its links resolved."""
+    return {Path(os.path.abspath(path)), Path(os.path.realpath(path))}
+
+
+def _within(inner: StrPath, outer: StrPath) -> bool:
+    """Whether ``inner`` is ``outer`` or lies in the folder ``outer`` (by any spelling)."""
+    return any(
+        a == b or b in a.parents for a in _spellings(inner) for b in _spellings(outer)
+    ) or same_file(inner, outer)
+
+
+def check_not_input(
+    output: StrPath, inputs: Iterable[object], *, what: str = "output", folders: bool = True
+) -> None:
+    """Refuse, before any work, an output that would write over one of the command's
+    ``inputs``: the same file by any spelling (``./x``, a relative path, a symbolic or hard
+    link), a folder output that holds an input (it is replaced whole), or an output inside
+    an input that is a folder (a partition, a folder of GeoParquet; ``folders=False``: the
+    inputs are files, and their reader says when one is a folder). ``inputs`` may hold None
+    and objects that are not paths (a DEM already open): they are no file."""
+    if str(output) == "-":
+        return
+    for given in inputs:
+        if not isinstance(given, str | os.PathLike) or str(given) in ("", "-"):
+            continue
+        if not os.path.exists(given):  # (a GDAL path such as zip://...!/x.asc: never written)
+            continue
+        if _within(given, output):
+            if same_file(given, output):
+                problem = f"would replace the input {given}"
+            else:
+                problem = f"is a folder that holds the input {given}, which it would replace"
+        elif folders and os.path.isdir(given) and _within(output, given):
+            problem = f"is inside the input folder {given}, which writing it would change"
+        else:
+            continue
+        raise InputError(f"the {what} {problem}", where=str(output), fix="write to another name")
+
+
 def check_output(
     path: StrPath,
     *,
@@ -166,6 +219,84 @@ def check_output(
     return path
 
 
+#: Why a write fails on the user's side, by errno: what happened and how to fix it.
+_WRITE_ERRNOS = {
+    errno.ENOSPC: ("no space left on the device", "free some space, or write to another disk"),
+    errno.EDQUOT: ("the disk quota is used up", "free some space, or write to another disk"),
+    errno.EFBIG: (
+        "the file is too large for the file system or for the limit on file sizes (ulimit -f)",
+        "write to another disk, or raise the limit",
+    ),
+    errno.EROFS: ("the file system is read-only", "write to another place"),
+    errno.EACCES: ("permission denied", "check the permissions, or write to another place"),
+    errno.EPERM: ("permission denied", "check the permissions, or write to another place"),
+    errno.EIO: ("the disk could not be written (I/O error)", "check the disk, or write elsewhere"),
+    errno.EPIPE: ("the reader closed the stream", "let the reader take all of it"),
+}
+
+#: The same causes as SQLite and GDAL word them in their own errors (which carry no errno).
+_WRITE_MESSAGES = {
+    "database or disk is full": errno.ENOSPC,
+    "no space left on device": errno.ENOSPC,
+    "disk quota exceeded": errno.EDQUOT,
+    "file too large": errno.EFBIG,
+    "read-only file system": errno.EROFS,
+    "attempt to write a readonly database": errno.EROFS,
+    "disk i/o error": errno.EIO,
+}
+
+
+def write_error(
+    exc: BaseException, where: str, written: StrPath | None = None
+) -> InputError | None:
+    """The one-line error for a write that failed on the user's side (a full disk, a quota,
+    a limit on file sizes, a read-only file system, a closed pipe...), or None when ``exc``
+    is not one (a bug, to be reported as such). ``exc``, its causes and its context are
+    looked at: Python's OSError by its errno, SQLite's and GDAL's errors by their message.
+    GDAL may lose the cause on its way (a GeoPackage on a full disk fails later with "no
+    such table"), and SQLite words a file size limit as an I/O error: with ``written``, the
+    file being written when ``exc`` came, a failure on a disk with no room left, or of a file
+    grown to the limit on file sizes, is taken as that."""
+    code = _cause(exc)
+    if code in (None, errno.EIO) and written is not None:  # (SQLite's word for EFBIG: EIO)
+        code = _at_limit(Path(written)) or code
+    if code is None:
+        return None
+    what, fix = _WRITE_ERRNOS[code]
+    return InputError(f"cannot write: {what}", where=where, fix=fix)
+
+
+def _cause(exc: BaseException | None) -> int | None:
+    """The errno of :data:`_WRITE_ERRNOS` that ``exc`` or an exception behind it says."""
+    seen: set[int] = set()
+    while exc is not None and id(exc) not in seen:
+        seen.add(id(exc))
+        code = exc.errno if isinstance(exc, OSError) else None
+        if code not in _WRITE_ERRNOS:
+            text = str(exc).lower()
+            code = next((n for m, n in _WRITE_MESSAGES.items() if m in text), None)
+        if code is not None:
+            return code
+        exc = exc.__cause__ or exc.__context__
+    return None
+
+
+def _at_limit(written: Path) -> int | None:
+    """ENOSPC if the disk of ``written`` has (almost) no room left, EFBIG if the file has
+    grown to the process's limit on file sizes; else None."""
+    import resource
+
+    with contextlib.suppress(OSError):
+        disk = os.statvfs(written.parent)
+        if disk.f_bavail * disk.f_frsize < 1 << 20:
+            return errno.ENOSPC
+    limit = resource.getrlimit(resource.RLIMIT_FSIZE)[0]
+    with contextlib.suppress(OSError):
+        if limit != resource.RLIM_INFINITY and written.stat().st_size >= limit - (1 << 16):
+            return errno.EFBIG
+    return None
+
+
 _HOST = re.sub(r"[^A-Za-z0-9-]", "-", socket.gethostname())[:32] or "host"
 
 
@@ -202,17 +333,24 @@ def _alive(pid: int) -> bool:
 
 
 def check_output_folder(
-    folder: StrPath, files: list[Path], *, overwrite: bool, what: str = "output folder"
+    folder: StrPath,
+    files: list[Path],
+    *,
+    overwrite: bool,
+    what: str = "output folder",
+    inputs: Iterable[object] = (),
 ) -> None:
     """Check a folder that a command fills with ``files``, before the work: a file named as
-    the folder is an error; in an existing folder each file is checked (:func:`check_output`).
-    A missing folder is fine: :func:`make_folder` creates it when the writing starts."""
+    the folder is an error; in an existing folder each file is checked (:func:`check_output`,
+    and none may be one of the command's ``inputs``: :func:`check_not_input`). A missing
+    folder is fine: :func:`make_folder` creates it when the writing starts."""
     folder = Path(folder)
     if folder.exists() and not folder.is_dir():
         raise InputError(f"the {what} is a file", where=str(folder), fix="give a folder")
-    if folder.is_dir():
-        for path in files:
+    for path in files:
+        if folder.is_dir():
             check_output(path, overwrite=overwrite)
+        check_not_input(path, inputs)
 
 
 def make_folder(folder: StrPath) -> Path:
@@ -273,7 +411,8 @@ def atomic_folder(folder: StrPath, *, overwrite: bool = False, mark: str) -> Ite
             fix=f"check its permissions and free space ({exc.strerror})",
         ) from None
     try:
-        yield work
+        with _write_errors(folder, work):
+            yield work
         old = None
         if folder.exists():
             if not overwrite:
@@ -323,29 +462,53 @@ def atomic_path(path: StrPath, *, overwrite: bool = True, update: bool = False) 
         else:
             os.close(os.open(tmp, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o600))
     except OSError as exc:
+        _remove(tmp)
         raise InputError(
             "cannot write to the output folder",
             where=str(folder),
             fix=f"check its permissions and free space ({exc.strerror})",
         ) from None
     try:
-        yield tmp
-        current = _identity(path)
-        mode = current[3] if current is not None else 0o666 & ~_umask()
-        os.chmod(tmp, mode & 0o7777)
-        if before is not None and current != before:
-            raise InputError(
-                "output changed while this run was writing it",
-                where=str(path),
-                fix="run again once the other program has finished with it",
-            )
-        if overwrite or before is not None:
-            os.replace(tmp, path)
-        else:
-            _link_new(tmp, path)
+        with _write_errors(path, tmp):
+            yield tmp
+            current = _identity(path)
+            mode = current[3] if current is not None else 0o666 & ~_umask()
+            os.chmod(tmp, mode & 0o7777)
+            if before is not None and current != before:
+                raise InputError(
+                    "output changed while this run was writing it",
+                    where=str(path),
+                    fix="run again once the other program has finished with it",
+                )
+            if overwrite or before is not None:
+                os.replace(tmp, path)
+            else:
+                _link_new(tmp, path)
     finally:
+        _remove(tmp)
+
+
+def _remove(tmp: Path) -> None:
+    """Remove a temporary file and what SQLite may have left beside it (a journal that a
+    failed write could not roll back)."""
+    for name in (tmp, *(tmp.with_name(tmp.name + side) for side in ("-journal", "-wal", "-shm"))):
         with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
+            os.unlink(name)
+
+
+@contextlib.contextmanager
+def _write_errors(path: Path, written: Path) -> Iterator[None]:
+    """Turn a write of ``path`` (into ``written``) that fails on the user's side
+    (:func:`write_error`) into its one-line error; anything else goes on as it is."""
+    try:
+        yield
+    except InputError:
+        raise
+    except Exception as exc:
+        error = write_error(exc, str(path), written)
+        if error is None:
+            raise
+        raise error from None
 
 
 def _identity(path: Path) -> tuple[int, int, int, int, int] | None:

@@ -24,7 +24,7 @@ from __future__ import annotations
 import base64
 import html
 import io
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -162,13 +162,18 @@ def binned_open(heights: np.ndarray, open_: np.ndarray, width: float = HEIGHT_BI
     return pd.DataFrame({"height": (keys + 0.5) * width, "share": k / n, "n": n})
 
 
-def check_report(folder: StrPath, *, overwrite: bool) -> None:
+def check_report(folder: StrPath, *, overwrite: bool, inputs: Iterable[object] = ()) -> None:
     """Check, before the work starts, that a report can be written to ``folder`` (its files
-    are new, or ``overwrite``) and that matplotlib is there to draw it."""
+    are new, or ``overwrite``, and none of the run's ``inputs``) and that matplotlib is there
+    to draw it."""
     folder = Path(folder)
-    check_output_folder(folder, [folder / REPORT], overwrite=overwrite, what="report folder")
+    check_output_folder(
+        folder, [folder / REPORT], overwrite=overwrite, what="report folder", inputs=inputs
+    )
     pngs = [folder / "figures" / f"{name}.png" for name, _, _ in _FIGURES]
-    check_output_folder(folder / "figures", pngs, overwrite=overwrite, what="figures folder")
+    check_output_folder(
+        folder / "figures", pngs, overwrite=overwrite, what="figures folder", inputs=inputs
+    )
     _pyplot()
 
 

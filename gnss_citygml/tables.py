@@ -8,6 +8,7 @@ every other layer (and the styles table) of the file is kept."""
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -15,8 +16,9 @@ import numpy as np
 import pandas as pd
 
 from .errors import InputError, first_line
+from .geopackage import check_no_triggers
 from .ids import source_named
-from .paths import StrPath, atomic_path, check_output, input_file
+from .paths import StrPath, atomic_path, check_not_input, check_output, input_file, same_file
 from .styles import save_default_style
 
 if TYPE_CHECKING:
@@ -74,10 +76,14 @@ def _suffix(path: Path) -> str:
     return suffix
 
 
-def check_table_output(path: StrPath, *, overwrite: bool) -> Path:
-    """Check, before the work starts, that a table can be written to ``path`` (CSV, Parquet)."""
+def check_table_output(path: StrPath, *, overwrite: bool, inputs: Iterable[object] = ()) -> Path:
+    """Check, before the work starts, that a table can be written to ``path`` (CSV, Parquet)
+    and that it is none of the command's ``inputs``
+    (:func:`~gnss_citygml.paths.check_not_input`)."""
     _suffix(Path(path))
-    return check_output(path, overwrite=overwrite)
+    path = check_output(path, overwrite=overwrite)
+    check_not_input(path, inputs, folders=False)  # (a table is made of files)
+    return path
 
 
 def write_table(table: pd.DataFrame, path: StrPath, *, overwrite: bool = True) -> None:
@@ -90,13 +96,26 @@ def write_table(table: pd.DataFrame, path: StrPath, *, overwrite: bool = True) -
             table.to_parquet(tmp, index=False)
 
 
-def check_layer_output(path: StrPath, layer: str, *, overwrite: bool) -> Path:
+def check_layer_output(
+    path: StrPath,
+    layer: str,
+    *,
+    overwrite: bool,
+    inputs: Iterable[object] = (),
+    read_layer: str | None = None,
+) -> Path:
     """Check, before the work starts, that ``layer`` can be written to ``path``.
 
     The suffix names the format (:data:`LAYER_FORMATS`); a Shapefile is refused, since it cuts
     field names to 10 characters and is several files that cannot be replaced at once. An
     existing GeoPackage takes a new layer without ``overwrite``; an existing layer of it, or an
     existing file of another format, needs ``overwrite``.
+
+    The output must be none of the command's ``inputs``
+    (:func:`~gnss_citygml.paths.check_not_input`), but for one case: a GeoPackage that is an
+    input takes a new layer beside the one read from it (``read_layer``; None: its only one),
+    as the footprints' own GeoPackage takes the layer ``heights``. The layer read itself is
+    never replaced.
     """
     path = Path(path)
     if path.suffix.lower() == ".shp":
@@ -108,6 +127,19 @@ def check_layer_output(path: StrPath, layer: str, *, overwrite: bool) -> Path:
         )
     gpkg = path.suffix.lower() == ".gpkg"
     check_output(path, overwrite=overwrite, suffixes=tuple(LAYER_FORMATS), exists_ok=gpkg)
+    if gpkg and path.exists():
+        check_no_triggers(path)
+    inputs = list(inputs)
+    if gpkg and any(same_file(given, path) for given in inputs):
+        if _replaces_layer_read(path, layer, read_layer):
+            raise InputError(
+                f"the output's layer {layer!r} would replace the layer read from the same "
+                "GeoPackage",
+                where=str(path),
+                fix="write to another file (or name the layer read with --layer, if it is another)",
+            )
+        inputs = [given for given in inputs if not same_file(given, path)]
+    check_not_input(path, inputs)
     if gpkg and path.exists() and not overwrite and layer in _layers(path):
         raise InputError(
             f"output exists and has a layer {layer!r}",
@@ -116,6 +148,15 @@ def check_layer_output(path: StrPath, layer: str, *, overwrite: bool) -> Path:
             "layers are kept)",
         )
     return path
+
+
+def _replaces_layer_read(path: Path, layer: str, read_layer: str | None) -> bool:
+    """Whether writing ``layer`` into the GeoPackage ``path`` replaces the layer read from it
+    (``read_layer``, or when None the file's only one: any layer named ``layer``). GeoPackage
+    table names are compared as SQLite does, whatever their case."""
+    if read_layer is not None:
+        return read_layer.lower() == layer.lower()
+    return layer.lower() in (name.lower() for name in _layers(path))
 
 
 def _layers(path: Path) -> list[str]:
@@ -165,6 +206,8 @@ def write_layer(
         if driver == "GeoParquet":
             out.to_parquet(tmp, index=False)
         elif driver == "GPKG":
+            if update:  # the copy GDAL writes to (the file may have changed since the check)
+                check_no_triggers(tmp)
             version = None if update else {"VERSION": "1.2"}
             out.to_file(tmp, layer=layer, driver=driver, dataset_options=version)
             if style is not None:

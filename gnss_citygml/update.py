@@ -43,9 +43,9 @@ import numpy as np
 import pandas as pd
 
 from .errors import InputError
-from .geopackage import connect, quoted
+from .geopackage import check_no_triggers, check_table_layer, connect, quoted, refused
 from .ids import id_text
-from .paths import StrPath, atomic_path, input_file
+from .paths import StrPath, atomic_path, check_not_input, input_file
 from .settings import Estimator, Rays, ReceiverHeights
 
 __all__ = ["COLUMNS", "EVIDENCE", "UpdateResult", "update_map"]
@@ -218,6 +218,10 @@ def update_map(
 
     say = progress or (lambda what, done: None)
     path = _check_map(path)
+    check_no_triggers(path)
+    inputs = [path, *observations, dem, truth]
+    if backup:  # (the map itself is written through a copy: a new layer's columns, not a file)
+        check_not_input(_backup_path(path), inputs, what="backup")
     if truth is not None and report is None:
         raise InputError(
             "a truth table is for the report, and no report was asked for",
@@ -232,7 +236,7 @@ def update_map(
         from .report import check_report, write_report
         from .tables import read_table
 
-        check_report(report, overwrite=True)
+        check_report(report, overwrite=True, inputs=inputs)
         true = None if truth is None else check_truth(read_table(truth), str(truth))
     if min_signals < 1:
         raise InputError(f"min_signals must be 1 or more, not {min_signals}", fix="give N >= 1")
@@ -244,6 +248,7 @@ def update_map(
     say("reading", 0.0)
     read_at = _stamp(path)
     name = _layer_name(path, layer)  # (as the database names it: the evidence's key)
+    check_table_layer(path, name)
     buildings = read_buildings(
         path,
         layer=None if layer is None else name,
@@ -332,7 +337,7 @@ def update_map(
             where=str(path),
             fix="run again once the other program has finished with it",
         )
-    with atomic_path(path, overwrite=True, update=True) as tmp:
+    with atomic_path(path, overwrite=True, update=True) as tmp, refused(path):
         if len(fresh):
             _append_evidence(tmp, name, INTERSECTIONS, fresh, outlines, settings)
         if len(signals):
@@ -807,9 +812,14 @@ def _sql(value):
     return value
 
 
+def _backup_path(path: Path) -> Path:
+    """Where the map as it was is kept: ``MAP.bak.gpkg``, a GeoPackage QGIS opens."""
+    return path.with_name(path.stem + ".bak" + path.suffix)
+
+
 def _backup(path: Path) -> Path:
     """``MAP.bak.gpkg``: the map as it was, written atomically beside it."""
-    target = path.with_name(path.stem + ".bak" + path.suffix)  # a GeoPackage QGIS opens
+    target = _backup_path(path)
     with atomic_path(target, overwrite=True) as tmp:
         shutil.copyfile(path, tmp)
     return target

@@ -14,6 +14,7 @@ toolkit, not a verdict on the user's data: it too ends as one ``error:`` line wi
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
 import warnings
@@ -110,6 +111,23 @@ def _one_line_warning(message, category, filename, lineno, file=None, line=None)
     click.echo(f"warning: {escape_controls(str(message))}", err=True)
 
 
+def _user_side(exc: Exception) -> None:
+    """Exit with one line if ``exc`` is a write that failed on the user's side (a full disk,
+    a closed or full standard output...: :func:`gnss_citygml.paths.write_error`) that no
+    writer turned into its own error; else return."""
+    from ..paths import write_error
+
+    where = getattr(exc, "filename", None) or "standard output"
+    error = write_error(exc, str(where))
+    if error is None:
+        return
+    if where == "standard output":  # Python's flush of it at exit would fail again
+        with contextlib.suppress(OSError, ValueError):
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+    click.echo(f"error: {error.one_line()}", err=True)
+    sys.exit(error.exit_code)
+
+
 def main(argv: Sequence[str] | None = None) -> NoReturn:
     """Entry point: run the click group, turning the toolkit's errors into one line."""
     warnings.showwarning = _one_line_warning
@@ -127,6 +145,7 @@ def main(argv: Sequence[str] | None = None) -> NoReturn:
     except Exception as exc:
         if os.environ.get("GNSS_CITYGML_DEBUG"):
             raise
+        _user_side(exc)
         click.echo(
             f"error: {internal_error(exc)} with the command that caused it "
             "(GNSS_CITYGML_DEBUG=1 shows the traceback)",

@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING
 import click
 
 from ..errors import InputError, escape_controls, user_text
+from ..paths import write_error
 from .options import (
     DEM_CRS,
     GRID_DIR,
@@ -108,13 +109,24 @@ def _copy_to_stdout(path: Path) -> None:
             shutil.copyfileobj(source, stream, 1 << 20)
         stream.flush()
     except BrokenPipeError:
-        # what is left in Python's buffer goes nowhere at exit, instead of a second error
-        os.dup2(os.open(os.devnull, os.O_WRONLY), stream.fileno())
+        _stdout_gone(stream)
         raise InputError(
             "standard output was closed before the whole city model was written",
             where="-o -",
             fix="let the reader take all of it, or write a file with -o FILE",
         ) from None
+    except OSError as exc:  # e.g. > /dev/full, or a full disk under a redirection
+        _stdout_gone(stream)
+        error = write_error(exc, "standard output, -o -")
+        if error is None:
+            raise
+        raise error from None
+
+
+def _stdout_gone(stream) -> None:
+    """What is left in Python's buffer for a standard output that failed goes nowhere at
+    exit, instead of a second error."""
+    os.dup2(os.open(os.devnull, os.O_WRONLY), stream.fileno())
 
 
 @click.command()

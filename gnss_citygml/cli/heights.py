@@ -32,7 +32,7 @@ def heights(intersections, output, method, init_threshold, weighting, height_rul
     estimator = Estimator(
         method=method, init_threshold=init_threshold, weighting=weighting, height_rule=height_rule
     )
-    check_table_output(output, overwrite=overwrite)
+    check_table_output(output, overwrite=overwrite, inputs=[intersections])
     out = estimate_heights(read_table(intersections), estimator)
     write_table(out, output, overwrite=overwrite)
     ok = int(out["converged"].sum())

@@ -65,7 +65,8 @@ def observe(
     from ..observations import write_observations
     from ..tables import check_table_output
 
-    check_table_output(output, overwrite=overwrite)  # before reading anything
+    # before reading anything
+    check_table_output(output, overwrite=overwrite, inputs=[*logs, *orbit_files, surveyed])
     with progress(len(logs), "logs", quiet) as bar:
         table = run(
             logs,

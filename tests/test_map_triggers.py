@@ -1,0 +1,132 @@
+"""A GeoPackage of the user's with triggers of its own is refused before anything writes to
+it (``update``, ``estimate -o existing.gpkg``), whatever the trigger is named; a view given
+as the layer, or a constraint that refuses the update, is one line and the map as it was
+(issue 26). GeoPackage's and GDAL's own triggers are no reason to refuse."""
+
+import contextlib
+import hashlib
+import shutil
+import sqlite3
+from pathlib import Path
+
+import pyogrio
+import pytest
+from test_cli import run
+
+CITY = Path(__file__).resolve().parents[1] / "examples" / "city"
+
+
+def digest(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+@pytest.fixture
+def city_map(tmp_path):
+    """The city's footprints as a map, with a table of notes of the user's."""
+    path = tmp_path / "map.gpkg"
+    shutil.copy(CITY / "footprints.gpkg", path)
+    sql(path, "CREATE TABLE notes (x)", "INSERT INTO notes VALUES (1)")
+    return path
+
+
+def sql(path: Path, *statements: str) -> None:
+    with contextlib.closing(sqlite3.connect(path)) as db, db:
+        for statement in statements:
+            db.execute(statement)
+
+
+def notes(path: Path) -> int:
+    with contextlib.closing(sqlite3.connect(path)) as db:
+        return db.execute("SELECT count(*) FROM notes").fetchone()[0]
+
+
+def update(path: Path, grid_args, *extra) -> list[str]:
+    return [
+        "update", str(path), "--observations", str(CITY / "observations.parquet"), "--dem",
+        str(CITY / "dem.tif"), *grid_args, "-q", *extra,
+    ]  # fmt: skip
+
+
+def estimate(output: Path, grid_args, *extra) -> list[str]:
+    return [
+        "estimate", str(CITY / "observations.parquet"), str(CITY / "footprints.gpkg"), "--dem",
+        str(CITY / "dem.tif"), "-o", str(output), *grid_args, "-q", *extra,
+    ]  # fmt: skip
+
+
+def one_line(capsys, args, message: str) -> None:
+    code, _, err = run(args, capsys)
+    assert code == 2 and message in err, err
+    lines = [line for line in err.strip().splitlines() if not line.startswith("warning: ")]
+    assert len(lines) == 1 and "internal error" not in err  # (GDAL warns of columns it reads)
+
+
+#: Triggers that would run on the writes: a user's, one named as an R-tree index's, one
+#: named as GDAL's feature count, one that aborts.
+TRIGGERS = {
+    "audit": "CREATE TRIGGER audit AFTER UPDATE ON footprints BEGIN DELETE FROM notes; END",
+    "rtree_footprints_geom_update9": "CREATE TRIGGER rtree_footprints_geom_update9 AFTER "
+    'UPDATE ON footprints BEGIN DELETE FROM "notes"; END',
+    "trigger_insert_feature_count_footprints2": "CREATE TRIGGER "
+    "trigger_insert_feature_count_footprints2 AFTER INSERT ON gpkg_contents BEGIN "
+    "UPDATE gpkg_ogr_contents SET feature_count = 0; DELETE FROM notes; END",
+    "stop": "CREATE TRIGGER stop BEFORE UPDATE ON footprints BEGIN "
+    "SELECT RAISE(ABORT, 'no updates here'); END",
+    "contents": "CREATE TRIGGER contents AFTER INSERT ON gpkg_contents BEGIN "
+    "DELETE FROM 'notes'; END",
+}
+
+
+@pytest.mark.parametrize("name", TRIGGERS)
+def test_a_map_with_a_trigger_of_its_own_is_refused(name, city_map, grid_args, capsys):
+    sql(city_map, TRIGGERS[name])
+    before = digest(city_map)
+    one_line(
+        capsys, update(city_map, grid_args), f"the GeoPackage has triggers of its own ('{name}')"
+    )
+    one_line(capsys, estimate(city_map, grid_args), f"triggers of its own ('{name}')")
+    assert digest(city_map) == before and notes(city_map) == 1
+    assert sorted(p.name for p in city_map.parent.iterdir()) == ["map.gpkg"]
+
+
+def test_geopackage_and_gdal_triggers_are_its_own(city_map, grid_args, capsys):
+    """The sample's R-tree, feature-count and tile-matrix triggers (as GDAL writes them, the
+    tile-matrix ones with 'update on table' in their messages): the map is updated."""
+    code, _, err = run(update(city_map, grid_args), capsys)
+    assert code == 0, err
+    code, _, err = run(estimate(city_map, grid_args), capsys)
+    assert code == 0, err
+    assert notes(city_map) == 1
+
+
+def test_a_constraint_that_refuses_the_update_is_one_line(city_map, grid_args, capsys):
+    """A unique index of the user's on a column the update writes (the same method for all)."""
+    sql(
+        city_map,
+        "ALTER TABLE footprints ADD COLUMN method TEXT",
+        "CREATE UNIQUE INDEX one_each ON footprints (method)",
+    )
+    before = digest(city_map)
+    one_line(capsys, update(city_map, grid_args), "the GeoPackage refused the write: UNIQUE")
+    assert digest(city_map) == before
+    assert sorted(p.name for p in city_map.parent.iterdir()) == ["map.gpkg"]
+
+
+def test_a_view_as_the_layer(city_map, grid_args, tmp_path, capsys):
+    """A view registered as a layer: read as footprints it works; updated, one line."""
+    sql(
+        city_map,
+        "CREATE VIEW seen AS SELECT * FROM footprints",
+        "INSERT INTO gpkg_contents (table_name, data_type, identifier, srs_id) SELECT 'seen', "
+        "'features', 'seen', srs_id FROM gpkg_contents WHERE table_name = 'footprints'",
+        "INSERT INTO gpkg_geometry_columns SELECT 'seen', column_name, geometry_type_name, "
+        "srs_id, z, m FROM gpkg_geometry_columns WHERE table_name = 'footprints'",
+    )
+    before = digest(city_map)
+    one_line(capsys, update(city_map, grid_args, "--layer", "seen"), "'seen' is a view")
+    assert digest(city_map) == before
+    args = [*estimate(tmp_path / "h.gpkg", grid_args), "--layer", "seen"]
+    args[2] = str(city_map)
+    code, _, err = run(args, capsys)
+    assert code == 0, err
+    assert len(pyogrio.read_dataframe(tmp_path / "h.gpkg", layer="heights")) == 30

@@ -38,6 +38,9 @@ _CONTROL = re.compile(
 
 #: The longest value :func:`user_text` gives whole (characters, after escaping).
 TEXT_LENGTH = 60
+#: The longest item :func:`listing` gives whole: an item may be made by the code around a user
+#: value (``receiver phone2 at 2020-06-01 10:00:01 (lat 48.000000, lon -3.000000)``).
+ITEM_LENGTH = 120
 
 
 def escape_controls(text: str) -> str:
@@ -67,7 +70,8 @@ def user_text(value: object, length: int = TEXT_LENGTH) -> str:
 
 
 def listing(items: Iterable, shown: int = 10, *, total: int | None = None) -> str:
-    """The items for a message, comma-separated (each :func:`user_text`); past the first
+    """The items for a message, comma-separated (each :func:`user_text`, cut past
+    :data:`ITEM_LENGTH`); past the first
     ``shown``, how many more.
 
     ``total`` is how many there are in all when ``items`` holds only the first few (to spare
@@ -82,7 +86,7 @@ def listing(items: Iterable, shown: int = 10, *, total: int | None = None) -> st
     """
     items = list(items)
     total = len(items) if total is None else total
-    text = ", ".join(user_text(item) for item in items[:shown])
+    text = ", ".join(user_text(item, ITEM_LENGTH) for item in items[:shown])
     return text + (f" and {total - shown} more" if total > shown else "")
 
 

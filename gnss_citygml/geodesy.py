@@ -51,7 +51,7 @@ import pyproj
 from pyproj import Proj, Transformer
 from pyproj.exceptions import ProjError
 
-from .errors import InputError, listing
+from .errors import InputError, listing, user_text
 from .grids import GRIDS, HOW_TO_GET, GridError, add_to_proj_path, grid_folders
 
 __all__ = [
@@ -423,7 +423,9 @@ def _name_points(bad, x, y, geographic, labels) -> str:
         coords = [f"lat {y[i]:.6f}, lon {x[i]:.6f}" for i in index[:_LIST_POINTS]]
     else:
         coords = [f"E {x[i]:.3f}, N {y[i]:.3f}" for i in index[:_LIST_POINTS]]
-    shown = [f"{name} ({c})" for name, c in zip(names[:_LIST_POINTS], coords, strict=True)]
+    shown = [
+        f"{user_text(name)} ({c})" for name, c in zip(names[:_LIST_POINTS], coords, strict=True)
+    ]
     return listing(shown, _LIST_POINTS, total=index.size)
 
 

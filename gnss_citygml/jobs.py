@@ -90,6 +90,7 @@ def estimate_file(
     from .styles import heights_qml
     from .tables import check_layer_output, read_table, write_layer
     from .tile_output import check_tile_folder
+    from .tiles import check_reach
 
     if output is None and report is None:
         raise InputError("nothing to write", fix="give an output file or a report folder")
@@ -110,6 +111,8 @@ def estimate_file(
     partitioned = Path(observations).is_dir()
     if partitioned:
         partition_run(observations, tiling)
+    elif tiling.on:
+        check_reach(tiling.side, rays.max_range)  # (before a cluster starts)
     inputs = [observations, footprints, dem, truth]  # never written over (nor into)
     folder = output if output is not None and is_tile_folder(output) else None
     if folder is not None:

@@ -15,6 +15,7 @@ escape cannot recolour the terminal, a bidi override cannot reorder what is read
 from __future__ import annotations
 
 import re
+import sys
 from collections.abc import Iterable
 
 __all__ = [
@@ -22,6 +23,7 @@ __all__ = [
     "InputError",
     "MissingColumnError",
     "ModelError",
+    "broken_install",
     "escape_controls",
     "first_line",
     "internal_error",
@@ -99,6 +101,26 @@ def internal_error(exc: BaseException) -> str:
     """
     return (
         f"internal error, {type(exc).__name__}: {escape_controls(str(exc))[:200]}: please report it"
+    )
+
+
+def broken_install(exc: BaseException) -> InputError | None:
+    """The one-line error for a library that cannot be imported while a job runs (an install
+    half done or half removed, a dependency missing or built for another Python): the user's
+    installation, not a bug of the toolkit. None for any other exception.
+
+    >>> error = ModuleNotFoundError("No module named 'pyarrow'", name="pyarrow")
+    >>> broken_install(error).what
+    "the installation is broken: importing pyarrow fails (No module named 'pyarrow')"
+    """
+    if not isinstance(exc, ImportError):
+        return None
+    return InputError(
+        f"the installation is broken: importing {user_text(exc.name or 'a module')} fails"
+        f" ({user_text(first_line(exc), 120)})",
+        where=sys.executable,
+        fix="install it again in this Python: python -m pip install --force-reinstall "
+        "gnss-citygml (or the package named)",
     )
 
 

@@ -41,6 +41,7 @@ __all__ = [
     "satellites",
     "read_observation_files",
     "read_observations",
+    "repeated_signals",
     "write_observations",
 ]
 
@@ -267,6 +268,20 @@ def _normalised(table: pd.DataFrame, where: str, locate: Callable[[int], str]) -
 _SAME_TIME = 1_000_000
 
 
+def repeated_signals(table: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
+    """Pairs of rows (positions, the earlier first in time) of a checked observations table
+    that are one signal: the same receiver and satellite within :data:`_SAME_TIME` of each
+    other. Vectorised: one sort, then neighbouring rows compared."""
+    n = len(table)
+    time = np.asarray(table["time_utc"].array.asi8)
+    receiver = pd.factorize(table["receiver"])[0]
+    satellite = pd.factorize(pd.MultiIndex.from_arrays([table["constellation"], table["svid"]]))[0]
+    order = np.lexsort((np.arange(n), time, satellite, receiver))
+    r, s, t = receiver[order], satellite[order], time[order]
+    same = (r[1:] == r[:-1]) & (s[1:] == s[:-1]) & (np.diff(t) < _SAME_TIME)
+    return order[:-1][same], order[1:][same]
+
+
 def _single_signals(out: pd.DataFrame, where: str, locate: Callable[[int], str]) -> pd.DataFrame:
     """The table with each signal (receiver, satellite, time) once.
 
@@ -276,15 +291,9 @@ def _single_signals(out: pd.DataFrame, where: str, locate: Callable[[int], str])
     twice) are dropped with a warning that counts them: they would count twice in the fits.
     """
     n = len(out)
-    time = np.asarray(out["time_utc"].array.asi8)
-    receiver = pd.factorize(out["receiver"])[0]
-    satellite = pd.factorize(pd.MultiIndex.from_arrays([out["constellation"], out["svid"]]))[0]
-    order = np.lexsort((np.arange(n), time, satellite, receiver))
-    r, s, t = receiver[order], satellite[order], time[order]
-    same = (r[1:] == r[:-1]) & (s[1:] == s[:-1]) & (np.diff(t) < _SAME_TIME)
-    if not same.any():
+    first, second = repeated_signals(out)
+    if not first.size:
         return out
-    first, second = order[:-1][same], order[1:][same]
     values = out[_NUMBERS].to_numpy(dtype=float)
     a, b = values[first], values[second]
     differ = ~((a == b) | (np.isnan(a) & np.isnan(b)))

@@ -38,9 +38,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from .errors import InputError, listing
+from .errors import InputError, listing, user_text
 from .geodesy import CrsInput
-from .observations import read_observations
+from .observations import read_observations, repeated_signals
 from .paths import StrPath, atomic_folder, check_not_input
 from .pipeline import in_mask, receivers, recordings
 from .settings import (
@@ -139,6 +139,7 @@ def partition_observations(
                     "bytes": size,
                     "sha256": digest,
                 }
+        _refuse_repeats(work, tiles, observations)
         index = {
             "format": "gnss-citygml partition",
             "version": VERSION,
@@ -153,6 +154,44 @@ def partition_observations(
         }
         (work / INDEX).write_text(json.dumps(index, indent=1))
     return index
+
+
+def _refuse_repeats(work: Path, tiles: dict[str, dict[str, Any]], observations) -> None:
+    """Refuse a signal (receiver, satellite, time) in two of the ``observations`` files: each
+    file is read alone (its own repeats are counted once), so a repeat across files would count
+    twice in the fits, and two values of one signal would contradict each other. A signal's
+    rows are all in its receiver's tile: each tile written from two files or more is read back,
+    its keys only."""
+    for name, spec in tiles.items():
+        if len(spec["files"]) < 2:
+            continue
+        folder = work / RECEIVERS / f"tile={name}"
+        keys = pd.concat(
+            [
+                pd.read_parquet(folder / file, columns=_SIGNAL_KEY).assign(
+                    file=int(Path(file).stem.removeprefix("part-"))
+                )
+                for file in sorted(spec["files"])
+            ],
+            ignore_index=True,
+        )
+        first, second = repeated_signals(keys)
+        of = keys["file"].to_numpy()
+        across = np.flatnonzero(of[first] != of[second])
+        if across.size:
+            a, b = keys.iloc[first[across[0]]], keys.iloc[second[across[0]]]
+            raise InputError(
+                f"{across.size} signal(s) in two of the files, e.g. receiver "
+                f"{user_text(a['receiver'])}, satellite {a['constellation']}{a['svid']:02d} at "
+                f"{a['time_utc']:%Y-%m-%dT%H:%M:%S.%f}Z",
+                where=f"{observations[a['file']]} and {observations[b['file']]}",
+                fix="give each recording once (two recordings with one receiver name? rename "
+                "the receiver in one of them)",
+            )
+
+
+#: The columns that name a signal (:func:`~gnss_citygml.observations.repeated_signals`).
+_SIGNAL_KEY = ["receiver", "constellation", "svid", "time_utc"]
 
 
 def read_index(folder: StrPath) -> dict[str, Any]:

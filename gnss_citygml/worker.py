@@ -29,7 +29,7 @@ import warnings
 from collections.abc import Callable
 from typing import IO, Any
 
-from .errors import GnssCityGMLError, escape_controls, internal_error
+from .errors import GnssCityGMLError, broken_install, escape_controls, internal_error
 from .settings import Calibration, Estimator, PositionError, Rays, ReceiverHeights
 
 __all__ = ["CANCELLED", "JOBS", "main"]
@@ -124,7 +124,8 @@ def run(request: dict[str, Any], say: Say) -> int:
         say({"error": CANCELLED})
         return 130
     except Exception as exc:
-        say({"error": internal_error(exc)})
+        broken = broken_install(exc)  # (the plugin's Python half installed: the user's side)
+        say({"error": internal_error(exc) if broken is None else broken.one_line()})
         return 2
     say({"result": result})
     return 0

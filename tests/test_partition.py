@@ -206,6 +206,31 @@ def test_a_failed_partition_leaves_no_folder(halves, tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.parametrize("change", ["same", "flipped", "another zone", "svid as text"])
+def test_a_signal_in_two_files_is_refused(halves, tmp_path, capsys, change):
+    """Each file is read alone (its own repeats count once): a signal in two of them, the same
+    or contradicting, would count twice or both ways. The command names both files and writes
+    nothing."""
+    obs = read_observations(halves[1]).iloc[:50]
+    if change == "flipped":
+        obs["cn0"] = np.where(obs["cn0"].isna(), 40.0, np.nan)
+    copy = tmp_path / "copy.csv"
+    obs.to_csv(copy, index=False)
+    if change == "another zone":
+        table = pd.read_csv(copy)
+        times = pd.to_datetime(table["time_utc"]).dt.tz_convert("Europe/Berlin")
+        table.assign(time_utc=times.map(lambda t: t.isoformat())).to_csv(copy, index=False)
+    if change == "svid as text":
+        table = pd.read_csv(copy, dtype={"svid": str})
+        table.assign(svid=table["svid"].str.zfill(3)).to_csv(copy, index=False)
+    args = ["partition", *halves, copy, "--dem", DEM, "-o", tmp_path / "p"]
+    code, _, err = run([str(a) for a in args], capsys)
+    assert code == 2 and err.count("\n") == 1, err
+    assert "signal(s) in two of the files" in err and "b.parquet and " in err, err
+    assert "copy.csv" in err and "give each recording once" in err
+    assert not (tmp_path / "p").exists()
+
+
 def test_footprints_no_partition_reaches_are_refused(halves, tmp_path):
     partition_observations(halves[:1], tmp_path / "p", DEM, tile_size=100.0)
     far = building_ground(read_footprints(CITY / "footprints.gpkg"), DEM)

@@ -3,6 +3,7 @@ plugin drives it: JSON in, JSON lines out, SIGINT to cancel. The plugin itself i
 real QGIS (qgis_plugin/tests)."""
 
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -153,3 +154,31 @@ def test_update(grid_dir, tmp_path):
     assert [m["progress"][0] for m in said if "progress" in m][-1] == "done"
     again = answers(child({"job": "update", "args": args}))[-1]["result"]
     assert not again["written"] and again["new_signals"] == 0
+
+
+def test_a_library_that_cannot_be_imported_is_the_installation_not_a_bug(tmp_path):
+    """A dependency half installed (its import fails while a job runs) is said as the user's
+    installation with the fix, by the command line and by the plugin's worker alike: never
+    "internal error ... please report it"."""
+    broken = tmp_path / "site" / "pyarrow"
+    broken.mkdir(parents=True)
+    (broken / "__init__.py").write_text(
+        "raise ImportError('libarrow.so.1800: cannot open shared object file', name='pyarrow')\n"
+    )
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(broken.parent), *sys.path])}
+    inputs = [CITY / "observations.parquet", CITY / "footprints.gpkg", "--dem", CITY / "dem.tif"]
+    command = [sys.executable, "-m", "gnss_citygml", "estimate", *inputs, "-o", tmp_path / "h.gpkg"]
+    done = subprocess.run(command, capture_output=True, text=True, env=env)
+    assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr
+    assert done.stderr.startswith("error: the installation is broken: importing ")
+    assert "--force-reinstall" in done.stderr and "internal error" not in done.stderr
+    process = subprocess.run(
+        [sys.executable, "-m", "gnss_citygml.worker"],
+        input=json.dumps(estimate(tmp_path / "w.gpkg")),
+        capture_output=True,
+        text=True,
+        env=env,
+    )
+    said = [json.loads(line) for line in process.stdout.splitlines()]
+    assert process.returncode == 2 and said[-1]["error"].startswith("the installation is broken")
+    assert not (tmp_path / "h.gpkg").exists() and not (tmp_path / "w.gpkg").exists()

@@ -24,7 +24,7 @@ from typing import NoReturn
 
 import click
 
-from ..errors import GnssCityGMLError, escape_controls, internal_error
+from ..errors import GnssCityGMLError, broken_install, escape_controls, internal_error
 
 __all__ = ["COMMANDS", "LazyGroup", "cli", "main"]
 
@@ -112,13 +112,14 @@ def _one_line_warning(message, category, filename, lineno, file=None, line=None)
 
 
 def _user_side(exc: Exception) -> None:
-    """Exit with one line if ``exc`` is a write that failed on the user's side (a full disk,
-    a closed or full standard output...: :func:`gnss_citygml.paths.write_error`) that no
-    writer turned into its own error; else return."""
+    """Exit with one line if ``exc`` is the user's side: a library that cannot be imported
+    (:func:`~gnss_citygml.errors.broken_install`), or a write that failed (a full disk, a
+    closed or full standard output...: :func:`gnss_citygml.paths.write_error`) that no writer
+    turned into its own error; else return."""
     from ..paths import write_error
 
     where = getattr(exc, "filename", None) or "standard output"
-    error = write_error(exc, str(where))
+    error = broken_install(exc) or write_error(exc, str(where))
     if error is None:
         return
     if where == "standard output":  # Python's flush of it at exit would fail again

@@ -22,7 +22,13 @@ _WRITES = re.compile(
 )
 _BEGIN = re.compile(r"\bBEGIN\b", re.IGNORECASE)
 _RAISE = re.compile(r"\bRAISE\s*\(", re.IGNORECASE)
-_TEXT = re.compile(r"'(?:[^']|'')*'")
+#: SQL's tokens that hide statements from a search: a quoted identifier (kept: it may hold a
+#: quote of the other kind, as a layer named ``foot'prints``), a string (a message's words are
+#: no statement) and a comment (none either, and it may hold a lone quote).
+_TOKENS = re.compile(
+    r"""("(?:[^"]|"")*"|`[^`]*`|\[[^\]]*\])|('(?:[^']|'')*')|--[^\n]*|/\*.*?(?:\*/|$)""",
+    re.DOTALL,
+)
 #: The GeoPackage tables whose constraints the standard checks with RAISE-only triggers.
 _CHECKED = {"gpkg_tile_matrix", "gpkg_metadata_reference"}
 
@@ -56,7 +62,7 @@ def check_no_triggers(path: StrPath) -> None:
 def _known(name: str, table: str, sql: str) -> bool:
     """Whether a trigger is one of GeoPackage's or GDAL's own (see :func:`check_no_triggers`)."""
     body = sql[m.end() :] if (m := _BEGIN.search(sql)) else sql
-    body = _TEXT.sub("'_'", body)  # (a message's words are no statement; a table so named is)
+    body = _TOKENS.sub(_token, body)
     written = {_unquoted(t).lower() for t in _WRITES.findall(body)}
     raises = bool(_RAISE.search(body))
     name, table = name.lower(), table.lower()
@@ -65,6 +71,12 @@ def _known(name: str, table: str, sql: str) -> bool:
     if name in (f"trigger_insert_feature_count_{table}", f"trigger_delete_feature_count_{table}"):
         return not raises and written <= {"gpkg_ogr_contents"}
     return table in _CHECKED and name.startswith(table) and not written
+
+
+def _token(match: re.Match) -> str:
+    """An identifier as it is, a string as ``'_'`` (a table so named still counts as written),
+    a comment as a space."""
+    return match.group(1) or ("'_'" if match.group(2) else " ")
 
 
 def _unquoted(name: str) -> str:

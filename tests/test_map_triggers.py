@@ -74,6 +74,11 @@ TRIGGERS = {
     "SELECT RAISE(ABORT, 'no updates here'); END",
     "contents": "CREATE TRIGGER contents AFTER INSERT ON gpkg_contents BEGIN "
     "DELETE FROM 'notes'; END",
+    # an R-tree's name, its statement between comments holding quotes (read as one string)
+    "rtree_footprints_geom_update8": "CREATE TRIGGER rtree_footprints_geom_update8 AFTER "
+    "UPDATE ON footprints BEGIN /* ' */ DELETE FROM notes; /* ' */ END",
+    "rtree_footprints_geom_update10": "CREATE TRIGGER rtree_footprints_geom_update10 AFTER "
+    "UPDATE ON footprints BEGIN -- it's\n DELETE FROM notes; -- it's\n END",
 }
 
 
@@ -97,6 +102,19 @@ def test_geopackage_and_gdal_triggers_are_its_own(city_map, grid_args, capsys):
     code, _, err = run(estimate(city_map, grid_args), capsys)
     assert code == 0, err
     assert notes(city_map) == 1
+
+
+@pytest.mark.parametrize("layer", ["foot'prints", 'foot"prints', "foot`[prints]"])
+def test_gdal_triggers_of_a_layer_named_with_quotes_are_its_own(layer, tmp_path, grid_args, capsys):
+    """GDAL's R-tree triggers of a layer whose name holds a quote (in their double-quoted
+    identifiers) are GeoPackage's own: the map is updated (was refused as triggers of its own
+    when the name held an apostrophe)."""
+    path = tmp_path / "map.gpkg"
+    frame = pyogrio.read_dataframe(CITY / "footprints.gpkg")
+    pyogrio.write_dataframe(frame, path, layer=layer)
+    code, _, err = run(update(path, grid_args), capsys)
+    assert code == 0, err
+    assert pyogrio.list_layers(path)[0][0] == layer
 
 
 def test_a_constraint_that_refuses_the_update_is_one_line(city_map, grid_args, capsys):

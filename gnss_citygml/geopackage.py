@@ -12,7 +12,15 @@ from collections.abc import Iterator
 from .errors import InputError, first_line
 from .paths import StrPath, write_error
 
-__all__ = ["check_no_triggers", "check_table_layer", "connect", "has_table", "quoted", "refused"]
+__all__ = [
+    "check_geopackage",
+    "check_no_triggers",
+    "check_table_layer",
+    "connect",
+    "has_table",
+    "quoted",
+    "refused",
+]
 
 #: A statement of a trigger's body that writes a table, and the table (quoted or not).
 _WRITES = re.compile(
@@ -33,6 +41,24 @@ _TOKENS = re.compile(
 _CHECKED = {"gpkg_tile_matrix", "gpkg_metadata_reference"}
 
 
+#: The first bytes of every SQLite database (and so of every GeoPackage).
+_SQLITE = b"SQLite format 3\x00"
+
+
+def check_geopackage(path: StrPath, *, empty_ok: bool = True) -> None:
+    """Refuse a file named .gpkg that is no SQLite database (a text file, another format, an
+    empty file unless ``empty_ok``) in one line: SQLite's "file is not a database" surfaced as
+    an internal error or as a lock held by another program."""
+    with open(path, "rb") as file:
+        head = file.read(len(_SQLITE))
+    if head != _SQLITE and (head or not empty_ok):
+        raise InputError(
+            "not a GeoPackage: the file is " + ("empty" if not head else "no SQLite database"),
+            where=str(path),
+            fix="give a GeoPackage (.gpkg, as QGIS or ogr2ogr -f GPKG write), or another file name",
+        )
+
+
 def check_no_triggers(path: StrPath) -> None:
     """Refuse a GeoPackage that holds a trigger other than GeoPackage's and GDAL's own,
     before anything writes to it: a user's trigger runs on the writes of the toolkit (and of
@@ -43,6 +69,7 @@ def check_no_triggers(path: StrPath) -> None:
     GDAL's feature count (``trigger_..._feature_count_T``) only ``gpkg_ogr_contents``; the
     standard's checks on ``gpkg_tile_matrix`` and ``gpkg_metadata_reference`` write nothing.
     """
+    check_geopackage(path)
     with contextlib.closing(sqlite3.connect(path)) as db:
         rows = db.execute(
             "SELECT name, tbl_name, sql FROM sqlite_master WHERE type = 'trigger' ORDER BY name"

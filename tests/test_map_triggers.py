@@ -148,3 +148,27 @@ def test_a_view_as_the_layer(city_map, grid_args, tmp_path, capsys):
     code, _, err = run(args, capsys)
     assert code == 0, err
     assert len(pyogrio.read_dataframe(tmp_path / "h.gpkg", layer="heights")) == 30
+
+
+@pytest.mark.parametrize(
+    ("content", "message"),
+    [
+        (b"not sqlite\n", "not a GeoPackage: the file is no SQLite database"),
+        (b"PK\x03\x04" + bytes(100), "not a GeoPackage: the file is no SQLite database"),
+        (b"", "not a GeoPackage: the file is empty"),
+    ],
+)
+def test_a_map_that_is_no_sqlite_database_is_one_line(
+    content, message, tmp_path, grid_args, capsys
+):
+    """update on a .gpkg that is text, a zip or empty; estimate -o into an existing one (with
+    or without --overwrite): one line, the file as it was (were "internal error", or a lock
+    held by another program)."""
+    path = tmp_path / "map.gpkg"
+    path.write_bytes(content)
+    one_line(capsys, update(path, grid_args), message)
+    if content:  # (an empty file is no GeoPackage to keep: estimate writes one in its place)
+        one_line(capsys, estimate(path, grid_args), message)
+        one_line(capsys, estimate(path, grid_args, "--overwrite"), message)
+    assert path.read_bytes() == content
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["map.gpkg"]

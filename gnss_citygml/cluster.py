@@ -113,6 +113,12 @@ def connect(tiling: Tiling) -> Iterator[DaskEngine]:
     check_scheduler(tiling.scheduler, timeout)
     try:
         client = Client(tiling.scheduler, timeout=timeout)
+    except (struct.error, ValueError) as err:  # (its messages are not laid out as Dask's)
+        raise InputError(
+            f"no Dask scheduler at {tiling.scheduler}: what answered does not speak Dask's "
+            f"protocol ({escape_controls(first_line(err))})",
+            fix=SCHEDULER_FIX,
+        ) from err
     except OSError as err:
         raise InputError(
             f"cannot reach the Dask scheduler at {tiling.scheduler}: {err}",
@@ -177,7 +183,7 @@ def _not_a_greeting(sock: socket.socket, timeout: float) -> str | None:
         (length,) = struct.unpack("<Q", data)
         if 0 < length <= GREETING_MAX:
             rest, closed = _receive(sock, length, timeout)
-            if len(rest) == length:
+            if len(rest) == length and _frames(rest):
                 return None
             data += rest
     if data and not closed:  # the rest of its first line, to name it
@@ -203,6 +209,19 @@ def _not_a_greeting(sock: socket.socket, timeout: float) -> str | None:
     if data.startswith(b"HTTP/"):
         return f"an HTTP server answered {shown}"
     return f"something else answered {shown}"
+
+
+def _frames(message: bytes) -> bool:
+    """Whether ``message`` is laid out as Dask's frames are: their count, each one's length
+    (8 bytes each), then the frames, filling it exactly. (Any length followed by as many bytes
+    was taken for a greeting: Dask then failed unpacking it, an internal error.)"""
+    if len(message) < 8:
+        return False
+    (count,) = struct.unpack_from("<Q", message)
+    if not 0 < count <= (len(message) - 8) // 8:
+        return False
+    lengths = struct.unpack_from(f"<{count}Q", message, 8)
+    return sum(lengths) == len(message) - 8 * (count + 1)
 
 
 def _receive(sock: socket.socket, size: int, timeout: float) -> tuple[bytes, bool]:

@@ -183,7 +183,7 @@ def _not_a_greeting(sock: socket.socket, timeout: float) -> str | None:
         (length,) = struct.unpack("<Q", data)
         if 0 < length <= GREETING_MAX:
             rest, closed = _receive(sock, length, timeout)
-            if len(rest) == length and _frames(rest):
+            if len(rest) == length and _handshake(rest):
                 return None
             data += rest
     if data and not closed:  # the rest of its first line, to name it
@@ -211,17 +211,27 @@ def _not_a_greeting(sock: socket.socket, timeout: float) -> str | None:
     return f"something else answered {shown}"
 
 
-def _frames(message: bytes) -> bool:
-    """Whether ``message`` is laid out as Dask's frames are: their count, each one's length
-    (8 bytes each), then the frames, filling it exactly. (Any length followed by as many bytes
-    was taken for a greeting: Dask then failed unpacking it, an internal error.)"""
+def _handshake(message: bytes) -> bool:
+    """Whether ``message`` is a Dask handshake: frames as Dask lays them out (their count, each
+    one's length, 8 bytes each, then the frames, filling it exactly), the first a MessagePack
+    map with the peer's Python version. (Any length followed by as many bytes was taken for a
+    greeting: Dask then failed unpacking it, an internal error and its traceback logged.)"""
+    import msgpack  # (Dask's own)
+
     if len(message) < 8:
         return False
     (count,) = struct.unpack_from("<Q", message)
     if not 0 < count <= (len(message) - 8) // 8:
         return False
     lengths = struct.unpack_from(f"<{count}Q", message, 8)
-    return sum(lengths) == len(message) - 8 * (count + 1)
+    start = 8 * (count + 1)
+    if sum(lengths) != len(message) - start:
+        return False
+    try:
+        header = msgpack.unpackb(message[start : start + lengths[0]])
+    except (ValueError, TypeError, msgpack.UnpackException):
+        return False
+    return isinstance(header, dict) and "python" in header
 
 
 def _receive(sock: socket.socket, size: int, timeout: float) -> tuple[bytes, bool]:

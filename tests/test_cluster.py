@@ -109,7 +109,7 @@ KINDS = {
         ("half a greeting", "answered '(\\x00"),
         ("one byte", "answered '\\x01\\x00"),
         ("frames that do not fill it", "answered '\\x18\\x00"),
-        ("frames of no message", "does not speak Dask's protocol"),
+        ("frames of no message", "answered '\\x14\\x00"),
         ("refused", "nothing listens on port"),
     ],
 )

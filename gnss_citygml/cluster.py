@@ -113,6 +113,12 @@ def connect(tiling: Tiling) -> Iterator[DaskEngine]:
     check_scheduler(tiling.scheduler, timeout)
     try:
         client = Client(tiling.scheduler, timeout=timeout)
+    except (struct.error, ValueError) as err:  # (its messages are not laid out as Dask's)
+        raise InputError(
+            f"no Dask scheduler at {tiling.scheduler}: what answered does not speak Dask's "
+            f"protocol ({escape_controls(first_line(err))})",
+            fix=SCHEDULER_FIX,
+        ) from err
     except OSError as err:
         raise InputError(
             f"cannot reach the Dask scheduler at {tiling.scheduler}: {err}",
@@ -177,7 +183,7 @@ def _not_a_greeting(sock: socket.socket, timeout: float) -> str | None:
         (length,) = struct.unpack("<Q", data)
         if 0 < length <= GREETING_MAX:
             rest, closed = _receive(sock, length, timeout)
-            if len(rest) == length:
+            if len(rest) == length and _handshake(rest):
                 return None
             data += rest
     if data and not closed:  # the rest of its first line, to name it
@@ -203,6 +209,29 @@ def _not_a_greeting(sock: socket.socket, timeout: float) -> str | None:
     if data.startswith(b"HTTP/"):
         return f"an HTTP server answered {shown}"
     return f"something else answered {shown}"
+
+
+def _handshake(message: bytes) -> bool:
+    """Whether ``message`` is a Dask handshake: frames as Dask lays them out (their count, each
+    one's length, 8 bytes each, then the frames, filling it exactly), the first a MessagePack
+    map with the peer's Python version. (Any length followed by as many bytes was taken for a
+    greeting: Dask then failed unpacking it, an internal error and its traceback logged.)"""
+    import msgpack  # (Dask's own)
+
+    if len(message) < 8:
+        return False
+    (count,) = struct.unpack_from("<Q", message)
+    if not 0 < count <= (len(message) - 8) // 8:
+        return False
+    lengths = struct.unpack_from(f"<{count}Q", message, 8)
+    start = 8 * (count + 1)
+    if sum(lengths) != len(message) - start:
+        return False
+    try:
+        header = msgpack.unpackb(message[start : start + lengths[0]])
+    except (ValueError, TypeError, msgpack.UnpackException):
+        return False
+    return isinstance(header, dict) and "python" in header
 
 
 def _receive(sock: socket.socket, size: int, timeout: float) -> tuple[bytes, bool]:

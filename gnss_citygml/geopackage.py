@@ -12,7 +12,15 @@ from collections.abc import Iterator
 from .errors import InputError, first_line
 from .paths import StrPath, write_error
 
-__all__ = ["check_no_triggers", "check_table_layer", "connect", "has_table", "quoted", "refused"]
+__all__ = [
+    "check_geopackage",
+    "check_no_triggers",
+    "check_table_layer",
+    "connect",
+    "has_table",
+    "quoted",
+    "refused",
+]
 
 #: A statement of a trigger's body that writes a table, and the table (quoted or not).
 _WRITES = re.compile(
@@ -22,9 +30,33 @@ _WRITES = re.compile(
 )
 _BEGIN = re.compile(r"\bBEGIN\b", re.IGNORECASE)
 _RAISE = re.compile(r"\bRAISE\s*\(", re.IGNORECASE)
-_TEXT = re.compile(r"'(?:[^']|'')*'")
+#: SQL's tokens that hide statements from a search: a quoted identifier (kept: it may hold a
+#: quote of the other kind, as a layer named ``foot'prints``), a string (a message's words are
+#: no statement) and a comment (none either, and it may hold a lone quote).
+_TOKENS = re.compile(
+    r"""("(?:[^"]|"")*"|`[^`]*`|\[[^\]]*\])|('(?:[^']|'')*')|--[^\n]*|/\*.*?(?:\*/|$)""",
+    re.DOTALL,
+)
 #: The GeoPackage tables whose constraints the standard checks with RAISE-only triggers.
 _CHECKED = {"gpkg_tile_matrix", "gpkg_metadata_reference"}
+
+
+#: The first bytes of every SQLite database (and so of every GeoPackage).
+_SQLITE = b"SQLite format 3\x00"
+
+
+def check_geopackage(path: StrPath, *, empty_ok: bool = True) -> None:
+    """Refuse a file named .gpkg that is no SQLite database (a text file, another format, an
+    empty file unless ``empty_ok``) in one line: SQLite's "file is not a database" surfaced as
+    an internal error or as a lock held by another program."""
+    with open(path, "rb") as file:
+        head = file.read(len(_SQLITE))
+    if head != _SQLITE and (head or not empty_ok):
+        raise InputError(
+            "not a GeoPackage: the file is " + ("empty" if not head else "no SQLite database"),
+            where=str(path),
+            fix="give a GeoPackage (.gpkg, as QGIS or ogr2ogr -f GPKG write), or another file name",
+        )
 
 
 def check_no_triggers(path: StrPath) -> None:
@@ -37,6 +69,7 @@ def check_no_triggers(path: StrPath) -> None:
     GDAL's feature count (``trigger_..._feature_count_T``) only ``gpkg_ogr_contents``; the
     standard's checks on ``gpkg_tile_matrix`` and ``gpkg_metadata_reference`` write nothing.
     """
+    check_geopackage(path)
     with contextlib.closing(sqlite3.connect(path)) as db:
         rows = db.execute(
             "SELECT name, tbl_name, sql FROM sqlite_master WHERE type = 'trigger' ORDER BY name"
@@ -56,7 +89,7 @@ def check_no_triggers(path: StrPath) -> None:
 def _known(name: str, table: str, sql: str) -> bool:
     """Whether a trigger is one of GeoPackage's or GDAL's own (see :func:`check_no_triggers`)."""
     body = sql[m.end() :] if (m := _BEGIN.search(sql)) else sql
-    body = _TEXT.sub("'_'", body)  # (a message's words are no statement; a table so named is)
+    body = _TOKENS.sub(_token, body)
     written = {_unquoted(t).lower() for t in _WRITES.findall(body)}
     raises = bool(_RAISE.search(body))
     name, table = name.lower(), table.lower()
@@ -65,6 +98,12 @@ def _known(name: str, table: str, sql: str) -> bool:
     if name in (f"trigger_insert_feature_count_{table}", f"trigger_delete_feature_count_{table}"):
         return not raises and written <= {"gpkg_ogr_contents"}
     return table in _CHECKED and name.startswith(table) and not written
+
+
+def _token(match: re.Match) -> str:
+    """An identifier as it is, a string as ``'_'`` (a table so named still counts as written),
+    a comment as a space."""
+    return match.group(1) or ("'_'" if match.group(2) else " ")
 
 
 def _unquoted(name: str) -> str:

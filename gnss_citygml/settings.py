@@ -43,6 +43,7 @@ __all__ = [
     "ReceiverHeights",
     "Rays",
     "Tiling",
+    "check_elevation_mask",
     "check_tile_size",
     "scheduler_address",
 ]
@@ -150,6 +151,18 @@ def check_tile_size(size: float) -> None:
         )
 
 
+def check_elevation_mask(min_elevation: float, max_elevation: float) -> None:
+    """Refuse an elevation mask (deg) that is not a band of elevations, -90 <= min < max <= 90
+    (the rays' and ``observe``'s)."""
+    band = (min_elevation, max_elevation)
+    if not (all(map(_finite, band)) and -90.0 <= band[0] < band[1] <= 90.0):
+        raise InputError(
+            f"elevation mask {band[0]}..{band[1]} deg is not a band of elevations",
+            fix="give --min-elevation and --max-elevation in degrees, -90 <= min < max <= 90, "
+            "e.g. 10 and 85",
+        )
+
+
 @dataclass(frozen=True)
 class Rays:
     """Which signals are cast against the footprints, and how.
@@ -171,13 +184,7 @@ class Rays:
     earth_curvature: bool = False
 
     def __post_init__(self):
-        band = (self.min_elevation, self.max_elevation)
-        if not (all(map(_finite, band)) and -90.0 <= band[0] < band[1] <= 90.0):
-            raise InputError(
-                f"elevation mask {band[0]}..{band[1]} deg is not a band of elevations",
-                fix="give --min-elevation and --max-elevation in degrees, -90 <= min < max <= 90, "
-                "e.g. 10 and 85",
-            )
+        check_elevation_mask(self.min_elevation, self.max_elevation)
         if not _within(self.max_range, MAX_RANGES, above=True):
             raise InputError(
                 f"max_range must be a positive number of metres up to {MAX_RANGES[1]:g}, "

@@ -43,7 +43,14 @@ import numpy as np
 import pandas as pd
 
 from .errors import InputError
-from .geopackage import check_no_triggers, check_table_layer, connect, quoted, refused
+from .geopackage import (
+    check_geopackage,
+    check_no_triggers,
+    check_table_layer,
+    connect,
+    quoted,
+    refused,
+)
 from .ids import id_text
 from .paths import StrPath, atomic_path, check_not_input, input_file
 from .settings import Estimator, Rays, ReceiverHeights
@@ -362,6 +369,7 @@ def _check_map(path: StrPath) -> Path:
             where=str(path),
             fix="convert it first (ogr2ogr -f GPKG map.gpkg ...)",
         )
+    check_geopackage(path, empty_ok=False)
     for suffix in ("-wal", "-shm"):
         side = path.with_name(path.name + suffix)
         if side.exists():

@@ -85,6 +85,16 @@ KINDS = {
     "closes": {"close": True},
     "binary": {"greeting": bytes(range(200, 256))},
     "half a greeting": {"greeting": (40).to_bytes(8, "little") + b"\x83\xabcomp"},
+    # a whole message by its length, but not Dask's frames (was an internal error: Dask's
+    # unpacking of it failed)
+    "one byte": {"greeting": (1).to_bytes(8, "little") + b"\x01"},
+    "frames that do not fill it": {
+        "greeting": (24).to_bytes(8, "little") + (1).to_bytes(8, "little") + bytes(16)
+    },
+    # Dask's frames, but no message of Dask's in them (0xc1 is no MessagePack)
+    "frames of no message": {
+        "greeting": b"".join(n.to_bytes(8, "little") for n in (20, 1, 4)) + b"\xc1" * 4
+    },
 }
 
 
@@ -97,6 +107,9 @@ KINDS = {
         ("closes", "accepted the connection and closed it at once"),
         ("binary", "answered '\\xc8\\xc9"),
         ("half a greeting", "answered '(\\x00"),
+        ("one byte", "answered '\\x01\\x00"),
+        ("frames that do not fill it", "answered '\\x18\\x00"),
+        ("frames of no message", "answered '\\x14\\x00"),
         ("refused", "nothing listens on port"),
     ],
 )

@@ -126,3 +126,23 @@ def test_a_report_and_a_partition_past_the_limit(grid_args, tmp_path):
     one_line(part, str(tmp_path / "part"), "too large")
     assert not (tmp_path / "part").exists()
     assert not [p for p in tmp_path.rglob("*") if ".part-" in p.name]
+
+
+def test_a_city_model_to_a_closed_standard_output_is_one_line(grid_args, tmp_path):
+    """-o - with the command's standard output closed (>&-): one line before any work (was an
+    internal error, AttributeError, after it); nothing written."""
+    heights = tmp_path / "heights.gpkg"
+    assert command(estimate(heights, *grid_args)).returncode == 0
+    result = subprocess.run(
+        f'"{sys.executable}" -m gnss_citygml convert "{heights}" -o - -q >&-',
+        shell=True,
+        stderr=subprocess.PIPE,
+        text=True,
+        timeout=600,
+    )
+    assert result.returncode == 2, result.stderr
+    assert result.stderr.splitlines() == [
+        "error: standard output is closed (-o -): give the command one (> FILE, or | cjio "
+        "stdin ...), or write a file with -o FILE"
+    ]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["heights.gpkg"]

@@ -74,6 +74,11 @@ TRIGGERS = {
     "SELECT RAISE(ABORT, 'no updates here'); END",
     "contents": "CREATE TRIGGER contents AFTER INSERT ON gpkg_contents BEGIN "
     "DELETE FROM 'notes'; END",
+    # an R-tree's name, its statement between comments holding quotes (read as one string)
+    "rtree_footprints_geom_update8": "CREATE TRIGGER rtree_footprints_geom_update8 AFTER "
+    "UPDATE ON footprints BEGIN /* ' */ DELETE FROM notes; /* ' */ END",
+    "rtree_footprints_geom_update10": "CREATE TRIGGER rtree_footprints_geom_update10 AFTER "
+    "UPDATE ON footprints BEGIN -- it's\n DELETE FROM notes; -- it's\n END",
 }
 
 
@@ -97,6 +102,19 @@ def test_geopackage_and_gdal_triggers_are_its_own(city_map, grid_args, capsys):
     code, _, err = run(estimate(city_map, grid_args), capsys)
     assert code == 0, err
     assert notes(city_map) == 1
+
+
+@pytest.mark.parametrize("layer", ["foot'prints", 'foot"prints', "foot`[prints]"])
+def test_gdal_triggers_of_a_layer_named_with_quotes_are_its_own(layer, tmp_path, grid_args, capsys):
+    """GDAL's R-tree triggers of a layer whose name holds a quote (in their double-quoted
+    identifiers) are GeoPackage's own: the map is updated (was refused as triggers of its own
+    when the name held an apostrophe)."""
+    path = tmp_path / "map.gpkg"
+    frame = pyogrio.read_dataframe(CITY / "footprints.gpkg")
+    pyogrio.write_dataframe(frame, path, layer=layer)
+    code, _, err = run(update(path, grid_args), capsys)
+    assert code == 0, err
+    assert pyogrio.list_layers(path)[0][0] == layer
 
 
 def test_a_constraint_that_refuses_the_update_is_one_line(city_map, grid_args, capsys):
@@ -130,3 +148,27 @@ def test_a_view_as_the_layer(city_map, grid_args, tmp_path, capsys):
     code, _, err = run(args, capsys)
     assert code == 0, err
     assert len(pyogrio.read_dataframe(tmp_path / "h.gpkg", layer="heights")) == 30
+
+
+@pytest.mark.parametrize(
+    ("content", "message"),
+    [
+        (b"not sqlite\n", "not a GeoPackage: the file is no SQLite database"),
+        (b"PK\x03\x04" + bytes(100), "not a GeoPackage: the file is no SQLite database"),
+        (b"", "not a GeoPackage: the file is empty"),
+    ],
+)
+def test_a_map_that_is_no_sqlite_database_is_one_line(
+    content, message, tmp_path, grid_args, capsys
+):
+    """update on a .gpkg that is text, a zip or empty; estimate -o into an existing one (with
+    or without --overwrite): one line, the file as it was (were "internal error", or a lock
+    held by another program)."""
+    path = tmp_path / "map.gpkg"
+    path.write_bytes(content)
+    one_line(capsys, update(path, grid_args), message)
+    if content:  # (an empty file is no GeoPackage to keep: estimate writes one in its place)
+        one_line(capsys, estimate(path, grid_args), message)
+        one_line(capsys, estimate(path, grid_args, "--overwrite"), message)
+    assert path.read_bytes() == content
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["map.gpkg"]

@@ -237,3 +237,23 @@ def test_observe_help_offers_overwrite(capsys):
     code, out, _ = run(["observe", "--help"], capsys)
     assert code == 0
     assert "--overwrite" in out and "Replace an existing output." in out
+
+
+@pytest.mark.parametrize(
+    "mask",
+    [
+        ("--max-elevation", "400"),  # was accepted: every satellite above 10 deg kept
+        ("--min-elevation", "-100"),
+        ("--min-elevation", "nan"),
+        ("--min-elevation", "50", "--max-elevation", "40"),
+    ],
+)
+def test_observe_refuses_a_mask_that_is_no_band_of_elevations(june, tmp_path, capsys, mask):
+    """The same physical range as estimate's (settings.check_elevation_mask), before any log
+    or orbit file is read; nothing written."""
+    log = tmp_path / DEMO_JUNE
+    log.write_bytes(june["data"])
+    out = tmp_path / "obs.parquet"
+    code, _, _, err = _observe([log, "--orbits", june["nav"], "-o", out, *mask], capsys)
+    assert code == 2 and err.startswith("error: elevation mask ") and err.count("\n") == 1, err
+    assert "-90 <= min < max <= 90" in err and not out.exists()

@@ -94,6 +94,12 @@ def _staged(output: Path) -> Iterator[Path]:
     if output != STDOUT:
         yield output
         return
+    if sys.stdout is None:  # (the command was started with its standard output closed: >&-)
+        raise InputError(
+            "standard output is closed",
+            where="-o -",
+            fix="give the command one (> FILE, or | cjio stdin ...), or write a file with -o FILE",
+        )
     with tempfile.TemporaryDirectory(prefix="gnss-citygml-") as folder:
         path = Path(folder) / "stdout.city.jsonl"
         yield path

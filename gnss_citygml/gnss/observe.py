@@ -22,6 +22,7 @@ import pandas as pd
 from ..errors import InputError
 from ..observations import OBSERVATION_COLUMNS
 from ..paths import StrPath
+from ..settings import check_elevation_mask
 from .gnsslogger import GnssLog, read_gnsslogger
 from .orbits import Orbits, load_orbits
 from .positions import positions, read_surveyed_positions, surveyed_positions
@@ -63,11 +64,7 @@ def observe_log(
     DataFrame
         The observations table (:data:`~gnss_citygml.observations.OBSERVATION_COLUMNS`).
     """
-    if not min_elevation < max_elevation:
-        raise InputError(
-            f"elevation mask {min_elevation:g}..{max_elevation:g} is empty",
-            fix="give --min-elevation below --max-elevation",
-        )
+    check_elevation_mask(min_elevation, max_elevation)
     signals = log.raw[log.raw["band"] == band]
     systems = "".join(sorted(set(signals["constellation"])))
     epochs = log.epochs
@@ -156,6 +153,7 @@ def observe(
     progress
         Optional callable told the name of each log when it is done.
     """
+    check_elevation_mask(min_elevation, max_elevation)  # before reading anything
     orbits = load_orbits(orbit_files)
     survey = None if surveyed is None else read_surveyed_positions(surveyed)
     frames, names = [], set()

@@ -214,9 +214,9 @@ def read_index(folder: StrPath) -> dict[str, Any]:
             where=str(path),
             fix="give a folder written by gnss-citygml partition",
         )
-    if index.get("version") != VERSION:
+    if type(index.get("version")) is not int or index["version"] != VERSION:
         raise InputError(
-            f"partition format version {index.get('version')}, this toolkit reads {VERSION} "
+            f"partition format version {index.get('version')!r}, this toolkit reads {VERSION} "
             "(which lists every file, to check the folder against)",
             where=str(path),
             fix="write the partition again with this version (gnss-citygml partition)",
@@ -238,6 +238,8 @@ def _index_problem(index: dict[str, Any]) -> str | None:
         "signals": int,
         "tiles": dict,
     }
+    if index.get("crs") != "EPSG:27700":  # (the receivers' e, n; what every tile is cut in)
+        return f"'crs' is {index.get('crs')!r}, not 'EPSG:27700'"
     for key, kind in kinds.items():
         if key not in index:
             return f"no {key!r}"

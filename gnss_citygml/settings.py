@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 import numbers
+import os
 import re
 from dataclasses import dataclass, field
 
@@ -472,6 +473,11 @@ class Calibration:
             )
 
 
+#: A local cluster's worker processes per core, at most: each holds a tile's rows and its own
+#: Python; more processes than that only share the cores and multiply the memory.
+WORKERS_PER_CORE = 4
+
+
 @dataclass(frozen=True)
 class Tiling:
     """A run cut into square tiles of British National Grid on a Dask cluster
@@ -501,6 +507,14 @@ class Tiling:
             raise InputError(
                 f"--workers {self.workers} is for --scheduler local, a whole number 1 or more",
                 fix="leave it out: a running scheduler has its own workers",
+            )
+        most = WORKERS_PER_CORE * (os.cpu_count() or 1)
+        if self.workers is not None and int(self.workers) > most:
+            raise InputError(
+                f"--workers {self.workers}: a local cluster runs at most {WORKERS_PER_CORE} "
+                f"worker processes per core, {most} on this machine",
+                fix="give fewer (leave it out for one per core), or a scheduler of several "
+                "machines (--scheduler tcp://host:port)",
             )
         if self.size is not None:
             check_tile_size(self.size)

@@ -87,8 +87,11 @@ def test_truncated_nav_record_names_its_first_line(tmp_path, orbits_dir):
     assert info.value.where == f"{path}, line 9"
 
 
-def test_gzipped_files_are_read(tmp_path, orbits_dir):
-    path = tmp_path / "brdc1190.21n.gz"
+@pytest.mark.parametrize("name", ["brdc1190.21n.gz", "BRDC1190.21N.GZ", "brdc1190.21n"])
+def test_gzipped_files_are_read(tmp_path, orbits_dir, name):
+    """A gzipped file is told by its first bytes, whatever its name says (an upper-case .GZ,
+    a download that lost its suffix)."""
+    path = tmp_path / name
     path.write_bytes(gzip.compress((orbits_dir / "brdc1190.21n").read_bytes()))
     pd.testing.assert_frame_equal(read_nav(path), read_nav(orbits_dir / "brdc1190.21n"))
     assert load_orbits(path).source == "broadcast"

@@ -415,6 +415,14 @@ TAMPERING = {
         _edit_index(_old_version),
         r"partition format version 1, this toolkit reads 2",
     ),
+    "partition.json with its version as text": (
+        _edit_index(lambda i: i.update(version="2")),
+        r"partition format version '2', this toolkit reads 2",
+    ),
+    "partition.json in another CRS": (
+        _edit_index(lambda i: i.update(crs="EPSG:4326")),
+        r"damaged partition\.json: 'crs' is 'EPSG:4326', not 'EPSG:27700'",
+    ),
 }
 
 

@@ -10,6 +10,7 @@ from gnss_citygml.settings import (
     PositionError,
     Rays,
     ReceiverHeights,
+    Tiling,
 )
 
 
@@ -94,6 +95,7 @@ NAN, INF = float("nan"), float("inf")
         (lambda: Calibration(prior_sd=5.0, window=INF), "calibration window"),
         (lambda: Calibration(prior_sd=5.0, window=1e12), "calibration window"),
         (lambda: Calibration(prior_sd=5.0, rounds=10**6), "calibration rounds .* 1 to 100"),
+        (lambda: Tiling("local", workers=100_000), "at most 4 worker processes per core"),
     ],
 )
 def test_options_outside_their_physical_range_are_refused(settings, message):

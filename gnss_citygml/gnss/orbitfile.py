@@ -14,6 +14,7 @@ import contextlib
 import datetime
 import io
 import zlib
+from pathlib import Path
 from typing import Literal, overload
 
 import numpy as np
@@ -39,6 +40,13 @@ def garbled(path: StrPath, line_no: int, text: str, why: str) -> InputError:
     )
 
 
+def _is_gzip(path: Path) -> bool:
+    """Whether the file is gzipped, by its first bytes (gzip's magic number), whatever its name
+    says (``.gz``, ``.GZ``, ``.gzip``, or none: a download renamed)."""
+    with open(path, "rb") as f:
+        return f.read(2) == b"\x1f\x8b"
+
+
 @overload
 def read_lines(path: StrPath, first_only: Literal[False] = False) -> list[str]: ...
 @overload
@@ -53,7 +61,7 @@ def read_lines(path: StrPath, first_only: bool = False) -> str | list[str]:
     try:
         with contextlib.ExitStack() as stack:
             raw = stack.enter_context(
-                gunzipped(path, "orbit file") if path.suffix == ".gz" else open(path, "rb")
+                gunzipped(path, "orbit file") if _is_gzip(path) else open(path, "rb")
             )
             f = stack.enter_context(io.TextIOWrapper(raw, encoding="ascii", errors="replace"))
             return f.readline() if first_only else f.read().splitlines()

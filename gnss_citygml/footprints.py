@@ -52,6 +52,7 @@ from .errors import InputError, MissingColumnError, first_line, listing, user_te
 from .geodesy import CrsError, OutsideExtentError, is_bng, to_bng
 from .ids import id_text, missing_ids, with_id_field
 from .paths import StrPath, gunzipped, input_file
+from .tables import check_text
 
 __all__ = ["check_polygonal", "read_footprints"]
 
@@ -285,6 +286,7 @@ def _read_geoparquet(path: Path) -> gpd.GeoDataFrame:
             where=str(path),
             fix="give a GeoParquet file (with its geometry metadata), or a GeoPackage",
         ) from None
+    check_text(frame, str(path))
     for column in frame.columns:
         if isinstance(frame[column].dtype, pd.CategoricalDtype):
             frame[column] = frame[column].astype(str)

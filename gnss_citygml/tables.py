@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pandas as pd
 
-from .errors import InputError, first_line
+from .errors import InputError, first_line, user_text
 from .geopackage import check_no_triggers
 from .ids import source_named
 from .paths import StrPath, atomic_path, check_not_input, check_output, input_file, same_file
@@ -27,6 +27,7 @@ if TYPE_CHECKING:
 __all__ = [
     "LAYER_FORMATS",
     "check_layer_output",
+    "check_text",
     "check_table_output",
     "read_table",
     "write_layer",
@@ -51,10 +52,46 @@ def read_table(path: StrPath) -> pd.DataFrame:
         ) from None
 
 
+def check_text(frame: pd.DataFrame, where: str) -> pd.DataFrame:
+    """``frame`` if its text columns hold UTF-8, else an :class:`InputError` naming the column
+    and the first row that does not. Parquet does not check the text it stores (a file damaged
+    or written by a careless tool reads without an error) and every string operation on it
+    later fails with Arrow's error, far from the file."""
+    import pyarrow as pa
+
+    for name in frame.columns:
+        column = frame[name]
+        arrow = isinstance(column.dtype, pd.ArrowDtype) or (
+            isinstance(column.dtype, pd.StringDtype) and column.dtype.storage == "pyarrow"
+        )
+        if not arrow:  # (Python's str objects are text already)
+            continue
+        try:
+            pa.array(column.array).validate(full=True)
+        except (pa.ArrowInvalid, pa.ArrowTypeError):
+            raise InputError(
+                f"the column '{user_text(name)}' is not UTF-8 text",
+                where=f"{where}, row {_first_undecodable(column)}",
+                fix="write its text as UTF-8 (e.g. read and write the table again with pandas)",
+            ) from None
+    return frame
+
+
+def _first_undecodable(column: pd.Series) -> int:
+    """The row of the first value of ``column`` that cannot be decoded (0 if none is found)."""
+    for row in range(len(column)):
+        try:
+            str(column.iloc[row])
+        except (UnicodeError, ValueError):
+            return row
+    return 0
+
+
 def _read_parquet(path: Path) -> pd.DataFrame:
-    """A Parquet table; pyarrow's errors on damaged pandas metadata as an InputError."""
+    """A Parquet table (:func:`check_text`); pyarrow's errors on damaged pandas metadata as an
+    InputError."""
     try:
-        return pd.read_parquet(path)
+        return check_text(pd.read_parquet(path), str(path))
     except (KeyError, TypeError, IndexError, AttributeError) as exc:
         # pyarrow rebuilding the pandas columns from a Parquet file's damaged pandas metadata
         raise InputError(

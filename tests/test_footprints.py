@@ -586,3 +586,23 @@ def test_geoparquet_footprints_in_geoarrow_or_another_geometry_column_are_read(t
         got = read_footprints(tmp_path / name)
         assert got["id"].tolist() == frame["id"].tolist(), name
         assert shapely.equals(got.geometry.to_numpy(), frame.geometry.to_numpy()).all(), name
+
+
+def test_geoparquet_text_that_is_not_utf8_is_named_by_row(tmp_path):
+    """Parquet does not check its text (found by fuzzing): an id or attribute that is not
+    UTF-8 is one line naming the column and row, not Arrow's error from far inside."""
+    import pyarrow.parquet as pq
+    from test_observations import _not_utf8
+    from test_outputs import CITY
+
+    frame = gpd.read_file(CITY / "footprints.gpkg").assign(name="a building")
+    frame.to_parquet(tmp_path / "f.parquet")
+    table = pq.read_table(tmp_path / "f.parquet")
+    for column in ("id", "name"):
+        bad = table.set_column(
+            table.schema.get_field_index(column), column, _not_utf8(frame[column].tolist(), 2)
+        ).replace_schema_metadata(table.schema.metadata)
+        pq.write_table(bad, tmp_path / "bad.parquet")
+        message = rf"the column '{column}' is not UTF-8 text \(.*bad.parquet, row 2\)"
+        with pytest.raises(InputError, match=message):
+            read_footprints(tmp_path / "bad.parquet")

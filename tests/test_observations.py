@@ -1,5 +1,7 @@
 """The observations table: schema, round trip, and one clear error per kind of bad row."""
 
+from pathlib import Path
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -14,6 +16,8 @@ from gnss_citygml.observations import (
     write_observations,
 )
 from gnss_citygml.simulate import simulate
+
+CITY = Path(__file__).resolve().parents[1] / "examples" / "city"
 
 
 @pytest.fixture(scope="module")
@@ -312,3 +316,32 @@ def test_no_unit_warning_for_good_or_scant_data(observations, recwarn):
     recwarn.clear()
     check_observations(checked)  # checked before (the pipeline checks what it is given): once
     assert not recwarn.list
+
+
+def _not_utf8(values: list[str], row: int):
+    """A Parquet string column whose value at ``row`` is bytes that are not UTF-8 (Parquet
+    does not check its text: found by fuzzing the file's bytes)."""
+    import pyarrow as pa
+
+    raw = [v.encode() for v in values]
+    raw[row] = b"\xff\xfe"
+    offsets = np.cumsum([0] + [len(v) for v in raw]).astype(np.int32)
+    return pa.Array.from_buffers(
+        pa.string(), len(raw), [None, pa.py_buffer(offsets.tobytes()), pa.py_buffer(b"".join(raw))]
+    )
+
+
+@pytest.mark.parametrize("column", ["receiver", "constellation"])
+def test_text_that_is_not_utf8_is_named_by_row(tmp_path, column):
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    rows = pd.read_parquet(CITY / "observations.parquet").head(20)
+    table = pa.Table.from_pandas(rows, preserve_index=False)
+    at = table.schema.get_field_index(column)
+    pq.write_table(
+        table.set_column(at, column, _not_utf8(rows[column].tolist(), 3)), tmp_path / "o.parquet"
+    )
+    message = rf"the column '{column}' is not UTF-8 text \(.*o.parquet, row 3\)"
+    with pytest.raises(InputError, match=message):
+        read_observations(tmp_path / "o.parquet")

@@ -6,7 +6,9 @@ Research code, not part of the installed package: ``paper_table.py`` and ``scene
 For each preset site and each source of receiver positions, every method is run once per
 initial C/N0 threshold; the RMSE against the true heights is taken over all runs and target
 buildings that converged (the paper excludes non-converged 4PL-B runs the same way) and the
-converged count is reported beside it.
+converged count is reported beside it. Beside the error to the true height (the middle of the
+roof span), each run has its distance to the roof span (0 inside; issue 27) and whether its
+range meets the span (:func:`judge`).
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ import numpy as np
 import pandas as pd
 
 from gnss_citygml.calibrate import calibrate_receivers
+from gnss_citygml.compare import roof_span, span_distance
 from gnss_citygml.footprints import read_footprints
 from gnss_citygml.model import METHODS
 from gnss_citygml.model.estimate import estimate_heights
@@ -29,6 +32,7 @@ from gnss_citygml.simulate.files import write_site
 
 __all__ = [
     "PAPER_THRESHOLDS",
+    "judge",
     "POSITION_ERRORS",
     "LABELS",
     "POSITIONS",
@@ -125,6 +129,7 @@ def run_accuracy(
             rays, footprints, inter_all = site_tables(sim, pipeline_grids, positions, errors)
             truth = sim.truth.set_index("id")
             targets = truth.index[truth["target"]]
+            low, high = (pd.Series(v, truth.index) for v in roof_span(truth))
             for method in methods:
                 opts = options if method in ("4PL-B", "4PL") else {}
                 for threshold in thresholds:
@@ -155,6 +160,8 @@ def run_accuracy(
                                 "lower": r["height_lower"],
                                 "upper": r["height_upper"],
                                 "truth": truth.loc[bid, "height"],
+                                "roof_low": low[bid],
+                                "roof_high": high[bid],
                                 "converged": bool(r["converged"])
                                 if pd.notna(r["converged"])
                                 else False,
@@ -167,7 +174,34 @@ def run_accuracy(
                         progress(f"{preset}/{loc}/{method}/{threshold:g}")
     result = pd.DataFrame(rows)
     result["error"] = result["height"] - result["truth"]
+    result["span_error"] = span_distance(result["height"], result["roof_low"], result["roof_high"])
+    result["meets"] = (result["lower"] <= result["roof_high"]) & (
+        result["roof_low"] <= result["upper"]
+    )
     return result
+
+
+def judge(heights: pd.DataFrame, truth: pd.DataFrame) -> pd.DataFrame:
+    """The converged buildings of an :func:`~gnss_citygml.model.estimate.estimate_heights`
+    result against a simulator's truth table, by id: ``error`` (to the true height, the
+    middle of the roof span), ``paper_error`` (c + 1.5/b's), ``span_error`` (the distance to
+    the roof span, 0 inside), ``covered`` (the range holds the true height) and ``meets``
+    (the range meets the span)."""
+    out = heights.set_index("id")
+    out = out[out["converged"].astype(bool)]
+    true = truth.set_index("id").reindex(out.index)
+    low, high = roof_span(true)
+    middle = true["height"]
+    lower, upper = out["height_lower"], out["height_upper"]
+    return pd.DataFrame(
+        {
+            "error": out["height"] - middle,
+            "paper_error": out["height_paper"] - middle,
+            "span_error": span_distance(out["height"], low, high),
+            "covered": (lower <= middle) & (middle <= upper),
+            "meets": (lower <= high) & (low <= upper),
+        }
+    )
 
 
 def site_tables(
@@ -234,15 +268,30 @@ def _recast(rays, footprints, position_error: PositionError) -> pd.DataFrame:
 
 
 def summarise(results: pd.DataFrame) -> pd.DataFrame:
-    """RMSE (m) over converged runs and the converged count, per preset, locations and method."""
+    """Per preset, locations and method: the RMSE (m) over converged runs to the true height
+    (``rmse``) and to the roof span (``rmse_span``), the share of their ranges meeting the span
+    (``meets``) and the converged count."""
 
     def agg(g):
         ok = g["converged"] & g["error"].notna()
-        rmse = float(np.sqrt(np.mean(g.loc[ok, "error"] ** 2))) if ok.any() else float("nan")
-        return pd.Series({"rmse": rmse, "converged": int(ok.sum()), "runs": len(g)})
+
+        def rmse(column):
+            return float(np.sqrt(np.mean(g.loc[ok, column] ** 2))) if ok.any() else float("nan")
+
+        meets = float(g.loc[ok, "meets"].mean()) if ok.any() else float("nan")
+        return pd.Series(
+            {
+                "rmse": rmse("error"),
+                "rmse_span": rmse("span_error"),
+                "meets": meets,
+                "converged": int(ok.sum()),
+                "runs": len(g),
+            }
+        )
 
     keys = ["locations", "method", "preset"]
-    out = results.groupby(keys, sort=False)[["converged", "error"]].apply(agg).reset_index()
+    columns = ["converged", "error", "span_error", "meets"]
+    out = results.groupby(keys, sort=False)[columns].apply(agg).reset_index()
     return out.astype({"converged": int, "runs": int})
 
 

@@ -21,9 +21,16 @@ signal classifier) and with ``--positions true`` the rays start from the true po
 two together give what the height fits can do with perfect information, the floor of the
 estimator on these scenes (issue 14).
 
+Each estimate is judged by its distance to the building's roof span [lowest, highest roof
+point] (0 inside) and its range by whether it meets the span (issue 27, decision 1), with the
+error to the true height (the span's middle) beside them. With ``--reference los`` each scene
+is estimated a second time with the signals labelled by the line of sight, from the same
+(recorded) positions: the converged count of that perfect classifier, and the share of it
+the labels of ``--labels`` reach (issue 27, decision 2: at least 80 %).
+
     python benchmarks/scenes.py [--scenes 8] [--physics | --regimes]
                                 [--position-errors data|exact|fixed] [--position-window 30]
-                                [--weighting looks] [--labels cn0|los]
+                                [--weighting looks] [--labels cn0|los] [--reference los]
                                 [--positions reported|common|true]
 """
 
@@ -33,7 +40,15 @@ import argparse
 
 import numpy as np
 import pandas as pd
-from accuracy import LABELS, POSITION_ERRORS, POSITIONS, labelled, position_error, site_tables
+from accuracy import (
+    LABELS,
+    POSITION_ERRORS,
+    POSITIONS,
+    judge,
+    labelled,
+    position_error,
+    site_tables,
+)
 
 from gnss_citygml import Estimator, estimate_heights
 from gnss_citygml.settings import WEIGHTINGS
@@ -136,18 +151,28 @@ def main():
         help="label the signals by their C/N0 (default) or by the simulator's line of sight",
     )
     parser.add_argument(
+        "--reference",
+        choices=LABELS,
+        default=None,
+        help="estimate each scene with these labels too (los: the perfect classifier) and "
+        "report the converged count relative to it",
+    )
+    parser.add_argument(
         "--positions",
         choices=POSITIONS,
         default="reported",
         help="cast the rays from the positions a user has (default) or the true ones",
     )
     args = parser.parse_args()
-    runs, totals = [], {}
+    runs, totals, reached = [], {}, {}
     header = (
-        "converged | RMSE | median abs. error | worst | RMSE of c + 1.5/b | range covers truth |"
+        "converged | RMSE to span | RMSE to middle | median abs. error to middle | worst to span | "
+        "RMSE of c + 1.5/b | range covers middle | range meets span |"
     )
+    if args.reference:
+        header += f" converged, {args.reference} labels | share of it |"
     print(f"| scene | layout | locations | {header}")
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("|---" * (3 + header.count("|")) + "|")
     if args.regimes:
         drawn = [(k, r, *regime_scene(k, r)) for k in range(args.scenes) for r in REGIMES]
     else:
@@ -160,49 +185,57 @@ def main():
             sim = simulate(scene, locations=locations, seed=k, start=start, physics=physics)
             error = position_error(args.position_errors, locations, args.position_window)
             cast = site_tables(sim, positions=args.positions, position_error=error)[2]
-            intersections = labelled(sim, cast, args.labels)
-            truth = sim.truth.set_index("id")["height"]
-            errors = []
-            for threshold in THRESHOLDS:
-                estimator = Estimator(init_threshold=threshold, weighting=args.weighting)
-                out = estimate_heights(intersections, estimator)
-                out = out.set_index("id")
-                ok = out["converged"].astype(bool)
-                true = truth.reindex(out.index)[ok]
-                lower, upper = out["height_lower"][ok], out["height_upper"][ok]
-                errors.append(
-                    pd.DataFrame(
-                        {
-                            "error": out["height"][ok] - true,
-                            "paper_error": out["height_paper"][ok] - true,
-                            "covered": (lower <= true) & (true <= upper),
-                        }
-                    )
-                )
-            err = pd.concat(errors)
-            n_runs = len(truth) * len(THRESHOLDS)
+            err = _judged(sim, cast, args.labels, args.weighting)
+            n_runs = len(sim.truth) * len(THRESHOLDS)
             group = locations if regime is None else f"{regime}, {locations}"
             runs.append(err.assign(group=group))
             totals[group] = totals.get(group, 0) + n_runs
-            print(f"| {k} | {layout} | {locations} | {_cells(err, n_runs)} |", flush=True)
+            cells = _cells(err, n_runs)
+            if args.reference:
+                n_ref = len(_judged(sim, cast, args.reference, args.weighting))
+                reached[group] = reached.get(group, 0) + n_ref
+                cells += f" | {_reference_cells(len(err), n_ref, n_runs)}"
+            print(f"| {k} | {layout} | {locations} | {cells} |", flush=True)
     every = pd.concat(runs)
     print("\nAll scenes, thresholds 20/30/40:\n")
     print(f"| {'regime, locations' if args.regimes else 'locations'} | {header}")
-    print("|---|---|---|---|---|---|---|")
+    print("|---" * (1 + header.count("|")) + "|")
     for group, n_runs in totals.items():
-        print(f"| {group} | {_cells(every[every['group'] == group], n_runs)} |")
+        err = every[every["group"] == group]
+        cells = _cells(err, n_runs)
+        if args.reference:
+            cells += f" | {_reference_cells(len(err), reached[group], n_runs)}"
+        print(f"| {group} | {cells} |")
+
+
+def _judged(sim, cast, labels, weighting) -> pd.DataFrame:
+    """The converged runs of one scene, thresholds 20/30/40, with the signals labelled by
+    ``labels`` (:func:`accuracy.judge`: errors to the middle and to the span)."""
+    intersections = labelled(sim, cast, labels)
+    judged = []
+    for threshold in THRESHOLDS:
+        estimator = Estimator(init_threshold=threshold, weighting=weighting)
+        judged.append(judge(estimate_heights(intersections, estimator), sim.truth))
+    return pd.concat(judged)
 
 
 def _cells(err: pd.DataFrame, n_runs: int) -> str:
     if err.empty:
-        return f"0/{n_runs} | - | - | - | - | -"
-    rmse = np.sqrt(np.mean(err["error"] ** 2))
+        return f"0/{n_runs} | - | - | - | - | - | - | -"
+    rmse = np.sqrt(np.mean(err["span_error"] ** 2))
+    middle_rmse = np.sqrt(np.mean(err["error"] ** 2))
     paper_rmse = np.sqrt(np.mean(err["paper_error"] ** 2))
     a = err["error"].abs()
-    figures = (rmse, a.median(), a.max(), paper_rmse)
+    figures = (rmse, middle_rmse, a.median(), err["span_error"].max(), paper_rmse)
     cells = [f"{len(err)}/{n_runs}", *(f"{v:.2f} m" for v in figures)]
-    cells.append(f"{err['covered'].mean():.0%}")
+    cells += [f"{err['covered'].mean():.0%}", f"{err['meets'].mean():.0%}"]
     return " | ".join(cells)
+
+
+def _reference_cells(n: int, n_ref: int, n_runs: int) -> str:
+    """The reference's converged count and the share of it that ``n`` reaches."""
+    share = f"{n / n_ref:.0%}" if n_ref else "-"
+    return f"{n_ref}/{n_runs} | {share}"
 
 
 if __name__ == "__main__":

@@ -232,7 +232,8 @@ def _pyplot() -> Any:
 
 def _table(run: Run, truth: pd.DataFrame | None) -> pd.DataFrame:
     """Every building: id, heights above the ground, range, n_signals, converged, status (and
-    with a truth table its true height, error and whether the range holds it)."""
+    with a truth table its true height, roof span, error, distance to the span and whether
+    the range holds the height and meets the span)."""
     heights = id_named(run.heights)
     ground = heights["ground"].to_numpy(float)
     table = pd.DataFrame(
@@ -251,9 +252,10 @@ def _table(run: Run, truth: pd.DataFrame | None) -> pd.DataFrame:
         from .compare import compare
 
         compared = compare(run.heights, truth)
-        table["truth"] = compared["truth"].to_numpy()
-        table["error"] = compared["error"].to_numpy()
-        table["inside"] = compared["inside"].to_numpy()
+        for column in (
+            "truth", "roof_low", "roof_high", "error", "span_error", "inside", "meets"
+        ):  # fmt: skip
+            table[column] = compared[column].to_numpy()
     return table
 
 

@@ -40,30 +40,35 @@ def test_demo_writes_the_models_and_compares_with_the_truth(tmp_path, capsys, mo
     truth = pd.read_csv(CITY / "truth.csv").set_index("id")
     lines = out.splitlines()
     start = lines.index(next(line for line in lines if line.split()[:2] == ["id", "estimate"]))
-    table = [line.split(maxsplit=5) for line in lines[start + 1 : start + 31]]
+    table = [line.split(maxsplit=7) for line in lines[start + 1 : start + 31]]
     assert sorted(row[0] for row in table) == sorted(truth.index)
-    for bid, estimate, span, true, error, status in table:
+    for bid, estimate, span, true, roof, error, to_span, status in table:
         h, t = heights.loc[bid], truth.loc[bid]
         assert true == f"{t['height'] - t['ground']:.2f}"
+        assert roof == f"{t['roof_low'] - t['ground']:.2f}-{t['roof_high'] - t['ground']:.2f}"
         assert status == h["status"]
         if h["converged"]:
             assert estimate == f"{h['relative_height']:.2f}"
             assert error == f"{h['height'] - t['height']:+.2f}"
+            off = max(t["roof_low"] - h["height"], h["height"] - t["roof_high"], 0.0)
+            assert to_span == f"{off:.2f}"
             assert (
                 span
                 == f"{h['height_lower'] - h['ground']:.2f}-{h['height_upper'] - h['ground']:.2f}"
             )
         else:
-            assert estimate == span == error == "-"
+            assert estimate == span == error == to_span == "-"
     ok = heights["converged"].astype(bool)
-    errors = (heights["height"] - truth["height"].reindex(heights.index))[ok]
-    inside = heights["height_lower"].le(truth["height"]) & heights["height_upper"].ge(
-        truth["height"]
-    )
-    rmse = np.sqrt(np.mean(errors**2))
+    height = heights["height"]
+    low, high = (truth[c].reindex(heights.index) for c in ("roof_low", "roof_high"))
+    errors = (height - truth["height"].reindex(heights.index))[ok]
+    off_span = ((low - height).clip(lower=0) + (height - high).clip(lower=0))[ok]
+    meets = heights["height_lower"].le(high) & heights["height_upper"].ge(low)
+    assert (low < high).any() and (off_span < errors.abs() - 1e-9).any()  # the span counts
     assert lines[start + 31] == (
-        f"{ok.sum()} of 30 buildings converged, RMSE {rmse:.2f} m, truth inside the range for "
-        f"{(inside & ok).sum()} of {ok.sum()}"
+        f"{ok.sum()} of 30 buildings converged, RMSE {np.sqrt(np.mean(off_span**2)):.2f} m to "
+        f"the roof span, {np.sqrt(np.mean(errors**2)):.2f} m to its middle, range meeting the "
+        f"span for {(meets & ok).sum()} of {ok.sum()}"
     )
     assert ok.sum() == 22  # as `estimate` on the sample city (README)
 

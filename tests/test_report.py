@@ -134,7 +134,7 @@ def test_estimate_report_and_demo_write_it(grid_args, tmp_path, capsys):
         ["report", *common, "-o", str(tmp_path / "b"), "--truth", str(CITY / "truth.csv")], capsys
     )
     assert code == 0, err
-    assert "truth inside the range" in (tmp_path / "b" / REPORT).read_text()
+    assert "range meeting the span" in (tmp_path / "b" / REPORT).read_text()
     # an existing report: refused before the work, nothing else written
     code, _, err = run_cli(
         ["estimate", *common, "-o", str(tmp_path / "h2.gpkg"), "--report", str(tmp_path / "a")],

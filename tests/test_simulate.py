@@ -211,3 +211,58 @@ def test_street_scene_has_the_width_and_offset_asked_for():
     assert 0.0 < sim.observations["los"].mean() < 0.6  # a canyon: most signals blocked
     with pytest.raises(ValueError, match="inside the street"):
         street_scene(np.random.default_rng(5), 12.0, 15.0)
+
+
+def test_the_roof_span_of_each_kind_of_building():
+    """Issue 27: the truth's roof span is the roof's lowest and highest point, from the
+    geometry: a flat roof's one height, a pitched roof's eaves and ridge (its strips' tops lie
+    between), a multi-part building's lowest and highest part."""
+    from shapely.geometry import box
+
+    from gnss_citygml.simulate.scenes import flat, multipart, pitched
+
+    one = flat("f", box(0, 0, 10, 10), 20.0, 12.0)
+    assert one.roof_span == (32.0, 32.0) and one.true_height == 32.0
+    roof = pitched("p", 0, 0, 30, 9, 20.0, 9.0, 11.0)
+    assert roof.roof_span == (29.0, 31.0) and roof.true_height == 30.0
+    tops = [top for _, top in roof.parts]
+    assert 29.0 < min(tops) < max(tops) < 31.0
+    stepped = multipart("m", [(box(0, 0, 10, 10), 12.0), (box(10, 0, 20, 10), 18.0)], 20.0)
+    assert stepped.roof_span == (32.0, 38.0) and stepped.true_height == 35.0
+    named = multipart("u", [(box(0, 0, 10, 10), 18.5), (box(10, 0, 20, 10), 32.0)], 26.0, 20.0)
+    assert named.roof_span == (44.5, 58.0) and named.true_height == 46.0  # the part named
+
+
+@pytest.mark.parametrize("preset", sorted(PRESETS))
+def test_the_truth_table_has_the_roof_span(sims, preset):
+    """Each building's span holds its true height; flat roofs have a span of one height,
+    pitched and multi-part ones a span as wide as their roofs."""
+    sim = sims[(preset, "manual")]
+    truth = sim.truth.set_index("id")
+    assert list(sim.truth.columns) == ["id", "height", "ground", "target", "roof_low", "roof_high"]
+    assert (truth["roof_low"] <= truth["height"]).all()
+    assert (truth["height"] <= truth["roof_high"]).all()
+    for b in sim.scene.buildings:
+        tops = [top for _, top in b.parts]
+        low, high = truth.loc[b.id, ["roof_low", "roof_high"]]
+        if len(tops) == 1:
+            assert low == high == b.true_height
+        elif b.span is None:  # multi-part: its lowest and highest part
+            assert (low, high) == (min(tops), max(tops))
+        else:  # pitched: eaves and ridge, beyond its strips' tops
+            assert low < min(tops) and max(tops) < high
+            assert (low + high) / 2 == pytest.approx(b.true_height)
+    if preset == "ucl":
+        assert tuple(truth.loc["ucl_main", ["roof_low", "roof_high"]]) == (44.5, 58.0)
+    if preset == "hermitage":
+        assert tuple(truth.loc["hermitage_terrace", ["roof_low", "roof_high"]]) == (33.0, 35.0)
+
+
+def test_street_scenes_have_spans_for_their_setbacks():
+    from gnss_citygml.simulate.scenes import street_scene
+
+    scene = street_scene(np.random.default_rng(3), 12.0, 4.0)
+    widths = {round(b.roof_span[1] - b.roof_span[0], 6) for b in scene.buildings}
+    assert 0.0 in widths and (6.0 in widths or 3.0 in widths)
+    for b in scene.buildings:
+        assert b.roof_span[0] <= b.true_height <= b.roof_span[1]

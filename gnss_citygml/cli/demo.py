@@ -110,7 +110,7 @@ def _comparison(heights, truth) -> list[str]:
 
     est = pyogrio.read_dataframe(heights, layer="heights", read_geometry=False)
     table = compare(est, read_table(truth))
-    rows = [("id", "estimate", "range", "truth", "error")]
+    rows = [("id", "estimate", "range", "truth", "roof span", "error", "to span")]
     for row in table.itertuples(index=False):
         ok = row.converged
         rows.append(
@@ -119,14 +119,19 @@ def _comparison(heights, truth) -> list[str]:
                 f"{row.estimate:.2f}" if ok else "-",
                 f"{row.lower:.2f}-{row.upper:.2f}" if ok else "-",
                 f"{row.truth:.2f}",
+                f"{row.roof_low:.2f}-{row.roof_high:.2f}",
                 f"{row.error:+.2f}" if ok else "-",
+                f"{row.span_error:.2f}" if ok else "-",
             )
         )
     widths = [max(len(row[i]) for row in rows) for i in range(len(rows[0]))]
     status = ["status", *table["status"]]
-    lines = ["heights above the ground (m); error = estimated - true roof height"]
+    lines = [
+        "heights above the ground (m); error = estimate - true height (the roof span's middle); "
+        "to span = distance to the roof span (0 inside)"
+    ]
     for row, words in zip(rows, status, strict=True):
-        cells = [f"{c:{a}{w}}" for c, a, w in zip(row, "<>>>>", widths, strict=True)]
+        cells = [f"{c:{a}{w}}" for c, a, w in zip(row, "<>>>>>>", widths, strict=True)]
         lines.append("  ".join([*cells, words]))
     lines.append(summary(table))
     return lines

@@ -161,8 +161,9 @@ REPORT = click.option(
 TRUTH = click.option(
     "--truth",
     type=click.Path(dir_okay=False, path_type=Path),
-    help="For the report: a truth table (id, height, ground in m ODN; a simulator's "
-    "truth.csv), to show the true heights and the errors.",
+    help="For the report: a truth table (id, height, ground in m ODN, optionally the roof "
+    "span roof_low, roof_high; a simulator's truth.csv), to show the true heights and the "
+    "errors.",
 )
 
 TYPED_ATTRIBUTES = click.option(

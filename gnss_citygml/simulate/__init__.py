@@ -124,7 +124,8 @@ def simulate(
         hand, whose error the user does not know);
         the truth as ``e_true``, ``n_true``, ``z_true`` and ``los``), ``intersections``
         (``signal``, ``building``, ``height``, ``distance``, ``order``, ``cn0``, ``receiver``)
-        and ``truth`` (``id``, ``height``, ``ground``, ``target``).
+        and ``truth`` (``id``, ``height``, ``ground``, ``target``, and the roof span
+        ``roof_low``, ``roof_high``: its lowest and highest point, ODN).
 
     Examples
     --------
@@ -164,6 +165,8 @@ def simulate(
             "height": [b.true_height for b in scene.buildings],
             "ground": [b.ground for b in scene.buildings],
             "target": [b.id in targets for b in scene.buildings],
+            "roof_low": [b.roof_span[0] for b in scene.buildings],
+            "roof_high": [b.roof_span[1] for b in scene.buildings],
         }
     )
     return Simulation(scene, obs, inter, truth)

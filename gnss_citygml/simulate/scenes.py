@@ -5,7 +5,9 @@ are one part, multi-part buildings several, and a pitched roof is a stack of thi
 stepping up to the ridge. A rising ray entering a flat-topped part below its top is blocked,
 which makes the true visibility test exact for these roofs. The *true height* of a building is
 its representative LOD1 height, the middle of its main roof's height range, as in the paper
-(eaves to ridge for a pitched roof).
+(eaves to ridge for a pitched roof). Its *roof span* (issue 27) is the lowest and the highest
+point of its whole roof: by that an estimate is judged (its distance to the span, 0 inside),
+as LOD1 height references range from the one to the other.
 
 The presets mirror the paper's sites: ``ucl`` (a tall complex building seen from an open
 square), ``goodchild`` (a 16 m block in a narrow pedestrian canyon), ``hermitage`` (a 10 m
@@ -27,16 +29,30 @@ __all__ = ["PRESETS", "Building", "Scene", "Session", "city_scene", "make_scene"
 
 @dataclass(frozen=True)
 class Building:
-    """A footprint of flat-topped parts with its true representative height (ODN, m)."""
+    """A footprint of flat-topped parts with its true representative height (ODN, m).
+
+    ``span`` is the roof's lowest and highest point (ODN, m) where the parts only approximate
+    it (a pitched roof's strips, whose tops lie between its eaves and ridge); without it the
+    span is the parts' lowest and highest top."""
 
     id: str
     parts: tuple[tuple[Polygon, float], ...]
     ground: float
     true_height: float
+    span: tuple[float, float] | None = None
 
     @property
     def footprint(self) -> BaseGeometry:
         return shapely.union_all([p for p, _ in self.parts]).normalize()
+
+    @property
+    def roof_span(self) -> tuple[float, float]:
+        """The lowest and highest roof point (ODN, m): a flat roof's height twice, a pitched
+        roof's eaves and ridge, a multi-part building's lowest and highest part's top."""
+        if self.span is not None:
+            return self.span
+        tops = [top for _, top in self.parts]
+        return min(tops), max(tops)
 
 
 @dataclass(frozen=True)
@@ -83,7 +99,8 @@ def pitched(id_, x0, y0, x1, y1, ground, eave, ridge, strips=8):
         top = ground + eave + (ridge - eave) * rise
         poly = box(x0, a, x1, b) if along_x else box(a, y0, b, y1)
         parts.append((poly, top))
-    return Building(id_, tuple(parts), ground, ground + 0.5 * (eave + ridge))
+    span = (ground + eave, ground + ridge)  # the strips' tops lie between the two
+    return Building(id_, tuple(parts), ground, ground + 0.5 * (eave + ridge), span)
 
 
 def multipart(id_, parts_rel, ground, truth_rel=None):

@@ -14,6 +14,7 @@ from __future__ import annotations
 import warnings
 
 import numpy as np
+import numpy.typing as npt
 import pandas as pd
 
 from .ids import id_named
@@ -80,7 +81,7 @@ def roof_span(truth: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
     return low, high
 
 
-def span_distance(estimate, low, high) -> np.ndarray:
+def span_distance(estimate: npt.ArrayLike, low: npt.ArrayLike, high: npt.ArrayLike) -> np.ndarray:
     """How far each estimate lies outside its span [low, high] (m; 0 inside, NaN where there
     is no estimate).
 
@@ -88,6 +89,7 @@ def span_distance(estimate, low, high) -> np.ndarray:
     array([ 1.,  0.,  2., nan])
     """
     estimate = np.asarray(estimate, float)
+    low, high = np.asarray(low, float), np.asarray(high, float)
     return np.maximum(low - estimate, 0.0) + np.maximum(estimate - high, 0.0)
 
 

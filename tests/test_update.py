@@ -339,7 +339,7 @@ def test_a_truth_table_without_a_report_is_refused(city_map, halves, grid_dir):
 def test_older_evidence_reads_as_it_was_fitted():
     import pyarrow as pa
 
-    from gnss_citygml.update import _columns
+    from gnss_citygml.update.evidence import _columns
 
     older = pa.table({"signal_key": [1, 2], "building": ["a", "b"], "receiver": ["r", "s"]})
     wanted = ["signal_key", "satellite", "building", "height_sd", "recording"]

@@ -51,7 +51,8 @@ from accuracy import (
 )
 
 from gnss_citygml import Estimator, estimate_heights
-from gnss_citygml.settings import WEIGHTINGS
+from gnss_citygml.pipeline import open_sky
+from gnss_citygml.settings import SIGNAL_MODELS, WEIGHTINGS
 from gnss_citygml.simulate import EPOCH, LOCATIONS, simulate
 from gnss_citygml.simulate.scenes import city_scene, street_scene
 from gnss_citygml.simulate.signals import SignalModel
@@ -142,6 +143,17 @@ def main():
         "--weighting", choices=WEIGHTINGS, default="none", help="weighting of the height fits"
     )
     parser.add_argument(
+        "--signal-model",
+        choices=SIGNAL_MODELS,
+        default="paper",
+        help="how 4PL-B labels the signals (the reference's perfect labels are always hard)",
+    )
+    parser.add_argument(
+        "--no-open-sky",
+        action="store_true",
+        help="the mixture learns without the signals whose rays cross no footprint",
+    )
+    parser.add_argument(
         "--regimes", action="store_true", help="street scenes in each regime (REGIMES)"
     )
     parser.add_argument(
@@ -170,7 +182,7 @@ def main():
         "RMSE of c + 1.5/b | range covers middle | range meets span |"
     )
     if args.reference:
-        header += f" converged, {args.reference} labels | share of it |"
+        header += f" converged, {args.reference} labels | share of it | its RMSE to span |"
     print(f"| scene | layout | locations | {header}")
     print("|---" * (3 + header.count("|")) + "|")
     if args.regimes:
@@ -184,17 +196,18 @@ def main():
         for locations in LOCATIONS:
             sim = simulate(scene, locations=locations, seed=k, start=start, physics=physics)
             error = position_error(args.position_errors, locations, args.position_window)
-            cast = site_tables(sim, positions=args.positions, position_error=error)[2]
-            err = _judged(sim, cast, args.labels, args.weighting)
+            rays, _, cast = site_tables(sim, positions=args.positions, position_error=error)
+            sky = None if args.no_open_sky else open_sky(rays, cast)
+            err = _judged(sim, cast, args.labels, args.weighting, args.signal_model, sky)
             n_runs = len(sim.truth) * len(THRESHOLDS)
             group = locations if regime is None else f"{regime}, {locations}"
             runs.append(err.assign(group=group))
             totals[group] = totals.get(group, 0) + n_runs
             cells = _cells(err, n_runs)
             if args.reference:
-                n_ref = len(_judged(sim, cast, args.reference, args.weighting))
-                reached[group] = reached.get(group, 0) + n_ref
-                cells += f" | {_reference_cells(len(err), n_ref, n_runs)}"
+                ref = _judged(sim, cast, args.reference, args.weighting, "paper", sky)
+                reached.setdefault(group, []).append(ref)
+                cells += f" | {_reference_cells(err, ref, n_runs)}"
             print(f"| {k} | {layout} | {locations} | {cells} |", flush=True)
     every = pd.concat(runs)
     print("\nAll scenes, thresholds 20/30/40:\n")
@@ -204,18 +217,22 @@ def main():
         err = every[every["group"] == group]
         cells = _cells(err, n_runs)
         if args.reference:
-            cells += f" | {_reference_cells(len(err), reached[group], n_runs)}"
+            cells += f" | {_reference_cells(err, pd.concat(reached[group]), n_runs)}"
         print(f"| {group} | {cells} |")
 
 
-def _judged(sim, cast, labels, weighting) -> pd.DataFrame:
+def _judged(sim, cast, labels, weighting, signal_model, sky) -> pd.DataFrame:
     """The converged runs of one scene, thresholds 20/30/40, with the signals labelled by
-    ``labels`` (:func:`accuracy.judge`: errors to the middle and to the span)."""
+    ``labels`` (:func:`accuracy.judge`: errors to the middle and to the span) and the
+    ``signal_model`` (which learns from the ``sky``'s signals, those crossing no footprint)."""
     intersections = labelled(sim, cast, labels)
     judged = []
     for threshold in THRESHOLDS:
-        estimator = Estimator(init_threshold=threshold, weighting=weighting)
-        judged.append(judge(estimate_heights(intersections, estimator), sim.truth))
+        estimator = Estimator(
+            init_threshold=threshold, weighting=weighting, signal_model=signal_model
+        )
+        heights = estimate_heights(intersections, estimator, open_sky=sky)
+        judged.append(judge(heights, sim.truth))
     return pd.concat(judged)
 
 
@@ -232,10 +249,12 @@ def _cells(err: pd.DataFrame, n_runs: int) -> str:
     return " | ".join(cells)
 
 
-def _reference_cells(n: int, n_ref: int, n_runs: int) -> str:
-    """The reference's converged count and the share of it that ``n`` reaches."""
-    share = f"{n / n_ref:.0%}" if n_ref else "-"
-    return f"{n_ref}/{n_runs} | {share}"
+def _reference_cells(err: pd.DataFrame, ref: pd.DataFrame, n_runs: int) -> str:
+    """The reference's converged count, the share of it that the converged runs ``err``
+    reach, and the reference's RMSE to the span."""
+    share = f"{len(err) / len(ref):.0%}" if len(ref) else "-"
+    rmse = f"{np.sqrt(np.mean(ref['span_error'] ** 2)):.2f} m" if len(ref) else "-"
+    return f"{len(ref)}/{n_runs} | {share} | {rmse}"
 
 
 if __name__ == "__main__":

@@ -186,10 +186,18 @@ def intersections(
             "distance": dist,
             "order": np.arange(ray.size) - start,
             "cn0": receivers["cn0"].to_numpy()[ray],
+            "elevation": receivers["elevation"].to_numpy()[ray],
             "receiver": receivers["receiver"].to_numpy()[ray],
             **extra,
         }
     )
+
+
+def open_sky(receivers: pd.DataFrame, intersections: pd.DataFrame) -> pd.DataFrame:
+    """The receivers' rows (signals) whose rays enter no footprint within reach: open as far
+    as the map knows, what the mixture signal model learns open signals from
+    (:func:`~gnss_citygml.model.estimate.estimate_heights`)."""
+    return receivers[~receivers.index.isin(intersections["signal"].to_numpy())]
 
 
 def recordings(

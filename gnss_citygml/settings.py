@@ -34,6 +34,7 @@ __all__ = [
     "DEFAULT_POSITION_SD",
     "DEFAULT_TILE_SIZE",
     "HEIGHT_RULES",
+    "SIGNAL_MODELS",
     "RECEIVER_HEIGHTS",
     "TILE_SIZES",
     "WEIGHTINGS",
@@ -56,6 +57,10 @@ WEIGHTINGS = ("none", "height", "balanced", "looks")
 #: are measured in the README (benchmarks/scenes.py: c was nearer the truth in every regime);
 #: both are in every output (``c`` and ``height_paper``).
 HEIGHT_RULES = ("inflection", "paper")
+#: How 4PL-B labels the signals: ``paper``, a C/N0 threshold co-trained on the map's hard
+#: labels; ``mixture``, C/N0 densities of open and closed signals learnt by EM, anchored by the
+#: rays that cross no footprint (:mod:`gnss_citygml.model.mixture`).
+SIGNAL_MODELS = ("paper", "mixture")
 
 #: Where receiver heights come from: the DEM plus an antenna height, or the log's own heights.
 RECEIVER_HEIGHTS = ("dem", "log")
@@ -300,6 +305,11 @@ class Estimator:
         ``inflection`` (default), its inflection point ``c``, where the chance that a signal is
         received is halfway between its values below and above the roof line; ``paper``,
         ``c + 1.5/b``. The range is the 3/b-wide transition centred on the height.
+    signal_model
+        How 4PL-B labels the signals, one of :data:`SIGNAL_MODELS`: ``paper`` (default), the
+        paper's C/N0 threshold co-trained on the map's labels; ``mixture``, each signal's chance
+        of being open from C/N0 densities of open and closed signals by elevation, learnt with
+        the buildings' 4PLs by expectation-maximisation.
     acceptance
         What an estimate must satisfy to count as converged.
 
@@ -313,6 +323,7 @@ class Estimator:
     visibility: bool = True
     max_iter: int = 10
     height_rule: str = "inflection"
+    signal_model: str = "paper"
     acceptance: Acceptance = field(default_factory=Acceptance)
 
     def __post_init__(self):
@@ -328,6 +339,16 @@ class Estimator:
             raise ModelError(
                 f"unknown height rule {self.height_rule!r}",
                 fix="use one of " + ", ".join(HEIGHT_RULES),
+            )
+        if self.signal_model not in SIGNAL_MODELS:
+            raise ModelError(
+                f"unknown signal model {self.signal_model!r}",
+                fix="use one of " + ", ".join(SIGNAL_MODELS),
+            )
+        if self.signal_model != "paper" and self.method != "4PL-B":
+            raise ModelError(
+                f"signal model {self.signal_model} needs method 4PL-B, not {self.method}",
+                fix="leave the signal model out, or use method 4PL-B",
             )
         if not _within(self.init_threshold, CN0S):
             raise InputError(

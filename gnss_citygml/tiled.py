@@ -26,7 +26,7 @@ import pandas as pd
 import shapely
 
 from .errors import InputError
-from .model.classifier import Cn0Counts, SignalClassifier
+from .model.classifier import SignalClassifier
 from .model.estimate import HEIGHTS_COLUMNS, intersections_part
 from .model.fourplb import Engine, InProcess, Part, Shared, Tally, run_parts
 from .partition import (
@@ -299,11 +299,11 @@ class FailedTile:
         """The buildings, with no fit."""
         nan = np.full(self.building.size, np.nan)
         no = np.zeros(self.building.size, dtype=bool)
-        return Shared(self.building, nan, nan, no, no)
+        return Shared(self.building, nan, nan, nan, nan, no, no)
 
     def exchanged(self, *shared: Shared) -> tuple[FailedTile, Tally]:
         """No signal to count, no label to change."""
-        return self, Tally(Cn0Counts.of([], []), plausible=False, change=0.0)
+        return self, Tally(None, plausible=False, change=0.0)
 
     def heights(self, method: str) -> pd.DataFrame:
         """The heights table's rows of the tile's buildings: not estimated, and why."""

@@ -13,8 +13,9 @@ from ..errors import InputError, MissingColumnError, listing
 from ..settings import Estimator
 from .baselines import bayes_heights, hinge_heights
 from .fourplb import Part, run_parts
+from .mixture import Cn0Moments, elevation_units
 
-__all__ = ["HEIGHTS_COLUMNS", "estimate_heights", "intersections_part"]
+__all__ = ["HEIGHTS_COLUMNS", "estimate_heights", "intersections_part", "open_sky_moments"]
 
 #: Columns of the heights table, in order (see DESIGN.md; ``status`` says why a building did
 #: not converge, or ``ok``).
@@ -39,7 +40,9 @@ _REQUIRED = ["building", "height", "cn0"]
 
 
 def estimate_heights(
-    intersections: pd.DataFrame, estimator: Estimator = Estimator()
+    intersections: pd.DataFrame,
+    estimator: Estimator = Estimator(),
+    open_sky: pd.DataFrame | None = None,
 ) -> pd.DataFrame:
     """Estimate every building's height from the signals that cross its footprint.
 
@@ -55,11 +58,17 @@ def estimate_heights(
         :class:`~gnss_citygml.settings.PositionError`). With ``height_sd``, 4PL-B and 4PL model
         that error (the slope ``b`` is then the roof line's own) and widen the range by the
         roof line's position uncertainty, each ``recording`` (default: each ``receiver``)
-        counting as one shared error.
+        counting as one shared error. With ``elevation`` (deg), the mixture signal model
+        learns how C/N0 changes with it.
     estimator
         The method and its settings (:class:`~gnss_citygml.settings.Estimator`; default: 4PL-B
         with the paper's settings), e.g. ``Estimator(method="hinge")`` or
         ``Estimator(init_threshold=25)``.
+    open_sky
+        Optional: the signals whose rays cross no footprint (``cn0``, optionally
+        ``elevation``; e.g. :func:`gnss_citygml.pipeline.open_sky`), open as far as the map
+        knows: the mixture signal model (``Estimator(signal_model="mixture")``) learns from them
+        what open signals look like. Other signal models do not use them.
 
     Returns
     -------
@@ -93,7 +102,8 @@ def estimate_heights(
     method = estimator.method
     if estimator.fourpl:
         ids, part = intersections_part(intersections, estimator)
-        (fits,), classifier = run_parts([part], [[0]], estimator)
+        moments = open_sky_moments(open_sky, estimator)
+        (fits,), classifier = run_parts([part], [[0]], estimator, open_sky=moments)
         columns = fits.columns()
     else:
         table = _as_table(intersections)
@@ -150,8 +160,22 @@ def intersections_part(
         height_sd=height_sd,
         receiver=_recordings(table, height_sd),
         track=_tracks(table),
+        elevation=_numeric(table, "elevation") if "elevation" in table.columns else None,
     )
     return ids, part
+
+
+def open_sky_moments(open_sky: pd.DataFrame | None, estimator: Estimator) -> Cn0Moments | None:
+    """What the signals of ``open_sky`` (see :func:`estimate_heights`) teach the mixture
+    signal model (None for another model, or without them)."""
+    if open_sky is None or estimator.signal_model != "mixture":
+        return None
+    missing = [c for c in ("cn0",) if c not in open_sky.columns]
+    if missing:
+        raise MissingColumnError(missing, where="open-sky signals", have=list(open_sky.columns))
+    cn0 = _numeric(open_sky, "cn0")
+    elevation = _numeric(open_sky, "elevation") if "elevation" in open_sky.columns else None
+    return Cn0Moments.of(cn0, elevation_units(elevation, cn0.size), 1.0)
 
 
 def _as_table(intersections) -> pd.DataFrame:

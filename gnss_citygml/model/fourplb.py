@@ -52,7 +52,11 @@ import pandas as pd
 from ..errors import ModelError
 from ..settings import WEIGHTINGS, Estimator
 from .classifier import Cn0Counts, SignalClassifier
-from .fourpl import B_BOUNDS, FourPLFit, c_interval, fit_4pl, group_range
+from .fourpl import B_BOUNDS, FourPLFit, c_interval, fit_4pl, group_range, logistic4
+from .mixture import Cn0Mixture, Cn0Moments, elevation_units
+
+#: What labels the signals: the paper's C/N0 threshold, or the mixture (:mod:`.mixture`).
+SignalModel = SignalClassifier | Cn0Mixture
 
 __all__ = [
     "BuildingFits",
@@ -202,7 +206,9 @@ def fourplb(
     height_sd: npt.ArrayLike | None = None,
     receiver: npt.ArrayLike | None = None,
     track: npt.ArrayLike | None = None,
-) -> tuple[BuildingFits, SignalClassifier]:
+    elevation: npt.ArrayLike | None = None,
+    open_sky: Cn0Moments | None = None,
+) -> tuple[BuildingFits, SignalModel]:
     """Run 4PL-B (or, for method ``4PL``, the paper's one-shot 4PL) on coded arrays.
 
     Parameters
@@ -238,11 +244,15 @@ def fourplb(
     track
         Optional look track of each row (one recording's view of one satellite,
         :func:`look_ids`).
+    elevation, open_sky
+        Optional elevation (deg) of each row's satellite, and the signals whose rays cross no
+        footprint (:meth:`.Cn0Moments.open_sky`): the mixture signal model (``estimator.signal_model
+        = "mixture"``) learns how C/N0 changes with elevation, and what open signals look like.
 
     Returns
     -------
-    (BuildingFits, SignalClassifier)
-        The per-building fits and the final signal classifier.
+    (BuildingFits, SignalClassifier or Cn0Mixture)
+        The per-building fits and the final signal model.
     """
     part = Part.of(
         groups,
@@ -255,9 +265,10 @@ def fourplb(
         height_sd=height_sd,
         receiver=receiver,
         track=track,
+        elevation=elevation,
     )
-    (fits,), classifier = run_parts([part], [[0]], estimator)
-    return fits, classifier
+    (fits,), model = run_parts([part], [[0]], estimator, open_sky=open_sky)
+    return fits, model
 
 
 class Engine(Protocol):
@@ -301,7 +312,8 @@ def run_parts(
     progress: Callable[[int], None] | None = None,
     finish: Callable[[Part, int], Any] | None = None,
     names: Sequence[str] | None = None,
-) -> tuple[list[Any], SignalClassifier]:
+    open_sky: Cn0Moments | None = None,
+) -> tuple[list[Any], SignalModel]:
     """4PL-B over a run cut into parts (:class:`Part`, or an engine's futures of them), with
     the single process's result: the map / exchange / reduce of DESIGN.md.
 
@@ -315,18 +327,19 @@ def run_parts(
     gives of each part (default: its :class:`BuildingFits`, :meth:`Part.judged`), as the
     engine's handles (the values themselves in one process; futures on a cluster, left
     where they were made: gather them, or pass them on), and the classifier. ``names`` (one per
-    part, e.g. its tile's) name the steps for the engine.
+    part, e.g. its tile's) name the steps for the engine. ``open_sky``: the run's signals
+    whose rays cross no footprint, which the mixture signal model learns open signals from.
     A part may be anything with :class:`Part`'s steps, e.g. a failed tile's stand-in
     (:class:`gnss_citygml.tiled.FailedTile`).
     """
     engine = engine or InProcess()
     bootstrap = estimator.method == "4PL-B"
-    classifier = SignalClassifier.initial(estimator.init_threshold)
+    model: SignalModel = SignalClassifier.initial(estimator.init_threshold)
     iterations = 0
     names = [str(k) for k in range(len(parts))] if names is None else list(names)
     for iterations in range(1, (estimator.max_iter if bootstrap else 1) + 1):
         parts = [
-            engine.submit(_fitted, p, classifier, key=f"fit-{iterations}-{name}")
+            engine.submit(_fitted, p, model, key=f"fit-{iterations}-{name}")
             for p, name in zip(parts, names, strict=True)
         ]
         if not bootstrap:
@@ -359,7 +372,9 @@ def run_parts(
                 for k in range(0, len(tallies), _FAN_IN)
             ]
         tally = engine.gather(tallies[0])
-        classifier = tally.refit(classifier)
+        if open_sky is not None and isinstance(tally.evidence, Cn0Moments):
+            tally = replace(tally, evidence=tally.evidence + open_sky)
+        model = tally.refit(model)
         if progress is not None:
             progress(iterations)
         if iterations > 1 and tally.change < estimator.acceptance.label_tol:
@@ -369,12 +384,12 @@ def run_parts(
         engine.submit(finish, p, iterations, key=f"finish-{name}")
         for p, name in zip(parts, names, strict=True)
     ]
-    return done, classifier
+    return done, model
 
 
 # The steps as functions of the part, for engines (a Part or a FailedTile alike).
-def _fitted(part: Part, classifier: SignalClassifier) -> Part:
-    return part.fitted(classifier)
+def _fitted(part: Part, model: SignalModel) -> Part:
+    return part.fitted(model)
 
 
 def _shared(part: Part) -> Shared:
@@ -405,25 +420,28 @@ def _total(*tallies: Tally) -> Tally:
 class Shared:
     """A part's buildings' current fits, as the other parts' rays need them (the visibility
     model, which signals are open): each building's code in the whole run (``building``),
-    ``c``, ``b``, and whether the fit is plausible enough to stand in front of others and
-    teach the classifier (``plausible``; ``fallback``: with no separation asked for, for an
-    iteration where no building in the run is plausible)."""
+    its 4PL ``a``, ``b``, ``c``, ``d``, and whether the fit is plausible enough to stand in
+    front of others and teach the classifier (``plausible``; ``fallback``: with no separation
+    asked for, for an iteration where no building in the run is plausible)."""
 
     building: np.ndarray
-    c: np.ndarray
+    a: np.ndarray
     b: np.ndarray
+    c: np.ndarray
+    d: np.ndarray
     plausible: np.ndarray
     fallback: np.ndarray
 
 
 @dataclass(frozen=True)
 class Tally:
-    """A part's share of an iteration's reduce: its signals counted by C/N0 and map label
-    (``counts``: those that plausible fits used, or, where the part has no plausible fit, the
-    ``fallback``'s), whether it has a plausible fit, and its buildings' largest share of
-    changed labels. Parts add up, exactly."""
+    """A part's share of an iteration's reduce: what its signals teach the signal model
+    (``evidence``: those that plausible fits used, or, where the part has no plausible fit, the
+    ``fallback``'s; counted by C/N0 and map label for the paper's classifier, summed by class
+    for the mixture; None: nothing, e.g. a failed tile's), whether it has a plausible fit, and
+    its buildings' largest share of changed labels. Parts add up, exactly."""
 
-    counts: Cn0Counts
+    evidence: Cn0Counts | Cn0Moments | None
     plausible: bool
     change: float
 
@@ -433,11 +451,20 @@ class Tally:
         change = max(self.change, other.change)
         if self.plausible != other.plausible:
             return replace(self if self.plausible else other, change=change)
-        return Tally(self.counts + other.counts, self.plausible, change)
+        if self.evidence is None or other.evidence is None:
+            return replace(other if self.evidence is None else self, change=change)
+        evidence = self.evidence + other.evidence  # type: ignore[operator]
+        return Tally(evidence, self.plausible, change)
 
-    def refit(self, classifier: SignalClassifier) -> SignalClassifier:
-        """The classifier refitted to the run's counts."""
-        return classifier.refit_counts(self.counts)
+    def refit(self, model: SignalModel) -> SignalModel:
+        """The signal model refitted to the run's evidence."""
+        if self.evidence is None:
+            return model
+        if isinstance(self.evidence, Cn0Moments):
+            return Cn0Mixture.fitted(self.evidence)
+        if not isinstance(model, SignalClassifier):
+            raise ModelError("the paper's counts refit the paper's classifier only")
+        return model.refit_counts(self.evidence)
 
 
 @dataclass(frozen=True)
@@ -460,6 +487,8 @@ class Part:
     sig: np.ndarray
     order: np.ndarray | None
     looks: np.ndarray | None
+    #: Each row's elevation in the mixture's units (:func:`.mixture.elevation_units`).
+    e: np.ndarray
     building: np.ndarray
     n_own: int
     estimator: Estimator
@@ -468,6 +497,8 @@ class Part:
     seen: np.ndarray
     #: The last fit (None before the first).
     last: LastFit | None = None
+    #: Each row's chance of clearing its building by the fits last exchanged (None before).
+    prior: np.ndarray | None = None
 
     @classmethod
     def of(
@@ -485,6 +516,7 @@ class Part:
         height_sd: npt.ArrayLike | None = None,
         receiver: npt.ArrayLike | None = None,
         track: npt.ArrayLike | None = None,
+        elevation: npt.ArrayLike | None = None,
     ) -> Part:
         """A part from coded rows (see :func:`fourplb`): it owns the buildings coded below
         ``n_own`` (default: all ``n_groups``), whose codes in the whole run are ``building``
@@ -512,6 +544,7 @@ class Part:
         looks = None  # found once: a row's look does not change as 4PL-B iterates
         if estimator.weighting == "looks" or (estimator.method == "4PL-B" and tracks is not None):
             looks = _compact(look_ids(h, g, tracks))
+        e = elevation_units(None if elevation is None else np.asarray(elevation)[by_group], h.size)
         occlusion = estimator.visibility and signal is not None
         seen = np.ones(h.size, dtype=bool)
         if occlusion and order is not None:
@@ -525,6 +558,7 @@ class Part:
             sig=sig,
             order=order,
             looks=looks,
+            e=e,
             building=np.arange(n_groups) if building is None else np.asarray(building),
             n_own=n_own,
             estimator=estimator,
@@ -537,13 +571,18 @@ class Part:
         """The own buildings' rows: the first ones."""
         return slice(0, int(np.searchsorted(self.g, self.n_own)))
 
-    def fitted(self, classifier: SignalClassifier) -> Part:
-        """Step 1 (map): every row labelled by ``classifier``, the own buildings' height 4PLs
-        fitted to the rows the visibility model keeps, and how many of their map labels
-        changed."""
+    def fitted(self, model: SignalModel) -> Part:
+        """Step 1 (map): every row labelled by the signal ``model`` (the paper's classifier:
+        open or not; the mixture: the chance that the row's ray clears its building, given
+        the fits last exchanged), the own buildings' height 4PLs fitted to the rows the
+        visibility model keeps, and how many of their map labels changed."""
         own, n_own, last = self._own, self.n_own, self.last
         g, h, seen = self.g[own], self.h[own], self.seen[own]
-        labels = classifier.label(self.s)
+        if isinstance(model, Cn0Mixture):
+            prior = np.full(self.h.size, 0.5) if self.prior is None else self.prior
+            labels = model.row_labels(self.s, self.e, prior, self.sig)
+        else:
+            labels = model.label(self.s)
         c_now = None if last is None else last.fit.c
         looks = None if self.looks is None else self.looks[own]
         weights = height_weights(
@@ -564,7 +603,7 @@ class Part:
         if last is not None:
             flips = (own_map != last.own_map) & seen
             change = np.bincount(g, flips, n_own) / np.maximum(np.bincount(g, seen, n_own), 1)
-        return replace(self, last=LastFit(fit, self.seen, labels, own_map, change))
+        return replace(self, last=LastFit(fit, self.seen, labels, own_map, change, model))
 
     def shared(self) -> Shared:
         """What the other parts need of the own buildings' fits (after :meth:`fitted`)."""
@@ -574,8 +613,10 @@ class Part:
         min_separation = self.estimator.acceptance.min_separation
         return Shared(
             building=self.building[: self.n_own],
-            c=fit.c,
+            a=fit.a,
             b=fit.b,
+            c=fit.c,
+            d=fit.d,
             plausible=_plausible(fit, h, g, seen, self.n_own, min_separation),
             fallback=_plausible(fit, h, g, seen, self.n_own, 0.0),
         )
@@ -592,19 +633,37 @@ class Part:
         fit is plausible (a poor initial classifier, e.g. a low threshold labelling reflections
         open, can leave every first fit short of the separation), every map whose roof line
         lies inside its data teaches the classifier once, or co-training would stop dead.
+
+        With the mixture signal model, each row's prior chance of clearing its building is
+        its building's 4PL at the row's height (blurred by the row's position error), and the
+        signals teach the model each with its chance of being open: from the map's labels
+        after the first fit, from the mixture's posterior after that.
         """
-        c, b, plausible, fallback = _lookup(self.building, shared)
+        a, b, c, d, plausible, fallback = _lookup(self.building, shared)
         own_plausible = bool(plausible[: self.n_own].any())
         teach = plausible if own_plausible else fallback
         last = self._last
         open_map = self.h > c[self.g]
         used = last.seen & teach[self.g]
-        counts = Cn0Counts.of(*_classifier_data(self, open_map, used))
+        lead, clear = _classifier_data(self, open_map, used)
+        prior = self.prior
+        evidence: Cn0Counts | Cn0Moments
+        if self.estimator.signal_model == "mixture":
+            prior = _prior(self.h, self.g, self.sd, a, b, c, d)
+            chance = clear.astype(float)
+            if isinstance(last.model, Cn0Mixture):
+                n_sig = int(self.sig.max(initial=-1)) + 1
+                clear_all = np.exp(np.bincount(self.sig, np.log(prior), n_sig))
+                chance = last.model.posterior(self.s[lead], self.e[lead], clear_all[self.sig[lead]])
+            evidence = Cn0Moments.of(self.s[lead], self.e[lead], chance)
+        else:
+            evidence = Cn0Counts.of(self.s[lead], clear)
         seen = self.seen
         if self.occlusion:
             seen = _unoccluded(self.h, self.g, self.sig, c, b, plausible, self.order)
         change = float(np.max(last.change, initial=0.0))
-        return replace(self, seen=seen), Tally(counts, own_plausible, change)
+        part = replace(self, seen=seen, prior=prior)
+        return part, Tally(evidence, own_plausible, change)
 
     def judged(self, iterations: int) -> BuildingFits:
         """The own buildings' heights, ranges and statuses after ``iterations`` iterations."""
@@ -662,13 +721,16 @@ class LastFit:
     """A part's last fit of its own buildings (:meth:`Part.fitted`): the 4PLs, the rows they
     used (``seen``, all the part's rows) and every row's label then, the map's labels of the
     own rows (``own_map``: above ``c``) and the share of each own building's labels that
-    changed from the fit before (``change``; 1 at the first)."""
+    changed from the fit before (``change``; 1 at the first), and the signal ``model``
+    that labelled them."""
 
     fit: FourPLFit
     seen: np.ndarray
     labels: np.ndarray
     own_map: np.ndarray
     change: np.ndarray
+    #: The signal model that labelled the rows.
+    model: SignalModel
 
 
 def _compact(codes: np.ndarray) -> np.ndarray:
@@ -687,11 +749,10 @@ def _compact(codes: np.ndarray) -> np.ndarray:
 
 
 def _lookup(building: np.ndarray, shared: Sequence[Shared]):
-    """``c``, ``b``, ``plausible`` and ``fallback`` of each of ``building`` (codes in the
-    whole run) from the parts' :class:`Shared` fits."""
+    """``a``, ``b``, ``c``, ``d``, ``plausible`` and ``fallback`` of each of ``building``
+    (codes in the whole run) from the parts' :class:`Shared` fits."""
     if len(shared) == 1 and np.array_equal(shared[0].building, building):
-        one = shared[0]
-        return one.c, one.b, one.plausible, one.fallback
+        return tuple(getattr(shared[0], k) for k in _SHARED)
     known = np.concatenate([s.building for s in shared])
     at = pd.Index(known).get_indexer(building)
     if (at < 0).any():
@@ -700,7 +761,7 @@ def _lookup(building: np.ndarray, shared: Sequence[Shared]):
     return tuple(np.concatenate([getattr(s, k) for s in shared])[at] for k in _SHARED)
 
 
-_SHARED = ("c", "b", "plausible", "fallback")
+_SHARED = ("a", "b", "c", "d", "plausible", "fallback")
 
 
 def _plausible(fit, h, g, seen, n_groups, min_separation):
@@ -728,10 +789,11 @@ def _unoccluded(h, g, sig, c, b, plausible, order=None):
 
 
 def _classifier_data(part: Part, open_map: np.ndarray, used: np.ndarray):
-    """C/N0 and map label of the signals the part counts: those the fits ``used`` whose first
-    such row along the ray (by ``order``; without it, the first row) is of an own building.
-    A signal counts once, and is open only if it clears every building it was used for."""
-    sig, cn0, open_map = part.sig[used], part.s[used], open_map[used]
+    """The rows of the signals the part counts (one each: the first row along the ray, by
+    ``order``, of those the fits ``used``; without ``order``, the first row), those of own
+    buildings, and each signal's map label: open only if it clears every building it was
+    used for."""
+    sig, open_map = part.sig[used], open_map[used]
     n_sig = int(sig.max(initial=-1)) + 1
     closed = np.bincount(sig, weights=(~open_map).astype(float), minlength=n_sig)
     rows = np.arange(sig.size)
@@ -741,7 +803,16 @@ def _classifier_data(part: Part, open_map: np.ndarray, used: np.ndarray):
     lead[sig[rows[::-1]]] = rows[::-1]
     lead = lead[lead >= 0]
     mine = part.g[used][lead] < part.n_own
-    return cn0[lead[mine]], closed[sig[lead[mine]]] == 0
+    return np.flatnonzero(used)[lead[mine]], closed[sig[lead[mine]]] == 0
+
+
+def _prior(h, g, sd, a, b, c, d) -> np.ndarray:
+    """Each row's chance of clearing its building by the building's 4PL (``a``-``d`` per
+    building; 0.5 where it has no fit), its slope blurred by the row's height error ``sd``
+    as in the errors-in-variables fit (:mod:`.fourpl`)."""
+    slope = b[g] if sd is None else b[g] / np.sqrt(1.0 + np.pi * (b[g] * sd) ** 2 / 8.0)
+    p = logistic4(h, a[g], slope, c[g], d[g])
+    return np.where(np.isfinite(p), p, 0.5)
 
 
 def position_margin(
@@ -809,7 +880,7 @@ def _judge(
     n_rows = np.bincount(g, minlength=n_groups)
     usable = n_rows >= min_signals
     lo, hi = group_range(h, g, n_groups)
-    n_open = np.bincount(g, weights=labels.astype(float), minlength=n_groups)
+    n_open = np.bincount(g, weights=labels > 0.5, minlength=n_groups)  # soft labels: likelier
     n_below = np.bincount(g, h < c[g], minlength=n_groups)
     c_lo, c_hi = (c, c) if c_range is None else c_range  # c_interval's ends hold c
     offset = 1.5 / b if paper_rule else 0.0

@@ -33,6 +33,7 @@ import pandas as pd
 from .errors import InputError, MissingColumnError
 from .model.fourpl import logistic4
 from .model.fourplb import fourplb
+from .model.mixture import Cn0Moments, elevation_units
 from .raycast import footprint_entries
 from .recordings import recording_windows
 from .settings import Calibration, Estimator, Rays
@@ -121,6 +122,8 @@ def calibrate_receivers(
             estimator,
             signal=cast.ray,
             order=cast.order,
+            elevation=origins.elevation[cast.ray],
+            open_sky=origins.open_sky(cast, estimator),
         )
         n_ok = int(fits.converged.sum())
         if best is not None and n_ok < best[0]:
@@ -128,7 +131,7 @@ def calibrate_receivers(
             break
         best = (n_ok, offsets)
         use = _usable(cast, fits)
-        labels = classifier.label(cast.cn0[use])
+        labels = classifier.label(cast.cn0[use], elevation_units(origins.elevation[cast.ray[use]]))
         slope = cast.height_gradient[use]
         params = np.column_stack([fits.a, fits.b, fits.c, fits.d])[cast.building[use]]
         step = _best_offsets(
@@ -168,11 +171,21 @@ class _Rays:
         self.n = receivers["n"].to_numpy(dtype=float)
         self.z = receivers["z"].to_numpy(dtype=float)
         self.bearing = receivers["bearing"].to_numpy(dtype=float)
-        self.tan_el = np.tan(np.radians(receivers["elevation"].to_numpy(dtype=float)))
+        self.elevation = receivers["elevation"].to_numpy(dtype=float)
+        self.tan_el = np.tan(np.radians(self.elevation))
         self.cn0 = receivers["cn0"].to_numpy(dtype=float)
         self.footprints = np.asarray(buildings.geometry, dtype=object)
         self.n_buildings = len(self.footprints)
         self.max_range = max_range
+
+    def open_sky(self, cast: _Cast, estimator: Estimator) -> Cn0Moments | None:
+        """What the rays that ``cast`` finds entering no footprint teach the mixture signal
+        model (None for another model)."""
+        if estimator.signal_model != "mixture":
+            return None
+        sky = np.ones(self.cn0.size, dtype=bool)
+        sky[cast.ray] = False
+        return Cn0Moments.of(self.cn0[sky], elevation_units(self.elevation[sky]), 1.0)
 
     def cast(self, shift) -> _Cast:
         ray, fp, dist, _, grad = footprint_entries(

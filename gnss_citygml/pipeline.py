@@ -24,8 +24,8 @@ from .calibrate import calibrate_receivers
 from .errors import InputError
 from .geodesy import CrsInput, check_bng, grid_bearing, to_osgb
 from .ids import id_field, source_named, with_id_field
-from .model.classifier import SignalClassifier
-from .model.estimate import HEIGHTS_COLUMNS, estimate_heights
+from .model.estimate import HEIGHTS_COLUMNS, estimate_heights, signal_model
+from .model.fourplb import SignalModel
 from .observations import check_observations, satellites
 from .paths import StrPath, atomic_folder
 from .raycast import footprint_entries
@@ -242,7 +242,7 @@ class Run:
     #: The buildings with their ``ground``.
     buildings: gpd.GeoDataFrame
     #: The final C/N0 signal classifier of 4PL-B or 4PL (None for the baselines).
-    classifier: SignalClassifier | None
+    classifier: SignalModel | None
 
 
 def estimate(
@@ -352,7 +352,10 @@ def run(
     if calibration.on:
         rx = calibrate_receivers(rx, buildings, calibration, estimator=estimator, rays=rays)
     inter = intersections(rx, buildings, rays=rays, position_error=position_error)
-    heights, classifier = fit_heights(inter, buildings, estimator, id_field(footprints), say)
+    sky = open_sky(rx, inter)
+    heights, classifier = fit_heights(
+        inter, buildings, estimator, id_field(footprints), say, open_sky=sky
+    )
     return Run(heights, rx, inter, buildings, classifier)
 
 
@@ -413,7 +416,7 @@ def run_partitioned(
     tiling: Tiling = Tiling("local"),
     dem_crs: CrsInput | None = None,
     progress: Callable[[str], None] | None = None,
-) -> tuple[gpd.GeoDataFrame, SignalClassifier]:
+) -> tuple[gpd.GeoDataFrame, SignalModel]:
     """As :func:`run`, from observations partitioned by tile
     (:func:`~gnss_citygml.partition.partition_observations`) on a Dask cluster (``tiling``;
     its tile size is the partition's): the heights, joined onto the footprints, and the
@@ -541,16 +544,18 @@ def fit_heights(
     estimator: Estimator = Estimator(),
     name: str = "id",
     progress: Callable[[str], None] | None = None,
-) -> tuple[gpd.GeoDataFrame, SignalClassifier | None]:
+    open_sky: pd.DataFrame | None = None,
+) -> tuple[gpd.GeoDataFrame, SignalModel | None]:
     """The height model's stage: the heights of every building (:func:`join_heights`, the id
-    named ``name``) from the intersections, and the final signal classifier (None for the
-    baselines). ``progress`` is told the model's stage and the output's."""
+    named ``name``) from the intersections (and the signals crossing no footprint,
+    ``open_sky``, :func:`open_sky`), and the final signal model (None for the baselines).
+    ``progress`` is told the model's stage and the output's."""
     say = progress or (lambda stage: None)
     say(STAGES[4])
-    heights = estimate_heights(intersections, estimator)
+    heights = estimate_heights(intersections, estimator, open_sky=open_sky)
     say(STAGES[5])
     fitted = heights.attrs.get("signal_classifier")
-    classifier = None if fitted is None else SignalClassifier(**fitted)
+    classifier = None if fitted is None else signal_model(fitted)
     return join_heights(buildings, heights, estimator.method, name), classifier
 
 

@@ -34,6 +34,7 @@ import pandas as pd
 from .errors import InputError, user_text
 from .ids import id_named
 from .model.fourpl import logistic4
+from .model.mixture import Cn0Mixture, elevation_units
 from .paths import StrPath, atomic_path, check_output_folder, make_folder
 
 if TYPE_CHECKING:
@@ -86,7 +87,7 @@ def signal_states(run: Run) -> pd.DataFrame:
     cn0 = rx["cn0"].to_numpy(float)
     received = ~np.isnan(cn0)
     if run.classifier is not None:
-        open_ = run.classifier.label(cn0)
+        open_ = run.classifier.label(cn0, elevation_units(rx["elevation"].to_numpy(float)))
     else:
         open_ = received
     state = np.where(~received, "blocked", np.where(open_, "open", "closed"))
@@ -441,7 +442,10 @@ def _cn0(plt: Any, run: Run, table: pd.DataFrame, states: pd.DataFrame) -> Any:
         twin.axvline(run.classifier.threshold, color="#c0392b", linestyle="--", linewidth=0.8)
         twin.set_ylim(0, 1)
         twin.set_ylabel("signal classifier: Pr(open)")
-        ax.set_title(f"final signal classifier: 50 % at {run.classifier.threshold:.1f} dB-Hz")
+        where = " at 45° elevation" if isinstance(run.classifier, Cn0Mixture) else ""
+        ax.set_title(
+            f"final signal classifier: 50 % at {run.classifier.threshold:.1f} dB-Hz{where}"
+        )
         twin.legend(loc="upper right", fontsize=8)
     ax.legend(loc="upper left", fontsize=8)
     return figure

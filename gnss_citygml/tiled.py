@@ -15,6 +15,7 @@ as in the whole run. :func:`tiled_heights` takes the receivers in memory;
 from __future__ import annotations
 
 import functools
+import operator
 import uuid
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
@@ -26,9 +27,9 @@ import pandas as pd
 import shapely
 
 from .errors import InputError
-from .model.classifier import SignalClassifier
 from .model.estimate import HEIGHTS_COLUMNS, intersections_part
-from .model.fourplb import Engine, InProcess, Part, Shared, Tally, run_parts
+from .model.fourplb import Engine, InProcess, Part, Shared, SignalModel, Tally, run_parts
+from .model.mixture import Cn0Moments, elevation_units
 from .partition import (
     check_digests,
     check_partition,
@@ -66,7 +67,7 @@ def tiled_heights(
     engine: Engine | None = None,
     progress: Callable[[str], None] | None = None,
     output: TileFolder | None = None,
-) -> tuple[pd.DataFrame, SignalClassifier]:
+) -> tuple[pd.DataFrame, SignalModel]:
     """The heights table of :func:`~gnss_citygml.model.estimate.estimate_heights` on
     :func:`~gnss_citygml.pipeline.intersections` of ``receivers`` (the pipeline's receivers
     table, :func:`~gnss_citygml.pipeline.receivers`) and ``buildings``, computed in tiles of
@@ -96,7 +97,8 @@ def tiled_heights(
         )
         for tile in tiles
     ]
-    return _run_tiles(tiles, casts, buildings, tile_size, estimator, engine, say, output)
+    signals = signal_moments(rx) if estimator.signal_model == "mixture" else None
+    return _run_tiles(tiles, casts, buildings, tile_size, estimator, engine, say, output, signals)
 
 
 def partitioned_heights(
@@ -109,7 +111,7 @@ def partitioned_heights(
     engine: Engine | None = None,
     progress: Callable[[str], None] | None = None,
     output: TileFolder | None = None,
-) -> tuple[pd.DataFrame, SignalClassifier]:
+) -> tuple[pd.DataFrame, SignalModel]:
     """As :func:`tiled_heights`, from a partition folder
     (:func:`~gnss_citygml.partition.partition_observations`, whose tiles it uses): each tile
     reads the partitions within ``rays.max_range`` of its buildings itself (on the engine's
@@ -135,6 +137,13 @@ def partitioned_heights(
         for name, files in parts.items()
     ]
     refuse_changed([f for bad in engine.gather(checks) for f in bad])
+    signals = None
+    if estimator.signal_model == "mixture":  # each signal is in one partition file
+        sums = [
+            engine.submit(file_moments, files, key=f"signals-{name}-{uuid.uuid4().hex[:8]}")
+            for name, files in parts.items()
+        ]
+        signals = functools.reduce(operator.add, engine.gather(sums))
     x0, y0 = squares["ix"].to_numpy() * size, squares["iy"].to_numpy() * size
     geometry = buildings.geometry.to_numpy()
     tree = shapely.STRtree(geometry)
@@ -155,12 +164,25 @@ def partitioned_heights(
         cast = buildings.iloc[np.concatenate([own, halo])]
         casts.append((partition_part, files, cast, own.size, size, estimator, rays, position_error))
     say(f"tile plan: {len(tiles)} tiles of {size:g} m from {len(squares)} partitions")
-    return _run_tiles(tiles, casts, buildings, size, estimator, engine, say, output)
+    return _run_tiles(tiles, casts, buildings, size, estimator, engine, say, output, signals)
 
 
-def _run_tiles(tiles, casts, buildings, size, estimator, engine, say, output):
+def signal_moments(receivers: pd.DataFrame) -> Cn0Moments:
+    """All the signals of a receivers table (``cn0``, ``elevation``), as open."""
+    e = elevation_units(receivers["elevation"].to_numpy(dtype=float))
+    return Cn0Moments.of(receivers["cn0"].to_numpy(dtype=float), e, 1.0)
+
+
+def file_moments(files: list[Path]) -> Cn0Moments:
+    """:func:`signal_moments` of the receivers in partition ``files``."""
+    return signal_moments(read_receivers(files))
+
+
+def _run_tiles(tiles, casts, buildings, size, estimator, engine, say, output, signals=None):
     """4PL-B over the tiles, each made by its cast (a function and its arguments): the
-    heights table, or with ``output`` the tile index of the tiles written there."""
+    heights table, or with ``output`` the tile index of the tiles written there. ``signals``:
+    all the run's signals (:func:`signal_moments`), for the mixture signal model: less those
+    that the tiles find crossing a footprint, they are the open sky it learns from."""
     if not tiles:
         raise InputError(
             "no building has a receiver within the rays' reach",
@@ -180,6 +202,18 @@ def _run_tiles(tiles, casts, buildings, size, estimator, engine, say, output):
         say(f"tile {tiles[k].name} failed: {why}")
         parts[k] = FailedTile(tiles[k].name, ids[tiles[k].buildings], why)
         failed[tiles[k].name] = why
+    open_sky = None
+    if signals is not None and failed:
+        say(
+            "the signals crossing no footprint are not known without the failed tiles: "
+            "the mixture signal model learns without them"
+        )
+    elif signals is not None:
+        crossing = [
+            engine.submit(_crossing, p, key=f"crossing-{name}")
+            for p, name in zip(parts, names, strict=True)
+        ]
+        open_sky = functools.reduce(operator.sub, engine.gather(crossing), signals)
     tables, classifier = run_parts(
         parts,
         neighbours,
@@ -188,6 +222,7 @@ def _run_tiles(tiles, casts, buildings, size, estimator, engine, say, output):
         progress=lambda k: say(f"iteration {k}"),
         finish=functools.partial(tile_heights, method=estimator.method),
         names=names,
+        open_sky=open_sky,
     )
     if output is None:
         heights = pd.concat(engine.gather(tables), ignore_index=True)
@@ -251,6 +286,10 @@ def tile_part(
     return intersections_part(inter, estimator, own=own)[1]
 
 
+def _crossing(part: Part) -> Cn0Moments:
+    return part.crossing()
+
+
 def tile_heights(part: Part | FailedTile, iterations: int, method: str) -> pd.DataFrame:
     """The heights table's rows of a tile's own buildings (every one its signals cross),
     fitted with ``method``."""
@@ -291,7 +330,7 @@ class FailedTile:
     building: np.ndarray
     reason: str
 
-    def fitted(self, classifier: SignalClassifier) -> FailedTile:
+    def fitted(self, model: SignalModel) -> FailedTile:
         """Nothing to fit."""
         return self
 

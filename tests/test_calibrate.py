@@ -21,9 +21,11 @@ def _cross_street_error(rx):
     return (rx["n"] - rx["n_true"]).groupby(rx["receiver"]).mean()
 
 
-def test_offsets_move_receivers_towards_the_truth(canyon):
+@pytest.mark.parametrize("signal_model", ["paper", "mixture"])
+def test_offsets_move_receivers_towards_the_truth(canyon, signal_model):
     rx, buildings = canyon
-    out = calibrate_receivers(rx, buildings, Calibration(prior_sd=1.0))
+    estimator = Estimator(signal_model=signal_model)
+    out = calibrate_receivers(rx, buildings, Calibration(prior_sd=1.0), estimator=estimator)
     before, after = _cross_street_error(rx), _cross_street_error(out)
     assert np.sqrt(np.mean(after**2)) < 0.6 * np.sqrt(np.mean(before**2))
     # one offset per recording, applied to e and n

@@ -10,7 +10,7 @@ import pandas as pd
 import pytest
 from test_cli import run
 from test_outputs import CITY, estimate
-from test_tiled import assert_same_heights
+from test_tiled import assert_close_heights, assert_same_heights
 
 from gnss_citygml.errors import InputError
 from gnss_citygml.footprints import read_footprints
@@ -18,8 +18,8 @@ from gnss_citygml.jobs import estimate_file
 from gnss_citygml.model.estimate import estimate_heights
 from gnss_citygml.observations import read_observations, write_observations
 from gnss_citygml.partition import INDEX, partition_observations, read_index
-from gnss_citygml.pipeline import in_mask, intersections, receivers, run_partitioned
-from gnss_citygml.settings import ReceiverHeights, Tiling
+from gnss_citygml.pipeline import in_mask, intersections, open_sky, receivers, run_partitioned
+from gnss_citygml.settings import Estimator, ReceiverHeights, Tiling
 from gnss_citygml.terrain import building_ground
 from gnss_citygml.tile_output import TileFolder
 from gnss_citygml.tiled import partitioned_heights
@@ -59,6 +59,21 @@ def test_a_partition_holds_each_receiver_under_its_tile(halves, tmp_path):
     np.testing.assert_array_equal(part["e"], a["e"])
     np.testing.assert_array_equal(part["bearing"], a["bearing"])
     assert part["recording"].str.startswith(tuple(a["receiver"].unique())).all()
+
+
+def test_a_run_from_a_partition_holds_for_the_mixture_signal_model(halves, tmp_path):
+    """The partition's files give the run's signals (each in one file), so the mixture
+    learns from those crossing no footprint as the single run does."""
+    partition_observations(halves, tmp_path / "p", DEM, tile_size=100.0)
+    both = pd.concat([read_observations(p) for p in halves], ignore_index=True)
+    buildings = building_ground(read_footprints(CITY / "footprints.gpkg"), DEM)
+    rx = receivers(in_mask(both), DEM)
+    inter = intersections(rx, buildings)
+    estimator = Estimator(signal_model="mixture")
+    single = estimate_heights(inter, estimator, open_sky=open_sky(rx, inter))
+    assert single["converged"].sum() >= 10
+    tiled, _ = partitioned_heights(tmp_path / "p", buildings, estimator=estimator)
+    assert_close_heights(tiled, single)
 
 
 def test_a_run_from_a_partition_gives_the_single_runs_heights(halves, tmp_path):

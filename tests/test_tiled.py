@@ -5,6 +5,7 @@ import os
 import signal
 import subprocess
 import sys
+from dataclasses import asdict
 
 import geopandas as gpd
 import numpy as np
@@ -18,7 +19,7 @@ from test_outputs import estimate
 from gnss_citygml.cluster import connect
 from gnss_citygml.errors import InputError
 from gnss_citygml.model.estimate import estimate_heights
-from gnss_citygml.pipeline import intersections, write_tiles
+from gnss_citygml.pipeline import intersections, open_sky, write_tiles
 from gnss_citygml.settings import Estimator, Tiling
 from gnss_citygml.simulate import simulate
 from gnss_citygml.simulate.scenes import city_scene
@@ -51,6 +52,17 @@ def scene():
 def single(scene):
     rx, buildings = scene
     return estimate_heights(intersections(rx, buildings))
+
+
+def assert_close_heights(tiled, single, tol=1e-3):
+    """The mixture signal model's run in tiles: the same buildings, converged set and
+    statuses, heights within ``tol`` metres (its sums are floats added in another order)."""
+    a, b = (t.set_index("id").sort_index() for t in (single, tiled))
+    assert a.index.tolist() == b.index.tolist()
+    assert (a["converged"] == b["converged"]).all()
+    assert (a["status"] == b["status"]).all()
+    for column in ("height", "height_lower", "height_upper", "c"):
+        np.testing.assert_allclose(b[column], a[column], atol=tol, err_msg=column)
 
 
 def assert_same_heights(tiled, single):
@@ -97,6 +109,22 @@ def test_tiles_hold_for_other_settings(scene, estimator):
     rx, buildings = scene
     tiled, _ = tiled_heights(rx, buildings, estimator=estimator, tile_size=100.0)
     assert_same_heights(tiled, estimate_heights(intersections(rx, buildings), estimator))
+
+
+@pytest.mark.parametrize("size", [60.0, 250.0])
+def test_tiles_hold_for_the_mixture_signal_model(scene, size):
+    """The mixture learns from the signals crossing no footprint: the tiles find them as
+    all signals less those each crossed first, and give the single run's heights."""
+    rx, buildings = scene
+    estimator = Estimator(signal_model="mixture")
+    inter = intersections(rx, buildings)
+    single = estimate_heights(inter, estimator, open_sky=open_sky(rx, inter))
+    assert single["converged"].sum() >= 5
+    tiled, model = tiled_heights(rx, buildings, estimator=estimator, tile_size=size)
+    assert_close_heights(tiled, single)
+    fitted = single.attrs["signal_classifier"]
+    np.testing.assert_allclose(np.ravel(list(asdict(model).values())),
+                               np.ravel(list(fitted.values())), rtol=1e-6)  # fmt: skip
 
 
 def test_a_tile_without_signals_takes_part_and_reports_its_buildings(scene):

@@ -21,7 +21,10 @@ import shapely
 from test_cli import run
 
 from gnss_citygml.errors import InputError
+from gnss_citygml.footprints import read_footprints
 from gnss_citygml.paths import stale_parts
+from gnss_citygml.pipeline import run as run_pipeline
+from gnss_citygml.settings import Estimator
 from gnss_citygml.update import COLUMNS, EVIDENCE, update_map
 
 CITY = Path(__file__).resolve().parents[1] / "examples" / "city"
@@ -104,6 +107,24 @@ def test_two_updates_equal_one_run_over_all_observations(city_map, halves, grid_
     for mine, full_run in pairs:
         np.testing.assert_allclose(ours[mine], theirs[full_run], rtol=0, atol=1e-9)
     assert (ours["status_gnss"] == theirs["status"]).all()
+
+
+def test_updates_with_the_mixture_equal_one_run(city_map, halves, grid_dir):
+    """The mixture signal model learns from every signal cast, those that cross no footprint
+    too: the evidence keeps them, so two updates give one run's heights."""
+    estimator = Estimator(signal_model="mixture")
+    for half in halves:
+        update_map(city_map, [half], DEM, layer="buildings", grid_dir=grid_dir, estimator=estimator)
+    both = pd.concat([pd.read_parquet(h) for h in halves], ignore_index=True)
+    full = run_pipeline(
+        both, read_footprints(CITY / "footprints.gpkg"), DEM, estimator=estimator, grid_dir=grid_dir
+    ).heights.set_index("id")
+    ours = pyogrio.read_dataframe(city_map, layer="buildings", read_geometry=False).set_index("id")
+    full = full.loc[ours.index]
+    assert full["converged"].sum() >= 10
+    assert (ours["converged"].astype(bool) == full["converged"].astype(bool)).all()
+    for mine, theirs in (("height_gnss", "height"), ("height_lower", "height_lower")):
+        np.testing.assert_allclose(ours[mine], full[theirs], rtol=0, atol=1e-3)
 
 
 def test_the_same_data_again_changes_nothing(city_map, halves, grid_dir, capsys):

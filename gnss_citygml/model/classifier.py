@@ -57,8 +57,9 @@ class SignalClassifier:
         p = logistic4(cn0, self.a, self.b, self.c, self.d)
         return np.where(np.isnan(cn0), 0.0, p)
 
-    def label(self, cn0: npt.ArrayLike) -> np.ndarray:
-        """The most likely class of each signal: True (open) where Pr(open) > 0.5."""
+    def label(self, cn0: npt.ArrayLike, e: npt.ArrayLike = 0.0) -> np.ndarray:
+        """The most likely class of each signal: True (open) where Pr(open) > 0.5 (``e``, the
+        elevations, are not used: the paper's classifier knows C/N0 only)."""
         return self.prob(cn0) > 0.5
 
     def refit(self, cn0: npt.ArrayLike, labels: npt.ArrayLike) -> SignalClassifier:

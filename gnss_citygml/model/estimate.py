@@ -12,10 +12,17 @@ import pandas as pd
 from ..errors import InputError, MissingColumnError, listing
 from ..settings import Estimator
 from .baselines import bayes_heights, hinge_heights
+from .classifier import SignalClassifier
 from .fourplb import Part, run_parts
-from .mixture import Cn0Moments, elevation_units
+from .mixture import Cn0Mixture, Cn0Moments, elevation_units
 
-__all__ = ["HEIGHTS_COLUMNS", "estimate_heights", "intersections_part", "open_sky_moments"]
+__all__ = [
+    "HEIGHTS_COLUMNS",
+    "estimate_heights",
+    "intersections_part",
+    "open_sky_moments",
+    "signal_model",
+]
 
 #: Columns of the heights table, in order (see DESIGN.md; ``status`` says why a building did
 #: not converge, or ``ok``).
@@ -165,6 +172,11 @@ def intersections_part(
     return ids, part
 
 
+def signal_model(fitted: Mapping) -> SignalClassifier | Cn0Mixture:
+    """The final signal model of a heights table, from its ``attrs["signal_classifier"]``."""
+    return Cn0Mixture(**fitted) if "alpha" in fitted else SignalClassifier(**fitted)
+
+
 def open_sky_moments(open_sky: pd.DataFrame | None, estimator: Estimator) -> Cn0Moments | None:
     """What the signals of ``open_sky`` (see :func:`estimate_heights`) teach the mixture
     signal model (None for another model, or without them)."""
@@ -175,7 +187,8 @@ def open_sky_moments(open_sky: pd.DataFrame | None, estimator: Estimator) -> Cn0
         raise MissingColumnError(missing, where="open-sky signals", have=list(open_sky.columns))
     cn0 = _numeric(open_sky, "cn0")
     elevation = _numeric(open_sky, "elevation") if "elevation" in open_sky.columns else None
-    return Cn0Moments.of(cn0, elevation_units(elevation, cn0.size), 1.0)
+    e = 0.0 if elevation is None else elevation_units(elevation)
+    return Cn0Moments.of(cn0, e, 1.0)
 
 
 def _as_table(intersections) -> pd.DataFrame:

@@ -373,11 +373,15 @@ def run_parts(
             ]
         tally = engine.gather(tallies[0])
         if open_sky is not None and isinstance(tally.evidence, Cn0Moments):
-            tally = replace(tally, evidence=tally.evidence + open_sky)
-        model = tally.refit(model)
+            evidence = tally.evidence
+            if iterations == 1 and open_sky.received > 0:  # open: what surely is, at first
+                evidence = evidence.closed()
+            tally = replace(tally, evidence=evidence + open_sky)
+        before, model = model, tally.refit(model)
         if progress is not None:
             progress(iterations)
-        if iterations > 1 and tally.change < estimator.acceptance.label_tol:
+        settled = not isinstance(model, Cn0Mixture) or model.settled(before)
+        if iterations > 1 and tally.change < estimator.acceptance.label_tol and settled:
             break
     finish = finish or _judged
     done = [
@@ -544,7 +548,7 @@ class Part:
         looks = None  # found once: a row's look does not change as 4PL-B iterates
         if estimator.weighting == "looks" or (estimator.method == "4PL-B" and tracks is not None):
             looks = _compact(look_ids(h, g, tracks))
-        e = elevation_units(None if elevation is None else np.asarray(elevation)[by_group], h.size)
+        e = np.zeros(h.size) if elevation is None else elevation_units(elevation)[by_group]
         occlusion = estimator.visibility and signal is not None
         seen = np.ones(h.size, dtype=bool)
         if occlusion and order is not None:
@@ -664,6 +668,14 @@ class Part:
         change = float(np.max(last.change, initial=0.0))
         part = replace(self, seen=seen, prior=prior)
         return part, Tally(evidence, own_plausible, change)
+
+    def crossing(self) -> Cn0Moments:
+        """The signals the part counts (those whose first building along the ray is one of
+        its own), once each, as open: a run of parts takes them from all its signals to leave
+        those that cross no footprint (:func:`run_parts`' ``open_sky``)."""
+        every = np.ones(self.h.size, dtype=bool)
+        lead, _ = _classifier_data(self, every, every)
+        return Cn0Moments.of(self.s[lead], self.e[lead], 1.0)
 
     def judged(self, iterations: int) -> BuildingFits:
         """The own buildings' heights, ranges and statuses after ``iterations`` iterations."""

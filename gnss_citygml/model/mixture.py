@@ -42,15 +42,20 @@ MIN_SIGMA = 1.0
 MIN_CHANCE = 1e-3
 #: A prior chance stays this far from 0 and 1, so that a received signal can overrule it.
 PRIOR_EPS = 1e-6
+#: 4PL-B goes on while the mixture moves by more than this (dB) or :data:`SETTLED_CHANCE`
+#: between iterations: a tenth of a dB is the C/N0 receivers report.
+SETTLED_DB = 0.1
+SETTLED_CHANCE = 0.01
+#: The elevation (model units: 45 degrees) at which the model is drawn and summed up in one
+#: threshold for a reader (:attr:`Cn0Mixture.threshold`).
+MID_ELEVATION = 0.5
 #: Sums kept per class (:class:`Cn0Moments`): over received signals the weight and its
 #: products with e, e^2, C/N0, e C/N0 and C/N0^2; then the weight of those not received.
 _SUMS = 7
 
 
-def elevation_units(elevation_deg: npt.ArrayLike | None, n: int) -> np.ndarray:
-    """Elevations (degrees) in the model's units (90 degrees = 1); zeros without them."""
-    if elevation_deg is None:
-        return np.zeros(n)
+def elevation_units(elevation_deg: npt.ArrayLike) -> np.ndarray:
+    """Elevations (degrees) in the model's units (90 degrees = 1; unknown: 0)."""
     return np.nan_to_num(np.asarray(elevation_deg, dtype=float) / 90.0)
 
 
@@ -91,6 +96,22 @@ class Cn0Moments:
     def __add__(self, other: Cn0Moments) -> Cn0Moments:
         """Both sets of signals together."""
         return Cn0Moments(self.sums + other.sums)
+
+    @property
+    def received(self) -> float:
+        """The weight of the received signals, open and closed."""
+        return float(self.sums[:, 0].sum())
+
+    def closed(self) -> Cn0Moments:
+        """The closed class's sums alone."""
+        sums = self.sums.copy()
+        sums[0] = 0.0
+        return Cn0Moments(sums)
+
+    def __sub__(self, other: Cn0Moments) -> Cn0Moments:
+        """These signals less ``other``, some of them (a run's signals less those that cross
+        a footprint: those that cross none)."""
+        return Cn0Moments(self.sums - other.sums)
 
 
 @dataclass(frozen=True)
@@ -141,6 +162,24 @@ class Cn0Mixture:
             (q[0], q[1]),
         )
 
+    def settled(self, before: Cn0Mixture | object) -> bool:
+        """Whether the model moved less than :data:`SETTLED_DB` in each class's mean (at both
+        ends of the elevations) and spread, and :data:`SETTLED_CHANCE` in its chances of being
+        received, since ``before`` (anything else: it has not settled)."""
+        if not isinstance(before, Cn0Mixture):
+            return False
+        ends = np.array([0.0, 1.0])
+        now, then = (
+            np.array([[m.alpha[k] + m.beta[k] * ends for k in (0, 1)] for m in (self, before)])
+        )
+        spread = np.abs(np.subtract(self.sigma, before.sigma))
+        chance = np.abs(np.subtract(self.q, before.q))
+        return bool(
+            np.all(np.abs(now - then) < SETTLED_DB)
+            and np.all(spread < SETTLED_DB)
+            and np.all(chance < SETTLED_CHANCE)
+        )
+
     def log_ratio(self, cn0: npt.ArrayLike, e: npt.ArrayLike) -> np.ndarray:
         """log of (likelihood if open / likelihood if closed) of each signal."""
         s = np.asarray(cn0, dtype=float)
@@ -174,8 +213,23 @@ class Cn0Mixture:
         clears_if_closed = (p - clear_all) / np.maximum(1.0 - clear_all, PRIOR_EPS)
         return is_open + (1.0 - is_open) * np.clip(clears_if_closed, 0.0, 1.0)
 
-    def label(self, cn0: npt.ArrayLike, e: npt.ArrayLike | None = None) -> np.ndarray:
-        """The likelier class of each signal with an even prior: True (open) where the open
-        class explains it better."""
-        s = np.asarray(cn0, dtype=float)
-        return self.log_ratio(s, elevation_units(None, s.size) if e is None else e) > 0
+    def prob(self, cn0: npt.ArrayLike, e: npt.ArrayLike = MID_ELEVATION) -> np.ndarray:
+        """The chance that each signal is open with an even prior (elevations ``e`` in the
+        model's units, by default :data:`MID_ELEVATION`), as the paper's classifier gives it."""
+        return self.posterior(cn0, e, 0.5)
+
+    @property
+    def threshold(self) -> float:
+        """The C/N0 where a received signal at :data:`MID_ELEVATION` is as likely open as
+        closed with an even prior (NaN where it never is, between the classes' means)."""
+        lo = self.alpha[1] + self.beta[1] * MID_ELEVATION
+        hi = self.alpha[0] + self.beta[0] * MID_ELEVATION
+        grid = np.linspace(lo, hi, 2001) if np.isfinite(hi) and hi > lo else np.empty(0)
+        ratio = self.log_ratio(grid, MID_ELEVATION)
+        up = np.flatnonzero((ratio[:-1] <= 0) & (ratio[1:] > 0))
+        return float(grid[up[-1] + 1]) if up.size else float("nan")
+
+    def label(self, cn0: npt.ArrayLike, e: npt.ArrayLike = 0.0) -> np.ndarray:
+        """The likelier class of each signal (elevations ``e`` in the model's units) with an
+        even prior: True (open) where the open class explains it better."""
+        return self.log_ratio(cn0, e) > 0

@@ -225,7 +225,8 @@ def update_map(
     outlines = _outlines(buildings)
     key, stored_ids = _key_column(path, name, [id_column, id_field, "fid"], buildings["id"])
     current = _current_values(path, name, key, buildings["id"])  # (checks our columns' types)
-    before = read_evidence(path, name, with_signals=report is not None)
+    mixture = estimator.signal_model == "mixture"  # it learns from every signal cast
+    before = read_evidence(path, name, with_signals=report is not None or mixture)
     settings = cast_settings(rays, receiver_heights)
     check_cast_with(path, before, settings)
     check_receiver_heights(before.cast, dem, receiver_heights, dem_crs)
@@ -261,7 +262,13 @@ def update_map(
         signal=pd.factorize(evidence["signal_key"])[0],
         building=pd.Categorical(evidence["building"], categories=buildings["id"].astype(str)),
     ).drop(columns="signal_key")
-    estimate, classifier = fit_heights(model, buildings, estimator)
+    everything = pd.concat([cast_before, signals], ignore_index=True)
+    sky = None
+    if mixture:
+        signal_elevations = everything.set_index("signal_key")["elevation"]
+        model["elevation"] = signal_elevations.reindex(evidence["signal_key"]).to_numpy()
+        sky = everything[~everything["signal_key"].isin(evidence["signal_key"])]
+    estimate, classifier = fit_heights(model, buildings, estimator, open_sky=sky)
     values, table = _new_values(estimate, current, min_signals)
     result = UpdateResult(
         len(new), len(fresh), table, threshold, frozenset(fresh["building"].astype(str))
@@ -278,10 +285,9 @@ def update_map(
         )
     if report is not None:
         say("report", 0.6)
-        everything = pd.concat([cast_before, signals], ignore_index=True).drop(columns="z")
         run = Run(
             heights=with_id_field(estimate, id_column),
-            receivers=everything,
+            receivers=everything.drop(columns="z"),
             intersections=model.assign(
                 signal=pd.Index(everything["signal_key"]).get_indexer(evidence["signal_key"]),
                 building=evidence["building"].to_numpy(),

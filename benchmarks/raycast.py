@@ -7,6 +7,7 @@ pipeline's stages on them in a fresh process and prints the time of each stage, 
 second and the peak memory (RSS) of that process.
 
     python benchmarks/raycast.py [--signals 1000000] [--blocks 100] [--grid-dir DIR]
+                                 [--signal-model paper|mixture]
 
 Targets (issue 4): cast + fit <= 60 s on a 2-core machine, peak memory <= 2 GB.
 """
@@ -44,11 +45,12 @@ def prepare(folder: Path, signals: int, blocks: int, grid_dir) -> None:
     )
 
 
-def run(folder: Path, grid_dir) -> None:
+def run(folder: Path, grid_dir, signal_model: str) -> None:
     from gnss_citygml.footprints import read_footprints
     from gnss_citygml.model.estimate import estimate_heights
     from gnss_citygml.observations import read_observations
-    from gnss_citygml.pipeline import intersections, receivers
+    from gnss_citygml.pipeline import intersections, open_sky, receivers
+    from gnss_citygml.settings import Estimator
     from gnss_citygml.terrain import building_ground
 
     times = {}
@@ -65,7 +67,11 @@ def run(folder: Path, grid_dir) -> None:
     rx = timed("receivers (geodesy + DEM)", receivers, obs, dem, grid_dir=grid_dir)
     fp = timed("ground under buildings", building_ground, fp, dem)
     inter = timed("cast", intersections, rx, fp)
-    heights = timed("fit (4PL-B)", estimate_heights, inter)
+    estimator = Estimator(signal_model=signal_model)
+    heights = timed(
+        "fit (4PL-B)",
+        lambda: estimate_heights(inter, estimator, open_sky=open_sky(rx, inter)),
+    )
     peak_gb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024**2
     for name, seconds in times.items():
         print(f"  {name:28s} {seconds:7.2f} s")
@@ -83,15 +89,17 @@ def main():
     parser.add_argument("--signals", type=int, default=1_000_000)
     parser.add_argument("--blocks", type=int, default=100, help="blocks per side")
     parser.add_argument("--grid-dir", type=Path, default=GRIDS)
+    parser.add_argument("--signal-model", default="paper", help="paper or mixture")
     parser.add_argument("--run", type=Path, help=argparse.SUPPRESS)  # the measured process
     args = parser.parse_args()
     if args.run:
-        run(args.run, args.grid_dir)
+        run(args.run, args.grid_dir, args.signal_model)
         return
     folder = OUT / f"city_{args.blocks}x{args.blocks}_{args.signals}"
     if not (folder / "dem.tif").exists():
         prepare(folder, args.signals, args.blocks, args.grid_dir)
     command = [sys.executable, __file__, "--run", str(folder), "--grid-dir", str(args.grid_dir)]
+    command += ["--signal-model", args.signal_model]
     subprocess.run(command, check=True)
 
 

@@ -15,6 +15,7 @@ from test_cli import run as run_cli
 import gnss_citygml as gc
 from gnss_citygml.cli.demo import OUTPUTS
 from gnss_citygml.compare import compare, summary
+from gnss_citygml.model.mixture import Cn0Mixture
 from gnss_citygml.pipeline import run
 from gnss_citygml.report import (
     REPORT,
@@ -242,3 +243,21 @@ def test_estimate_report_with_a_math_receiver_name(grid_args, tmp_path, capsys):
     code, _, err = run_cli(["estimate", *args, "--report", str(tmp_path / "r")], capsys)
     assert code == 0, err
     assert (tmp_path / "r" / REPORT).is_file()
+
+
+def test_the_mixture_signal_model_has_a_report(grid_dir, tmp_path):
+    """The mixture is drawn at 45 degrees of elevation: its 50 % point, and each received
+    signal labelled by it at its own elevation."""
+    obs = gc.read_observations(CITY / "observations.parquet")
+    footprints = gc.read_footprints(CITY / "footprints.gpkg")
+    mixture = run(obs, footprints, CITY / "dem.tif", grid_dir=grid_dir,
+                  estimator=gc.Estimator(signal_model="mixture"))  # fmt: skip
+    assert isinstance(mixture.classifier, Cn0Mixture)
+    threshold = mixture.classifier.threshold
+    assert 20.0 < threshold < 45.0
+    states = signal_states(mixture)
+    at_45 = states[(states["elevation"] - 45.0).abs() < 2.0]
+    assert (at_45.loc[at_45["cn0"] > threshold + 1.0, "state"] == "open").all()
+    assert (at_45.loc[at_45["cn0"] < threshold - 1.0, "state"] == "closed").all()
+    page = write_report(mixture, tmp_path)
+    assert page.is_file() and len(list((tmp_path / "figures").iterdir())) == len(FIGURES)

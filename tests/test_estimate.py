@@ -271,7 +271,8 @@ def test_the_range_holds_where_the_data_leave_the_roof_line(rng):
     h = np.r_[rng.uniform(20.0, 30.0, 3000), rng.uniform(50.0, 60.0, 3000)]
     table = pd.DataFrame({"building": "b", "height": h, "cn0": np.where(h > 40.0, 42.0, np.nan)})
     wide = estimate_heights(table).iloc[0]
-    assert not wide["converged"] and wide["status"] == "height range wider than 10 m"
+    assert not wide["converged"]
+    assert wide["status"] == "height range wider than 10 m: no rays near the roof line"
     lax = Estimator(acceptance=Acceptance(max_uncertainty=30.0))
     row = estimate_heights(table, lax).iloc[0]
     assert row["converged"]
@@ -299,3 +300,18 @@ def test_the_datas_and_the_positions_uncertainties_add_in_quadrature():
     # 1.5/b of transition on each side, then the two uncertainties of c: hypot(3, 4) = 5
     assert judged.height_lower[0] == pytest.approx(30.0 - 1.5 - 5.0)
     assert judged.height_upper[0] == pytest.approx(30.0 + 1.5 + np.hypot(1.0, 4.0))
+
+
+def test_a_range_too_wide_from_the_positions_says_so(rng):
+    """One recording whose shared position error moves each height by 6 m: the data place the
+    roof line well, the receiver's position does not."""
+    table = synthetic_intersections(rng, 45.0, n=6000, noise=0.5).assign(
+        height_sd=6.0, receiver="phone"
+    )
+    out = estimate_heights(table).iloc[0]
+    assert not out["converged"]
+    assert (
+        out["status"] == "height range wider than 10 m: the receivers' positions are too uncertain"
+    )
+    # without the shared error the same rows give a height
+    assert estimate_heights(table.drop(columns="height_sd")).iloc[0]["converged"]

@@ -860,6 +860,20 @@ def position_margin(
     return 2.0 * np.sqrt(num) / np.maximum(den, 1e-300)
 
 
+#: Why a range is too wide, where the data say (after ``height range wider than ... m: ``):
+#: the receivers' shared position errors move the roof line more than the data leave it open,
+POSITIONS_UNCERTAIN = "the receivers' positions are too uncertain"
+#: or fewer than ``min_signals`` rays cross the building within a quarter of the widest range
+#: of the roof line (a static phone sees a building at a few heights only).
+NO_RAYS = "no rays near the roof line"
+
+
+def _far_from(h, g, c, reach, n_groups, min_signals):
+    """Buildings with fewer than ``min_signals`` rows within ``reach`` of their ``c``."""
+    near = np.abs(h - c[g]) <= reach
+    return np.bincount(g, near, n_groups) < min_signals
+
+
 def _judge(
     fit,
     g,
@@ -900,7 +914,9 @@ def _judge(
     # they add in quadrature; the transition, the roof line's own blur, adds to both
     lower = c + offset - 1.5 / b - np.hypot(c - c_lo, margin)
     upper = c + offset + 1.5 / b + np.hypot(c_hi - c, margin)
+    wide = upper - lower > max_uncertainty
     status = np.full(n_groups, "ok", dtype=object)
+    wide_text = f"height range wider than {max_uncertainty:g} m"
     plausibility = [
         (change >= label_tol, f"labels still changing after {iterations} iterations"),
         (b <= B_BOUNDS[0] * 1.0001, "no slope: the height does not change the open probability"),
@@ -908,7 +924,12 @@ def _judge(
         (a - d < min_separation, f"asymptotes closer than {min_separation} (a - d)"),
         # Relabelling by h > c presumes the map classifies below c as closed and above as open.
         ((d >= 0.5) | (a <= 0.5), "the roof line does not separate open from closed signals"),
-        (upper - lower > max_uncertainty, f"height range wider than {max_uncertainty:g} m"),
+        (wide, wide_text),
+        (wide & (margin > np.maximum(c - c_lo, c_hi - c)), f"{wide_text}: {POSITIONS_UNCERTAIN}"),
+        (
+            wide & _far_from(h, g, c, max_uncertainty / 4, n_groups, min_signals),
+            f"{wide_text}: {NO_RAYS}",
+        ),
         (hidden, "roof line hidden: most signals below it are blocked by other buildings"),
         (
             np.minimum(n_below, n_rows - n_below) < min_signals,

@@ -169,8 +169,8 @@ class Cn0Mixture:
         if not isinstance(before, Cn0Mixture):
             return False
         ends = np.array([0.0, 1.0])
-        now, then = (
-            np.array([[m.alpha[k] + m.beta[k] * ends for k in (0, 1)] for m in (self, before)])
+        now, then = np.array(
+            [[m.alpha[k] + m.beta[k] * ends for k in (0, 1)] for m in (self, before)]
         )
         spread = np.abs(np.subtract(self.sigma, before.sigma))
         chance = np.abs(np.subtract(self.q, before.q))

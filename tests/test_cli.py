@@ -4,10 +4,14 @@ from pathlib import Path
 
 import click
 import geopandas as gpd
+import numpy as np
 import pandas as pd
 import pytest
+from conftest import synthetic_intersections
 
 from gnss_citygml.cli import cli, main
+from gnss_citygml.model.estimate import estimate_heights
+from gnss_citygml.settings import Estimator
 
 
 def run(args, capsys):
@@ -64,6 +68,58 @@ def test_user_errors_are_one_line_with_exit_code_2(tmp_path, capsys):
     assert code == 2 and err.startswith("error: missing column(s) 'cn0'")
     assert len(err.strip().splitlines()) == 1
     assert not (tmp_path / "h.csv").exists()
+
+
+def test_the_signal_model_reaches_the_estimator(tmp_path, capsys):
+    """``heights --signal-model mixture`` gives the library's mixture heights, which are not
+    the paper's: the option is not dropped on its way to the estimator."""
+    table = pd.concat(
+        [
+            synthetic_intersections(np.random.default_rng(1), n=1500),
+            synthetic_intersections(np.random.default_rng(2), n=1500, truth=30.0, building="b2"),
+        ],
+        ignore_index=True,
+    )
+    table.to_parquet(tmp_path / "intersections.parquet")
+    written = {}
+    for model in ("paper", "mixture"):
+        out = tmp_path / f"{model}.parquet"
+        args = ["heights", str(tmp_path / "intersections.parquet"), "-o", str(out)]
+        code, _, err = run([*args, "--signal-model", model], capsys)
+        assert code == 0, err
+        written[model] = pd.read_parquet(out)
+        expected = estimate_heights(table, Estimator(signal_model=model))
+        pd.testing.assert_frame_equal(written[model], expected, check_dtype=False)
+    change = (written["mixture"]["height"] - written["paper"]["height"]).abs()
+    assert change.max() > 1e-3
+
+
+@pytest.mark.parametrize("method", ["hinge", "bayes", "4PL"])
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["heights", "{d}/i.csv", "-o", "{d}/h.csv"],
+        ["estimate", "{d}/o.csv", "{d}/f.gpkg", "--dem", "{d}/dem.tif", "-o", "{d}/h.gpkg"],
+        ["report", "{d}/o.csv", "{d}/f.gpkg", "--dem", "{d}/dem.tif", "-o", "{d}/report"],
+        ["update", "{d}/map.gpkg", "--observations", "{d}/o.csv", "--dem", "{d}/dem.tif"],
+    ],
+)
+def test_a_signal_model_the_method_has_not_is_one_line(args, method, tmp_path, capsys):
+    """The mixture signal model is 4PL-B's: with another method every command that builds an
+    estimator says so in one line, exit 2, before reading any input."""
+    args = [a.format(d=tmp_path) for a in args]
+    code, out, err = run([*args, "--method", method, "--signal-model", "mixture"], capsys)
+    assert code == 2 and len(err.strip().splitlines()) == 1
+    assert err.startswith(f"error: signal model mixture needs method 4PL-B, not {method}")
+    assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("model", ["bogus", "Mixture", "", "4PL-B"])
+def test_an_unknown_signal_model_is_refused_by_its_option(model, tmp_path, capsys):
+    args = ["heights", str(tmp_path / "i.csv"), "-o", str(tmp_path / "h.csv")]
+    code, _, err = run([*args, "--signal-model", model], capsys)
+    assert code == 2
+    assert f"Invalid value for '--signal-model': '{model}' is not one of 'paper', 'mixture'" in err
 
 
 def test_unknown_output_format_writes_nothing(grid_args, tmp_path, capsys):

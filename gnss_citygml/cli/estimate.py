@@ -23,6 +23,7 @@ from .options import (
     QUIET,
     RECEIVER_HEIGHT,
     REPORT,
+    SIGNAL_MODEL,
     THRESHOLD,
     TILE_SIZE,
     TRUTH,
@@ -46,6 +47,7 @@ _RUN_OPTIONS = together(
     THRESHOLD,
     METHOD,
     HEIGHT_RULE,
+    SIGNAL_MODEL,
     click.option(
         "--max-range", type=float, default=Rays.max_range, show_default=True, help="Ray length (m)."
     ),
@@ -163,6 +165,7 @@ def _run(
     init_threshold,
     method,
     height_rule,
+    signal_model,
     max_range,
     position_sd,
     position_window,
@@ -202,7 +205,10 @@ def _run(
             ),
             receiver_heights=ReceiverHeights(source=receiver_height, antenna_height=antenna_height),
             estimator=Estimator(
-                method=method, init_threshold=init_threshold, height_rule=height_rule
+                method=method,
+                init_threshold=init_threshold,
+                height_rule=height_rule,
+                signal_model=signal_model,
             ),
             position_error=PositionError(sd=position_sd, window=position_window),
             calibration=Calibration(prior_sd=calibration_sd, window=calibration_window),

@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from ..settings import WEIGHTINGS, Estimator
-from .options import HEIGHT_RULE, METHOD, OVERWRITE, THRESHOLD, output_file
+from .options import HEIGHT_RULE, METHOD, OVERWRITE, SIGNAL_MODEL, THRESHOLD, output_file
 
 
 @click.command()
@@ -23,14 +23,21 @@ from .options import HEIGHT_RULE, METHOD, OVERWRITE, THRESHOLD, output_file
     help="Reweighting of the 4PL height fit (4PL-B and 4PL).",
 )
 @HEIGHT_RULE
+@SIGNAL_MODEL
 @OVERWRITE
-def heights(intersections, output, method, init_threshold, weighting, height_rule, overwrite):
+def heights(
+    intersections, output, method, init_threshold, weighting, height_rule, signal_model, overwrite
+):
     """Estimate building heights from an intersections table (CSV or Parquet)."""
     from ..model.estimate import estimate_heights
     from ..tables import check_table_output, read_table, write_table
 
     estimator = Estimator(
-        method=method, init_threshold=init_threshold, weighting=weighting, height_rule=height_rule
+        method=method,
+        init_threshold=init_threshold,
+        weighting=weighting,
+        height_rule=height_rule,
+        signal_model=signal_model,
     )
     check_table_output(output, overwrite=overwrite, inputs=[intersections])
     out = estimate_heights(read_table(intersections), estimator)

@@ -21,6 +21,7 @@ from ..settings import (
     DEFAULT_TILE_SIZE,
     HEIGHT_RULES,
     RECEIVER_HEIGHTS,
+    SIGNAL_MODELS,
     Estimator,
     Rays,
     ReceiverHeights,
@@ -44,6 +45,7 @@ __all__ = [
     "REPORT",
     "SCHEMA_DIR",
     "SEED",
+    "SIGNAL_MODEL",
     "STDOUT",
     "THRESHOLD",
     "TILE_SIZE",
@@ -143,6 +145,15 @@ HEIGHT_RULE = click.option(
     show_default=True,
     help="How the height is read off a building's 4PL: its inflection point c, or the paper's "
     "c + 1.5/b (both are in every output: c and height_paper).",
+)
+SIGNAL_MODEL = click.option(
+    "--signal-model",
+    type=click.Choice(list(SIGNAL_MODELS)),
+    default=Estimator.signal_model,
+    show_default=True,
+    help="How 4PL-B tells open signals from closed ones: the paper's C/N0 threshold trained "
+    "on the map's labels, or a mixture of open and closed signals' C/N0 by elevation learnt "
+    "by EM (method 4PL-B only).",
 )
 THRESHOLD = click.option(
     "--init-threshold",

@@ -16,6 +16,7 @@ from .options import (
     METHOD,
     QUIET,
     REPORT,
+    SIGNAL_MODEL,
     THRESHOLD,
     TRUTH,
     dem_file,
@@ -57,6 +58,7 @@ from .options import (
 @THRESHOLD
 @METHOD
 @HEIGHT_RULE
+@SIGNAL_MODEL
 @DEM_CRS
 @GRID_DIR
 @QUIET
@@ -75,6 +77,7 @@ def update(
     init_threshold,
     method,
     height_rule,
+    signal_model,
     dem_crs,
     grid_dir,
     quiet,
@@ -108,7 +111,10 @@ def update(
             dry_run=dry_run,
             backup=not no_backup,
             estimator=Estimator(
-                method=method, init_threshold=init_threshold, height_rule=height_rule
+                method=method,
+                init_threshold=init_threshold,
+                height_rule=height_rule,
+                signal_model=signal_model,
             ),
             grid_dir=grid_dir,
             dem_crs=dem_crs,

@@ -169,6 +169,17 @@ def advanced(parameter):
 
 #: The description of the height rule parameter (estimate, update).
 HEIGHT_RULE = "Height rule (c: the 4PL's inflection point; paper: c + 1.5/b)"
+#: The description of the signal model parameter (estimate, update).
+SIGNAL_MODEL = (
+    "Signal model (paper: a C/N0 threshold; mixture: open and closed signals' C/N0 by "
+    "elevation, learnt by EM; 4PL-B only)"
+)
+#: The sentence of the algorithms' help on the signal model (estimate, update).
+SIGNAL_MODEL_HELP = (
+    "The signal model (advanced) is how 4PL-B tells open signals from closed ones: the "
+    "paper's C/N0 threshold trained on the map's labels, or a mixture of open and closed "
+    "signals' C/N0 by elevation learnt by EM."
+)
 
 
 def choice(name, description, options, default):

@@ -17,11 +17,20 @@ from qgis.core import (
     QgsProcessingParameterVectorDestination,
 )
 
-from .algorithm import HEIGHT_RULE, Algorithm, advanced, choice, folder
+from .algorithm import (
+    HEIGHT_RULE,
+    SIGNAL_MODEL,
+    SIGNAL_MODEL_HELP,
+    Algorithm,
+    advanced,
+    choice,
+    folder,
+)
 
 LAYER = "heights"
 
-HELP = """Estimates the height of every building footprint from the GNSS signals that \
+HELP = (
+    """Estimates the height of every building footprint from the GNSS signals that \
 smartphones received or lost around it, with 4PL-B (Lines & Basiri): for each building, a \
 four-parameter logistic regression of "signal received" against the height at which each \
 satellite ray crosses the footprint, co-trained with a C/N0 signal classifier.
@@ -41,7 +50,12 @@ ground), n_signals, \
 converged and status (why a building has no height: never a guess). It opens styled: \
 buildings coloured by height, hatched where there is no estimate, extruded in the 3D view.
 
+"""
+    + SIGNAL_MODEL_HELP
+    + """
+
 The same as <tt>gnss-citygml estimate</tt> on the command line, with the same defaults."""
+)
 
 
 class _Style(QgsProcessingLayerPostProcessorInterface):
@@ -84,6 +98,7 @@ class EstimateAlgorithm(Algorithm):
             MAX_RANGES,
             POSITION_SDS,
             RECEIVER_HEIGHTS,
+            SIGNAL_MODELS,
             WINDOWS,
             Estimator,
             Rays,
@@ -163,6 +178,9 @@ class EstimateAlgorithm(Algorithm):
         self.addParameter(choice("METHOD", "Method", METHODS, Estimator.method))
         self.addParameter(choice("HEIGHT_RULE", HEIGHT_RULE, HEIGHT_RULES, Estimator.height_rule))
         self.addParameter(
+            advanced(choice("SIGNAL_MODEL", SIGNAL_MODEL, SIGNAL_MODELS, Estimator.signal_model))
+        )
+        self.addParameter(
             advanced(
                 QgsProcessingParameterNumber(
                     "MAX_RANGE",
@@ -222,7 +240,7 @@ class EstimateAlgorithm(Algorithm):
 
     def job(self, parameters, context, feedback):
         from gnss_citygml.model import METHODS
-        from gnss_citygml.settings import HEIGHT_RULES, RECEIVER_HEIGHTS
+        from gnss_citygml.settings import HEIGHT_RULES, RECEIVER_HEIGHTS, SIGNAL_MODELS
 
         number = self.parameterAsDouble
         optional = self.optional_number
@@ -253,6 +271,7 @@ class EstimateAlgorithm(Algorithm):
                 "method": self.chosen(parameters, "METHOD", METHODS, context),
                 "init_threshold": number(parameters, "INIT_THRESHOLD", context),
                 "height_rule": self.chosen(parameters, "HEIGHT_RULE", HEIGHT_RULES, context),
+                "signal_model": self.chosen(parameters, "SIGNAL_MODEL", SIGNAL_MODELS, context),
             },
             "position_error": {
                 "sd": optional(parameters, "POSITION_SD", context),

@@ -18,9 +18,18 @@ from qgis.core import (
     QgsProviderRegistry,
 )
 
-from .algorithm import HEIGHT_RULE, Algorithm, advanced, choice, folder
+from .algorithm import (
+    HEIGHT_RULE,
+    SIGNAL_MODEL,
+    SIGNAL_MODEL_HELP,
+    Algorithm,
+    advanced,
+    choice,
+    folder,
+)
 
-HELP = """Keeps the building heights of a GeoPackage map up to date as new GNSS observations \
+HELP = (
+    """Keeps the building heights of a GeoPackage map up to date as new GNSS observations \
 arrive: adds or updates the columns height_gnss, height_lower, height_upper, height_paper, \
 c_gnss, n_signals, converged, method, status_gnss and updated_utc of the map layer, for the \
 buildings with enough signals. Every other column, feature, layer and style of the \
@@ -33,7 +42,12 @@ update is complete, with a backup (MAP.bak.gpkg) of the map as it was: a failure
 leaves it untouched. A map that another program (or this QGIS, in editing mode) is writing to \
 is refused.
 
+"""
+    + SIGNAL_MODEL_HELP
+    + """
+
 The same as <tt>gnss-citygml update</tt> on the command line."""
+)
 
 
 class UpdateAlgorithm(Algorithm):
@@ -48,7 +62,7 @@ class UpdateAlgorithm(Algorithm):
 
     def define(self):
         from gnss_citygml.model import METHODS
-        from gnss_citygml.settings import CN0S, HEIGHT_RULES, Estimator
+        from gnss_citygml.settings import CN0S, HEIGHT_RULES, SIGNAL_MODELS, Estimator
 
         self.addParameter(
             QgsProcessingParameterVectorLayer(
@@ -95,6 +109,9 @@ class UpdateAlgorithm(Algorithm):
             advanced(choice("HEIGHT_RULE", HEIGHT_RULE, HEIGHT_RULES, Estimator.height_rule))
         )
         self.addParameter(
+            advanced(choice("SIGNAL_MODEL", SIGNAL_MODEL, SIGNAL_MODELS, Estimator.signal_model))
+        )
+        self.addParameter(
             advanced(
                 QgsProcessingParameterNumber(
                     "INIT_THRESHOLD",
@@ -112,7 +129,7 @@ class UpdateAlgorithm(Algorithm):
 
     def job(self, parameters, context, feedback):
         from gnss_citygml.model import METHODS
-        from gnss_citygml.settings import HEIGHT_RULES
+        from gnss_citygml.settings import HEIGHT_RULES, SIGNAL_MODELS
 
         layer = self.parameterAsVectorLayer(parameters, "MAP", context)
         parts = QgsProviderRegistry.instance().decodeUri(layer.providerType(), layer.source())
@@ -137,6 +154,7 @@ class UpdateAlgorithm(Algorithm):
                 "method": self.chosen(parameters, "METHOD", METHODS, context),
                 "init_threshold": self.parameterAsDouble(parameters, "INIT_THRESHOLD", context),
                 "height_rule": self.chosen(parameters, "HEIGHT_RULE", HEIGHT_RULES, context),
+                "signal_model": self.chosen(parameters, "SIGNAL_MODEL", SIGNAL_MODELS, context),
             },
             "grid_dir": self.optional_text(parameters, "GRID_DIR", context),
             "dem_crs": dem.crs().authid() or None,

@@ -153,6 +153,27 @@ def test_errors_are_the_clis_one_line_messages(plugin, processing_framework, sce
     assert not (tmp_path / "p.gpkg").exists()
 
 
+@pytest.mark.parametrize("name", ["gnsscitygml:estimate", "gnsscitygml:update"])
+def test_the_signal_model_reaches_the_library(plugin, processing_framework, scene, name, tmp_path):
+    """The mixture signal model with a method that has no signal model: the library's own
+    one-line refusal, so the choice reached its estimator; nothing written."""
+    map_ = tmp_path / "map.gpkg"
+    shutil.copy(scene["footprints"], map_)
+    layer = QgsVectorLayer(f"{map_}|layername=footprints", "map", "ogr")
+    inputs = {
+        "gnsscitygml:estimate": _inputs(scene, tmp_path / "h.gpkg"),
+        "gnsscitygml:update": {
+            "MAP": layer,
+            "OBSERVATIONS": [str(scene["observations"])],
+            "DEM": str(scene["dem"]),
+        },
+    }[name]
+    with pytest.raises(QgsProcessingException) as raised:
+        processing_framework.run(name, {**inputs, "METHOD": 2, "SIGNAL_MODEL": 1})
+    assert str(raised.value).startswith("signal model mixture needs method 4PL-B, not hinge")
+    assert not (tmp_path / "h.gpkg").exists() and not (tmp_path / "map.bak.gpkg").exists()
+
+
 class _CancelAfter(QgsProcessingFeedback):
     """Presses Cancel once the job reports its ``n``-th stage."""
 

@@ -74,6 +74,20 @@ def test_estimate_parameters_take_the_librarys_defaults(plugin):
     assert method.options()[default["METHOD"]] == Estimator.method
 
 
+@pytest.mark.parametrize("name", ["gnsscitygml:estimate", "gnsscitygml:update"])
+def test_the_signal_model_is_an_advanced_choice_with_the_librarys_default(plugin, name):
+    from qgis.core import QgsProcessingParameterDefinition
+
+    from gnss_citygml.settings import SIGNAL_MODELS, Estimator
+
+    algorithm = QgsApplication.processingRegistry().algorithmById(name)
+    parameter = algorithm.parameterDefinition("SIGNAL_MODEL")
+    assert parameter.options() == list(SIGNAL_MODELS)
+    assert parameter.options()[parameter.defaultValue()] == Estimator.signal_model
+    assert parameter.flags() & QgsProcessingParameterDefinition.FlagAdvanced
+    assert "signal model" in algorithm.shortHelpString()
+
+
 #: A QGIS with its Python's Debian packages only (no site folders, so no gnss-citygml however
 #: this machine's Python is set up), then ``SITE``'s folders: it loads the plugin as QGIS
 #: does and runs an algorithm, printing the plugin's log (LOG), the algorithms (ALGORITHMS)

@@ -57,6 +57,7 @@ OPTIONS = {
             "POSITION_SD": 1,
         },
     ),
+    "mixture": (["--signal-model", "mixture"], {"SIGNAL_MODEL": 1}),
 }
 
 

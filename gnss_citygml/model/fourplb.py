@@ -335,6 +335,8 @@ def run_parts(
     engine = engine or InProcess()
     bootstrap = estimator.method == "4PL-B"
     model: SignalModel = SignalClassifier.initial(estimator.init_threshold)
+    if estimator.signal_model == "mixture" and open_sky is not None and open_sky.seen:
+        model = Cn0Mixture.initial(open_sky)
     iterations = 0
     names = [str(k) for k in range(len(parts))] if names is None else list(names)
     for iterations in range(1, (estimator.max_iter if bootstrap else 1) + 1):
@@ -373,10 +375,7 @@ def run_parts(
             ]
         tally = engine.gather(tallies[0])
         if open_sky is not None and isinstance(tally.evidence, Cn0Moments):
-            evidence = tally.evidence
-            if iterations == 1 and open_sky.received > 0:  # open: what surely is, at first
-                evidence = evidence.closed()
-            tally = replace(tally, evidence=evidence + open_sky)
+            tally = replace(tally, evidence=tally.evidence + open_sky)
         before, model = model, tally.refit(model)
         if progress is not None:
             progress(iterations)

@@ -49,6 +49,8 @@ SETTLED_CHANCE = 0.01
 #: The elevation (model units: 45 degrees) at which the model is drawn and summed up in one
 #: threshold for a reader (:attr:`Cn0Mixture.threshold`).
 MID_ELEVATION = 0.5
+#: Received signals crossing no footprint the mixture needs to start from them alone.
+MIN_SKY = 30
 #: Sums kept per class (:class:`Cn0Moments`): over received signals the weight and its
 #: products with e, e^2, C/N0, e C/N0 and C/N0^2; then the weight of those not received.
 _SUMS = 7
@@ -98,15 +100,10 @@ class Cn0Moments:
         return Cn0Moments(self.sums + other.sums)
 
     @property
-    def received(self) -> float:
-        """The weight of the received signals, open and closed."""
-        return float(self.sums[:, 0].sum())
-
-    def closed(self) -> Cn0Moments:
-        """The closed class's sums alone."""
-        sums = self.sums.copy()
-        sums[0] = 0.0
-        return Cn0Moments(sums)
+    def seen(self) -> bool:
+        """Whether the open class has enough received signals to start the mixture from them
+        (:meth:`Cn0Mixture.initial`): at least :data:`MIN_SKY`."""
+        return bool(self.sums[0, 0] >= MIN_SKY)
 
     def __sub__(self, other: Cn0Moments) -> Cn0Moments:
         """These signals less ``other``, some of them (a run's signals less those that cross
@@ -123,6 +120,17 @@ class Cn0Mixture:
     beta: tuple[float, float]
     sigma: tuple[float, float]
     q: tuple[float, float]
+
+    @classmethod
+    def initial(cls, open_sky: Cn0Moments) -> Cn0Mixture:
+        """Where 4PL-B with the mixture starts when the sky is seen: the open class fitted to
+        the signals that cross no footprint, the closed class below it by twice the open
+        class's spread (where few of the open signals are), as widely spread, and received
+        half the time. No C/N0 threshold is needed: the map's first fits and the EM that
+        follows place the closed class where the data put it."""
+        sky = cls.fitted(open_sky)
+        alpha, beta, sigma, q = sky.alpha[0], sky.beta[0], sky.sigma[0], sky.q[0]
+        return cls((alpha, alpha - 2.0 * sigma), (beta, beta), (sigma, sigma), (q, 0.5))
 
     @classmethod
     def fitted(cls, moments: Cn0Moments) -> Cn0Mixture:

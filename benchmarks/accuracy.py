@@ -25,7 +25,7 @@ from gnss_citygml.footprints import read_footprints
 from gnss_citygml.model import METHODS
 from gnss_citygml.model.estimate import estimate_heights
 from gnss_citygml.observations import read_observations
-from gnss_citygml.pipeline import intersections, receivers
+from gnss_citygml.pipeline import intersections, open_sky, receivers
 from gnss_citygml.settings import Calibration, Estimator, PositionError
 from gnss_citygml.simulate import simulate
 from gnss_citygml.simulate.files import write_site
@@ -132,6 +132,8 @@ def run_accuracy(
             low, high = (pd.Series(v, truth.index) for v in roof_span(truth))
             for method in methods:
                 opts = options if method in ("4PL-B", "4PL") else {}
+                if method != "4PL-B":  # the signal model is 4PL-B's
+                    opts = {k: v for k, v in opts.items() if k != "signal_model"}
                 for threshold in thresholds:
                     start = time.perf_counter()
                     inter = inter_all
@@ -144,7 +146,7 @@ def run_accuracy(
                             rays, footprints, calibration, estimator=estimator
                         )
                         inter = _recast(fixed, footprints, errors)
-                    out = estimate_heights(inter, estimator)
+                    out = estimate_heights(inter, estimator, open_sky=open_sky(rays, inter))
                     seconds = time.perf_counter() - start
                     out = out.set_index("id").reindex(targets)
                     for bid, r in out.iterrows():

@@ -12,6 +12,7 @@ threshold (the paper's figure of results), and print the fit throughput.
     python benchmarks/paper_table.py --position-errors exact  # positions taken as exact
     python benchmarks/paper_table.py --calibrate     # 4PL-B with self-calibrated receivers
     python benchmarks/paper_table.py --positions common  # the information floor of the data
+    python benchmarks/paper_table.py --signal-model mixture  # 4PL-B with the mixture
 """
 
 from __future__ import annotations
@@ -92,6 +93,7 @@ def main():
         "no estimator separates that shared offset from the heights) or from the true ones "
         "(true: the floor of the estimator)",
     )
+    parser.add_argument("--signal-model", default=None, help="4PL-B's (default: the API's)")
     parser.add_argument("--thresholds", default=None, help="comma-separated C/N0 thresholds")
     parser.add_argument("--methods", default=None, help="comma-separated methods (default all)")
     args = parser.parse_args()
@@ -101,6 +103,8 @@ def main():
     if args.thresholds:
         thresholds = tuple(float(t) for t in args.thresholds.split(","))
     options = {} if args.weighting is None else {"weighting": args.weighting}
+    if args.signal_model:
+        options["signal_model"] = args.signal_model
     options.update(position_errors=args.position_errors, position_window=args.position_window)
     if args.calibrate:
         options.update(calibration_sd=POSITION_SD, calibration_window=args.window)

@@ -148,6 +148,7 @@ def main():
         default="paper",
         help="how 4PL-B labels the signals (the reference's perfect labels are always hard)",
     )
+    parser.add_argument("--save", help="write every converged run to this CSV")
     parser.add_argument(
         "--no-open-sky",
         action="store_true",
@@ -201,7 +202,7 @@ def main():
             err = _judged(sim, cast, args.labels, args.weighting, args.signal_model, sky)
             n_runs = len(sim.truth) * len(THRESHOLDS)
             group = locations if regime is None else f"{regime}, {locations}"
-            runs.append(err.assign(group=group))
+            runs.append(err.assign(group=group, scene=k))
             totals[group] = totals.get(group, 0) + n_runs
             cells = _cells(err, n_runs)
             if args.reference:
@@ -210,6 +211,8 @@ def main():
                 cells += f" | {_reference_cells(err, ref, n_runs)}"
             print(f"| {k} | {layout} | {locations} | {cells} |", flush=True)
     every = pd.concat(runs)
+    if args.save:
+        every.rename_axis("id").reset_index().to_csv(args.save, index=False)
     print("\nAll scenes, thresholds 20/30/40:\n")
     print(f"| {'regime, locations' if args.regimes else 'locations'} | {header}")
     print("|---" * (1 + header.count("|")) + "|")
@@ -232,7 +235,7 @@ def _judged(sim, cast, labels, weighting, signal_model, sky) -> pd.DataFrame:
             init_threshold=threshold, weighting=weighting, signal_model=signal_model
         )
         heights = estimate_heights(intersections, estimator, open_sky=sky)
-        judged.append(judge(heights, sim.truth))
+        judged.append(judge(heights, sim.truth).assign(threshold=threshold))
     return pd.concat(judged)
 
 

@@ -4,7 +4,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from gnss_citygml.errors import ModelError
+from gnss_citygml.errors import InputError, ModelError
 from gnss_citygml.model.estimate import estimate_heights, signal_model
 from gnss_citygml.model.mixture import Cn0Mixture, Cn0Moments, elevation_units
 from gnss_citygml.settings import Estimator
@@ -153,3 +153,31 @@ def test_the_mixture_is_for_4plb_only():
         Estimator(method="4PL", signal_model="mixture")
     with pytest.raises(ModelError, match="unknown signal model"):
         Estimator(signal_model="magic")
+
+
+@pytest.mark.parametrize(
+    "sky, message",
+    [
+        (
+            pd.DataFrame({"cn0": [35.0, np.inf]}),
+            r"C/N0 is infinite \(open-sky signals, column 'cn0', rows 1\)",
+        ),
+        (pd.DataFrame({"cn0": [35.0, "strong"]}), "column 'cn0' holds values that are not numbers"),
+        (pd.DataFrame({"cn0": [35.0], "elevation": ["high"]}), "column 'elevation' holds values"),
+        (pd.DataFrame({"snr": [35.0]}), "missing column.*cn0"),
+    ],
+    ids=["infinite", "text", "text elevation", "no cn0"],
+)
+def test_bad_open_sky_signals_are_named(sky, message):
+    table, _, _ = street(0, n_buildings=1)
+    with pytest.raises(InputError, match=message):
+        estimate_heights(table, Estimator(signal_model="mixture"), open_sky=sky)
+
+
+def test_infinite_cn0_in_the_intersections_is_named():
+    table, _, _ = street(0, n_buildings=1)
+    table.loc[3, "cn0"] = -np.inf
+    with pytest.raises(
+        InputError, match=r"C/N0 is infinite \(intersections, column 'cn0', rows 3\)"
+    ):
+        estimate_heights(table)

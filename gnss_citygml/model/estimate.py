@@ -185,7 +185,7 @@ def open_sky_moments(open_sky: pd.DataFrame | None, estimator: Estimator) -> Cn0
     missing = [c for c in ("cn0",) if c not in open_sky.columns]
     if missing:
         raise MissingColumnError(missing, where="open-sky signals", have=list(open_sky.columns))
-    cn0 = _numeric(open_sky, "cn0")
+    cn0 = _cn0(open_sky, "open-sky signals")
     elevation = _numeric(open_sky, "elevation") if "elevation" in open_sky.columns else None
     e = 0.0 if elevation is None else elevation_units(elevation)
     return Cn0Moments.of(cn0, e, 1.0)
@@ -232,16 +232,22 @@ def _columns(table: pd.DataFrame):
             where=f"column 'height', rows {_rows(bad)}",
             fix="drop those rows or recompute their ray intersections",
         )
+    cn0 = _cn0(table, "intersections")
+    signal = pd.factorize(table["signal"])[0] if "signal" in table.columns else None
+    order = _numeric(table, "order") if "order" in table.columns else None
+    return np.asarray(ids, dtype=object), codes.astype(np.intp), height, cn0, signal, order
+
+
+def _cn0(table: pd.DataFrame, what: str) -> np.ndarray:
+    """The ``cn0`` column of ``what``: numbers, NaN for a blocked signal, never infinite."""
     cn0 = _numeric(table, "cn0")
     if np.isinf(cn0).any():
         raise InputError(
             "C/N0 is infinite",
-            where=f"column 'cn0', rows {_rows(np.isinf(cn0))}",
+            where=f"{what}, column 'cn0', rows {_rows(np.isinf(cn0))}",
             fix="use NaN (empty) for blocked signals",
         )
-    signal = pd.factorize(table["signal"])[0] if "signal" in table.columns else None
-    order = _numeric(table, "order") if "order" in table.columns else None
-    return np.asarray(ids, dtype=object), codes.astype(np.intp), height, cn0, signal, order
+    return cn0
 
 
 def _recordings(table, height_sd) -> np.ndarray | None:

@@ -24,6 +24,13 @@ co-trained on all buildings' relabelled signals at once, while each building kee
 height 4PL. When the table says which rows are the same signal (``signal``), a signal is
 labelled open only when its ray clears every building it crosses.
 
+Beyond the paper (``estimator.signal_model = "mixture"``): the signal model may be the
+generative :class:`~.mixture.Cn0Mixture` instead of the threshold. Each building's 4PL is then
+the prior chance that a ray clears it, the rows carry soft labels (each ray's chance of clearing
+its building given its C/N0 and elevation and every building along it), and the classes are
+refitted to the signals weighted by them, with the rays that cross no footprint as open ones
+(``open_sky``); the loop also waits for the mixture to settle.
+
 Beyond the paper: the height fit can reweight the data by the distribution of intersection
 heights (``weighting``), as the paper's discussion proposes for buildings seen mostly from one
 side of their roof line (a canyon where nearly all signals are blocked, a terrace where nearly

@@ -253,8 +253,9 @@ def fourplb(
         :func:`look_ids`).
     elevation, open_sky
         Optional elevation (deg) of each row's satellite, and the signals whose rays cross no
-        footprint (:meth:`.Cn0Moments.open_sky`): the mixture signal model (``estimator.signal_model
-        = "mixture"``) learns how C/N0 changes with elevation, and what open signals look like.
+        footprint (:func:`~.estimate.open_sky_moments`): the mixture signal model
+        (``estimator.signal_model = "mixture"``) learns how C/N0 changes with elevation, and
+        what open signals look like.
 
     Returns
     -------

@@ -160,17 +160,23 @@ def test_the_signal_model_reaches_the_library(plugin, processing_framework, scen
     one-line refusal, so the choice reached its estimator; nothing written."""
     map_ = tmp_path / "map.gpkg"
     shutil.copy(scene["footprints"], map_)
+    # the map as a project layer, given by id and removed after (as the update test does: a
+    # layer object left to Python's collector crashes QGIS when it exits)
     layer = QgsVectorLayer(f"{map_}|layername=footprints", "map", "ogr")
+    QgsProject.instance().addMapLayer(layer)
     inputs = {
         "gnsscitygml:estimate": _inputs(scene, tmp_path / "h.gpkg"),
         "gnsscitygml:update": {
-            "MAP": layer,
+            "MAP": layer.id(),
             "OBSERVATIONS": [str(scene["observations"])],
             "DEM": str(scene["dem"]),
         },
     }[name]
-    with pytest.raises(QgsProcessingException) as raised:
-        processing_framework.run(name, {**inputs, "METHOD": 2, "SIGNAL_MODEL": 1})
+    try:
+        with pytest.raises(QgsProcessingException) as raised:
+            processing_framework.run(name, {**inputs, "METHOD": 2, "SIGNAL_MODEL": 1})
+    finally:
+        QgsProject.instance().removeMapLayer(layer.id())
     assert str(raised.value).startswith("signal model mixture needs method 4PL-B, not hinge")
     assert not (tmp_path / "h.gpkg").exists() and not (tmp_path / "map.bak.gpkg").exists()
 

@@ -59,8 +59,8 @@ import pandas as pd
 from ..errors import ModelError
 from ..settings import WEIGHTINGS, Estimator
 from .classifier import Cn0Counts, SignalClassifier
-from .fourpl import B_BOUNDS, FourPLFit, c_interval, fit_4pl, group_range, logistic4
-from .mixture import Cn0Mixture, Cn0Moments, elevation_units
+from .fourpl import B_BOUNDS, FourPLFit, c_interval, fit_4pl, group_range
+from .mixture import Cn0Mixture, Cn0Moments, clear_chance, clears_all, elevation_units
 
 #: What labels the signals: the paper's C/N0 threshold, or the mixture (:mod:`.mixture`).
 SignalModel = SignalClassifier | Cn0Mixture
@@ -660,12 +660,11 @@ class Part:
         prior = self.prior
         evidence: Cn0Counts | Cn0Moments
         if self.estimator.signal_model == "mixture":
-            prior = _prior(self.h, self.g, self.sd, a, b, c, d)
+            prior = clear_chance(self.h, self.g, self.sd, a, b, c, d)
             chance = clear.astype(float)
             if isinstance(last.model, Cn0Mixture):
-                n_sig = int(self.sig.max(initial=-1)) + 1
-                clear_all = np.exp(np.bincount(self.sig, np.log(prior), n_sig))
-                chance = last.model.posterior(self.s[lead], self.e[lead], clear_all[self.sig[lead]])
+                every = clears_all(prior, self.sig)[lead]
+                chance = last.model.posterior(self.s[lead], self.e[lead], every)
             evidence = Cn0Moments.of(self.s[lead], self.e[lead], chance)
         else:
             evidence = Cn0Counts.of(self.s[lead], clear)
@@ -823,15 +822,6 @@ def _classifier_data(part: Part, open_map: np.ndarray, used: np.ndarray):
     lead = lead[lead >= 0]
     mine = part.g[used][lead] < part.n_own
     return np.flatnonzero(used)[lead[mine]], closed[sig[lead[mine]]] == 0
-
-
-def _prior(h, g, sd, a, b, c, d) -> np.ndarray:
-    """Each row's chance of clearing its building by the building's 4PL (``a``-``d`` per
-    building; 0.5 where it has no fit), its slope blurred by the row's height error ``sd``
-    as in the errors-in-variables fit (:mod:`.fourpl`)."""
-    slope = b[g] if sd is None else b[g] / np.sqrt(1.0 + np.pi * (b[g] * sd) ** 2 / 8.0)
-    p = logistic4(h, a[g], slope, c[g], d[g])
-    return np.where(np.isfinite(p), p, 0.5)
 
 
 def position_margin(

@@ -32,7 +32,9 @@ import numpy as np
 import numpy.typing as npt
 from scipy.special import expit
 
-__all__ = ["Cn0Mixture", "Cn0Moments", "elevation_units"]
+from .fourpl import logistic4
+
+__all__ = ["Cn0Mixture", "Cn0Moments", "clear_chance", "clears_all", "elevation_units"]
 
 #: Smallest standard deviation (dB-Hz) of a class's C/N0 about its elevation trend: the fading
 #: of a clear line of sight and receivers' 0.1-1 dB-Hz reporting keep it above this.
@@ -54,6 +56,24 @@ MIN_SKY = 30
 #: Sums kept per class (:class:`Cn0Moments`): over received signals the weight and its
 #: products with e, e^2, C/N0, e C/N0 and C/N0^2; then the weight of those not received.
 _SUMS = 7
+
+
+def clear_chance(h, g, sd, a, b, c, d) -> np.ndarray:
+    """Each row's prior chance of clearing its building ``g`` at height ``h``: the building's
+    4PL (``a``-``d`` per building; 0.5 where it has no fit), its slope blurred by the row's
+    height error ``sd`` as in the errors-in-variables fit (:mod:`.fourpl`)."""
+    slope = b[g] if sd is None else b[g] / np.sqrt(1.0 + np.pi * (b[g] * sd) ** 2 / 8.0)
+    p = logistic4(h, a[g], slope, c[g], d[g])
+    return np.where(np.isfinite(p), p, 0.5)
+
+
+def clears_all(prior: np.ndarray, signal: np.ndarray) -> np.ndarray:
+    """Each row's chance that its ray clears every building it crosses: the product of the
+    ``prior`` chances of the rows of its ``signal`` (each kept :data:`PRIOR_EPS` from 0
+    and 1)."""
+    p = np.clip(prior, PRIOR_EPS, 1 - PRIOR_EPS)
+    n_sig = int(signal.max(initial=-1)) + 1
+    return np.exp(np.bincount(signal, np.log(p), n_sig))[signal]
 
 
 def elevation_units(elevation_deg: npt.ArrayLike) -> np.ndarray:
@@ -215,8 +235,7 @@ class Cn0Mixture:
         the chance that it clears them all (the product of the rows' ``prior``), and closed
         otherwise, when a building clears it with chance ``(prior - all) / (1 - all)``."""
         p = np.clip(prior, PRIOR_EPS, 1 - PRIOR_EPS)
-        n_sig = int(signal.max(initial=-1)) + 1
-        clear_all = np.exp(np.bincount(signal, np.log(p), n_sig))[signal]
+        clear_all = clears_all(p, signal)
         is_open = self.posterior(cn0, e, clear_all)
         clears_if_closed = (p - clear_all) / np.maximum(1.0 - clear_all, PRIOR_EPS)
         return is_open + (1.0 - is_open) * np.clip(clears_if_closed, 0.0, 1.0)

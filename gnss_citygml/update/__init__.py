@@ -262,7 +262,12 @@ def update_map(
         signal=pd.factorize(evidence["signal_key"])[0],
         building=pd.Categorical(evidence["building"], categories=buildings["id"].astype(str)),
     ).drop(columns="signal_key")
-    everything = pd.concat([cast_before, signals], ignore_index=True)
+    # every signal cast, once each (a damaged store's repeats would break the lookups), where
+    # the mixture or the report needs them
+    everything = signals.iloc[:0]
+    if mixture or report is not None:
+        everything = pd.concat([cast_before, signals], ignore_index=True)
+        everything = everything.drop_duplicates("signal_key", ignore_index=True)
     sky = None
     if mixture:
         signal_elevations = everything.set_index("signal_key")["elevation"]

@@ -58,7 +58,15 @@ MIN_SKY = 30
 _SUMS = 7
 
 
-def clear_chance(h, g, sd, a, b, c, d) -> np.ndarray:
+def clear_chance(
+    h: np.ndarray,
+    g: np.ndarray,
+    sd: np.ndarray | None,
+    a: np.ndarray,
+    b: np.ndarray,
+    c: np.ndarray,
+    d: np.ndarray,
+) -> np.ndarray:
     """Each row's prior chance of clearing its building ``g`` at height ``h``: the building's
     4PL (``a``-``d`` per building; 0.5 where it has no fit), its slope blurred by the row's
     height error ``sd`` as in the errors-in-variables fit (:mod:`.fourpl`)."""

@@ -28,21 +28,32 @@ is estimated a second time with the signals labelled by the line of sight, from 
 (recorded) positions: the converged count of that perfect classifier, and the share of it
 the labels of ``--labels`` reach (issue 27, decision 2: at least 80 %).
 
+With ``--phones each`` every session of a scene is recorded by its own phone: its own C/N0
+offset, tracking threshold and body loss (issue 27, decision 3).
+
+With ``--calibrate`` the receivers are self-calibrated first (one offset per recording, or per
+``--calibration-window`` seconds of it, prior sd manual 1 m, phone fixes 5 m: issue 27, item 3),
+for each initial threshold, with the C/N0 classifier (the reference's perfect labels are judged
+on the uncalibrated positions).
+
     python benchmarks/scenes.py [--scenes 8] [--physics | --regimes]
                                 [--position-errors data|exact|fixed] [--position-window 30]
                                 [--weighting looks] [--labels cn0|los] [--reference los]
                                 [--positions reported|common|true]
+                                [--calibrate [--calibration-window 30]] [--phones each]
 """
 
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
 
 import numpy as np
 import pandas as pd
 from accuracy import (
     LABELS,
     POSITION_ERRORS,
+    POSITION_SD,
     POSITIONS,
     judge,
     labelled,
@@ -51,8 +62,10 @@ from accuracy import (
 )
 
 from gnss_citygml import Estimator, estimate_heights
-from gnss_citygml.pipeline import open_sky
-from gnss_citygml.settings import SIGNAL_MODELS, WEIGHTINGS
+from gnss_citygml.calibrate import calibrate_receivers
+from gnss_citygml.model.offsets import cn0_offsets
+from gnss_citygml.pipeline import intersections, open_sky
+from gnss_citygml.settings import SIGNAL_MODELS, WEIGHTINGS, Calibration
 from gnss_citygml.simulate import EPOCH, LOCATIONS, simulate
 from gnss_citygml.simulate.scenes import city_scene, street_scene
 from gnss_citygml.simulate.signals import SignalModel
@@ -109,6 +122,21 @@ def random_physics(k: int) -> SignalModel:
     """The physics of scene ``k``: every constant of :data:`PHYSICS` drawn in its range."""
     rng = np.random.default_rng(1000 + k)
     return SignalModel(**{name: float(rng.uniform(*bounds)) for name, bounds in PHYSICS.items()})
+
+
+#: What differs from one phone to another with ``--phones each``: drawn per session from the
+#: ranges of :data:`PHYSICS` (the C/N0 offset is drawn by the simulator from ``device_sd``).
+PHONE = ("tracking_threshold", "body_loss")
+
+
+def phones(k: int, physics: SignalModel, sessions: int) -> list[SignalModel]:
+    """Scene ``k``'s ``physics`` for each of its ``sessions``, each recorded by its own phone
+    (issue 27, decision 3)."""
+    rng = np.random.default_rng(3000 + k)
+    return [
+        replace(physics, **{name: float(rng.uniform(*PHYSICS[name])) for name in PHONE})
+        for _ in range(sessions)
+    ]
 
 
 def _physics_text(physics: SignalModel) -> str:
@@ -176,6 +204,27 @@ def main():
         default="reported",
         help="cast the rays from the positions a user has (default) or the true ones",
     )
+    parser.add_argument(
+        "--phones",
+        choices=("one", "each"),
+        default="one",
+        help="one phone records every session of a scene (default), or each session its own "
+        "(its C/N0 offset, tracking threshold and body loss)",
+    )
+    parser.add_argument(
+        "--cn0-offsets",
+        action="store_true",
+        help="level each recording's C/N0 by its offset learnt from the open sky",
+    )
+    parser.add_argument(
+        "--calibrate", action="store_true", help="self-calibrate the receivers' offsets first"
+    )
+    parser.add_argument(
+        "--calibration-window",
+        type=float,
+        default=None,
+        help="with --calibrate: one offset per this many seconds (default: per recording)",
+    )
     args = parser.parse_args()
     runs, totals, reached = [], {}, {}
     header = (
@@ -194,12 +243,24 @@ def main():
         physics = random_physics(k) if args.physics or args.regimes else SignalModel()
         if args.physics or args.regimes:
             layout = f"{layout}; {_physics_text(physics)}"
+        if args.phones == "each":
+            physics = phones(k, physics, len(scene.sessions))
+            layout += "; each session its own phone"
         for locations in LOCATIONS:
             sim = simulate(scene, locations=locations, seed=k, start=start, physics=physics)
             error = position_error(args.position_errors, locations, args.position_window)
             rays, _, cast = site_tables(sim, positions=args.positions, position_error=error)
+            if args.cn0_offsets:
+                offsets = cn0_offsets(open_sky(rays, cast))
+                rays, cast = _levelled(rays, offsets), _levelled(cast, offsets)
             sky = None if args.no_open_sky else open_sky(rays, cast)
-            err = _judged(sim, cast, args.labels, args.weighting, args.signal_model, sky)
+            recast = None
+            if args.calibrate:
+                calibration = Calibration(
+                    prior_sd=POSITION_SD[locations], window=args.calibration_window
+                )
+                recast = _calibrated(sim, rays, error, calibration, sky is not None)
+            err = _judged(sim, cast, args.labels, args.weighting, args.signal_model, sky, recast)
             n_runs = len(sim.truth) * len(THRESHOLDS)
             group = locations if regime is None else f"{regime}, {locations}"
             runs.append(err.assign(group=group, scene=k))
@@ -224,19 +285,38 @@ def main():
         print(f"| {group} | {cells} |")
 
 
-def _judged(sim, cast, labels, weighting, signal_model, sky) -> pd.DataFrame:
+def _judged(sim, cast, labels, weighting, signal_model, sky, recast=None) -> pd.DataFrame:
     """The converged runs of one scene, thresholds 20/30/40, with the signals labelled by
     ``labels`` (:func:`accuracy.judge`: errors to the middle and to the span) and the
-    ``signal_model`` (which learns from the ``sky``'s signals, those crossing no footprint)."""
-    intersections = labelled(sim, cast, labels)
+    ``signal_model`` (which learns from the ``sky``'s signals, those crossing no footprint).
+    ``recast`` (:func:`_calibrated`) gives each estimator its own intersections and sky."""
     judged = []
     for threshold in THRESHOLDS:
         estimator = Estimator(
             init_threshold=threshold, weighting=weighting, signal_model=signal_model
         )
-        heights = estimate_heights(intersections, estimator, open_sky=sky)
+        if recast is not None:
+            cast, sky = recast(estimator)
+        heights = estimate_heights(labelled(sim, cast, labels), estimator, open_sky=sky)
         judged.append(judge(heights, sim.truth).assign(threshold=threshold))
     return pd.concat(judged)
+
+
+def _levelled(table, offsets):
+    """``table`` with each recording's (``receiver``'s) C/N0 less its offset."""
+    return table.assign(cn0=table["cn0"] - offsets.reindex(table["receiver"]).to_numpy())
+
+
+def _calibrated(sim, rays, error, calibration, with_sky):
+    """For :func:`_judged`: the intersections (and open sky) of the rays cast from the positions
+    self-calibrated with an estimator."""
+
+    def recast(estimator):
+        fixed = calibrate_receivers(rays, sim.buildings, calibration, estimator=estimator)
+        cast = intersections(fixed, sim.buildings, position_error=error)
+        return cast, (open_sky(fixed, cast) if with_sky else None)
+
+    return recast
 
 
 def _cells(err: pd.DataFrame, n_runs: int) -> str:

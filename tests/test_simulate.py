@@ -197,6 +197,29 @@ def test_the_physics_can_be_changed_and_does_what_it_says():
     assert np.allclose(off["e"], off["e_true"]) and not np.allclose(base["e"], base["e_true"])
 
 
+def test_each_session_may_have_its_own_phone():
+    """Issue 27, decision 3: scenes where each recording is its own phone, so that per-device
+    calibration can be judged: each session's physics is its own (here its tracking threshold
+    and body loss, and the offset drawn from its own device_sd)."""
+    from gnss_citygml.simulate.scenes import street_scene
+
+    scene = street_scene(np.random.default_rng(5), 20.0, 6.0, walkers=3)
+    quiet = SignalModel(device_sd=0.0, session_sd=0.0)
+    phones = [
+        quiet,
+        SignalModel(device_sd=0.0, session_sd=0.0, body_loss=8.0),
+        SignalModel(device_sd=0.0, session_sd=0.0, tracking_threshold=30.0),
+    ]
+    obs = simulate(scene, interval=20.0, seed=1, physics=phones).observations
+    clear = obs[obs["los"]].groupby("receiver")["cn0"]
+    first, body, picky = (scene.sessions[k].receiver for k in range(3))
+    assert clear.median()[first] - clear.median()[body] == pytest.approx(8.0, abs=1.5)
+    weakest = obs.groupby("receiver")["cn0"].min()
+    assert weakest[picky] >= 30.0 > weakest[first]
+    with pytest.raises(InputError, match=r"one per session \(3\), not 2 values"):
+        simulate(scene, interval=20.0, physics=phones[:2])
+
+
 def test_street_scene_has_the_width_and_offset_asked_for():
     from gnss_citygml.simulate.scenes import street_scene
 

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 import numbers
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import geopandas as gpd
@@ -91,7 +92,7 @@ def simulate(
     interval: float = 1.0,
     max_range: float = 500.0,
     start: str | pd.Timestamp = EPOCH,
-    physics: SignalModel = SignalModel(),
+    physics: SignalModel | Sequence[SignalModel] = SignalModel(),
 ) -> Simulation:
     """Simulate a preset site.
 
@@ -113,6 +114,9 @@ def simulate(
     physics
         The signals' and positions' physics (:class:`~.signals.SignalModel`): reflection
         losses and shares, device and body losses, tracking threshold, manual position error.
+        One for every session (one phone, its offset drawn once from ``device_sd``), or one per
+        session of the scene: each recording its own phone (its own offset drawn from its
+        ``device_sd``, its tracking threshold and body loss).
 
     Returns
     -------
@@ -145,17 +149,18 @@ def simulate(
     rng = np.random.default_rng(seed)
     scene = preset if isinstance(preset, Scene) else make_scene(preset, rng)
     _check_size(scene, interval)
+    phones = _phones(physics, scene)
     parts = [(p, top) for b in scene.buildings for p, top in b.parts]
     site = _Site(
         scene=scene,
         parts=np.array([p for p, _ in parts], dtype=object),
         tops=np.array([t for _, t in parts]),
         footprints=np.array([b.footprint for b in scene.buildings], dtype=object),
-        device=rng.normal(0.0, physics.device_sd),
-        physics=physics,
+        device=_devices(rng, physics, phones),
+        physics=phones,
         start=start,
     )
-    frames = [_session(rng, site, s, locations, interval) for s in scene.sessions]
+    frames = [_session(rng, site, k, s, locations, interval) for k, s in enumerate(scene.sessions)]
     obs = pd.concat(frames, ignore_index=True)
     inter = _intersections(obs, scene, site.footprints, max_range)
     targets = set(scene.targets) or {b.id for b in scene.buildings}
@@ -206,6 +211,28 @@ def _check_arguments(seed, interval, max_range, start) -> pd.Timestamp:
     return first
 
 
+def _phones(physics, scene: Scene) -> tuple[SignalModel, ...]:
+    """The physics of each session's phone: ``physics`` for each, or one per session."""
+    if isinstance(physics, SignalModel):
+        return (physics,) * len(scene.sessions)
+    phones = tuple(physics)
+    if len(phones) != len(scene.sessions) or not all(isinstance(p, SignalModel) for p in phones):
+        raise InputError(
+            f"the physics must be one SignalModel or one per session "
+            f"({len(scene.sessions)}), not {len(phones)} values",
+            where=f"scene {scene.name}",
+            fix="give one SignalModel, or a list with one for each of the scene's sessions",
+        )
+    return phones
+
+
+def _devices(rng, physics, phones) -> np.ndarray:
+    """Each session's phone's C/N0 offset (dB): one drawn for all, or one each."""
+    if isinstance(physics, SignalModel):
+        return np.full(len(phones), rng.normal(0.0, physics.device_sd))
+    return rng.normal(0.0, [p.device_sd for p in phones])
+
+
 def _real(value) -> bool:
     return isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value)
 
@@ -232,12 +259,12 @@ class _Site:
     parts: np.ndarray  # flat-topped roof parts of all buildings
     tops: np.ndarray  # their tops (ODN, m)
     footprints: np.ndarray  # one per building
-    device: float  # C/N0 offset of the phone (dB)
+    device: np.ndarray  # C/N0 offset of each session's phone (dB)
     start: pd.Timestamp
-    physics: SignalModel
+    physics: tuple[SignalModel, ...]  # each session's
 
 
-def _session(rng, site: _Site, session: Session, locations, interval):
+def _session(rng, site: _Site, k: int, session: Session, locations, interval):
     scene = site.scene
     t = session.start + np.arange(0.0, session.duration, interval)
     n_ep = t.size
@@ -260,11 +287,11 @@ def _session(rng, site: _Site, session: Session, locations, interval):
     np.maximum.at(loss, ray, diffraction_loss(clearance, dist, s_el[ray]))
 
     # C/N0 of the direct (possibly diffracted) and reflected components.
-    m = site.physics
+    m = site.physics[k]
     base = (
         m.zenith_cn0
         - m.horizon_loss * (1.0 - np.sin(np.radians(s_el)))
-        + site.device
+        + site.device[k]
         + rng.normal(0.0, m.session_sd)
         - m.body_loss
     )

@@ -1,0 +1,66 @@
+"""Each recording's C/N0 offset learnt from its open sky (issue 27: phones differ)."""
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from gnss_citygml.model.offsets import PRIOR_SIGNALS, cn0_offsets
+from gnss_citygml.pipeline import intersections, open_sky
+from gnss_citygml.settings import PositionError
+from gnss_citygml.simulate import simulate
+from gnss_citygml.simulate.scenes import street_scene
+from gnss_citygml.simulate.signals import SignalModel
+
+
+def _sky(offsets: dict[str, float], n: int, seed: int = 0) -> pd.DataFrame:
+    """Open signals of recordings with the given offsets, on an antenna-gain slope, with
+    fading and a tail of signals the map misses (trees): 10 % 12 dB weaker."""
+    rng = np.random.default_rng(seed)
+    rows = []
+    for name, offset in offsets.items():
+        elevation = rng.uniform(10.0, 85.0, n)
+        cn0 = 30.0 + 12.0 * elevation / 90.0 + offset + rng.normal(0.0, 3.0, n)
+        cn0[rng.random(n) < 0.1] -= 12.0
+        rows.append(pd.DataFrame({"receiver": name, "elevation": elevation, "cn0": cn0}))
+    return pd.concat(rows, ignore_index=True)
+
+
+def test_each_recording_offset_is_found_against_the_others():
+    found = cn0_offsets(_sky({"a": 3.0, "b": -2.0, "c": 0.0, "d": -1.0}, 2000))
+    assert found.to_dict() == pytest.approx({"a": 3.0, "b": -2.0, "c": 0.0, "d": -1.0}, abs=0.3)
+
+
+def test_a_recording_with_few_open_signals_is_moved_little():
+    """A handful of signals say little: the offset is shrunk towards the others' level."""
+    sky = _sky({"a": 0.0, "b": 0.0}, 2000)
+    few = _sky({"c": 6.0}, 5, seed=1)
+    found = cn0_offsets(pd.concat([sky, few], ignore_index=True))
+    assert 0.0 < found["c"] < 6.0 * 5 / (5 + PRIOR_SIGNALS) + 1.0
+
+
+def test_signals_not_received_and_recordings_without_open_sky():
+    """Unreceived signals (NaN) say nothing of the level; a recording with none received
+    keeps 0; a single signal cannot fit the elevation line: every offset 0."""
+    sky = _sky({"a": 2.0, "b": -2.0}, 1000)
+    blind = pd.DataFrame({"receiver": ["c"] * 3, "elevation": [20.0, 40.0, 60.0]})
+    blind["cn0"] = np.nan
+    found = cn0_offsets(pd.concat([sky, blind], ignore_index=True))
+    assert found["c"] == 0.0 and found["a"] - found["b"] == pytest.approx(4.0, abs=0.4)
+    one = cn0_offsets(sky.iloc[:1])
+    assert one.to_dict() == {"a": 0.0}
+
+
+def test_phones_of_a_simulated_street_are_levelled():
+    """Phones recorded on a street (the simulator's own physics: reflections, tracking, the
+    map's open sky): one phone 8 dB weaker (a body) is found about 8 dB below the others."""
+    scene = street_scene(np.random.default_rng(7), 24.0, 8.0, walkers=3)
+    phones = [SignalModel(device_sd=0.0, session_sd=0.0)] * 2
+    phones.append(SignalModel(device_sd=0.0, session_sd=0.0, body_loss=8.0))
+    sim = simulate(scene, interval=10.0, seed=2, physics=phones)
+    rays = sim.rays
+    cast = intersections(rays, sim.buildings, position_error=PositionError())
+    found = cn0_offsets(open_sky(rays, cast))
+    weak = scene.sessions[2].receiver
+    others = found.drop(weak)
+    assert others.mean() - found[weak] == pytest.approx(8.0, abs=1.5)
+    assert np.ptp(others.to_numpy()) < 1.0

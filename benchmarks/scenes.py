@@ -15,6 +15,7 @@ manual position errors of 0.3-2 m; each line says which.
 With ``--regimes``, the scenes are streets instead (:func:`street_scene`), drawn in each of
 the regimes of :data:`REGIMES` (a narrow canyon with receivers 3-8 m from the wall, a street,
 a square), with their physics drawn too; the totals are then per regime and locations.
+``--regime`` chooses among them and a walked district (:func:`district_scene`, issue 28).
 
 With ``--labels los`` the signals are labelled by the simulator's line of sight (a perfect
 signal classifier) and with ``--positions true`` the rays start from the true positions: the
@@ -41,6 +42,7 @@ on the uncalibrated positions).
                                 [--weighting looks] [--labels cn0|los] [--reference los]
                                 [--positions reported|common|true]
                                 [--calibrate [--calibration-window 30]] [--phones each]
+                                [--regimes [--regime district ...]]
 """
 
 from __future__ import annotations
@@ -101,8 +103,26 @@ def random_scene(k: int):
     return scene, start, f"{columns}x{rows} blocks, {walkers} walkers x {seconds:.0f} s"
 
 
+#: The walked district (issue 28): a grid of blocks (:func:`city_scene`) of this many columns
+#: and rows, walked by a number of people drawn from ``WALKERS`` (uniform).
+DISTRICT = (6, 6)
+WALKERS = (20, 40)
+
+
+def district_scene(k: int):
+    """District scene ``k``: :data:`DISTRICT` blocks walked by 20-40 people, each for 200-600 s,
+    one after another, its start time and a description."""
+    rng = np.random.default_rng(9000 + k)
+    walkers, seconds = int(rng.integers(WALKERS[0], WALKERS[1] + 1)), float(rng.uniform(200, 600))
+    scene = city_scene(rng, *DISTRICT, walkers, seconds)
+    start = EPOCH + pd.Timedelta(days=int(rng.integers(0, 300)), hours=float(rng.uniform(0, 24)))
+    return scene, start, f"district: {walkers} people walking {seconds:.0f} s each"
+
+
 def regime_scene(k: int, regime: str):
     """Street scene ``k`` of ``regime``, its start time and a description."""
+    if regime == "district":
+        return district_scene(k)
     rng = np.random.default_rng(5000 + 97 * k + sorted(REGIMES).index(regime))
     (w0, w1), (o0, o1) = REGIMES[regime]
     width = float(rng.uniform(w0, w1))
@@ -186,6 +206,13 @@ def main():
         "--regimes", action="store_true", help="street scenes in each regime (REGIMES)"
     )
     parser.add_argument(
+        "--regime",
+        action="append",
+        choices=[*REGIMES, "district"],
+        help="with --regimes: only this regime (repeatable; default: those of REGIMES); "
+        "district: a walked district (DISTRICT blocks, 20-40 people)",
+    )
+    parser.add_argument(
         "--labels",
         choices=LABELS,
         default="cn0",
@@ -236,7 +263,8 @@ def main():
     print(f"| scene | layout | locations | {header}")
     print("|---" * (3 + header.count("|")) + "|")
     if args.regimes:
-        drawn = [(k, r, *regime_scene(k, r)) for k in range(args.scenes) for r in REGIMES]
+        regimes = args.regime or list(REGIMES)
+        drawn = [(k, r, *regime_scene(k, r)) for k in range(args.scenes) for r in regimes]
     else:
         drawn = [(k, None, *random_scene(k)) for k in range(args.scenes)]
     for k, regime, scene, start, layout in drawn:

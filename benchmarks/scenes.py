@@ -168,7 +168,7 @@ def _physics_text(physics: SignalModel) -> str:
     )
 
 
-def main():
+def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scenes", type=int, default=8, help="number of random scenes")
     parser.add_argument(
@@ -252,7 +252,11 @@ def main():
         default=None,
         help="with --calibrate: one offset per this many seconds (default: per recording)",
     )
-    args = parser.parse_args()
+    return parser
+
+
+def main():
+    args = _parser().parse_args()
     runs, totals, reached = [], {}, {}
     header = (
         "converged | RMSE to span | RMSE to middle | median abs. error to middle | worst to span | "

@@ -54,7 +54,7 @@ __all__ = [
 WEIGHTINGS = ("none", "height", "balanced", "looks")
 
 #: How a 4PL's height is read off it: its inflection point c, or the paper's c + 1.5/b. Both
-#: are measured in the README (benchmarks/scenes.py: c was nearer the truth in every regime);
+#: are measured in docs/accuracy.md (benchmarks/scenes.py: c was nearer the truth in every regime);
 #: both are in every output (``c`` and ``height_paper``).
 HEIGHT_RULES = ("inflection", "paper")
 #: How 4PL-B labels the signals: ``paper``, a C/N0 threshold co-trained on the map's hard

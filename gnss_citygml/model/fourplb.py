@@ -35,7 +35,8 @@ Beyond the paper: the height fit can reweight the data by the distribution of in
 heights (``weighting``), as the paper's discussion proposes for buildings seen mostly from one
 side of their roof line (a canyon where nearly all signals are blocked, a terrace where nearly
 all are open). Measured on the simulated sites, neither reweighting beat the paper's unweighted
-MLE once every fit starts from its likeliest step (see the README), so ``none`` is the default.
+MLE once every fit starts from its likeliest step (DESIGN.md, "Design notes"), so ``none`` is
+the default.
 A visibility model (``signal`` and ``order``) leaves out, for each building, the signals that
 another building blocks. Given how far each intersection height may be off from its receiver's
 position error (``height_sd``), the height fits model that error, as the paper's discussion

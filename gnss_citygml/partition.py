@@ -42,7 +42,6 @@ from .errors import InputError, listing, user_text
 from .geodesy import CrsInput
 from .observations import read_observations, repeated_signals
 from .paths import StrPath, atomic_folder, check_not_input
-from .pipeline import in_mask, receivers, recordings
 from .settings import (
     DEFAULT_TILE_SIZE,
     PositionError,
@@ -51,6 +50,7 @@ from .settings import (
     Tiling,
     check_tile_size,
 )
+from .stages import in_mask, receivers, recordings
 from .terrain import Dem
 from .tiles import check_reach, check_tile_count, tile_index, tile_names
 

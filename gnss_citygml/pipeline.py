@@ -6,6 +6,10 @@ bearings; each building's ground from the DEM; the rays cast against the footpri
 (:func:`intersections`); 4PL-B (or a baseline); and the heights joined back onto the
 footprints. ``progress`` is told the name of each stage as it
 starts, so a command line or QGIS can show it.
+
+The stages themselves are in :mod:`gnss_citygml.stages` (and named here too); this module
+composes them in one process (:func:`run`) and in tiles (:func:`run_partitioned`,
+:func:`write_tiles`), and checks the inputs once, before any work.
 """
 
 from __future__ import annotations
@@ -16,22 +20,17 @@ from dataclasses import dataclass
 from typing import Any
 
 import geopandas as gpd
-import numpy as np
 import pandas as pd
-import shapely
 
 from .calibrate import calibrate_receivers
 from .errors import InputError
-from .geodesy import CrsInput, check_bng, grid_bearing, to_osgb
-from .ids import id_field, source_named, with_id_field
-from .model.estimate import HEIGHTS_COLUMNS, estimate_heights, signal_model
+from .geodesy import CrsInput, check_bng
+from .ids import id_field
+from .model.estimate import estimate_heights, signal_model
 from .model.fourplb import SignalModel
-from .observations import check_observations, satellites
+from .partition import check_partition, partition_run
 from .paths import StrPath, atomic_folder
-from .raycast import footprint_entries
-from .recordings import position_groups
 from .settings import (
-    DEFAULT_POSITION_SD,
     Calibration,
     Estimator,
     PositionError,
@@ -39,7 +38,22 @@ from .settings import (
     ReceiverHeights,
     Tiling,
 )
-from .terrain import Dem, building_ground, sample_ground
+from .stages import EARTH_RADIUS as EARTH_RADIUS
+from .stages import MIN_INCIDENCE as MIN_INCIDENCE
+from .stages import REFRACTION as REFRACTION
+from .stages import (
+    in_mask,
+    intersections,
+    join_heights,
+    open_sky,
+    position_sds,
+    receivers,
+    recordings,
+)
+from .terrain import Dem, building_ground
+from .tile_output import INDEX, TileFolder, check_tile_folder, write_index
+from .tiled import partitioned_heights, tiled_heights
+from .tiles import building_tiles
 
 __all__ = [
     "STAGES",
@@ -49,6 +63,7 @@ __all__ = [
     "in_mask",
     "intersections",
     "join_heights",
+    "open_sky",
     "position_sds",
     "receivers",
     "recordings",
@@ -59,172 +74,6 @@ __all__ = [
 
 #: The stages :func:`estimate` reports to ``progress``, in order.
 STAGES = ("observations", "receivers", "buildings", "ray casting", "height model", "output")
-
-#: Mean Earth radius (m) and the standard refraction coefficient of surveying.
-EARTH_RADIUS = 6_371_000.0
-REFRACTION = 0.13
-
-#: Smallest cosine of the angle between a ray and the normal of the wall it enters through
-#: that :func:`intersections` uses for the height error of a position error: closer to
-#: grazing (beyond 84 deg) a metre of position moves the entry onto the neighbouring wall
-#: rather than 10 m along this one.
-MIN_INCIDENCE = 0.1
-
-
-def receivers(
-    observations: pd.DataFrame,
-    dem: Dem | None = None,
-    *,
-    heights: ReceiverHeights = ReceiverHeights(),
-    grid_dir: StrPath | None = None,
-    dem_crs: CrsInput | None = None,
-) -> pd.DataFrame:
-    """The observations with the receiver columns of DESIGN.md: ``e``, ``n`` (BNG, m), ``z``
-    (ODN height of the antenna, m) and ``bearing`` (grid bearing of the ray, deg).
-
-    Each distinct receiver position is transformed once. ``heights`` says where the antenna's
-    height comes from (:class:`~gnss_citygml.settings.ReceiverHeights`): ``antenna_height``
-    above the DEM (the paper's choice with phone fixes, whose heights are poor), or the
-    observations' ellipsoidal ``h`` converted to ODN.
-    """
-    # the rows of an epoch share a position: transform each run of equal positions once
-    coords = observations[["lat", "lon", "h"]].to_numpy(dtype=float)
-    same = (coords[1:] == coords[:-1]) | (np.isnan(coords[1:]) & np.isnan(coords[:-1]))
-    starts = np.r_[True, ~same.all(axis=1)]
-    where = np.cumsum(starts) - 1
-    lat, lon, h = coords[starts].T
-    if heights.source == "log" and np.isnan(h).any():
-        raise InputError(
-            "observations without an ellipsoidal height 'h'",
-            where=f"{int(np.isnan(h[where]).sum())} rows",
-            fix="use --receiver-height dem (with a DEM), or give h for every row",
-        )
-    first = observations.iloc[np.flatnonzero(starts)]  # each position named by its first row
-
-    def labels(index):  # made only for the positions an error names
-        rows = first.iloc[index]
-        return (
-            "receiver " + rows["receiver"].astype(str) + " at " + rows["time_utc"].astype(str)
-        ).to_numpy()
-
-    e, n, odn = to_osgb(lat, lon, h, grid_dir=grid_dir, labels=labels)
-    if heights.source == "dem":
-        if dem is None:
-            raise InputError("receiver heights from the DEM need a DEM", fix="give --dem")
-        named = [f"receiver at lat {a:.6f} lon {b:.6f}" for a, b in zip(lat, lon, strict=True)]
-        z = sample_ground(dem, e, n, assume_crs=dem_crs, labels=named) + heights.antenna_height
-    else:
-        z = odn
-    out = observations.copy()
-    out["e"], out["n"], out["z"] = e[where], n[where], z[where]
-    out["bearing"] = grid_bearing(
-        observations["lat"].to_numpy(), observations["lon"].to_numpy(), observations["azimuth"]
-    )
-    return out
-
-
-def intersections(
-    receivers: pd.DataFrame,
-    buildings: gpd.GeoDataFrame,
-    *,
-    rays: Rays = Rays(),
-    position_error: PositionError = PositionError(),
-    recording: pd.Categorical | None = None,
-) -> pd.DataFrame:
-    """The intersections table of DESIGN.md: every signal x building its ray enters.
-
-    ``height`` is the ODN height of the ray where it first enters the footprint: the antenna
-    height ``z`` plus ``distance * tan(elevation)``, plus, with ``rays.earth_curvature``, the
-    fall of the ground away from the ray's tangent plane (``d^2 (1 - k) / 2R`` with the
-    standard refraction coefficient k = 0.13: 2 cm at 500 m). Rays reach ``rays.max_range``.
-
-    Unless the positions are taken as exact (``position_error.sd`` 0), two more columns model
-    how far the receiver positions may be off (:class:`~gnss_citygml.settings.PositionError`:
-    by default each row's ``position_sd``, m per axis, and
-    :data:`~gnss_citygml.settings.DEFAULT_POSITION_SD` where it is empty or missing):
-    ``height_sd``, the standard deviation of each height that follows, ``sd * tan(elevation) /
-    cos(incidence)`` (a position error across the entry wall lengthens or shortens the ray's
-    way to it by itself over the cosine of the angle of incidence; along the wall it changes
-    nothing), with the cosine floored at :data:`MIN_INCIDENCE`; and ``recording``, which rows
-    share one position error (:func:`~gnss_citygml.recordings.position_groups`: a receiver
-    standing still shares one over its stay, a moving one over its recording, or over windows
-    of ``position_error.window`` seconds; needs ``time_utc``): :func:`recordings`, unless
-    given (``recording``, one per receiver row: a tile's rows, named over the whole run).
-    """
-    ray, fp, dist, incidence = footprint_entries(
-        receivers["e"].to_numpy(),
-        receivers["n"].to_numpy(),
-        receivers["bearing"].to_numpy(),
-        buildings.geometry.to_numpy(),
-        rays.max_range,
-    )
-    elevation = np.radians(receivers["elevation"].to_numpy()[ray])
-    height = receivers["z"].to_numpy()[ray] + dist * np.tan(elevation)
-    if rays.earth_curvature:
-        height += dist**2 * (1.0 - REFRACTION) / (2.0 * EARTH_RADIUS)
-    first = np.r_[True, ray[1:] != ray[:-1]]
-    start = np.maximum.accumulate(np.where(first, np.arange(ray.size), 0))
-    extra = {}
-    if not position_error.exact:
-        spread = np.tan(elevation) / np.maximum(incidence, MIN_INCIDENCE)
-        extra["height_sd"] = position_sds(receivers, position_error)[ray] * spread
-        if recording is None:
-            recording = recordings(receivers, position_error)
-        extra["recording"] = recording[ray]
-    if {"constellation", "svid"} <= set(receivers.columns):
-        extra["satellite"] = satellites(receivers)[ray]
-    return pd.DataFrame(
-        {
-            "signal": receivers.index.to_numpy()[ray],
-            # categorical: the city's ids once, not one string per row
-            # pandas-stubs takes only an Index for the categories; pandas, any array
-            "building": pd.Categorical.from_codes(
-                fp,
-                categories=buildings["id"].astype(str),  # type: ignore[call-overload]
-            ),
-            "height": height,
-            "distance": dist,
-            "order": np.arange(ray.size) - start,
-            "cn0": receivers["cn0"].to_numpy()[ray],
-            "elevation": receivers["elevation"].to_numpy()[ray],
-            "receiver": receivers["receiver"].to_numpy()[ray],
-            **extra,
-        }
-    )
-
-
-def open_sky(receivers: pd.DataFrame, intersections: pd.DataFrame) -> pd.DataFrame:
-    """The receivers' rows (signals) whose rays enter no footprint within reach: open as far
-    as the map knows, what the mixture signal model learns open signals from
-    (:func:`~gnss_citygml.model.estimate.estimate_heights`)."""
-    return receivers[~receivers.index.isin(intersections["signal"].to_numpy())]
-
-
-def recordings(
-    receivers: pd.DataFrame, position_error: PositionError = PositionError()
-) -> pd.Categorical:
-    """Each row's position group (:func:`~gnss_citygml.recordings.position_groups`, windows
-    of ``position_error.window`` seconds) named by its receiver and first epoch (``phone1
-    2020-02-11T08:49:00Z``): a name that another run over more observations gives the same
-    group (``update`` keeps it with its evidence)."""
-    codes = position_groups(receivers, position_error.window)
-    first = receivers["time_utc"].groupby(codes).min()
-    who = receivers["receiver"].groupby(codes).first()
-    utc = pd.to_datetime(first, utc=True).dt.strftime("%Y-%m-%dT%H:%M:%S.%fZ")
-    names = who.astype(str) + " " + utc
-    return pd.Categorical.from_codes(codes, categories=pd.Index(names.to_numpy(), dtype=object))
-
-
-def position_sds(receivers: pd.DataFrame, position_error: PositionError) -> np.ndarray:
-    """Each row's position error (m per axis): ``position_error.sd`` if given, else the row's
-    ``position_sd``, and :data:`~gnss_citygml.settings.DEFAULT_POSITION_SD` where that is empty
-    or the table has no such column."""
-    if position_error.sd is not None:
-        return np.full(len(receivers), float(position_error.sd))
-    if "position_sd" not in receivers.columns:
-        return np.full(len(receivers), DEFAULT_POSITION_SD)
-    sd = pd.to_numeric(receivers["position_sd"], errors="coerce").to_numpy(dtype=float)
-    return np.where(np.isnan(sd), DEFAULT_POSITION_SD, sd)
 
 
 @dataclass(frozen=True)
@@ -390,8 +239,6 @@ def _grounded(footprints, dem, dem_crs):
 
 def _in_memory(rx, buildings, rays, estimator, position_error, size, say):
     """The run in tiles of receivers in memory, given an engine (and an output folder)."""
-    from .tiled import tiled_heights
-
     return functools.partial(
         tiled_heights,
         rx,
@@ -444,9 +291,6 @@ def _partitioned(
 ):
     """The stages before the rays of a partition's run in tiles: the run in tiles (given an
     engine and an output folder), the buildings with their ground and the tile size."""
-    from .partition import check_partition, partition_run
-    from .tiled import partitioned_heights
-
     index = partition_run(folder, tiling)
     tiling.check(estimator, Calibration())
     check_bng(footprints, "footprints")
@@ -490,8 +334,6 @@ def write_tiles(
     Returns the tile index (also ``output/tiles.gpkg``). The folder appears whole or not at
     all; an existing one is replaced only with ``overwrite`` (checked before any work), and
     only if it is a folder of tiles (:func:`~gnss_citygml.tile_output.check_tile_folder`)."""
-    from .tile_output import check_tile_folder
-
     check_tile_folder(output, tiling, overwrite=overwrite)
     say = progress or (lambda stage: None)
     if isinstance(observations, pd.DataFrame):
@@ -518,8 +360,6 @@ def _on_cluster(
     failed tile's buildings, or one tile's, are a filter away). With ``output``, the tiles
     write their heights into that folder instead, and the tile index is returned."""
     from .cluster import connect  # the [dask] extra: only when asked for
-    from .tile_output import INDEX, TileFolder, write_index
-    from .tiles import building_tiles
 
     with connect(tiling) as engine:
         if output is not None:
@@ -559,14 +399,6 @@ def fit_heights(
     return join_heights(buildings, heights, estimator.method, name), classifier
 
 
-def in_mask(observations: pd.DataFrame, rays: Rays = Rays()) -> pd.DataFrame:
-    """The observations (checked: :func:`~gnss_citygml.observations.check_observations`)
-    inside the elevation mask of ``rays``, numbered from 0."""
-    obs = check_observations(observations)
-    obs = obs[obs["elevation"].between(rays.min_elevation, rays.max_elevation)]
-    return obs.reset_index(drop=True)
-
-
 def _check_near(rx: pd.DataFrame, footprints: gpd.GeoDataFrame, max_range: float) -> None:
     """Refuse receivers whose rays cannot reach the footprints' area: a wrong file or CRS."""
     x0, y0, x1, y1 = footprints.total_bounds
@@ -583,26 +415,3 @@ def _check_near(rx: pd.DataFrame, footprints: gpd.GeoDataFrame, max_range: float
             f"lat {row['lat']:.6f} lon {row['lon']:.6f} (E {row['e']:.0f} N {row['n']:.0f})",
             fix="give footprints that cover where the observations were made",
         )
-
-
-def join_heights(
-    buildings: gpd.GeoDataFrame, heights: pd.DataFrame, method: str, name: str
-) -> gpd.GeoDataFrame:
-    """Every footprint with its estimate; those no ray entered get an explicit status. The id
-    goes out under ``name``, the footprints' source's id field (:mod:`gnss_citygml.ids`)."""
-    est = heights.set_index("id").reindex(buildings["id"].astype(str))
-    missing = est["method"].isna().to_numpy()
-    est["method"] = est["method"].where(~missing, method)
-    est["converged"] = est["converged"].where(~missing, False).astype(bool)
-    est["status"] = est["status"].where(~missing, "no signal's ray enters the footprint")
-    for column in ("n_signals", "iterations"):
-        est[column] = est[column].fillna(0).astype(np.int64)
-    out = buildings.drop(columns=[c for c in HEIGHTS_COLUMNS if c != "id"], errors="ignore")
-    out = out.reset_index(drop=True)
-    for column in est.columns:
-        out[column] = est[column].to_numpy()
-    out["relative_height"] = out["height"] - out["ground"]
-    geometry = out.pop("geometry")
-    out["geometry"] = shapely.force_2d(geometry.to_numpy())
-    out = gpd.GeoDataFrame(out, geometry="geometry", crs=buildings.crs)
-    return source_named(with_id_field(out, name))

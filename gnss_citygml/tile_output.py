@@ -30,8 +30,8 @@ import shapely
 
 from .errors import InputError
 from .paths import StrPath, check_new_folder
-from .pipeline import join_heights
 from .settings import Tiling
+from .stages import join_heights
 from .tables import write_layer
 from .tiles import tile_index
 

@@ -39,8 +39,8 @@ from .partition import (
     tile_files,
 )
 from .paths import StrPath
-from .pipeline import intersections, recordings
 from .settings import DEFAULT_TILE_SIZE, Estimator, PositionError, Rays
+from .stages import intersections, recordings
 from .tile_output import TileFolder, tile_index_frame
 from .tiles import Tile, building_tiles, check_reach, plan_tiles, receiver_tiles
 

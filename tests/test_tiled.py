@@ -233,7 +233,7 @@ def test_tiling_options_are_checked(options, message):
 
 def test_the_core_does_not_import_dask():
     code = (
-        "import sys, gnss_citygml, gnss_citygml.cli, gnss_citygml.tiled; "
+        "import sys, gnss_citygml, gnss_citygml.cli, gnss_citygml.pipeline, gnss_citygml.tiled; "
         "print([m for m in sys.modules if m.split('.')[0] in ('dask', 'distributed')])"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)

@@ -178,7 +178,8 @@ def update_map(
     from ..ids import id_field as source_id_field
     from ..jobs import read_buildings
     from ..observations import read_observation_files
-    from ..pipeline import fit_heights, in_mask, intersections, receivers
+    from ..pipeline import fit_heights
+    from ..stages import in_mask, intersections, receivers
 
     say = progress or (lambda what, done: None)
     path = _check_map(path)

@@ -335,8 +335,10 @@ def _judged(sim, cast, labels, weighting, signal_model, sky, recast=None) -> pd.
 
 
 def _levelled(table, offsets):
-    """``table`` with each recording's (``receiver``'s) C/N0 less its offset."""
-    return table.assign(cn0=table["cn0"] - offsets.reindex(table["receiver"]).to_numpy())
+    """``table`` with each recording's (``receiver``'s) C/N0 less its offset (0 for one without
+    open sky: never a received signal turned into a blocked one)."""
+    level = offsets.reindex(table["receiver"], fill_value=0.0).to_numpy()
+    return table.assign(cn0=table["cn0"] - level)
 
 
 def _calibrated(sim, rays, error, calibration, with_sky):

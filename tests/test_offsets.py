@@ -64,3 +64,16 @@ def test_phones_of_a_simulated_street_are_levelled():
     others = found.drop(weak)
     assert others.mean() - found[weak] == pytest.approx(8.0, abs=1.5)
     assert np.ptp(others.to_numpy()) < 1.0
+
+
+def test_missing_columns_and_unknown_elevations():
+    """A table without the columns is refused by name; a signal without an elevation says
+    nothing of its phone's level (it is not taken as one at the horizon)."""
+    from gnss_citygml.errors import MissingColumnError
+
+    with pytest.raises(MissingColumnError, match="elevation"):
+        cn0_offsets(pd.DataFrame({"receiver": ["a"], "cn0": [40.0]}))
+    sky = _sky({"a": 0.0, "b": 0.0}, 1000)
+    blind = pd.DataFrame({"receiver": ["b"] * 300, "elevation": np.nan, "cn0": 10.0})
+    found = cn0_offsets(pd.concat([sky, blind], ignore_index=True))
+    assert abs(found["a"] - found["b"]) < 0.4

@@ -17,6 +17,7 @@ import numpy as np
 import numpy.typing as npt
 import pandas as pd
 
+from ..errors import MissingColumnError
 from .mixture import elevation_units
 
 __all__ = ["cn0_offsets"]
@@ -48,11 +49,14 @@ def cn0_offsets(open_sky: pd.DataFrame, key: str = "receiver") -> pd.Series:
         C/N0 of that recording to put it on the others' level. 0 for a recording without open
         signals.
     """
+    missing = [c for c in (key, "cn0", "elevation") if c not in open_sky.columns]
+    if missing:
+        raise MissingColumnError(missing, where="open-sky signals", have=list(open_sky.columns))
     names, code = _codes(open_sky[key])
-    cn0 = open_sky["cn0"].to_numpy(dtype=float)
-    e = elevation_units(open_sky["elevation"].to_numpy(dtype=float))
-    ok = np.isfinite(cn0) & np.isfinite(e)
-    offsets = _fitted(cn0[ok], e[ok], code[ok], len(names))
+    cn0 = pd.to_numeric(open_sky["cn0"], errors="coerce").to_numpy(dtype=float)
+    elevation = pd.to_numeric(open_sky["elevation"], errors="coerce").to_numpy(dtype=float)
+    ok = np.isfinite(cn0) & np.isfinite(elevation)  # an unknown elevation is left out, not 0
+    offsets = _fitted(cn0[ok], elevation_units(elevation[ok]), code[ok], len(names))
     return pd.Series(offsets, index=names, name="cn0_offset")
 
 

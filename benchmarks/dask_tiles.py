@@ -29,7 +29,7 @@ import shapely
 from gnss_citygml.cluster import connect
 from gnss_citygml.model.classifier import SignalClassifier
 from gnss_citygml.model.estimate import estimate_heights
-from gnss_citygml.model.fourplb import InProcess, Part
+from gnss_citygml.model.parts import InProcess, Part
 from gnss_citygml.pipeline import intersections
 from gnss_citygml.settings import Tiling
 from gnss_citygml.simulate import simulate

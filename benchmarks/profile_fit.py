@@ -35,7 +35,7 @@ from raycast import OUT
 from shared_data import GRIDS
 
 from gnss_citygml.footprints import read_footprints
-from gnss_citygml.model import estimate, fourpl, fourplb
+from gnss_citygml.model import estimate, fourpl, parts
 from gnss_citygml.model.classifier import SignalClassifier
 from gnss_citygml.model.estimate import estimate_heights
 from gnss_citygml.observations import read_observations
@@ -45,17 +45,17 @@ from gnss_citygml.terrain import building_ground
 #: (owner, attribute) of the timed functions: the owners' names are what the fit calls.
 TIMED = [
     (estimate, "intersections_part"),
-    (fourplb.Part, "fitted"),
-    (fourplb, "fit_4pl"),
+    (parts.Part, "fitted"),
+    (parts, "fit_4pl"),
     (fourpl, "_evaluate"),
-    (fourplb.Part, "shared"),
-    (fourplb.Part, "exchanged"),
-    (fourplb, "_unoccluded"),
-    (fourplb, "_classifier_data"),
+    (parts.Part, "shared"),
+    (parts.Part, "exchanged"),
+    (parts, "_unoccluded"),
+    (parts, "_classifier_data"),
     (SignalClassifier, "refit_counts"),
-    (fourplb.Part, "judged"),
-    (fourplb, "c_interval"),
-    (fourplb, "position_margin"),
+    (parts.Part, "judged"),
+    (parts, "c_interval"),
+    (parts, "position_margin"),
 ]
 
 

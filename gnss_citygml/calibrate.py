@@ -31,8 +31,8 @@ import numpy as np
 import pandas as pd
 
 from .errors import InputError, MissingColumnError
+from .model.estimate import fourplb
 from .model.fourpl import logistic4
-from .model.fourplb import fourplb
 from .model.mixture import Cn0Moments, elevation_units
 from .raycast import footprint_entries
 from .recordings import recording_windows

@@ -232,7 +232,7 @@ class ReceiverHeights:
 @dataclass(frozen=True)
 class Acceptance:
     """What a 4PL-B estimate must satisfy to count as converged (see
-    :func:`~gnss_citygml.model.fourplb.fourplb`).
+    :func:`~gnss_citygml.model.estimate.fourplb`).
 
     Parameters
     ----------
@@ -248,7 +248,7 @@ class Acceptance:
     max_uncertainty
         Widest height range, in metres, of a converged estimate: the roof line's transition
         3/b wide, widened by the likelihood-ratio interval of ``c`` and the position margin
-        in quadrature (:func:`~gnss_citygml.model.fourplb.fourplb`). The default, 10 m, keeps the
+        in quadrature (:func:`~gnss_citygml.model.estimate.fourplb`). The default, 10 m, keeps the
         estimate within 5 m of both ends of its range: CityGML's accuracy class for LOD1, the
         benchmark the paper measures itself against.
     """

@@ -3,7 +3,7 @@
 Each tile casts the rays that can reach its buildings against its buildings and its halo
 (:func:`~gnss_citygml.tiles.plan_tiles`), keeps the signals that cross one of its own
 buildings, and takes part in 4PL-B's map / exchange / reduce
-(:func:`~gnss_citygml.model.fourplb.run_parts`): the parts whose buildings its rays cross are
+(:func:`~gnss_citygml.model.parts.run_parts`): the parts whose buildings its rays cross are
 its neighbours. Run in one process (the default engine) or on a Dask cluster
 (:mod:`gnss_citygml.cluster`), the heights are those of :func:`~gnss_citygml.pipeline.run`
 on the same receivers, bit for bit (tested): each building is summed the same way in a tile
@@ -28,8 +28,9 @@ import shapely
 
 from .errors import InputError
 from .model.estimate import HEIGHTS_COLUMNS, intersections_part
-from .model.fourplb import Engine, InProcess, Part, Shared, SignalModel, Tally, run_parts
+from .model.fourplb import SignalModel
 from .model.mixture import Cn0Moments, elevation_units
+from .model.parts import Engine, InProcess, Part, Shared, Tally, run_parts
 from .partition import (
     check_digests,
     check_partition,
@@ -273,7 +274,7 @@ def tile_part(
     rays: Rays,
     position_error: PositionError,
 ) -> Part:
-    """One tile's :class:`~gnss_citygml.model.fourplb.Part`: its ``receivers``' rays cast
+    """One tile's :class:`~gnss_citygml.model.parts.Part`: its ``receivers``' rays cast
     against ``buildings`` (its own ``n_own`` first, then its halo), the signals that cross
     one of its own buildings."""
     recording = receivers["recording"].array if "recording" in receivers.columns else None

@@ -1,6 +1,6 @@
 """The paper's comparison methods, each with the same initial C/N0 classifier as 4PL-B.
 
-* ``4PL``: one pass of 4PL-B without bootstrapping (see :func:`.fourplb.fourplb`).
+* ``4PL``: one pass of 4PL-B without bootstrapping (see :func:`.estimate.fourplb`).
 * ``hinge``: after Weissman et al. (2013), the height ``H`` minimising the summed hinge loss of
   the signals the height misclassifies: open signals crossing below ``H`` cost ``H - h``,
   closed signals crossing above it cost ``h - H``.

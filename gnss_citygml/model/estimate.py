@@ -1,4 +1,8 @@
-"""``estimate_heights``: the intersections table in, the heights table out, by any method."""
+"""``estimate_heights``: the intersections table in, the heights table out, by any method.
+
+Also :func:`fourplb`, 4PL-B (or the one-shot 4PL) on coded arrays: a run of one part
+(:mod:`.parts`) over the per-building maths of :mod:`.fourplb`.
+"""
 
 from __future__ import annotations
 
@@ -13,12 +17,14 @@ from ..errors import InputError, MissingColumnError, listing
 from ..settings import Estimator
 from .baselines import bayes_heights, hinge_heights
 from .classifier import SignalClassifier
-from .fourplb import Part, run_parts
+from .fourplb import BuildingFits, SignalModel
 from .mixture import Cn0Mixture, Cn0Moments, elevation_units
+from .parts import Part, run_parts
 
 __all__ = [
     "HEIGHTS_COLUMNS",
     "estimate_heights",
+    "fourplb",
     "intersections_part",
     "open_sky_moments",
     "signal_model",
@@ -141,7 +147,7 @@ def estimate_heights(
 def intersections_part(
     intersections: pd.DataFrame | Mapping, estimator: Estimator, own: npt.ArrayLike | None = None
 ) -> tuple[np.ndarray, Part]:
-    """The 4PL-B :class:`~.fourplb.Part` of an intersections table (see
+    """The 4PL-B :class:`~.parts.Part` of an intersections table (see
     :func:`estimate_heights`) and its buildings' ids, in order of first appearance: all of
     them owned, or, with ``own`` (ids), those first (a tile's, whose other rows are of the
     buildings its signals also cross). The part's buildings are known by their ids
@@ -170,6 +176,84 @@ def intersections_part(
         elevation=_numeric(table, "elevation") if "elevation" in table.columns else None,
     )
     return ids, part
+
+
+def fourplb(
+    groups: npt.ArrayLike,
+    height: npt.ArrayLike,
+    cn0: npt.ArrayLike,
+    n_groups: int,
+    estimator: Estimator = Estimator(),
+    *,
+    signal: npt.ArrayLike | None = None,
+    order: npt.ArrayLike | None = None,
+    height_sd: npt.ArrayLike | None = None,
+    receiver: npt.ArrayLike | None = None,
+    track: npt.ArrayLike | None = None,
+    elevation: npt.ArrayLike | None = None,
+    open_sky: Cn0Moments | None = None,
+) -> tuple[BuildingFits, SignalModel]:
+    """Run 4PL-B (or, for method ``4PL``, the paper's one-shot 4PL) on coded arrays.
+
+    Parameters
+    ----------
+    groups
+        Building code of each row, in ``[0, n_groups)``.
+    height, cn0
+        Intersection height (m) and C/N0 (dB-Hz, NaN = blocked) of each row.
+    n_groups
+        Number of buildings.
+    estimator
+        The settings (:class:`~gnss_citygml.settings.Estimator`, method 4PL-B or 4PL): the
+        initial threshold, the reweighting of the height fit (:func:`height_weights`), the
+        visibility model, the iteration cap and what a converged estimate must satisfy. With
+        ``visibility`` and ``signal``, a building leaves out the rows whose ray another building
+        blocks (at the current estimates): such a signal says nothing about it; the first fit
+        uses only the first building along each ray (needs ``order``). The loop stops after
+        ``max_iter`` iterations or when fewer than ``acceptance.label_tol`` of every building's
+        map labels change between two iterations. Method ``4PL`` runs a single pass (label by
+        the initial classifier, fit, stop), which, as in the paper, always returns the fitted
+        height when the optimiser converged on data of both classes; the plausibility checks of
+        4PL-B are not applied to it.
+    signal, order
+        Optional signal code of each row (rows of one signal crossing several buildings) and
+        the row's position along its ray (0 = first building crossed).
+    height_sd, receiver
+        Optional standard deviation (m) of each row's intersection height owing to its
+        receiver's position error, and the row's recording (any hashable codes). With
+        ``height_sd`` the height 4PLs model that error (errors in variables, see
+        :mod:`.fourpl`), so ``b`` is the sharpness of the roof line itself, and the range is
+        widened by :func:`position_margin` for the part of the error no fit averages away
+        (``acceptance.max_uncertainty`` then bounds the widened range).
+    track
+        Optional look track of each row (one recording's view of one satellite,
+        :func:`look_ids`).
+    elevation, open_sky
+        Optional elevation (deg) of each row's satellite, and the signals whose rays cross no
+        footprint (:func:`~.estimate.open_sky_moments`): the mixture signal model
+        (``estimator.signal_model = "mixture"``) learns how C/N0 changes with elevation, and
+        what open signals look like.
+
+    Returns
+    -------
+    (BuildingFits, SignalClassifier or Cn0Mixture)
+        The per-building fits and the final signal model.
+    """
+    part = Part.of(
+        groups,
+        height,
+        cn0,
+        n_groups,
+        estimator,
+        signal=signal,
+        order=order,
+        height_sd=height_sd,
+        receiver=receiver,
+        track=track,
+        elevation=elevation,
+    )
+    (fits,), model = run_parts([part], [[0]], estimator, open_sky=open_sky)
+    return fits, model
 
 
 def signal_model(fitted: Mapping) -> SignalClassifier | Cn0Mixture:

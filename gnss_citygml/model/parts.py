@@ -1,0 +1,568 @@
+"""A run's parts: 4PL-B's map / exchange / reduce over an engine (DESIGN.md, "4PL-B as parts").
+
+A run is cut into parts (:class:`Part`: some buildings' rows, a tile's or the whole run's);
+:func:`run_parts` steps every part through each iteration on an :class:`Engine`, in one process
+(:class:`InProcess`) or as Dask tasks (:class:`gnss_citygml.cluster.DaskEngine`): each part fits
+its own buildings (map), takes the fits of the buildings its rays also cross (:class:`Shared`,
+exchange), and the parts' :class:`Tally` are summed to refit the signal model once (reduce).
+The per-building maths the steps use (the weights, the plausibility and visibility checks, the
+judgement of a fit) is :mod:`.fourplb`'s; this module imports it, never the reverse.
+"""
+
+from __future__ import annotations
+
+import functools
+import operator
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+from typing import Any, Protocol
+
+import numpy as np
+import numpy.typing as npt
+import pandas as pd
+
+from ..errors import ModelError
+from ..settings import Estimator
+from .classifier import Cn0Counts, SignalClassifier
+from .fourpl import FourPLFit, c_interval, fit_4pl
+from .fourplb import (
+    BuildingFits,
+    SignalModel,
+    _judge,
+    _plausible,
+    _unoccluded,
+    height_weights,
+    look_ids,
+    position_margin,
+)
+from .mixture import Cn0Mixture, Cn0Moments, clear_chance, clears_all, elevation_units
+
+__all__ = [
+    "Engine",
+    "InProcess",
+    "Part",
+    "Shared",
+    "Tally",
+    "run_parts",
+]
+
+
+class Engine(Protocol):
+    """Where :func:`run_parts` runs each step: :class:`InProcess`, or a Dask cluster
+    (:class:`gnss_citygml.cluster.DaskEngine`, whose ``submit`` returns futures that later
+    steps take). ``key`` names a step (``fit-3-TQ2982``) for the engine's progress and
+    errors."""
+
+    def submit(self, func: Callable[..., Any], *args: Any, key: str | None = None) -> Any: ...
+
+    def gather(self, futures: Any) -> Any: ...
+
+    def failures(self, futures: Sequence[Any]) -> dict[int, str]: ...
+
+
+class InProcess:
+    """The :class:`Engine` of a single process: each step runs when submitted."""
+
+    def submit(self, func: Callable[..., Any], *args: Any, key: str | None = None) -> Any:
+        """``func(*args)``."""
+        return func(*args)
+
+    def gather(self, futures: Any) -> Any:
+        """The values themselves."""
+        return futures
+
+    def failures(self, futures: Sequence[Any]) -> dict[int, str]:
+        """None: a step that fails raises as it runs."""
+        return {}
+
+
+#: Tallies summed per task of :func:`run_parts`'s reduce: a tree, not one task of every part.
+_FAN_IN = 32
+
+
+def run_parts(
+    parts: Sequence[Any],
+    neighbours: Sequence[Sequence[int]],
+    estimator: Estimator = Estimator(),
+    engine: Engine | None = None,
+    progress: Callable[[int], None] | None = None,
+    finish: Callable[[Part, int], Any] | None = None,
+    names: Sequence[str] | None = None,
+    open_sky: Cn0Moments | None = None,
+) -> tuple[list[Any], SignalModel]:
+    """4PL-B over a run cut into parts (:class:`Part`, or an engine's futures of them), with
+    the single process's result: the map / exchange / reduce of DESIGN.md.
+
+    Each iteration, every part relabels its rows with the shared classifier and fits its own
+    buildings (:meth:`Part.fitted`); then takes the fits of the buildings its rays also cross
+    from the parts that own them (``neighbours[i]``: the parts whose buildings part ``i``'s
+    rays cross, itself included), updates its visibility model and counts its signals for the
+    classifier (:meth:`Part.exchanged`); the counts are summed and refit the classifier once
+    (:class:`Tally`), and the largest change of labels decides whether to go on. ``progress``
+    is told each iteration's number as it ends. Returns what ``finish(part, iterations)``
+    gives of each part (default: its :class:`BuildingFits`, :meth:`Part.judged`), as the
+    engine's handles (the values themselves in one process; futures on a cluster, left
+    where they were made: gather them, or pass them on), and the classifier. ``names`` (one per
+    part, e.g. its tile's) name the steps for the engine. ``open_sky``: the run's signals
+    whose rays cross no footprint, which the mixture signal model learns open signals from.
+    A part may be anything with :class:`Part`'s steps, e.g. a failed tile's stand-in
+    (:class:`gnss_citygml.tiled.FailedTile`).
+    """
+    engine = engine or InProcess()
+    bootstrap = estimator.method == "4PL-B"
+    model: SignalModel = SignalClassifier.initial(estimator.init_threshold)
+    if estimator.signal_model == "mixture" and open_sky is not None and open_sky.seen:
+        model = Cn0Mixture.initial(open_sky)
+    iterations = 0
+    names = [str(k) for k in range(len(parts))] if names is None else list(names)
+    for iterations in range(1, (estimator.max_iter if bootstrap else 1) + 1):
+        parts = [
+            engine.submit(_fitted, p, model, key=f"fit-{iterations}-{name}")
+            for p, name in zip(parts, names, strict=True)
+        ]
+        if not bootstrap:
+            break
+        shared = [
+            engine.submit(_shared, p, key=f"share-{iterations}-{name}")
+            for p, name in zip(parts, names, strict=True)
+        ]
+        steps = [
+            engine.submit(
+                _exchanged, p, *(shared[j] for j in near), key=f"exchange-{iterations}-{name}"
+            )
+            for p, near, name in zip(parts, neighbours, names, strict=True)
+        ]
+        parts = [
+            engine.submit(_first, step, key=f"part-{iterations}-{name}")
+            for step, name in zip(steps, names, strict=True)
+        ]
+        tallies = [
+            engine.submit(_second, step, key=f"tally-{iterations}-{name}")
+            for step, name in zip(steps, names, strict=True)
+        ]
+        level = 0
+        while len(tallies) > 1:
+            level += 1
+            tallies = [
+                engine.submit(
+                    _total, *tallies[k : k + _FAN_IN], key=f"sum-{iterations}-{level}-{k}"
+                )
+                for k in range(0, len(tallies), _FAN_IN)
+            ]
+        tally = engine.gather(tallies[0])
+        if open_sky is not None and isinstance(tally.evidence, Cn0Moments):
+            tally = replace(tally, evidence=tally.evidence + open_sky)
+        before, model = model, tally.refit(model)
+        if progress is not None:
+            progress(iterations)
+        settled = not isinstance(model, Cn0Mixture) or model.settled(before)
+        if iterations > 1 and tally.change < estimator.acceptance.label_tol and settled:
+            break
+    finish = finish or _judged
+    done = [
+        engine.submit(finish, p, iterations, key=f"finish-{name}")
+        for p, name in zip(parts, names, strict=True)
+    ]
+    return done, model
+
+
+# The steps as functions of the part, for engines (a Part or a FailedTile alike).
+def _fitted(part: Part, model: SignalModel) -> Part:
+    return part.fitted(model)
+
+
+def _shared(part: Part) -> Shared:
+    return part.shared()
+
+
+def _exchanged(part: Part, *shared: Shared) -> tuple[Part, Tally]:
+    return part.exchanged(*shared)
+
+
+def _judged(part: Part, iterations: int) -> BuildingFits:
+    return part.judged(iterations)
+
+
+def _first(pair: tuple[Any, Any]) -> Any:
+    return pair[0]
+
+
+def _second(pair: tuple[Any, Any]) -> Any:
+    return pair[1]
+
+
+def _total(*tallies: Tally) -> Tally:
+    return functools.reduce(operator.add, tallies)
+
+
+@dataclass(frozen=True)
+class Shared:
+    """A part's buildings' current fits, as the other parts' rays need them (the visibility
+    model, which signals are open): each building's code in the whole run (``building``),
+    its 4PL ``a``, ``b``, ``c``, ``d``, and whether the fit is plausible enough to stand in
+    front of others and teach the classifier (``plausible``; ``fallback``: with no separation
+    asked for, for an iteration where no building in the run is plausible)."""
+
+    building: np.ndarray
+    a: np.ndarray
+    b: np.ndarray
+    c: np.ndarray
+    d: np.ndarray
+    plausible: np.ndarray
+    fallback: np.ndarray
+
+
+@dataclass(frozen=True)
+class Tally:
+    """A part's share of an iteration's reduce: what its signals teach the signal model
+    (``evidence``: those that plausible fits used, or, where the part has no plausible fit, the
+    ``fallback``'s; counted by C/N0 and map label for the paper's classifier, summed by class
+    for the mixture; None: nothing, e.g. a failed tile's), whether it has a plausible fit, and
+    its buildings' largest share of changed labels. Parts add up, exactly."""
+
+    evidence: Cn0Counts | Cn0Moments | None
+    plausible: bool
+    change: float
+
+    def __add__(self, other: Tally) -> Tally:
+        """Both parts' tallies: where any building is plausible only plausible fits teach (the
+        others' counts are their fallbacks'), else every fallback does."""
+        change = max(self.change, other.change)
+        if self.plausible != other.plausible:
+            return replace(self if self.plausible else other, change=change)
+        if self.evidence is None or other.evidence is None:
+            return replace(other if self.evidence is None else self, change=change)
+        evidence = self.evidence + other.evidence  # type: ignore[operator]
+        return Tally(evidence, self.plausible, change)
+
+    def refit(self, model: SignalModel) -> SignalModel:
+        """The signal model refitted to the run's evidence."""
+        if self.evidence is None:
+            return model
+        if isinstance(self.evidence, Cn0Moments):
+            return Cn0Mixture.fitted(self.evidence)
+        if not isinstance(model, SignalClassifier):
+            raise ModelError("the paper's counts refit the paper's classifier only")
+        return model.refit_counts(self.evidence)
+
+
+@dataclass(frozen=True)
+class Part:
+    """Some buildings' rows (a tile's, or a whole run's) and where 4PL-B stands on them.
+
+    The part *owns* buildings ``0 .. n_own - 1`` (it fits and judges them) and also holds the
+    rows of the other buildings its signals cross (codes from ``n_own``): the visibility model
+    and the classifier's data need a signal's every crossing. ``building`` maps the part's
+    codes to the whole run's. Rows are sorted by building then height, so the own buildings'
+    rows come first and each building's rows are together (faster fits). Each step returns a
+    new part and leaves this one as it was, so an engine may run a step again.
+    """
+
+    g: np.ndarray
+    h: np.ndarray
+    s: np.ndarray
+    sd: np.ndarray | None
+    receiver: np.ndarray | None
+    sig: np.ndarray
+    order: np.ndarray | None
+    looks: np.ndarray | None
+    #: Each row's elevation in the mixture's units (:func:`.mixture.elevation_units`).
+    e: np.ndarray
+    building: np.ndarray
+    n_own: int
+    estimator: Estimator
+    occlusion: bool
+    #: The rows the next fit uses (the visibility model's).
+    seen: np.ndarray
+    #: The last fit (None before the first).
+    last: LastFit | None = None
+    #: Each row's chance of clearing its building by the fits last exchanged (None before).
+    prior: np.ndarray | None = None
+
+    @classmethod
+    def of(
+        cls,
+        groups: npt.ArrayLike,
+        height: npt.ArrayLike,
+        cn0: npt.ArrayLike,
+        n_groups: int,
+        estimator: Estimator = Estimator(),
+        *,
+        n_own: int | None = None,
+        building: npt.ArrayLike | None = None,
+        signal: npt.ArrayLike | None = None,
+        order: npt.ArrayLike | None = None,
+        height_sd: npt.ArrayLike | None = None,
+        receiver: npt.ArrayLike | None = None,
+        track: npt.ArrayLike | None = None,
+        elevation: npt.ArrayLike | None = None,
+    ) -> Part:
+        """A part from coded rows (see :func:`fourplb`): it owns the buildings coded below
+        ``n_own`` (default: all ``n_groups``), whose codes in the whole run are ``building``
+        (default: their own). A part that does not own every building needs ``signal`` and
+        ``order``, so that each signal is counted by one part."""
+        if not estimator.fourpl:
+            raise ModelError(f"fourplb runs 4PL-B or 4PL, not {estimator.method}")
+        n_own = n_groups if n_own is None else int(n_own)
+        if n_own < n_groups and (signal is None or order is None):
+            raise ModelError("a part of a run needs each row's signal and order along its ray")
+        g = np.asarray(groups, dtype=np.intp)
+        h = np.asarray(height, dtype=float)
+        by_group = np.lexsort((h, g))  # a building's rows together, by height: faster fits
+        g, h = _compact(g[by_group]), h[by_group]
+        sd = None if height_sd is None else np.asarray(height_sd, dtype=float)[by_group]
+        if receiver is not None:  # coded in sorted order: the same order in any part
+            receiver = _compact(pd.factorize(np.asarray(receiver)[by_group], sort=True)[0])
+        if signal is not None:
+            sig = _compact(np.unique(np.asarray(signal)[by_group], return_inverse=True)[1])
+        else:
+            sig = _compact(np.arange(g.size))  # each row is a signal of its own
+        if order is not None:
+            order = _compact(np.asarray(order)[by_group])
+        tracks = None if track is None else np.asarray(track)[by_group]
+        looks = None  # found once: a row's look does not change as 4PL-B iterates
+        if estimator.weighting == "looks" or (estimator.method == "4PL-B" and tracks is not None):
+            looks = _compact(look_ids(h, g, tracks))
+        e = np.zeros(h.size) if elevation is None else elevation_units(elevation)[by_group]
+        occlusion = estimator.visibility and signal is not None
+        seen = np.ones(h.size, dtype=bool)
+        if occlusion and order is not None:
+            seen = order == 0
+        return cls(
+            g=g,
+            h=h,
+            s=np.asarray(cn0, dtype=float)[by_group],
+            sd=sd,
+            receiver=receiver,
+            sig=sig,
+            order=order,
+            looks=looks,
+            e=e,
+            building=np.arange(n_groups) if building is None else np.asarray(building),
+            n_own=n_own,
+            estimator=estimator,
+            occlusion=occlusion,
+            seen=seen,
+        )
+
+    @property
+    def _own(self) -> slice:
+        """The own buildings' rows: the first ones."""
+        return slice(0, int(np.searchsorted(self.g, self.n_own)))
+
+    def fitted(self, model: SignalModel) -> Part:
+        """Step 1 (map): every row labelled by the signal ``model`` (the paper's classifier:
+        open or not; the mixture: the chance that the row's ray clears its building, given
+        the fits last exchanged), the own buildings' height 4PLs fitted to the rows the
+        visibility model keeps, and how many of their map labels changed."""
+        own, n_own, last = self._own, self.n_own, self.last
+        g, h, seen = self.g[own], self.h[own], self.seen[own]
+        if isinstance(model, Cn0Mixture):
+            prior = np.full(self.h.size, 0.5) if self.prior is None else self.prior
+            labels = model.row_labels(self.s, self.e, prior, self.sig)
+        else:
+            labels = model.label(self.s)
+        c_now = None if last is None else last.fit.c
+        looks = None if self.looks is None else self.looks[own]
+        weights = height_weights(
+            h, g, n_own, self.estimator.weighting, c=c_now, mask=seen, looks=looks
+        )
+        use = weights > 0  # rows left out weigh nothing: do not carry them through the fit
+        fit = fit_4pl(
+            h[use],
+            labels[own][use],
+            weights[use],
+            g[use],
+            n_own,
+            init=None if last is None else last.fit.params,
+            sd=None if self.sd is None else self.sd[own][use],
+        )
+        own_map = h > fit.c[g]
+        change = np.ones(n_own)
+        if last is not None:
+            flips = (own_map != last.own_map) & seen
+            change = np.bincount(g, flips, n_own) / np.maximum(np.bincount(g, seen, n_own), 1)
+        return replace(self, last=LastFit(fit, self.seen, labels, own_map, change, model))
+
+    def shared(self) -> Shared:
+        """What the other parts need of the own buildings' fits (after :meth:`fitted`)."""
+        last, own = self._last, self._own
+        fit = last.fit
+        g, h, seen = self.g[own], self.h[own], last.seen[own]
+        min_separation = self.estimator.acceptance.min_separation
+        return Shared(
+            building=self.building[: self.n_own],
+            a=fit.a,
+            b=fit.b,
+            c=fit.c,
+            d=fit.d,
+            plausible=_plausible(fit, h, g, seen, self.n_own, min_separation),
+            fallback=_plausible(fit, h, g, seen, self.n_own, 0.0),
+        )
+
+    def exchanged(self, *shared: Shared) -> tuple[Part, Tally]:
+        """Steps 2-3 (exchange, map): given the current fits of every building the part's rows
+        cross (``shared`` by the parts that own them, this one's included), the rows the next
+        fit may use, and the part's :class:`Tally`. A signal is counted by the part that owns
+        the first building along its ray that the fits used it for; it is open only if its
+        ray clears every building it was used for.
+
+        Only plausible fits teach the classifier: a building whose map says nothing (flat, or
+        its inflection point outside its data) would relabel its signals at random. Where no
+        fit is plausible (a poor initial classifier, e.g. a low threshold labelling reflections
+        open, can leave every first fit short of the separation), every map whose roof line
+        lies inside its data teaches the classifier once, or co-training would stop dead.
+
+        With the mixture signal model, each row's prior chance of clearing its building is
+        its building's 4PL at the row's height (blurred by the row's position error), and the
+        signals teach the model each with its chance of being open: from the map's labels
+        after the first fit, from the mixture's posterior after that.
+        """
+        a, b, c, d, plausible, fallback = _lookup(self.building, shared)
+        own_plausible = bool(plausible[: self.n_own].any())
+        teach = plausible if own_plausible else fallback
+        last = self._last
+        open_map = self.h > c[self.g]
+        used = last.seen & teach[self.g]
+        lead, clear = _classifier_data(self, open_map, used)
+        prior = self.prior
+        evidence: Cn0Counts | Cn0Moments
+        if self.estimator.signal_model == "mixture":
+            prior = clear_chance(self.h, self.g, self.sd, a, b, c, d)
+            chance = clear.astype(float)
+            if isinstance(last.model, Cn0Mixture):
+                every = clears_all(prior, self.sig)[lead]
+                chance = last.model.posterior(self.s[lead], self.e[lead], every)
+            evidence = Cn0Moments.of(self.s[lead], self.e[lead], chance)
+        else:
+            evidence = Cn0Counts.of(self.s[lead], clear)
+        seen = self.seen
+        if self.occlusion:
+            seen = _unoccluded(self.h, self.g, self.sig, c, b, plausible, self.order)
+        change = float(np.max(last.change, initial=0.0))
+        part = replace(self, seen=seen, prior=prior)
+        return part, Tally(evidence, own_plausible, change)
+
+    def crossing(self) -> Cn0Moments:
+        """The signals the part counts (those whose first building along the ray is one of
+        its own), once each, as open: a run of parts takes them from all its signals to leave
+        those that cross no footprint (:func:`run_parts`' ``open_sky``)."""
+        every = np.ones(self.h.size, dtype=bool)
+        lead, _ = _classifier_data(self, every, every)
+        return Cn0Moments.of(self.s[lead], self.e[lead], 1.0)
+
+    def judged(self, iterations: int) -> BuildingFits:
+        """The own buildings' heights, ranges and statuses after ``iterations`` iterations."""
+        last, own, n_own = self._last, self._own, self.n_own
+        fit = last.fit
+        accept = self.estimator.acceptance
+        bootstrap = self.estimator.method == "4PL-B"
+        g, h, labels, fit_seen = self.g[own], self.h[own], last.labels[own], last.seen[own]
+        sd = None if self.sd is None else self.sd[own]
+        looks = None if self.looks is None else self.looks[own]
+        c_range = None
+        if bootstrap:  # the paper's 4PL keeps the paper's range
+            # the evidence counted as independent: each look once where the looks are known
+            evidence = fit_seen.astype(float)
+            if looks is not None:
+                evidence = height_weights(h, g, n_own, "looks", mask=fit_seen, looks=looks)
+            c_range = c_interval(
+                fit,
+                h[fit_seen],
+                labels[fit_seen],
+                g[fit_seen],
+                weights=evidence[fit_seen],
+                sd=None if sd is None else sd[fit_seen],
+                reach=accept.max_uncertainty,
+            )
+        margin = np.zeros(n_own)
+        if sd is not None:
+            rec = None if self.receiver is None else self.receiver[own][fit_seen]
+            margin = position_margin(fit, g[fit_seen], h[fit_seen], sd[fit_seen], rec, n_own)
+        return _judge(
+            fit,
+            g,
+            h,
+            labels,
+            fit_seen,
+            n_own,
+            last.change,
+            iterations,
+            accept,
+            strict=bootstrap,
+            margin=margin,
+            c_range=c_range,
+            paper_rule=self.estimator.height_rule == "paper",
+        )
+
+    @property
+    def _last(self) -> LastFit:
+        if self.last is None:
+            raise ModelError("a part must be fitted first (Part.fitted)")
+        return self.last
+
+
+@dataclass(frozen=True)
+class LastFit:
+    """A part's last fit of its own buildings (:meth:`Part.fitted`): the 4PLs, the rows they
+    used (``seen``, all the part's rows) and every row's label then, the map's labels of the
+    own rows (``own_map``: above ``c``) and the share of each own building's labels that
+    changed from the fit before (``change``; 1 at the first), and the signal ``model``
+    that labelled them."""
+
+    fit: FourPLFit
+    seen: np.ndarray
+    labels: np.ndarray
+    own_map: np.ndarray
+    change: np.ndarray
+    #: The signal model that labelled the rows.
+    model: SignalModel
+
+
+def _compact(codes: np.ndarray) -> np.ndarray:
+    """Whole-number codes (a building's, a signal's, an order along the ray) as int32 where
+    they fit: a run in tiles holds every part's rows for the whole run, so 4 bytes a column
+    less is memory that a national run needs (68 -> 48 bytes a row). Anything else (an order
+    with gaps or fractions from a user's table) is kept as it is."""
+    if codes.size == 0:
+        return codes.astype(np.int32)
+    whole = codes.dtype.kind in "iu" or bool(
+        np.all(np.isfinite(codes) & (codes == np.floor(codes)))
+    )
+    if whole and -(2**31) <= codes.min() and codes.max() < 2**31:
+        return codes.astype(np.int32)
+    return codes
+
+
+def _lookup(building: np.ndarray, shared: Sequence[Shared]):
+    """``a``, ``b``, ``c``, ``d``, ``plausible`` and ``fallback`` of each of ``building``
+    (codes in the whole run) from the parts' :class:`Shared` fits."""
+    if len(shared) == 1 and np.array_equal(shared[0].building, building):
+        return tuple(getattr(shared[0], k) for k in _SHARED)
+    known = np.concatenate([s.building for s in shared])
+    at = pd.Index(known).get_indexer(building)
+    if (at < 0).any():
+        missing = building[at < 0][:5].tolist()
+        raise ModelError(f"no part shared the fits of buildings {missing}")
+    return tuple(np.concatenate([getattr(s, k) for s in shared])[at] for k in _SHARED)
+
+
+_SHARED = ("a", "b", "c", "d", "plausible", "fallback")
+
+
+def _classifier_data(part: Part, open_map: np.ndarray, used: np.ndarray):
+    """The rows of the signals the part counts (one each: the first row along the ray, by
+    ``order``, of those the fits ``used``; without ``order``, the first row), those of own
+    buildings, and each signal's map label: open only if it clears every building it was
+    used for."""
+    sig, open_map = part.sig[used], open_map[used]
+    n_sig = int(sig.max(initial=-1)) + 1
+    closed = np.bincount(sig, weights=(~open_map).astype(float), minlength=n_sig)
+    rows = np.arange(sig.size)
+    if part.order is not None:  # the last assignment wins: the lowest order's
+        rows = rows[np.argsort(part.order[used], kind="stable")]
+    lead = np.full(n_sig, -1)
+    lead[sig[rows[::-1]]] = rows[::-1]
+    lead = lead[lead >= 0]
+    mine = part.g[used][lead] < part.n_own
+    return np.flatnonzero(used)[lead[mine]], closed[sig[lead[mine]]] == 0

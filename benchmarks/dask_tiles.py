@@ -30,7 +30,7 @@ from gnss_citygml.cluster import connect
 from gnss_citygml.model.classifier import SignalClassifier
 from gnss_citygml.model.estimate import estimate_heights
 from gnss_citygml.model.parts import InProcess, Part
-from gnss_citygml.pipeline import intersections
+from gnss_citygml.pipeline import intersections, open_sky
 from gnss_citygml.settings import Tiling
 from gnss_citygml.simulate import simulate
 from gnss_citygml.simulate.scenes import city_scene
@@ -129,7 +129,7 @@ def main() -> None:
     t = time.perf_counter()
     inter = intersections(rx, buildings)
     cast = time.perf_counter() - t
-    single = estimate_heights(inter)
+    single = estimate_heights(inter, open_sky=open_sky(rx, inter))
     whole = time.perf_counter() - t
     print(
         f"single process: cast {cast:.1f} s ({len(inter):,} crossings), 4PL-B "

@@ -65,7 +65,6 @@ from accuracy import (
 
 from gnss_citygml import Estimator, estimate_heights
 from gnss_citygml.calibrate import calibrate_receivers
-from gnss_citygml.model.offsets import cn0_offsets
 from gnss_citygml.pipeline import intersections, open_sky
 from gnss_citygml.settings import SIGNAL_MODELS, WEIGHTINGS, Calibration
 from gnss_citygml.simulate import EPOCH, LOCATIONS, simulate
@@ -239,9 +238,9 @@ def _parser() -> argparse.ArgumentParser:
         "(its C/N0 offset, tracking threshold and body loss)",
     )
     parser.add_argument(
-        "--cn0-offsets",
+        "--no-level-phones",
         action="store_true",
-        help="level each recording's C/N0 by its offset learnt from the open sky",
+        help="the C/N0 as recorded: no phone levelled by its open sky (the paper's)",
     )
     parser.add_argument(
         "--calibrate", action="store_true", help="self-calibrate the receivers' offsets first"
@@ -282,9 +281,6 @@ def main():
             sim = simulate(scene, locations=locations, seed=k, start=start, physics=physics)
             error = position_error(args.position_errors, locations, args.position_window)
             rays, _, cast = site_tables(sim, positions=args.positions, position_error=error)
-            if args.cn0_offsets:
-                offsets = cn0_offsets(open_sky(rays, cast))
-                rays, cast = _levelled(rays, offsets), _levelled(cast, offsets)
             sky = None if args.no_open_sky else open_sky(rays, cast)
             recast = None
             if args.calibrate:
@@ -292,14 +288,20 @@ def main():
                     prior_sd=POSITION_SD[locations], window=args.calibration_window
                 )
                 recast = _calibrated(sim, rays, error, calibration, sky is not None)
-            err = _judged(sim, cast, args.labels, args.weighting, args.signal_model, sky, recast)
+            estimator = Estimator(
+                weighting=args.weighting,
+                signal_model=args.signal_model,
+                level_phones=not args.no_level_phones and args.labels == "cn0",
+            )
+            err = _judged(sim, cast, args.labels, estimator, sky, recast)
             n_runs = len(sim.truth) * len(THRESHOLDS)
             group = locations if regime is None else f"{regime}, {locations}"
             runs.append(err.assign(group=group, scene=k))
             totals[group] = totals.get(group, 0) + n_runs
             cells = _cells(err, n_runs)
             if args.reference:
-                ref = _judged(sim, cast, args.reference, args.weighting, "paper", sky)
+                perfect = Estimator(weighting=args.weighting, level_phones=False)
+                ref = _judged(sim, cast, args.reference, perfect, sky)
                 reached.setdefault(group, []).append(ref)
                 cells += f" | {_reference_cells(err, ref, n_runs)}"
             print(f"| {k} | {layout} | {locations} | {cells} |", flush=True)
@@ -317,28 +319,20 @@ def main():
         print(f"| {group} | {cells} |")
 
 
-def _judged(sim, cast, labels, weighting, signal_model, sky, recast=None) -> pd.DataFrame:
+def _judged(sim, cast, labels, estimator, sky, recast=None) -> pd.DataFrame:
     """The converged runs of one scene, thresholds 20/30/40, with the signals labelled by
-    ``labels`` (:func:`accuracy.judge`: errors to the middle and to the span) and the
-    ``signal_model`` (which learns from the ``sky``'s signals, those crossing no footprint).
-    ``recast`` (:func:`_calibrated`) gives each estimator its own intersections and sky."""
+    ``labels`` (:func:`accuracy.judge`: errors to the middle and to the span) and
+    ``estimator``'s settings (its phones levelled by, and its mixture learning from, the
+    ``sky``'s signals, those crossing no footprint). ``recast`` (:func:`_calibrated`) gives
+    each estimator its own intersections and sky."""
     judged = []
     for threshold in THRESHOLDS:
-        estimator = Estimator(
-            init_threshold=threshold, weighting=weighting, signal_model=signal_model
-        )
+        estimator = replace(estimator, init_threshold=threshold)
         if recast is not None:
             cast, sky = recast(estimator)
         heights = estimate_heights(labelled(sim, cast, labels), estimator, open_sky=sky)
         judged.append(judge(heights, sim.truth).assign(threshold=threshold))
     return pd.concat(judged)
-
-
-def _levelled(table, offsets):
-    """``table`` with each recording's (``receiver``'s) C/N0 less its offset (0 for one without
-    open sky: never a received signal turned into a blocked one)."""
-    level = offsets.reindex(table["receiver"], fill_value=0.0).to_numpy()
-    return table.assign(cn0=table["cn0"] - level)
 
 
 def _calibrated(sim, rays, error, calibration, with_sky):

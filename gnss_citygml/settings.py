@@ -310,6 +310,13 @@ class Estimator:
         paper's C/N0 threshold co-trained on the map's labels; ``mixture``, each signal's chance
         of being open from C/N0 densities of open and closed signals by elevation, learnt with
         the buildings' 4PLs by expectation-maximisation.
+    level_phones
+        Put every phone's C/N0 on one level before the signals are classified (default): each
+        phone's (each ``receiver``'s) offset is learnt from its open sky, the signals whose
+        rays cross no footprint (:mod:`gnss_citygml.model.offsets`). Phones differ by a few
+        dB-Hz (antenna, front end, a body or a pocket), which one threshold or one mixture
+        would read as blocking. Needs the open sky (a run from observations: ``estimate``,
+        ``update``); ``False``: the C/N0 as recorded, as in the paper.
     acceptance
         What an estimate must satisfy to count as converged.
 
@@ -324,6 +331,7 @@ class Estimator:
     max_iter: int = 10
     height_rule: str = "inflection"
     signal_model: str = "paper"
+    level_phones: bool = True
     acceptance: Acceptance = field(default_factory=Acceptance)
 
     def __post_init__(self):

@@ -30,6 +30,7 @@ from .errors import InputError
 from .model.estimate import HEIGHTS_COLUMNS, intersections_part
 from .model.fourplb import SignalModel
 from .model.mixture import Cn0Moments, elevation_units
+from .model.offsets import SkyCounts, levelled, sky_counts
 from .model.parts import Engine, InProcess, Part, Shared, Tally, run_parts
 from .partition import (
     check_digests,
@@ -98,7 +99,9 @@ def tiled_heights(
         )
         for tile in tiles
     ]
-    signals = signal_moments(rx) if estimator.signal_model == "mixture" else None
+    signals = _Signals(
+        lambda: sky_counts(rx), lambda offsets: signal_moments(rx, offsets), estimator
+    )
     return _run_tiles(tiles, casts, buildings, tile_size, estimator, engine, say, output, signals)
 
 
@@ -138,13 +141,17 @@ def partitioned_heights(
         for name, files in parts.items()
     ]
     refuse_changed([f for bad in engine.gather(checks) for f in bad])
-    signals = None
-    if estimator.signal_model == "mixture":  # each signal is in one partition file
+
+    def summed(func, *args):  # each signal is in one partition file
         sums = [
-            engine.submit(file_moments, files, key=f"signals-{name}-{uuid.uuid4().hex[:8]}")
+            engine.submit(func, files, *args, key=f"signals-{name}-{uuid.uuid4().hex[:8]}")
             for name, files in parts.items()
         ]
-        signals = functools.reduce(operator.add, engine.gather(sums))
+        return functools.reduce(operator.add, engine.gather(sums))
+
+    signals = _Signals(
+        lambda: summed(file_counts), lambda offsets: summed(file_moments, offsets), estimator
+    )
     x0, y0 = squares["ix"].to_numpy() * size, squares["iy"].to_numpy() * size
     geometry = buildings.geometry.to_numpy()
     tree = shapely.STRtree(geometry)
@@ -168,22 +175,69 @@ def partitioned_heights(
     return _run_tiles(tiles, casts, buildings, size, estimator, engine, say, output, signals)
 
 
-def signal_moments(receivers: pd.DataFrame) -> Cn0Moments:
-    """All the signals of a receivers table (``cn0``, ``elevation``), as open."""
+def signal_moments(receivers: pd.DataFrame, offsets: pd.Series | None = None) -> Cn0Moments:
+    """All the signals of a receivers table (``cn0``, ``elevation``), as open, each phone's
+    C/N0 levelled by ``offsets`` (:meth:`~gnss_citygml.model.offsets.SkyCounts.offsets`)."""
+    if offsets is not None:
+        receivers = levelled(receivers, offsets)
     e = elevation_units(receivers["elevation"].to_numpy(dtype=float))
     return Cn0Moments.of(receivers["cn0"].to_numpy(dtype=float), e, 1.0)
 
 
-def file_moments(files: list[Path]) -> Cn0Moments:
+def file_moments(files: list[Path], offsets: pd.Series | None = None) -> Cn0Moments:
     """:func:`signal_moments` of the receivers in partition ``files``."""
-    return signal_moments(read_receivers(files))
+    return signal_moments(read_receivers(files), offsets)
 
 
-def _run_tiles(tiles, casts, buildings, size, estimator, engine, say, output, signals=None):
+def file_counts(files: list[Path]) -> SkyCounts:
+    """The receivers in partition ``files`` counted by phone, elevation and C/N0
+    (:func:`~gnss_citygml.model.offsets.sky_counts`)."""
+    return sky_counts(read_receivers(files))
+
+
+@dataclass(frozen=True)
+class _Signals:
+    """All the run's signals, where a run in tiles needs them: counted by phone (``counts``),
+    to level the phones (``Estimator.level_phones``), and summed for the mixture signal model
+    (``moments``, given the phones' offsets or None). Less those that the tiles find crossing
+    a footprint, they are the open sky."""
+
+    counts: Callable[[], SkyCounts]
+    moments: Callable[[pd.Series | None], Cn0Moments]
+    estimator: Estimator
+
+    def offsets(self, parts, engine, names, say) -> pd.Series | None:
+        """The phones' offsets from the open sky (None: not asked for)."""
+        if not self.estimator.level_phones:
+            return None
+        crossing = [
+            engine.submit(_sky_crossing, p, key=f"sky-{name}")
+            for p, name in zip(parts, names, strict=True)
+        ]
+        offsets = functools.reduce(operator.sub, engine.gather(crossing), self.counts()).offsets()
+        if offsets.size:
+            say(
+                f"{offsets.size} phones levelled by their open sky: offsets "
+                f"{offsets.min():+.1f} to {offsets.max():+.1f} dB-Hz"
+            )
+        return offsets
+
+    def open_sky(self, parts, engine, names, offsets) -> Cn0Moments | None:
+        """What the open sky teaches the mixture signal model (None: another model)."""
+        if self.estimator.signal_model != "mixture":
+            return None
+        crossing = [
+            engine.submit(_crossing, p, key=f"crossing-{name}")
+            for p, name in zip(parts, names, strict=True)
+        ]
+        return functools.reduce(operator.sub, engine.gather(crossing), self.moments(offsets))
+
+
+def _run_tiles(tiles, casts, buildings, size, estimator, engine, say, output, signals):
     """4PL-B over the tiles, each made by its cast (a function and its arguments): the
     heights table, or with ``output`` the tile index of the tiles written there. ``signals``:
-    all the run's signals (:func:`signal_moments`), for the mixture signal model: less those
-    that the tiles find crossing a footprint, they are the open sky it learns from."""
+    all the run's signals (:class:`_Signals`), whose open sky levels the phones and teaches
+    the mixture signal model."""
     if not tiles:
         raise InputError(
             "no building has a receiver within the rays' reach",
@@ -204,17 +258,19 @@ def _run_tiles(tiles, casts, buildings, size, estimator, engine, say, output, si
         parts[k] = FailedTile(tiles[k].name, ids[tiles[k].buildings], why)
         failed[tiles[k].name] = why
     open_sky = None
-    if signals is not None and failed:
+    if failed:
         say(
             "the signals crossing no footprint are not known without the failed tiles: "
-            "the mixture signal model learns without them"
+            "the phones are not levelled, and the mixture signal model learns without them"
         )
-    elif signals is not None:
-        crossing = [
-            engine.submit(_crossing, p, key=f"crossing-{name}")
-            for p, name in zip(parts, names, strict=True)
-        ]
-        open_sky = functools.reduce(operator.sub, engine.gather(crossing), signals)
+    else:
+        offsets = signals.offsets(parts, engine, names, say)
+        if offsets is not None:
+            parts = [
+                engine.submit(_levelled, p, offsets, key=f"level-{name}")
+                for p, name in zip(parts, names, strict=True)
+            ]
+        open_sky = signals.open_sky(parts, engine, names, offsets)
     tables, classifier = run_parts(
         parts,
         neighbours,
@@ -284,11 +340,19 @@ def tile_part(
     mine = inter["building"].cat.codes.to_numpy() < n_own
     inter = inter[inter["signal"].isin(inter["signal"].to_numpy()[mine])]
     own = buildings["id"].astype(str).to_numpy()[:n_own]
-    return intersections_part(inter, estimator, own=own)[1]
+    return intersections_part(inter, estimator, own=own, phones=estimator.level_phones)[1]
 
 
 def _crossing(part: Part) -> Cn0Moments:
     return part.crossing()
+
+
+def _sky_crossing(part: Part) -> SkyCounts:
+    return part.sky_crossing()
+
+
+def _levelled(part: Part, offsets: pd.Series) -> Part:
+    return part.levelled(offsets)
 
 
 def tile_heights(part: Part | FailedTile, iterations: int, method: str) -> pd.DataFrame:

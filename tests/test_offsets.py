@@ -4,7 +4,16 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from gnss_citygml.model.offsets import PRIOR_SIGNALS, cn0_offsets
+from gnss_citygml import Estimator, estimate_heights
+from gnss_citygml.model.offsets import (
+    CN0_BIN,
+    PRIOR_SIGNALS,
+    SkyCounts,
+    _weighted_medians,
+    cn0_offsets,
+    levelled,
+    sky_counts,
+)
 from gnss_citygml.pipeline import intersections, open_sky
 from gnss_citygml.settings import PositionError
 from gnss_citygml.simulate import simulate
@@ -77,3 +86,48 @@ def test_missing_columns_and_unknown_elevations():
     blind = pd.DataFrame({"receiver": ["b"] * 300, "elevation": np.nan, "cn0": 10.0})
     found = cn0_offsets(pd.concat([sky, blind], ignore_index=True))
     assert abs(found["a"] - found["b"]) < 0.4
+
+
+def test_counts_of_parts_add_up_to_the_whole_and_give_its_offsets():
+    """A run in tiles counts its signals by parts: the parts' counts add up to the whole's,
+    all less some leaves the rest, and the offsets are the whole's, bit for bit."""
+    sky = _sky({"a": 2.0, "b": -1.0, "c": 0.0}, 700)
+    cut = np.random.default_rng(3).random(len(sky)) < 0.4
+    whole, some, rest = (sky_counts(t) for t in (sky, sky[cut], sky[~cut]))
+    pd.testing.assert_series_equal((some + rest).counts, whole.counts)
+    pd.testing.assert_series_equal((whole - some).counts, rest.counts)
+    pd.testing.assert_series_equal((some + rest).offsets(), whole.offsets())
+    assert (SkyCounts.empty() + whole).offsets().equals(whole.offsets())
+
+
+def test_binned_medians_are_the_medians_of_the_signals():
+    """The offsets come from counts in bins of CN0_BIN: each phone's median residual is the
+    median of its signals, not of its bins (a bin of many signals weighs as many)."""
+    rng = np.random.default_rng(5)
+    value = np.round(rng.normal(0.0, 3.0, 501) / CN0_BIN) * CN0_BIN
+    code = rng.integers(0, 3, value.size)
+    bins = pd.DataFrame({"v": value, "g": code}).value_counts().sort_index()
+    v, g = (bins.index.get_level_values(k).to_numpy() for k in ("v", "g"))
+    found = _weighted_medians(v, bins.to_numpy(dtype=float), g, 3)
+    for k in range(3):
+        mine = np.sort(value[code == k])
+        assert found[k] == mine[(mine.size - 1) // 2]  # the lower middle one
+
+
+def test_levelling_is_a_run_on_the_levelled_signals():
+    """``Estimator(level_phones=True)`` (the default) gives the heights of the signals with
+    each phone's C/N0 less its open-sky offset; ``False``, those of the signals as recorded;
+    and without an open sky there is nothing to level by."""
+    scene = street_scene(np.random.default_rng(7), 24.0, 8.0, walkers=3)
+    phones = [SignalModel(device_sd=0.0, session_sd=0.0)] * 2
+    phones.append(SignalModel(device_sd=0.0, session_sd=0.0, body_loss=8.0))
+    sim = simulate(scene, interval=5.0, seed=2, physics=phones)
+    cast = intersections(sim.rays, sim.buildings, position_error=PositionError())
+    sky = open_sky(sim.rays, cast)
+    offsets = sky_counts(sky).offsets()
+    by_hand = estimate_heights(levelled(cast, offsets), Estimator(level_phones=False))
+    levelled_run = estimate_heights(cast, Estimator(), open_sky=sky)
+    pd.testing.assert_frame_equal(levelled_run, by_hand)
+    as_recorded = estimate_heights(cast, Estimator(level_phones=False), open_sky=sky)
+    pd.testing.assert_frame_equal(estimate_heights(cast), as_recorded)
+    assert not as_recorded.equals(levelled_run)

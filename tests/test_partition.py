@@ -88,7 +88,9 @@ def test_a_run_from_a_partition_gives_the_single_runs_heights(halves, tmp_path):
     east = buildings.total_bounds[2] + 750.0 - far.total_bounds[0]
     far = far.set_geometry(far.geometry.translate(east, 0.0))
     buildings = pd.concat([buildings, far], ignore_index=True)
-    single = estimate_heights(intersections(receivers(in_mask(both), DEM), buildings))
+    rx = receivers(in_mask(both), DEM)
+    inter = intersections(rx, buildings)
+    single = estimate_heights(inter, open_sky=open_sky(rx, inter))
     assert "far" not in set(single["id"])
     said = []
     tiled, _ = partitioned_heights(tmp_path / "p", buildings, progress=said.append)
@@ -270,10 +272,11 @@ def test_a_run_in_tiles_tells_its_progress_within_the_stages(halves, tmp_path):
     names = [what for what, _ in said]
     assert names[:4] == ["observations", "receivers", "buildings", "ray casting"]
     assert names[4].startswith("tile plan: 12 tiles of 100 m")
-    assert names[5] == "iteration 1" and names[-3:] == ["height model", "output", "done"]
+    assert " phones levelled by their open sky: offsets " in names[5]
+    assert names[6] == "iteration 1" and names[-3:] == ["height model", "output", "done"]
     shares = [done for _, done in said]
     assert shares == sorted(shares) and shares[-1] == 1.0
-    assert all(done == shares[3] for what, done in said if what.startswith(("tile", "iter")))
+    assert all(done == shares[3] for _, done in said[4:-3])
 
 
 def test_a_partition_with_its_own_receiver_heights_is_read_with_them(halves, tmp_path):

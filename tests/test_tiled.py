@@ -2,6 +2,7 @@
 a real Dask LocalCluster of 2 worker processes, also when one of them is killed mid-run."""
 
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -48,10 +49,15 @@ def scene():
     return city(0)
 
 
+def one_run(rx, buildings, estimator=Estimator()):
+    """The single run's heights (:func:`gnss_citygml.pipeline.run`'s: with the open sky)."""
+    inter = intersections(rx, buildings)
+    return estimate_heights(inter, estimator, open_sky=open_sky(rx, inter))
+
+
 @pytest.fixture(scope="module")
 def single(scene):
-    rx, buildings = scene
-    return estimate_heights(intersections(rx, buildings))
+    return one_run(*scene)
 
 
 def assert_close_heights(tiled, single, tol=1e-3):
@@ -108,7 +114,7 @@ def test_tiles_in_one_process_give_the_single_runs_heights(scene, single, size):
 def test_tiles_hold_for_other_settings(scene, estimator):
     rx, buildings = scene
     tiled, _ = tiled_heights(rx, buildings, estimator=estimator, tile_size=100.0)
-    assert_same_heights(tiled, estimate_heights(intersections(rx, buildings), estimator))
+    assert_same_heights(tiled, one_run(rx, buildings, estimator))
 
 
 @pytest.mark.parametrize("size", [60.0, 250.0])
@@ -117,8 +123,7 @@ def test_tiles_hold_for_the_mixture_signal_model(scene, size):
     all signals less those each crossed first, and give the single run's heights."""
     rx, buildings = scene
     estimator = Estimator(signal_model="mixture")
-    inter = intersections(rx, buildings)
-    single = estimate_heights(inter, estimator, open_sky=open_sky(rx, inter))
+    single = one_run(rx, buildings, estimator)
     assert single["converged"].sum() >= 5
     tiled, model = tiled_heights(rx, buildings, estimator=estimator, tile_size=size)
     assert_close_heights(tiled, single)
@@ -136,7 +141,7 @@ def test_a_tile_without_signals_takes_part_and_reports_its_buildings(scene):
     both = pd.concat([buildings, far], ignore_index=True)
     tiled, _ = tiled_heights(rx, both, tile_size=100.0)
     assert "far" not in set(tiled["id"])
-    assert_same_heights(tiled, estimate_heights(intersections(rx, both)))
+    assert_same_heights(tiled, one_run(rx, both))
 
 
 def test_progress_names_the_plan_and_each_iteration(scene, single):
@@ -144,7 +149,8 @@ def test_progress_names_the_plan_and_each_iteration(scene, single):
     said = []
     tiled_heights(rx, buildings, tile_size=100.0, progress=said.append)
     assert said[0].startswith("tile plan: ") and "tiles of 100 m" in said[0]
-    assert said[1:] == [f"iteration {k}" for k in range(1, single["iterations"].max() + 1)]
+    assert re.fullmatch(r"8 phones levelled by their open sky: offsets \S+ to \S+ dB-Hz", said[1])
+    assert said[2:] == [f"iteration {k}" for k in range(1, single["iterations"].max() + 1)]
 
 
 @pytest.fixture(scope="module")

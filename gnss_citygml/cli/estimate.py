@@ -15,6 +15,7 @@ from .options import (
     HEIGHT_RULE,
     ID_FIELD,
     LAYER,
+    LEVEL_PHONES,
     MAX_ELEVATION,
     METHOD,
     MIN_ELEVATION,
@@ -48,6 +49,7 @@ _RUN_OPTIONS = together(
     METHOD,
     HEIGHT_RULE,
     SIGNAL_MODEL,
+    LEVEL_PHONES,
     click.option(
         "--max-range", type=float, default=Rays.max_range, show_default=True, help="Ray length (m)."
     ),
@@ -166,6 +168,7 @@ def _run(
     method,
     height_rule,
     signal_model,
+    level_phones,
     max_range,
     position_sd,
     position_window,
@@ -209,6 +212,7 @@ def _run(
                 init_threshold=init_threshold,
                 height_rule=height_rule,
                 signal_model=signal_model,
+                level_phones=level_phones,
             ),
             position_error=PositionError(sd=position_sd, window=position_window),
             calibration=Calibration(prior_sd=calibration_sd, window=calibration_window),

@@ -33,6 +33,7 @@ __all__ = [
     "GRID_DIR",
     "ID_FIELD",
     "LAYER",
+    "LEVEL_PHONES",
     "HEIGHT_RULE",
     "MAX_ELEVATION",
     "METHOD",
@@ -154,6 +155,14 @@ SIGNAL_MODEL = click.option(
     help="How 4PL-B tells open signals from closed ones: the paper's C/N0 threshold trained "
     "on the map's labels, or a mixture of open and closed signals' C/N0 by elevation learnt "
     "by EM (method 4PL-B only).",
+)
+LEVEL_PHONES = click.option(
+    "--level-phones/--no-level-phones",
+    default=Estimator.level_phones,
+    show_default=True,
+    help="Put every phone's C/N0 on one level before the signals are classified, each "
+    "phone's offset learnt from its signals that cross no footprint (phones differ by a few "
+    "dB-Hz). --no-level-phones: the C/N0 as recorded, as in the paper.",
 )
 THRESHOLD = click.option(
     "--init-threshold",

@@ -13,6 +13,7 @@ from .options import (
     HEIGHT_RULE,
     ID_FIELD,
     LAYER,
+    LEVEL_PHONES,
     METHOD,
     QUIET,
     REPORT,
@@ -59,6 +60,7 @@ from .options import (
 @METHOD
 @HEIGHT_RULE
 @SIGNAL_MODEL
+@LEVEL_PHONES
 @DEM_CRS
 @GRID_DIR
 @QUIET
@@ -78,6 +80,7 @@ def update(
     method,
     height_rule,
     signal_model,
+    level_phones,
     dem_crs,
     grid_dir,
     quiet,
@@ -115,6 +118,7 @@ def update(
                 init_threshold=init_threshold,
                 height_rule=height_rule,
                 signal_model=signal_model,
+                level_phones=level_phones,
             ),
             grid_dir=grid_dir,
             dem_crs=dem_crs,

@@ -19,6 +19,7 @@ from .baselines import bayes_heights, hinge_heights
 from .classifier import SignalClassifier
 from .fourplb import BuildingFits, SignalModel
 from .mixture import Cn0Mixture, Cn0Moments, elevation_units
+from .offsets import levelled, sky_counts
 from .parts import Part, run_parts
 
 __all__ = [
@@ -26,6 +27,7 @@ __all__ = [
     "estimate_heights",
     "fourplb",
     "intersections_part",
+    "level_phones",
     "open_sky_moments",
     "signal_model",
 ]
@@ -80,8 +82,10 @@ def estimate_heights(
     open_sky
         Optional: the signals whose rays cross no footprint (``cn0``, optionally
         ``elevation``; e.g. :func:`gnss_citygml.pipeline.open_sky`), open as far as the map
-        knows: the mixture signal model (``Estimator(signal_model="mixture")``) learns from them
-        what open signals look like. Other signal models do not use them.
+        knows: each phone's C/N0 is levelled by them (``Estimator(level_phones=True)``, the
+        default: with ``receiver`` and ``elevation`` here and in the intersections), and the
+        mixture signal model (``Estimator(signal_model="mixture")``) learns from them what
+        open signals look like.
 
     Returns
     -------
@@ -113,6 +117,7 @@ def estimate_heights(
     0  a      False  fewer than 10 signals
     """
     method = estimator.method
+    intersections, open_sky = level_phones(_as_table(intersections), open_sky, estimator)
     if estimator.fourpl:
         ids, part = intersections_part(intersections, estimator)
         moments = open_sky_moments(open_sky, estimator)
@@ -144,14 +149,34 @@ def estimate_heights(
     return out
 
 
+def level_phones(
+    intersections: pd.DataFrame, open_sky: pd.DataFrame | None, estimator: Estimator
+) -> tuple[pd.DataFrame, pd.DataFrame | None]:
+    """The intersections and the open sky with each phone's C/N0 levelled by its open sky
+    (:mod:`.offsets`), as ``estimator.level_phones`` asks; as they are without an open sky, or
+    without each signal's ``receiver`` and ``elevation``."""
+    columns = {"receiver", "elevation"}
+    if not estimator.level_phones or open_sky is None:
+        return intersections, open_sky
+    if not (columns <= set(intersections.columns) and columns <= set(open_sky.columns)):
+        return intersections, open_sky
+    offsets = sky_counts(open_sky).offsets()
+    return levelled(intersections, offsets), levelled(open_sky, offsets)
+
+
 def intersections_part(
-    intersections: pd.DataFrame | Mapping, estimator: Estimator, own: npt.ArrayLike | None = None
+    intersections: pd.DataFrame | Mapping,
+    estimator: Estimator,
+    own: npt.ArrayLike | None = None,
+    phones: bool = False,
 ) -> tuple[np.ndarray, Part]:
     """The 4PL-B :class:`~.parts.Part` of an intersections table (see
     :func:`estimate_heights`) and its buildings' ids, in order of first appearance: all of
     them owned, or, with ``own`` (ids), those first (a tile's, whose other rows are of the
     buildings its signals also cross). The part's buildings are known by their ids
-    (``Part.building``), so that parts of a run can exchange their fits by id."""
+    (``Part.building``), so that parts of a run can exchange their fits by id. With ``phones``
+    (and ``receiver`` and ``elevation`` columns), the part knows each row's phone, to be
+    levelled (:meth:`~.parts.Part.levelled`) once the run's open sky is known."""
     table = _as_table(intersections)
     ids, codes, height, cn0, signal, order = _columns(table)
     n_own = len(ids)
@@ -174,6 +199,7 @@ def intersections_part(
         receiver=_recordings(table, height_sd),
         track=_tracks(table),
         elevation=_numeric(table, "elevation") if "elevation" in table.columns else None,
+        phone=table["receiver"] if phones and "receiver" in table.columns else None,
     )
     return ids, part
 

@@ -36,6 +36,7 @@ from .fourplb import (
     position_margin,
 )
 from .mixture import Cn0Mixture, Cn0Moments, clear_chance, clears_all, elevation_units
+from .offsets import SkyCounts
 
 __all__ = [
     "Engine",
@@ -278,6 +279,9 @@ class Part:
     last: LastFit | None = None
     #: Each row's chance of clearing its building by the fits last exchanged (None before).
     prior: np.ndarray | None = None
+    #: Each row's phone, coded into ``phones`` (:meth:`levelled`; None: not known).
+    phone: np.ndarray | None = None
+    phones: np.ndarray | None = None
 
     @classmethod
     def of(
@@ -296,11 +300,13 @@ class Part:
         receiver: npt.ArrayLike | None = None,
         track: npt.ArrayLike | None = None,
         elevation: npt.ArrayLike | None = None,
+        phone: npt.ArrayLike | None = None,
     ) -> Part:
         """A part from coded rows (see :func:`fourplb`): it owns the buildings coded below
         ``n_own`` (default: all ``n_groups``), whose codes in the whole run are ``building``
         (default: their own). A part that does not own every building needs ``signal`` and
-        ``order``, so that each signal is counted by one part."""
+        ``order``, so that each signal is counted by one part. ``phone`` names each row's
+        phone, for :meth:`levelled` (with ``elevation``)."""
         if not estimator.fourpl:
             raise ModelError(f"fourplb runs 4PL-B or 4PL, not {estimator.method}")
         n_own = n_groups if n_own is None else int(n_own)
@@ -324,6 +330,12 @@ class Part:
         if estimator.weighting == "looks" or (estimator.method == "4PL-B" and tracks is not None):
             looks = _compact(look_ids(h, g, tracks))
         e = np.zeros(h.size) if elevation is None else elevation_units(elevation)[by_group]
+        phone_code = phones = None
+        if phone is not None and elevation is not None:
+            code, names = pd.factorize(np.asarray(phone, dtype=object)[by_group].astype(str))
+            unknown = ~np.isfinite(np.asarray(elevation, dtype=float)[by_group])
+            phone_code = np.where(unknown, -1, _compact(code))  # neither counted nor levelled
+            phones = np.asarray(names, dtype=object)
         occlusion = estimator.visibility and signal is not None
         seen = np.ones(h.size, dtype=bool)
         if occlusion and order is not None:
@@ -343,6 +355,8 @@ class Part:
             estimator=estimator,
             occlusion=occlusion,
             seen=seen,
+            phone=phone_code,
+            phones=phones,
         )
 
     @property
@@ -450,6 +464,26 @@ class Part:
         every = np.ones(self.h.size, dtype=bool)
         lead, _ = _classifier_data(self, every, every)
         return Cn0Moments.of(self.s[lead], self.e[lead], 1.0)
+
+    def sky_crossing(self) -> SkyCounts:
+        """:meth:`crossing`'s signals counted by phone (:class:`~.offsets.SkyCounts`): a run
+        of parts takes them from all its signals' to leave its open sky's, which levels the
+        phones (:meth:`levelled`)."""
+        if self.phone is None or self.phones is None:
+            return SkyCounts.empty()
+        every = np.ones(self.h.size, dtype=bool)
+        lead, _ = _classifier_data(self, every, every)
+        lead = lead[self.phone[lead] >= 0]
+        return SkyCounts.of(self.phones[self.phone[lead]], self.s[lead], self.e[lead])
+
+    def levelled(self, offsets: pd.Series) -> Part:
+        """The part with each row's C/N0 less its phone's offset (``offsets``, by phone name:
+        :meth:`~.offsets.SkyCounts.offsets`; 0 for a phone without one), before its first
+        fit."""
+        if self.phone is None or self.phones is None:
+            return self
+        level = np.append(offsets.reindex(self.phones, fill_value=0.0).to_numpy(), 0.0)
+        return replace(self, s=self.s - level[self.phone])
 
     def judged(self, iterations: int) -> BuildingFits:
         """The own buildings' heights, ranges and statuses after ``iterations`` iterations."""

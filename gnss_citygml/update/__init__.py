@@ -226,8 +226,9 @@ def update_map(
     outlines = _outlines(buildings)
     key, stored_ids = _key_column(path, name, [id_column, id_field, "fid"], buildings["id"])
     current = _current_values(path, name, key, buildings["id"])  # (checks our columns' types)
-    mixture = estimator.signal_model == "mixture"  # it learns from every signal cast
-    before = read_evidence(path, name, with_signals=report is not None or mixture)
+    # the phones' levels and the mixture learn from every signal cast (the open sky)
+    sky_needed = estimator.level_phones or estimator.signal_model == "mixture"
+    before = read_evidence(path, name, with_signals=report is not None or sky_needed)
     settings = cast_settings(rays, receiver_heights)
     check_cast_with(path, before, settings)
     check_receiver_heights(before.cast, dem, receiver_heights, dem_crs)
@@ -264,13 +265,13 @@ def update_map(
         building=pd.Categorical(evidence["building"], categories=buildings["id"].astype(str)),
     ).drop(columns="signal_key")
     # every signal cast, once each (a damaged store's repeats would break the lookups), where
-    # the mixture or the report needs them
+    # the open sky or the report needs them
     everything = signals.iloc[:0]
-    if mixture or report is not None:
+    if sky_needed or report is not None:
         everything = pd.concat([cast_before, signals], ignore_index=True)
         everything = everything.drop_duplicates("signal_key", ignore_index=True)
     sky = None
-    if mixture:
+    if sky_needed:
         signal_elevations = everything.set_index("signal_key")["elevation"]
         model["elevation"] = signal_elevations.reindex(evidence["signal_key"]).to_numpy()
         sky = everything[~everything["signal_key"].isin(evidence["signal_key"])]

@@ -174,11 +174,17 @@ SIGNAL_MODEL = (
     "Signal model (paper: a C/N0 threshold; mixture: open and closed signals' C/N0 by "
     "elevation, learnt by EM; 4PL-B only)"
 )
+#: The description of the phones' levelling parameter (estimate, update).
+LEVEL_PHONES = (
+    "Level each phone's C/N0 by its signals that cross no footprint (off: as recorded, as in "
+    "the paper)"
+)
 #: The sentence of the algorithms' help on the signal model (estimate, update).
 SIGNAL_MODEL_HELP = (
     "The signal model (advanced) is how 4PL-B tells open signals from closed ones: the "
     "paper's C/N0 threshold trained on the map's labels, or a mixture of open and closed "
-    "signals' C/N0 by elevation learnt by EM."
+    "signals' C/N0 by elevation learnt by EM. Each phone's C/N0 is first put on one level, "
+    "learnt from its signals that cross no footprint (phones differ by a few dB-Hz)."
 )
 
 

@@ -8,6 +8,7 @@ from qgis.core import (
     QgsProcessing,
     QgsProcessingLayerPostProcessorInterface,
     QgsProcessingOutputNumber,
+    QgsProcessingParameterBoolean,
     QgsProcessingParameterEnum,
     QgsProcessingParameterFeatureSource,
     QgsProcessingParameterField,
@@ -19,6 +20,7 @@ from qgis.core import (
 
 from .algorithm import (
     HEIGHT_RULE,
+    LEVEL_PHONES,
     SIGNAL_MODEL,
     SIGNAL_MODEL_HELP,
     Algorithm,
@@ -182,6 +184,13 @@ class EstimateAlgorithm(Algorithm):
         )
         self.addParameter(
             advanced(
+                QgsProcessingParameterBoolean(
+                    "LEVEL_PHONES", LEVEL_PHONES, defaultValue=Estimator.level_phones
+                )
+            )
+        )
+        self.addParameter(
+            advanced(
                 QgsProcessingParameterNumber(
                     "MAX_RANGE",
                     "Ray length (m)",
@@ -272,6 +281,7 @@ class EstimateAlgorithm(Algorithm):
                 "init_threshold": number(parameters, "INIT_THRESHOLD", context),
                 "height_rule": self.chosen(parameters, "HEIGHT_RULE", HEIGHT_RULES, context),
                 "signal_model": self.chosen(parameters, "SIGNAL_MODEL", SIGNAL_MODELS, context),
+                "level_phones": self.parameterAsBoolean(parameters, "LEVEL_PHONES", context),
             },
             "position_error": {
                 "sd": optional(parameters, "POSITION_SD", context),

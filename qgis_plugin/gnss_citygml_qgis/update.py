@@ -20,6 +20,7 @@ from qgis.core import (
 
 from .algorithm import (
     HEIGHT_RULE,
+    LEVEL_PHONES,
     SIGNAL_MODEL,
     SIGNAL_MODEL_HELP,
     Algorithm,
@@ -113,6 +114,13 @@ class UpdateAlgorithm(Algorithm):
         )
         self.addParameter(
             advanced(
+                QgsProcessingParameterBoolean(
+                    "LEVEL_PHONES", LEVEL_PHONES, defaultValue=Estimator.level_phones
+                )
+            )
+        )
+        self.addParameter(
+            advanced(
                 QgsProcessingParameterNumber(
                     "INIT_THRESHOLD",
                     "Initial C/N0 threshold (dB-Hz)",
@@ -155,6 +163,7 @@ class UpdateAlgorithm(Algorithm):
                 "init_threshold": self.parameterAsDouble(parameters, "INIT_THRESHOLD", context),
                 "height_rule": self.chosen(parameters, "HEIGHT_RULE", HEIGHT_RULES, context),
                 "signal_model": self.chosen(parameters, "SIGNAL_MODEL", SIGNAL_MODELS, context),
+                "level_phones": self.parameterAsBoolean(parameters, "LEVEL_PHONES", context),
             },
             "grid_dir": self.optional_text(parameters, "GRID_DIR", context),
             "dem_crs": dem.crs().authid() or None,

@@ -315,8 +315,9 @@ class Estimator:
         phone's (each ``receiver``'s) offset is learnt from its open sky, the signals whose
         rays cross no footprint (:mod:`gnss_citygml.model.offsets`). Phones differ by a few
         dB-Hz (antenna, front end, a body or a pocket), which one threshold or one mixture
-        would read as blocking. Needs the open sky (a run from observations: ``estimate``,
-        ``update``); ``False``: the C/N0 as recorded, as in the paper.
+        would read as blocking. 4PL-B only (the other methods are run as published); needs the
+        open sky (a run from observations: ``estimate``, ``update``). ``False``: the C/N0 as
+        recorded, as in the paper.
     acceptance
         What an estimate must satisfy to count as converged.
 
@@ -382,6 +383,12 @@ class Estimator:
                     f"option(s) {', '.join(unused)} not used by method {self.method}",
                     fix="leave them out, or use method 4PL-B or 4PL",
                 )
+
+    @property
+    def levels_phones(self) -> bool:
+        """Whether the phones' C/N0 is levelled (``level_phones``): by 4PL-B only, the other
+        methods are run as published."""
+        return self.level_phones and self.method == "4PL-B"
 
     @property
     def fourpl(self) -> bool:

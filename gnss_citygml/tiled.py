@@ -208,7 +208,7 @@ class _Signals:
 
     def offsets(self, parts, engine, names, say) -> pd.Series | None:
         """The phones' offsets from the open sky (None: not asked for)."""
-        if not self.estimator.level_phones:
+        if not self.estimator.levels_phones:
             return None
         crossing = [
             engine.submit(_sky_crossing, p, key=f"sky-{name}")
@@ -340,7 +340,7 @@ def tile_part(
     mine = inter["building"].cat.codes.to_numpy() < n_own
     inter = inter[inter["signal"].isin(inter["signal"].to_numpy()[mine])]
     own = buildings["id"].astype(str).to_numpy()[:n_own]
-    return intersections_part(inter, estimator, own=own, phones=estimator.level_phones)[1]
+    return intersections_part(inter, estimator, own=own, phones=estimator.levels_phones)[1]
 
 
 def _crossing(part: Part) -> Cn0Moments:

@@ -162,7 +162,7 @@ LEVEL_PHONES = click.option(
     show_default=True,
     help="Put every phone's C/N0 on one level before the signals are classified, each "
     "phone's offset learnt from its signals that cross no footprint (phones differ by a few "
-    "dB-Hz). --no-level-phones: the C/N0 as recorded, as in the paper.",
+    "dB-Hz; method 4PL-B). --no-level-phones: the C/N0 as recorded, as in the paper.",
 )
 THRESHOLD = click.option(
     "--init-threshold",

@@ -156,7 +156,7 @@ def level_phones(
     (:mod:`.offsets`), as ``estimator.level_phones`` asks; as they are without an open sky, or
     without each signal's ``receiver`` and ``elevation``."""
     columns = {"receiver", "elevation"}
-    if not estimator.level_phones or open_sky is None:
+    if not estimator.levels_phones or open_sky is None:
         return intersections, open_sky
     if not (columns <= set(intersections.columns) and columns <= set(open_sky.columns)):
         return intersections, open_sky

@@ -227,7 +227,7 @@ def update_map(
     key, stored_ids = _key_column(path, name, [id_column, id_field, "fid"], buildings["id"])
     current = _current_values(path, name, key, buildings["id"])  # (checks our columns' types)
     # the phones' levels and the mixture learn from every signal cast (the open sky)
-    sky_needed = estimator.level_phones or estimator.signal_model == "mixture"
+    sky_needed = estimator.levels_phones or estimator.signal_model == "mixture"
     before = read_evidence(path, name, with_signals=report is not None or sky_needed)
     settings = cast_settings(rays, receiver_heights)
     check_cast_with(path, before, settings)

@@ -177,7 +177,7 @@ SIGNAL_MODEL = (
 #: The description of the phones' levelling parameter (estimate, update).
 LEVEL_PHONES = (
     "Level each phone's C/N0 by its signals that cross no footprint (off: as recorded, as in "
-    "the paper)"
+    "the paper; 4PL-B only)"
 )
 #: The sentence of the algorithms' help on the signal model (estimate, update).
 SIGNAL_MODEL_HELP = (

@@ -94,6 +94,11 @@ def main():
         "(true: the floor of the estimator)",
     )
     parser.add_argument("--signal-model", default=None, help="4PL-B's (default: the API's)")
+    parser.add_argument(
+        "--no-level-phones",
+        action="store_true",
+        help="4PL-B on the C/N0 as recorded (before issue 28: no phone levelled by its open sky)",
+    )
     parser.add_argument("--thresholds", default=None, help="comma-separated C/N0 thresholds")
     parser.add_argument("--methods", default=None, help="comma-separated methods (default all)")
     args = parser.parse_args()
@@ -105,6 +110,8 @@ def main():
     options = {} if args.weighting is None else {"weighting": args.weighting}
     if args.signal_model:
         options["signal_model"] = args.signal_model
+    if args.no_level_phones:
+        options["level_phones"] = False
     options.update(position_errors=args.position_errors, position_window=args.position_window)
     if args.calibrate:
         options.update(calibration_sd=POSITION_SD, calibration_window=args.window)

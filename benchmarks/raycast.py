@@ -7,7 +7,7 @@ pipeline's stages on them in a fresh process and prints the time of each stage, 
 second and the peak memory (RSS) of that process.
 
     python benchmarks/raycast.py [--signals 1000000] [--blocks 100] [--grid-dir DIR]
-                                 [--signal-model paper|mixture]
+                                 [--signal-model paper|mixture] [--no-level-phones]
 
 Targets (issue 4): cast + fit <= 60 s on a 2-core machine, peak memory <= 2 GB.
 """
@@ -45,7 +45,7 @@ def prepare(folder: Path, signals: int, blocks: int, grid_dir) -> None:
     )
 
 
-def run(folder: Path, grid_dir, signal_model: str) -> None:
+def run(folder: Path, grid_dir, signal_model: str, level_phones: bool) -> None:
     from gnss_citygml.footprints import read_footprints
     from gnss_citygml.model.estimate import estimate_heights
     from gnss_citygml.observations import read_observations
@@ -67,7 +67,7 @@ def run(folder: Path, grid_dir, signal_model: str) -> None:
     rx = timed("receivers (geodesy + DEM)", receivers, obs, dem, grid_dir=grid_dir)
     fp = timed("ground under buildings", building_ground, fp, dem)
     inter = timed("cast", intersections, rx, fp)
-    estimator = Estimator(signal_model=signal_model)
+    estimator = Estimator(signal_model=signal_model, level_phones=level_phones)
     heights = timed(
         "fit (4PL-B)",
         lambda: estimate_heights(inter, estimator, open_sky=open_sky(rx, inter)),
@@ -90,16 +90,20 @@ def main():
     parser.add_argument("--blocks", type=int, default=100, help="blocks per side")
     parser.add_argument("--grid-dir", type=Path, default=GRIDS)
     parser.add_argument("--signal-model", default="paper", help="paper or mixture")
+    parser.add_argument(
+        "--no-level-phones", action="store_true", help="the C/N0 as recorded (before issue 28)"
+    )
     parser.add_argument("--run", type=Path, help=argparse.SUPPRESS)  # the measured process
     args = parser.parse_args()
     if args.run:
-        run(args.run, args.grid_dir, args.signal_model)
+        run(args.run, args.grid_dir, args.signal_model, not args.no_level_phones)
         return
     folder = OUT / f"city_{args.blocks}x{args.blocks}_{args.signals}"
     if not (folder / "dem.tif").exists():
         prepare(folder, args.signals, args.blocks, args.grid_dir)
     command = [sys.executable, __file__, "--run", str(folder), "--grid-dir", str(args.grid_dir)]
     command += ["--signal-model", args.signal_model]
+    command += ["--no-level-phones"] if args.no_level_phones else []
     subprocess.run(command, check=True)
 
 

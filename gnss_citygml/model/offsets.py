@@ -62,14 +62,18 @@ class SkyCounts:
         s = np.asarray(cn0, dtype=float)
         e = np.asarray(e, dtype=float)
         ok = np.isfinite(s) & np.isfinite(e)
+        code, names = pd.factorize(np.asarray(key, dtype=object)[ok])  # each name once
         bins = pd.DataFrame(
             {
-                "key": np.asarray(key, dtype=object)[ok].astype(str),
+                "key": code,
                 "e": np.rint(e[ok] * ELEVATION_BINS).astype(np.int64),
                 "cn0": np.rint(s[ok] / CN0_BIN).astype(np.int64),
             }
         )
-        return cls(bins.value_counts(sort=False).sort_index().rename("n"))
+        counts = bins.value_counts(sort=False).reset_index(name="n")
+        named = np.asarray(names, dtype=object).astype(str).astype(object)
+        counts["key"] = named[counts["key"].to_numpy()]
+        return cls(counts.set_index(["key", "e", "cn0"])["n"].sort_index())
 
     @classmethod
     def empty(cls) -> SkyCounts:
@@ -136,9 +140,13 @@ def levelled(signals: pd.DataFrame, offsets: pd.Series, key: str = "receiver") -
     """``signals`` with each one's ``cn0`` less its phone's offset (0 for a phone without
     one: a received signal never becomes a blocked one; and for a signal of unknown
     ``elevation``, which the counts leave out too)."""
-    level = offsets.reindex(signals[key].astype(str), fill_value=0.0).to_numpy()
+    code, names = pd.factorize(signals[key])  # each name looked up once
+    level = offsets.reindex(np.asarray(names, dtype=object).astype(str), fill_value=0.0)
+    shift = np.append(level.to_numpy(), 0.0)[code]  # (code -1: no name)
     known = np.isfinite(pd.to_numeric(signals["elevation"], errors="coerce").to_numpy(float))
-    return signals.assign(cn0=pd.to_numeric(signals["cn0"], errors="coerce") - level * known)
+    out = signals.copy(deep=False)  # the other columns shared, not copied
+    out["cn0"] = pd.to_numeric(signals["cn0"], errors="coerce").to_numpy(float) - shift * known
+    return out
 
 
 def _tidy(counts: pd.Series) -> pd.Series:

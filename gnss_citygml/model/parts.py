@@ -332,10 +332,10 @@ class Part:
         e = np.zeros(h.size) if elevation is None else elevation_units(elevation)[by_group]
         phone_code = phones = None
         if phone is not None and elevation is not None:
-            code, names = pd.factorize(np.asarray(phone, dtype=object)[by_group].astype(str))
+            code, names = pd.factorize(np.asarray(phone, dtype=object)[by_group])
             unknown = ~np.isfinite(np.asarray(elevation, dtype=float)[by_group])
             phone_code = np.where(unknown, -1, _compact(code))  # neither counted nor levelled
-            phones = np.asarray(names, dtype=object)
+            phones = np.asarray(names, dtype=object).astype(str).astype(object)
         occlusion = estimator.visibility and signal is not None
         seen = np.ones(h.size, dtype=bool)
         if occlusion and order is not None:

@@ -4,7 +4,7 @@ A simulated city (``--km`` square: blocks 60 m apart, one building each, walked 
 ``--walkers`` phones for ``--seconds`` each at 1 Hz; the simulator's own physics) is moved
 into British National Grid at TQ2080 and estimated once whole (:func:`estimate_heights` on
 the single cast), then in 1, 4 and 16 tiles (of km, km/2 and km/4;
-:func:`gnss_citygml.tiled.tiled_heights`): in one process, with each step timed, and on a
+:func:`gnss_citygml.tiling.run.tiled_heights`): in one process, with each step timed, and on a
 Dask ``LocalCluster`` of 1 and 2 worker processes. Printed per
 tiling: the steps' cost per tile (cast; fit; exchange, i.e. the visibility model and the
 classifier's counts; the final judgement), the driver's share (plan, the classifier's refit),
@@ -26,7 +26,6 @@ from typing import Any
 import numpy as np
 import shapely
 
-from gnss_citygml.cluster import connect
 from gnss_citygml.model.classifier import SignalClassifier
 from gnss_citygml.model.estimate import estimate_heights
 from gnss_citygml.model.parts import InProcess, Part
@@ -34,7 +33,8 @@ from gnss_citygml.pipeline import intersections, open_sky
 from gnss_citygml.settings import Tiling
 from gnss_citygml.simulate import simulate
 from gnss_citygml.simulate.scenes import city_scene
-from gnss_citygml.tiled import tile_part, tiled_heights
+from gnss_citygml.tiling.cluster import connect
+from gnss_citygml.tiling.run import tile_part, tiled_heights
 
 #: South-west corner of the city (m, BNG): TQ2080, west London.
 ORIGIN = np.array([520_000.0, 180_000.0])
@@ -185,7 +185,7 @@ def _task_rate(dask, n=5000) -> float:
 
 def _tiles(buildings, size) -> int:
     """How many tiles the plan made: the distinct tiles of the buildings."""
-    from gnss_citygml.tiles import building_tiles
+    from gnss_citygml.tiling.grid import building_tiles
 
     return len(set(building_tiles(buildings, size)))
 

@@ -3,7 +3,7 @@
 A synthetic city (``--km`` square of British National Grid, ``--buildings`` boxes of 8-40 m,
 ``--signals`` rays from random receivers with random bearings) is cast once whole, then cut
 into 1, 4 and 16 tiles (tile side = km / 1, 2, 4) and cast tile by tile against each tile's
-buildings and halo (:func:`gnss_citygml.tiles.plan_tiles`). Printed per tiling: the time to
+buildings and halo (:func:`gnss_citygml.tiling.grid.plan_tiles`). Printed per tiling: the time to
 plan, the cast's total and largest tile time, and how many crossings the tiles cast beside
 the single run's (the halo's overhead: a ray is cast in every tile whose buildings' extent it
 enters). The rows of a tile's own buildings equal the single cast's (tests/test_tiles.py).
@@ -21,7 +21,7 @@ import numpy as np
 from shapely.geometry import box
 
 from gnss_citygml.raycast import footprint_entries
-from gnss_citygml.tiles import plan_tiles
+from gnss_citygml.tiling.grid import plan_tiles
 
 #: South-west corner of the city (m, BNG): TQ2080, west London.
 ORIGIN = (520_000.0, 180_000.0)

@@ -85,7 +85,7 @@ def read_footprints(
         is written next to it. It is checked to be well-formed XML first: GDAL reads no
         feature at all from a file cut short, without an error. Or GeoParquet: a file, or a
         folder in the hive layout such as the heights a run in tiles wrote per tile
-        (``FOLDER/heights``, :mod:`gnss_citygml.tile_output`), read by GeoPandas.
+        (``FOLDER/heights``, :mod:`gnss_citygml.tiling.output`), read by GeoPandas.
     layer
         The layer to read. By default: the only polygon layer of the source, or
         ``TopographicArea`` for MasterMap.
@@ -265,7 +265,7 @@ def _read_layer(path, layer: str | None, where: str, options: dict) -> gpd.GeoDa
 
 def _is_geoparquet(path: Path) -> bool:
     """A GeoParquet file, or a folder of them (in the hive layout: a run's heights written per
-    tile, :mod:`gnss_citygml.tile_output`, or one tile's folder): GeoPandas reads them, GDAL
+    tile, :mod:`gnss_citygml.tiling.output`, or one tile's folder): GeoPandas reads them, GDAL
     only with Arrow."""
     if path.is_dir():
         return next(path.rglob("*.parquet"), None) is not None

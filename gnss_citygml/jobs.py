@@ -75,7 +75,7 @@ def estimate_file(
     heights: every footprint with its attributes and the heights columns (see
     :func:`gnss_citygml.pipeline.run` for the rest of the arguments). Both outputs are
     checked before any work; one of them must be given. ``observations`` may be a partition
-    folder (:mod:`gnss_citygml.partition`), read tile by tile in a run with ``tiling``
+    folder (:mod:`gnss_citygml.tiling.partition`), read tile by tile in a run with ``tiling``
     (:func:`gnss_citygml.pipeline.run_partitioned`). In a run with ``tiling``, an ``output``
     without a suffix is a folder that each tile's worker writes its heights into
     (:func:`~gnss_citygml.pipeline.write_tiles`): the heights are not gathered, and the tile
@@ -83,14 +83,14 @@ def estimate_file(
     from .compare import check_truth
     from .footprints import read_footprints
     from .observations import read_observations
-    from .partition import partition_run
     from .paths import check_not_input
     from .pipeline import STAGES, run, run_partitioned, write_tiles
     from .report import check_report, write_report
     from .styles import heights_qml
     from .tables import check_layer_output, read_table, write_layer
-    from .tile_output import check_tile_folder
-    from .tiles import check_reach
+    from .tiling.grid import check_reach
+    from .tiling.output import check_tile_folder
+    from .tiling.partition import partition_run
 
     if output is None and report is None:
         raise InputError("nothing to write", fix="give an output file or a report folder")
@@ -166,7 +166,7 @@ def estimate_file(
 
 
 def is_tile_folder(output: StrPath) -> bool:
-    """Whether ``output`` names a folder of tiles (no suffix; :mod:`gnss_citygml.tile_output`)
+    """Whether ``output`` names a folder of tiles (no suffix; :mod:`gnss_citygml.tiling.output`)
     rather than one file."""
     return Path(output).suffix == ""
 

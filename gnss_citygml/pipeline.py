@@ -28,7 +28,6 @@ from .geodesy import CrsInput, check_bng
 from .ids import id_field
 from .model.estimate import estimate_heights, signal_model
 from .model.fourplb import SignalModel
-from .partition import check_partition, partition_run
 from .paths import StrPath, atomic_folder
 from .settings import (
     Calibration,
@@ -51,9 +50,10 @@ from .stages import (
     recordings,
 )
 from .terrain import Dem, building_ground
-from .tile_output import INDEX, TileFolder, check_tile_folder, write_index
-from .tiled import partitioned_heights, tiled_heights
-from .tiles import building_tiles
+from .tiling.grid import building_tiles
+from .tiling.output import INDEX, TileFolder, check_tile_folder, write_index
+from .tiling.partition import check_partition, partition_run
+from .tiling.run import partitioned_heights, tiled_heights
 
 __all__ = [
     "STAGES",
@@ -157,7 +157,7 @@ def run(
         an error.
     tiling
         With ``Tiling(scheduler=...)``, the rays are cast and 4PL-B runs in tiles on a Dask
-        cluster (:func:`~gnss_citygml.tiled.tiled_heights`): the same heights, and no
+        cluster (:func:`~gnss_citygml.tiling.run.tiled_heights`): the same heights, and no
         machine holds every intersection (``Run.intersections`` is None). 4PL-B or 4PL,
         without self-calibration.
     grid_dir
@@ -265,10 +265,10 @@ def run_partitioned(
     progress: Callable[[str], None] | None = None,
 ) -> tuple[gpd.GeoDataFrame, SignalModel]:
     """As :func:`run`, from observations partitioned by tile
-    (:func:`~gnss_citygml.partition.partition_observations`) on a Dask cluster (``tiling``;
+    (:func:`~gnss_citygml.tiling.partition.partition_observations`) on a Dask cluster (``tiling``;
     its tile size is the partition's): the heights, joined onto the footprints, and the
     final signal classifier. Each tile reads its own partitions
-    (:func:`~gnss_citygml.tiled.partitioned_heights`). The settings the partition applied
+    (:func:`~gnss_citygml.tiling.run.partitioned_heights`). The settings the partition applied
     (elevation mask, receiver heights, position-error window) must be the run's."""
     say = progress or (lambda stage: None)
     in_tiles, buildings, size = _partitioned(
@@ -330,10 +330,10 @@ def write_tiles(
 ) -> gpd.GeoDataFrame:
     """As :func:`run` in tiles (or :func:`run_partitioned`, when ``observations`` is a
     partition folder), with each tile's heights written into the folder ``output`` by the
-    worker that fitted it (:mod:`gnss_citygml.tile_output`), never gathered on one machine.
+    worker that fitted it (:mod:`gnss_citygml.tiling.output`), never gathered on one machine.
     Returns the tile index (also ``output/tiles.gpkg``). The folder appears whole or not at
     all; an existing one is replaced only with ``overwrite`` (checked before any work), and
-    only if it is a folder of tiles (:func:`~gnss_citygml.tile_output.check_tile_folder`)."""
+    only if it is a folder of tiles (:func:`~gnss_citygml.tiling.output.check_tile_folder`)."""
     check_tile_folder(output, tiling, overwrite=overwrite)
     say = progress or (lambda stage: None)
     if isinstance(observations, pd.DataFrame):
@@ -359,7 +359,7 @@ def _on_cluster(
     with each building's ``tile`` (of ``size`` metres; the tile index of the output: a
     failed tile's buildings, or one tile's, are a filter away). With ``output``, the tiles
     write their heights into that folder instead, and the tile index is returned."""
-    from .cluster import connect  # the [dask] extra: only when asked for
+    from .tiling.cluster import connect  # the [dask] extra: only when asked for
 
     with connect(tiling) as engine:
         if output is not None:

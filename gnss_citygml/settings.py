@@ -68,8 +68,9 @@ RECEIVER_HEIGHTS = ("dem", "log")
 #: Side of a tile of a run in tiles (m): the OS 1 km square.
 DEFAULT_TILE_SIZE = 1000.0
 #: The tile sizes a run takes (m): from a few buildings' width (a tile's work is its rays'
-#: reach around it: smaller tiles only repeat it; see also :func:`gnss_citygml.tiles.check_reach`)
-#: to the OS 100 km square (a larger one has too few tiles to share among workers).
+#: reach around it: smaller tiles only repeat it; see also
+#: :func:`gnss_citygml.tiling.grid.check_reach`) to the OS 100 km square (a larger one has too
+#: few tiles to share among workers).
 TILE_SIZES = (50.0, 100_000.0)
 
 #: Position error (m per axis) of an observation that does not say (its ``position_sd`` empty):
@@ -517,7 +518,7 @@ WORKERS_PER_CORE = 4
 @dataclass(frozen=True)
 class Tiling:
     """A run cut into square tiles of British National Grid on a Dask cluster
-    (:mod:`gnss_citygml.tiled`, the ``[dask]`` extra), with the single process's heights.
+    (:mod:`gnss_citygml.tiling.run`, the ``[dask]`` extra), with the single process's heights.
 
     Parameters
     ----------

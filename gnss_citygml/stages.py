@@ -4,9 +4,8 @@ share one position error (:func:`recordings`, :func:`position_sds`), the rays ca
 footprints (:func:`intersections`, and the signals that enter none, :func:`open_sky`), and the
 heights joined back onto the footprints (:func:`join_heights`).
 
-A run in one process (:mod:`gnss_citygml.pipeline`) and a run in tiles (:mod:`gnss_citygml.tiled`,
-:mod:`gnss_citygml.partition`, :mod:`gnss_citygml.tile_output`) compose them; this module imports
-none of those (imports only downward).
+A run in one process (:mod:`gnss_citygml.pipeline`) and a run in tiles (:mod:`gnss_citygml.tiling`)
+compose them; this module imports neither (imports only downward).
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
-"""Connecting to a Dask scheduler (gnss_citygml.cluster.connect): a real scheduler is used; an
-address where something else answers, or nothing, is one line naming the address and what
+"""Connecting to a Dask scheduler (gnss_citygml.tiling.cluster.connect): a real scheduler is
+used; an address where something else answers, or nothing, is one line naming the address and what
 answered, within the connect timeout, and the command exits. The servers are real, on
 127.0.0.1."""
 
@@ -16,9 +16,9 @@ import pytest
 from distributed import LocalCluster
 from test_outputs import estimate
 
-from gnss_citygml.cluster import connect
 from gnss_citygml.errors import InputError
 from gnss_citygml.settings import Tiling
+from gnss_citygml.tiling.cluster import connect
 
 #: The connect timeout of these tests (Dask's config, as a user sets it).
 TIMEOUT = 2

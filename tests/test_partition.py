@@ -17,13 +17,13 @@ from gnss_citygml.footprints import read_footprints
 from gnss_citygml.jobs import estimate_file
 from gnss_citygml.model.estimate import estimate_heights
 from gnss_citygml.observations import read_observations, write_observations
-from gnss_citygml.partition import INDEX, partition_observations, read_index
 from gnss_citygml.pipeline import in_mask, intersections, open_sky, receivers, run_partitioned
 from gnss_citygml.settings import Estimator, ReceiverHeights, Tiling
 from gnss_citygml.terrain import building_ground
-from gnss_citygml.tile_output import TileFolder
-from gnss_citygml.tiled import partitioned_heights
-from gnss_citygml.tiles import building_tiles
+from gnss_citygml.tiling.grid import building_tiles
+from gnss_citygml.tiling.output import TileFolder
+from gnss_citygml.tiling.partition import INDEX, partition_observations, read_index
+from gnss_citygml.tiling.run import partitioned_heights
 
 DEM = CITY / "dem.tif"
 

@@ -1,4 +1,4 @@
-"""A run in tiles (gnss_citygml.tiled) gives the single run's heights: in one process, and on
+"""A run in tiles (gnss_citygml.tiling.run) gives the single run's heights: in one process, and on
 a real Dask LocalCluster of 2 worker processes, also when one of them is killed mid-run."""
 
 import os
@@ -17,16 +17,16 @@ from shapely.geometry import box
 from test_cli import run
 from test_outputs import estimate
 
-from gnss_citygml.cluster import connect
 from gnss_citygml.errors import InputError
 from gnss_citygml.model.estimate import estimate_heights
 from gnss_citygml.pipeline import intersections, open_sky, write_tiles
 from gnss_citygml.settings import Estimator, Tiling
 from gnss_citygml.simulate import simulate
 from gnss_citygml.simulate.scenes import city_scene
-from gnss_citygml.tile_output import TileFolder
-from gnss_citygml.tiled import failed_tiles, no_heights, tiled_heights
-from gnss_citygml.tiles import building_tiles
+from gnss_citygml.tiling.cluster import connect
+from gnss_citygml.tiling.grid import building_tiles
+from gnss_citygml.tiling.output import TileFolder
+from gnss_citygml.tiling.run import failed_tiles, no_heights, tiled_heights
 
 #: The simulated city's corner in British National Grid (its grid is local): the city's
 #: 350 m x 290 m cut by 100 m tiles across TQ2981, TQ3081, TQ2982 and TQ3082.
@@ -239,7 +239,8 @@ def test_tiling_options_are_checked(options, message):
 
 def test_the_core_does_not_import_dask():
     code = (
-        "import sys, gnss_citygml, gnss_citygml.cli, gnss_citygml.pipeline, gnss_citygml.tiled; "
+        "import sys, gnss_citygml, gnss_citygml.cli, gnss_citygml.pipeline, "
+        "gnss_citygml.tiling.run; "
         "print([m for m in sys.modules if m.split('.')[0] in ('dask', 'distributed')])"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)

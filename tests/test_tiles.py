@@ -1,4 +1,4 @@
-"""Tiles of British National Grid (gnss_citygml.tiles): names, buildings' and receivers'
+"""Tiles of British National Grid (gnss_citygml.tiling.grid): names, buildings' and receivers'
 tiles, against OS grid references of known places and a brute-force reach."""
 
 import geopandas as gpd
@@ -10,7 +10,7 @@ from shapely.geometry import Polygon, box
 
 from gnss_citygml.errors import InputError
 from gnss_citygml.raycast import footprint_entries
-from gnss_citygml.tiles import (
+from gnss_citygml.tiling.grid import (
     building_tiles,
     plan_tiles,
     receiver_tiles,

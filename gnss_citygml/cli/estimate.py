@@ -127,7 +127,7 @@ def estimate(output, report, scheduler, workers, tile_size, **options):
         ok = int(table["converged"].sum())
         click.echo(f"{ok} of {len(table)} buildings have a height -> {output}")
     if tiling.on:
-        from ..tiled import failed_tiles
+        from ..tiling.run import failed_tiles
 
         for tile, why, n in failed_tiles(table).itertuples(index=False):
             click.echo(

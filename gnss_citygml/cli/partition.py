@@ -63,8 +63,8 @@ def partition(
     then has each tile read only the partitions its rays can come from. A recording must lie
     in one file.
     """
-    from ..partition import partition_observations
     from ..settings import PositionError, Rays, ReceiverHeights
+    from ..tiling.partition import partition_observations
 
     with progress(len(observations), "files", quiet) as bar:
 

@@ -2,11 +2,12 @@
 
 A run is cut into parts (:class:`Part`: some buildings' rows, a tile's or the whole run's);
 :func:`run_parts` steps every part through each iteration on an :class:`Engine`, in one process
-(:class:`InProcess`) or as Dask tasks (:class:`gnss_citygml.cluster.DaskEngine`): each part fits
-its own buildings (map), takes the fits of the buildings its rays also cross (:class:`Shared`,
-exchange), and the parts' :class:`Tally` are summed to refit the signal model once (reduce).
-The per-building maths the steps use (the weights, the plausibility and visibility checks, the
-judgement of a fit) is :mod:`.fourplb`'s; this module imports it, never the reverse.
+(:class:`InProcess`) or as Dask tasks (:class:`gnss_citygml.tiling.cluster.DaskEngine`): each
+part fits its own buildings (map), takes the fits of the buildings its rays also cross
+(:class:`Shared`, exchange), and the parts' :class:`Tally` are summed to refit the signal model
+once (reduce). The per-building maths the steps use (the weights, the plausibility and
+visibility checks, the judgement of a fit) is :mod:`.fourplb`'s; this module imports it, never
+the reverse.
 """
 
 from __future__ import annotations
@@ -50,7 +51,7 @@ __all__ = [
 
 class Engine(Protocol):
     """Where :func:`run_parts` runs each step: :class:`InProcess`, or a Dask cluster
-    (:class:`gnss_citygml.cluster.DaskEngine`, whose ``submit`` returns futures that later
+    (:class:`gnss_citygml.tiling.cluster.DaskEngine`, whose ``submit`` returns futures that later
     steps take). ``key`` names a step (``fit-3-TQ2982``) for the engine's progress and
     errors."""
 
@@ -107,7 +108,7 @@ def run_parts(
     part, e.g. its tile's) name the steps for the engine. ``open_sky``: the run's signals
     whose rays cross no footprint, which the mixture signal model learns open signals from.
     A part may be anything with :class:`Part`'s steps, e.g. a failed tile's stand-in
-    (:class:`gnss_citygml.tiled.FailedTile`).
+    (:class:`gnss_citygml.tiling.run.FailedTile`).
     """
     engine = engine or InProcess()
     bootstrap = estimator.method == "4PL-B"

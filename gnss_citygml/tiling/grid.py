@@ -27,8 +27,8 @@ import numpy.typing as npt
 import pandas as pd
 import shapely
 
-from .errors import InputError
-from .settings import DEFAULT_TILE_SIZE, check_tile_size
+from ..errors import InputError
+from ..settings import DEFAULT_TILE_SIZE, check_tile_size
 
 __all__ = [
     "DEFAULT_TILE_SIZE",

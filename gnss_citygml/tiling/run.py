@@ -1,15 +1,15 @@
-"""4PL-B over a run cut into tiles (:mod:`gnss_citygml.tiles`), with the single run's heights.
+"""4PL-B over a run cut into tiles (:mod:`gnss_citygml.tiling.grid`), with the single run's heights.
 
 Each tile casts the rays that can reach its buildings against its buildings and its halo
-(:func:`~gnss_citygml.tiles.plan_tiles`), keeps the signals that cross one of its own
+(:func:`~gnss_citygml.tiling.grid.plan_tiles`), keeps the signals that cross one of its own
 buildings, and takes part in 4PL-B's map / exchange / reduce
 (:func:`~gnss_citygml.model.parts.run_parts`): the parts whose buildings its rays cross are
 its neighbours. Run in one process (the default engine) or on a Dask cluster
-(:mod:`gnss_citygml.cluster`), the heights are those of :func:`~gnss_citygml.pipeline.run`
+(:mod:`gnss_citygml.tiling.cluster`), the heights are those of :func:`~gnss_citygml.pipeline.run`
 on the same receivers, bit for bit (tested): each building is summed the same way in a tile
 as in the whole run. :func:`tiled_heights` takes the receivers in memory;
 :func:`partitioned_heights` has each tile read its own from a partition folder
-(:mod:`gnss_citygml.partition`).
+(:mod:`gnss_citygml.tiling.partition`).
 """
 
 from __future__ import annotations
@@ -26,12 +26,17 @@ import numpy as np
 import pandas as pd
 import shapely
 
-from .errors import InputError
-from .model.estimate import HEIGHTS_COLUMNS, intersections_part
-from .model.fourplb import SignalModel
-from .model.mixture import Cn0Moments, elevation_units
-from .model.offsets import SkyCounts, levelled, sky_counts
-from .model.parts import Engine, InProcess, Part, Shared, Tally, run_parts
+from ..errors import InputError
+from ..model.estimate import HEIGHTS_COLUMNS, intersections_part
+from ..model.fourplb import SignalModel
+from ..model.mixture import Cn0Moments, elevation_units
+from ..model.offsets import SkyCounts, levelled, sky_counts
+from ..model.parts import Engine, InProcess, Part, Shared, Tally, run_parts
+from ..paths import StrPath
+from ..settings import DEFAULT_TILE_SIZE, Estimator, PositionError, Rays
+from ..stages import intersections, recordings
+from .grid import Tile, building_tiles, check_reach, plan_tiles, receiver_tiles
+from .output import TileFolder, tile_index_frame
 from .partition import (
     check_digests,
     check_partition,
@@ -40,11 +45,6 @@ from .partition import (
     refuse_changed,
     tile_files,
 )
-from .paths import StrPath
-from .settings import DEFAULT_TILE_SIZE, Estimator, PositionError, Rays
-from .stages import intersections, recordings
-from .tile_output import TileFolder, tile_index_frame
-from .tiles import Tile, building_tiles, check_reach, plan_tiles, receiver_tiles
 
 __all__ = [
     "FailedTile",
@@ -76,7 +76,7 @@ def tiled_heights(
     ``tile_size`` metres, and the final signal classifier. The intersections are never
     gathered: each tile casts its own (on ``engine``'s workers). ``progress`` is told what is
     being done ("tile plan: 16 tiles", "iteration 3"). With ``output``, each tile's worker
-    writes its heights there (:mod:`gnss_citygml.tile_output`), nobody gathers them, and the
+    writes its heights there (:mod:`gnss_citygml.tiling.output`), nobody gathers them, and the
     table returned is the tile index instead.
     """
     say = progress or (lambda text: None)
@@ -117,12 +117,12 @@ def partitioned_heights(
     output: TileFolder | None = None,
 ) -> tuple[pd.DataFrame, SignalModel]:
     """As :func:`tiled_heights`, from a partition folder
-    (:func:`~gnss_citygml.partition.partition_observations`, whose tiles it uses): each tile
+    (:func:`~gnss_citygml.tiling.partition.partition_observations`, whose tiles it uses): each tile
     reads the partitions within ``rays.max_range`` of its buildings itself (on the engine's
     workers), and keeps the rows whose rays can enter them. Its halo is every building within
     twice the reach of its buildings' extent: more than the rays need, which adds only
     crossings the single run has too. The partition's elevation mask and position-error
-    window must be the run's (:func:`~gnss_citygml.partition.check_partition`). The
+    window must be the run's (:func:`~gnss_citygml.tiling.partition.check_partition`). The
     partition's files are checked against its index first: their listing and sizes here, their
     SHA-256 on the engine's workers (one task per partition tile), before any tile reads them."""
     say = progress or (lambda text: None)
@@ -312,8 +312,9 @@ def partition_part(
     position_error: PositionError,
 ) -> Part:
     """One tile's part from partition files: their rows whose rays can enter the tile's own
-    buildings (the first ``n_own`` of ``buildings``; :func:`~gnss_citygml.tiles.receiver_tiles`),
-    numbered by their ``signal``, cast as :func:`tile_part` does."""
+    buildings (the first ``n_own`` of ``buildings``;
+    :func:`~gnss_citygml.tiling.grid.receiver_tiles`), numbered by their ``signal``, cast as
+    :func:`tile_part` does."""
     rx = read_receivers(files)
     own = buildings.iloc[:n_own]
     e, n, bearing = (rx[c].to_numpy(dtype=float) for c in ("e", "n", "bearing"))
@@ -424,7 +425,7 @@ _FAILED_RE = r"^tile (?P<tile>\S+) failed: (?P<reason>.*)$"
 
 def failed_tiles(heights: pd.DataFrame) -> pd.DataFrame:
     """The tiles of a run whose cast failed (:class:`FailedTile`), from its heights or its
-    tile index (:mod:`gnss_citygml.tile_output`): one row per tile with ``tile``, ``reason``
+    tile index (:mod:`gnss_citygml.tiling.output`): one row per tile with ``tile``, ``reason``
     and ``buildings`` (how many have no height for it)."""
     if "failed" in heights.columns:  # a tile index
         failed = heights.loc[heights["failed"] != "", ["tile", "failed", "buildings"]]

@@ -19,8 +19,8 @@ from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from typing import Any
 
-from .errors import InputError, escape_controls, first_line
-from .settings import SCHEDULER_PORT, Tiling, scheduler_address
+from ..errors import InputError, escape_controls, first_line
+from ..settings import SCHEDULER_PORT, Tiling, scheduler_address
 
 __all__ = ["DaskEngine", "connect"]
 

@@ -28,12 +28,12 @@ import numpy as np
 import pandas as pd
 import shapely
 
-from .errors import InputError
-from .paths import StrPath, check_new_folder
-from .settings import Tiling
-from .stages import join_heights
-from .tables import write_layer
-from .tiles import tile_index
+from ..errors import InputError
+from ..paths import StrPath, check_new_folder
+from ..settings import Tiling
+from ..stages import join_heights
+from ..tables import write_layer
+from .grid import tile_index
 
 __all__ = [
     "HEIGHTS",

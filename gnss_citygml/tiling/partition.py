@@ -11,7 +11,7 @@ receiver, in the hive layout that Dask, pyarrow, DuckDB and GDAL read::
     FOLDER/partition.json                       what was done, the tiles, their files
     FOLDER/receivers/tile=TQ2982/part-00000.parquet   rows of file 0 in TQ2982
 
-A run in tiles (:func:`gnss_citygml.tiled.partitioned_heights`) then has each tile read only
+A run in tiles (:func:`gnss_citygml.tiling.run.partitioned_heights`) then has each tile read only
 the partitions its rays can come from. A recording must lie in one file (the position-error
 groups are found per file); each file's signals are numbered after the previous file's.
 
@@ -38,11 +38,11 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from .errors import InputError, listing, user_text
-from .geodesy import CrsInput
-from .observations import read_observations, repeated_signals
-from .paths import StrPath, atomic_folder, check_not_input
-from .settings import (
+from ..errors import InputError, listing, user_text
+from ..geodesy import CrsInput
+from ..observations import read_observations, repeated_signals
+from ..paths import StrPath, atomic_folder, check_not_input
+from ..settings import (
     DEFAULT_TILE_SIZE,
     PositionError,
     Rays,
@@ -50,9 +50,9 @@ from .settings import (
     Tiling,
     check_tile_size,
 )
-from .stages import in_mask, receivers, recordings
-from .terrain import Dem
-from .tiles import check_reach, check_tile_count, tile_index, tile_names
+from ..stages import in_mask, receivers, recordings
+from ..terrain import Dem
+from .grid import check_reach, check_tile_count, tile_index, tile_names
 
 __all__ = [
     "INDEX",
@@ -406,7 +406,7 @@ def check_partition(
 ) -> None:
     """Refuse a run whose elevation mask, position-error window or (if given) receiver
     heights are not the partition's: they were applied when it was written; and tiles too
-    small for the run's rays (:func:`~gnss_citygml.tiles.check_reach`)."""
+    small for the run's rays (:func:`~gnss_citygml.tiling.grid.check_reach`)."""
     check_reach(index["tile_size"], rays.max_range)
     mask = index["rays"]
     if (mask["min_elevation"], mask["max_elevation"]) != (rays.min_elevation, rays.max_elevation):

@@ -23,9 +23,9 @@ import geopandas as gpd
 import numpy as np
 from dask_tiles import bng_city, city_arguments
 
+from gnss_citygml.files.tables import write_layer
 from gnss_citygml.pipeline import join_heights
 from gnss_citygml.settings import Tiling
-from gnss_citygml.tables import write_layer
 from gnss_citygml.tiling.cluster import connect
 from gnss_citygml.tiling.output import TileFolder, write_index
 from gnss_citygml.tiling.run import tiled_heights

@@ -79,10 +79,10 @@ if TYPE_CHECKING:  # the same names, for type checkers (tests/test_package.py co
         meridian_convergence,
         to_osgb,
     )
+    from .geodesy.grids import GridError
     from .gnss.gnsslogger import read_gnsslogger
     from .gnss.observe import observe
     from .gnss.orbits import load_orbits
-    from .grids import GridError
     from .model import METHODS
     from .model.classifier import SignalClassifier
     from .model.estimate import HEIGHTS_COLUMNS, estimate_heights

@@ -17,7 +17,7 @@ import numpy as np
 import numpy.typing as npt
 import pandas as pd
 
-from .ids import id_named
+from .files.ids import id_named
 
 __all__ = ["SPAN_COLUMNS", "check_truth", "compare", "roof_span", "span_distance", "summary"]
 

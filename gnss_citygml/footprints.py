@@ -13,7 +13,7 @@ Rules
   number of a Shapefile). MasterMap features use their TOID (the ``fid`` attribute, or
   ``gml_id`` in newer schemas). The id field *moves* to the text column ``id``; every other
   attribute is kept untouched. Ids must be present and unique. The field's name is kept in the
-  table's ``attrs`` (:mod:`gnss_citygml.ids`) so that the outputs carry the id under it: a
+  table's ``attrs`` (:mod:`gnss_citygml.files.ids`) so that the outputs carry the id under it: a
   field's own name, ``toid`` for MasterMap's TOIDs, ``id`` for feature ids and for a field
   named ``fid`` (GDAL's name for the feature id itself: a GeoPackage cannot hold it as text).
 - **geometry**: every feature must be a Polygon or MultiPolygon: a missing geometry, a point,
@@ -49,10 +49,10 @@ import shapely
 from pandas.api.types import is_list_like
 
 from .errors import InputError, MissingColumnError, first_line, listing, user_text
+from .files.ids import id_text, missing_ids, with_id_field
+from .files.paths import StrPath, gunzipped, input_file
+from .files.tables import check_text
 from .geodesy import CrsError, OutsideExtentError, is_bng, to_bng
-from .ids import id_text, missing_ids, with_id_field
-from .paths import StrPath, gunzipped, input_file
-from .tables import check_text
 
 __all__ = ["check_polygonal", "read_footprints"]
 
@@ -93,7 +93,7 @@ def read_footprints(
         The column holding the building ids (default: see the module's rules).
     grid_dir
         Folder of the OSTN15/OSGM15 grids, for footprints in another CRS than EPSG:27700
-        (see :mod:`gnss_citygml.grids`; default ``$GNSS_CITYGML_GRID_DIR``, then PROJ's
+        (see :mod:`gnss_citygml.geodesy.grids`; default ``$GNSS_CITYGML_GRID_DIR``, then PROJ's
         folders, then the copy bundled with the package).
 
     Returns
@@ -101,7 +101,7 @@ def read_footprints(
     geopandas.GeoDataFrame
         ``id`` (str), the input attributes, and ``geometry`` (Polygon/MultiPolygon, valid)
         in EPSG:27700; ``attrs["id_field"]`` is the name the outputs give the id (see the
-        module's rules and :mod:`gnss_citygml.ids`).
+        module's rules and :mod:`gnss_citygml.files.ids`).
 
     Raises
     ------
@@ -168,7 +168,7 @@ def _sniff_gml(path: Path) -> str | None:
 
 @contextlib.contextmanager
 def _gunzipped(path: Path) -> Iterator:
-    """A gzipped file opened for reading as a capped stream (:func:`~gnss_citygml.paths.
+    """A gzipped file opened for reading as a capped stream (:func:`~gnss_citygml.files.paths.
     gunzipped`: a decompression bomb is an InputError); a damaged one (while read too) is an
     InputError."""
     try:
@@ -431,7 +431,7 @@ def _output_name(field: str | None, mastermap: bool) -> str:
 
 def _id_text(ids: pd.Series, name: str, where: str) -> pd.Series:
     """The ids as text; an :class:`InputError` naming the features (row of the source, from 0)
-    whose id is missing, blank or holds a NUL (:func:`~gnss_citygml.ids.missing_ids`)."""
+    whose id is missing, blank or holds a NUL (:func:`~gnss_citygml.files.ids.missing_ids`)."""
     missing = missing_ids(ids)
     if missing.any():
         rows = np.flatnonzero(missing)

@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from .errors import InputError
-from .paths import StrPath
+from .files.paths import StrPath
 from .settings import Calibration, Estimator, PositionError, Rays, ReceiverHeights, Tiling
 
 if TYPE_CHECKING:
@@ -81,13 +81,13 @@ def estimate_file(
     (:func:`~gnss_citygml.pipeline.write_tiles`): the heights are not gathered, and the tile
     index is returned in their place."""
     from .compare import check_truth
+    from .files.paths import check_not_input
+    from .files.styles import heights_qml
+    from .files.tables import check_layer_output, read_table, write_layer
     from .footprints import read_footprints
     from .observations import read_observations
-    from .paths import check_not_input
     from .pipeline import STAGES, run, run_partitioned, write_tiles
     from .report import check_report, write_report
-    from .styles import heights_qml
-    from .tables import check_layer_output, read_table, write_layer
     from .tiling.grid import check_reach
     from .tiling.output import check_tile_folder
     from .tiling.partition import partition_run
@@ -200,7 +200,7 @@ def _model_writer(
     before any work, also against the job's ``inputs`` (typed attributes are CityJSON's:
     CityGML's generic attributes are typed already)."""
     from .export import write_citygml, write_cityjson, write_cityjsonseq
-    from .paths import check_not_input, check_output
+    from .files.paths import check_not_input, check_output
 
     path = check_output(output, overwrite=overwrite, suffixes=MODEL_SUFFIXES)
     check_not_input(path, inputs)
@@ -327,7 +327,7 @@ def export_file(
     """Write the city model of a heights table (CSV or Parquet) for the footprints it was
     estimated for; the ground from the table's ``ground`` column or from the ``dem``."""
     from .export import footprints_with_heights
-    from .tables import read_table
+    from .files.tables import read_table
 
     def buildings() -> gpd.GeoDataFrame:
         table = read_table(heights)

@@ -31,8 +31,8 @@ import pandas as pd
 
 from .contracts import OBSERVATIONS, load, types
 from .errors import InputError, MissingColumnError
-from .paths import StrPath
-from .tables import read_table, write_table
+from .files.paths import StrPath
+from .files.tables import read_table, write_table
 
 __all__ = [
     "CONSTELLATIONS",

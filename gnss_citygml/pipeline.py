@@ -24,11 +24,11 @@ import pandas as pd
 
 from .calibrate import calibrate_receivers
 from .errors import InputError
+from .files.ids import id_field
+from .files.paths import StrPath, atomic_folder
 from .geodesy import CrsInput, check_bng
-from .ids import id_field
 from .model.estimate import estimate_heights, signal_model
 from .model.fourplb import SignalModel
-from .paths import StrPath, atomic_folder
 from .settings import (
     Calibration,
     Estimator,
@@ -177,7 +177,7 @@ def run(
         enters, or whose estimate did not converge, have empty heights and ``converged =
         False`` with the reason in ``status``: never a guess. The id column has the name of
         the footprints' id field (``toid`` for footprints read with ``id_field="toid"``;
-        ``attrs["id_field"]``, see :mod:`gnss_citygml.ids`). With them, the receivers,
+        ``attrs["id_field"]``, see :mod:`gnss_citygml.files.ids`). With them, the receivers,
         intersections, buildings and final signal classifier the heights came from.
 
     Raises

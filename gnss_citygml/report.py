@@ -32,10 +32,10 @@ import numpy as np
 import pandas as pd
 
 from .errors import InputError, user_text
-from .ids import id_named
+from .files.ids import id_named
+from .files.paths import StrPath, atomic_path, check_output_folder, make_folder
 from .model.fourpl import logistic4
 from .model.mixture import Cn0Mixture, elevation_units
-from .paths import StrPath, atomic_path, check_output_folder, make_folder
 
 if TYPE_CHECKING:
     from .pipeline import Run

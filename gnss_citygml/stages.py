@@ -16,11 +16,11 @@ import pandas as pd
 import shapely
 
 from .errors import InputError
+from .files.ids import source_named, with_id_field
+from .files.paths import StrPath
 from .geodesy import CrsInput, grid_bearing, to_osgb
-from .ids import source_named, with_id_field
 from .model.estimate import HEIGHTS_COLUMNS
 from .observations import check_observations, satellites
-from .paths import StrPath
 from .raycast import footprint_entries
 from .recordings import position_groups
 from .settings import DEFAULT_POSITION_SD, PositionError, Rays, ReceiverHeights
@@ -218,7 +218,7 @@ def join_heights(
     buildings: gpd.GeoDataFrame, heights: pd.DataFrame, method: str, name: str
 ) -> gpd.GeoDataFrame:
     """Every footprint with its estimate; those no ray entered get an explicit status. The id
-    goes out under ``name``, the footprints' source's id field (:mod:`gnss_citygml.ids`)."""
+    goes out under ``name``, the footprints' source's id field (:mod:`gnss_citygml.files.ids`)."""
     est = heights.set_index("id").reindex(buildings["id"].astype(str))
     missing = est["method"].isna().to_numpy()
     est["method"] = est["method"].where(~missing, method)

@@ -42,9 +42,9 @@ from rasterio.io import DatasetReader
 from rasterio.windows import Window
 
 from .errors import InputError, MissingColumnError, first_line, listing, user_text
+from .files.paths import StrPath
 from .footprints import check_polygonal
 from .geodesy import CrsInput, check_bng, is_bng
-from .paths import StrPath
 
 __all__ = [
     "STATISTICS",

@@ -24,9 +24,9 @@ import pandas as pd
 import pytest
 
 import gnss_citygml
+from gnss_citygml.geodesy.grids import BUNDLED_GRID_DIR, GRID_DIR_ENV, GridError, grid_status
 from gnss_citygml.gnss.gpstime import gps_to_utc
 from gnss_citygml.gnss.sp3 import read_sp3
-from gnss_citygml.grids import BUNDLED_GRID_DIR, GRID_DIR_ENV, GridError, grid_status
 from gnss_citygml.model.fourpl import logistic4
 
 

@@ -14,7 +14,7 @@ import pytest
 
 from gnss_citygml.cli import main
 from gnss_citygml.cli.demo import CITY, OUTPUTS, REPORT_OUTPUTS
-from gnss_citygml.grids import GRID_DIR_ENV
+from gnss_citygml.geodesy.grids import GRID_DIR_ENV
 
 
 def run(args, capsys):

@@ -478,9 +478,9 @@ def test_an_orbit_file_gzip_bomb_is_refused(tmp_path, orbits_dir):
 
 def test_a_real_mastermap_tile_gzipped_is_read(shared_data, tmp_path, monkeypatch):
     """OS MasterMap compresses about 15 times: well inside the cap, which holds alone here."""
-    import gnss_citygml.paths
+    import gnss_citygml.files.paths
 
-    monkeypatch.setattr(gnss_citygml.paths, "FREE_EXPANSION", 0)
+    monkeypatch.setattr(gnss_citygml.files.paths, "FREE_EXPANSION", 0)
     text = (shared_data / "footprints" / "mastermap-topo_3473984_0.gml").read_bytes()
     path = tmp_path / "tile.gml.gz"
     path.write_bytes(gzip.compress(text))

@@ -29,7 +29,7 @@ from gnss_citygml.geodesy import (
     to_bng,
     to_osgb,
 )
-from gnss_citygml.grids import BUNDLED_GRID_DIR
+from gnss_citygml.geodesy.grids import BUNDLED_GRID_DIR
 from gnss_citygml.pipeline import receivers
 from gnss_citygml.settings import ReceiverHeights
 
@@ -298,7 +298,7 @@ def test_read_footprints_in_other_crs_within_a_millimetre(city, grid_dir, unbund
     code = f"""
         import numpy as np, shapely
         from gnss_citygml.footprints import read_footprints
-        from gnss_citygml.grids import GridError
+        from gnss_citygml.geodesy.grids import GridError
         try:
             read_footprints({str(city / "footprints_EPSG4326.gpkg")!r}, grid_dir={str(empty)!r})
         except GridError as error:

@@ -1,6 +1,7 @@
-"""Where the OSTN15/OSGM15 grids come from (gnss_citygml.grids): the bundled copy, searched last
-after --grid-dir, $GNSS_CITYGML_GRID_DIR and PROJ's folders; downloads; `gnss-citygml grids`.
-Each search is checked in a fresh interpreter (conftest.isolated), as a user's run starts."""
+"""Where the OSTN15/OSGM15 grids come from (gnss_citygml.geodesy.grids): the bundled copy,
+searched last after --grid-dir, $GNSS_CITYGML_GRID_DIR and PROJ's folders; downloads;
+`gnss-citygml grids`. Each search is checked in a fresh interpreter (conftest.isolated), as a
+user's run starts."""
 
 import hashlib
 import json
@@ -14,7 +15,7 @@ import rasterio
 from conftest import commands, isolated
 
 from gnss_citygml.geodesy import to_osgb
-from gnss_citygml.grids import (
+from gnss_citygml.geodesy.grids import (
     BUNDLED_GRID_DIR,
     GRID_DIR_ENV,
     GRIDS,
@@ -93,7 +94,7 @@ def test_a_user_without_grids_gets_the_bundled_copy(os_points, tmp_path):
     code = f"""
         import json
         from gnss_citygml.geodesy import to_osgb
-        from gnss_citygml.grids import grid_status
+        from gnss_citygml.geodesy.grids import grid_status
         print(grid_status().to_json(orient="records"))
         print(json.dumps([a.tolist() for a in to_osgb(*{points!r})]))
     """
@@ -119,7 +120,7 @@ def test_an_explicit_grid_dir_wins_over_the_bundled_copy(shared_data, tmp_path):
     tp09 = "51.48936564950, -0.11992557180, 66.057"
     code = f"""
         from gnss_citygml.geodesy import to_osgb
-        from gnss_citygml.grids import GridError, grid_status
+        from gnss_citygml.geodesy.grids import GridError, grid_status
         print(grid_status({str(good)!r}).to_json(orient="records"))
         print(to_osgb({tp09}, grid_dir={str(good)!r})[2])
     """
@@ -129,7 +130,7 @@ def test_an_explicit_grid_dir_wins_over_the_bundled_copy(shared_data, tmp_path):
     assert float(odn) == pytest.approx(20.544, abs=2e-3)
     code = f"""
         from gnss_citygml.geodesy import to_osgb
-        from gnss_citygml.grids import GridError
+        from gnss_citygml.geodesy.grids import GridError
         try:
             print(to_osgb({tp09}, grid_dir={str(wrong)!r})[2])
         except GridError as error:
@@ -147,7 +148,7 @@ def test_missing_grids_name_the_files_and_how_to_get_them(grid_dir, unbundled, t
     empty.mkdir()
     code = f"""
         from gnss_citygml.geodesy import to_osgb
-        from gnss_citygml.grids import GridError, grid_status
+        from gnss_citygml.geodesy.grids import GridError, grid_status
         print(to_osgb(51.5, -0.12, 60.0, grid_dir={str(grid_dir)!r})[2])
         print(grid_status({str(empty)!r}).to_json(orient="records"))
         try:
@@ -168,7 +169,7 @@ def test_missing_grids_name_the_files_and_how_to_get_them(grid_dir, unbundled, t
 def test_network_fetches_missing_grids_into_the_user_directory(grid_dir, unbundled, tmp_path):
     code = """
         from gnss_citygml.geodesy import to_osgb
-        from gnss_citygml.grids import grid_status
+        from gnss_citygml.geodesy.grids import grid_status
         print(to_osgb(51.48936564950, -0.11992557180, 66.057, network=True)[2])
         print(grid_status().to_json(orient="records"))
     """
@@ -194,7 +195,7 @@ def test_network_is_not_used_while_the_bundled_grids_are_there(tmp_path):
 def test_network_unreachable_is_a_clear_error(unbundled, tmp_path):
     code = """
         from gnss_citygml.geodesy import to_osgb
-        from gnss_citygml.grids import GridError
+        from gnss_citygml.geodesy.grids import GridError
         try:
             to_osgb(51.5, -0.12, 60.0, network=True)
         except GridError as error:

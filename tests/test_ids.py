@@ -19,11 +19,11 @@ from test_cli import run
 from gnss_citygml.cli import main
 from gnss_citygml.errors import InputError, escape_controls
 from gnss_citygml.export import write_citygml, write_cityjson
+from gnss_citygml.files.ids import id_field, id_named, source_named, with_id_field
+from gnss_citygml.files.tables import write_layer
 from gnss_citygml.footprints import read_footprints
-from gnss_citygml.ids import id_field, id_named, source_named, with_id_field
 from gnss_citygml.observations import read_observations
 from gnss_citygml.pipeline import estimate
-from gnss_citygml.tables import write_layer
 
 BOXES = [shapely.box(529500, 182300, 529510, 182308), shapely.box(529520, 182300, 529530, 182308)]
 #: The simulated site's buildings and the TOIDs they get here; "1000000000001" starts with a

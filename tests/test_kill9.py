@@ -33,8 +33,8 @@ import pytest
 import rasterio
 
 from gnss_citygml.cli import cli, main
+from gnss_citygml.files.tables import read_table
 from gnss_citygml.observations import read_observations
-from gnss_citygml.tables import read_table
 from gnss_citygml.validate import validate_file
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "city"
@@ -222,7 +222,7 @@ class Kill:
 
 def is_temp(name: str, outputs) -> bool:
     """Whether ``name`` is a hidden temporary file of one of ``outputs``: ``.NAME.….part…``
-    (``.NAME.part-HOST-PID-RANDOM.SUFFIX``, see :mod:`gnss_citygml.paths`), with the journal
+    (``.NAME.part-HOST-PID-RANDOM.SUFFIX``, see :mod:`gnss_citygml.files.paths`), with the journal
     file SQLite may leave beside a GeoPackage."""
     return any(name.startswith(f".{o}.") and ".part" in name for o in outputs)
 
@@ -392,7 +392,7 @@ def test_a_later_run_removes_the_temporary_files_of_killed_runs(trials_of):
     second = trials.kill_when_writing(keep_temps=True)
     if first.ended or second.ended or not first.temps():
         pytest.fail(f"no run killed while writing: {first}, {second}")
-    # After a kill, at most the temporary files of that killed run remain (gnss_citygml.paths
+    # After a kill, at most the temporary files of that killed run remain (gnss_citygml.files.paths
     # removes those of runs whose process is gone); after a complete run, none remain.
     assert not set(second.temps()) & set(first.temps()), "a killed run's files outlive the next"
     trials.complete_run()

@@ -16,7 +16,7 @@ import shapely
 from test_cli import run
 
 from gnss_citygml.errors import InputError
-from gnss_citygml.paths import _HOST, atomic_folder, atomic_path, stale_parts
+from gnss_citygml.files.paths import _HOST, atomic_folder, atomic_path, stale_parts
 from gnss_citygml.simulate.files import check_site
 from gnss_citygml.validate import validate_file
 

@@ -19,7 +19,7 @@ from gnss_citygml.cli.demo import CITY
 from gnss_citygml.contracts import EXTENSION, HEIGHTS, OBSERVATIONS, SCHEMA_FOLDER, load
 from gnss_citygml.errors import InputError, MissingColumnError
 from gnss_citygml.export import footprints_with_heights
-from gnss_citygml.ids import with_id_field
+from gnss_citygml.files.ids import with_id_field
 from gnss_citygml.model.estimate import HEIGHTS_COLUMNS, estimate_heights
 from gnss_citygml.observations import OBSERVATION_COLUMNS, check_observations
 

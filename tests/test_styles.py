@@ -10,8 +10,8 @@ import geopandas as gpd
 import pyogrio
 import shapely
 
-from gnss_citygml.styles import STYLE_NAME, heights_qml, save_default_style
-from gnss_citygml.tables import write_layer
+from gnss_citygml.files.styles import STYLE_NAME, heights_qml, save_default_style
+from gnss_citygml.files.tables import write_layer
 
 
 def _layer(n: int = 3) -> gpd.GeoDataFrame:

@@ -21,8 +21,8 @@ import shapely
 from test_cli import run
 
 from gnss_citygml.errors import InputError
+from gnss_citygml.files.paths import stale_parts
 from gnss_citygml.footprints import read_footprints
-from gnss_citygml.paths import stale_parts
 from gnss_citygml.pipeline import run as run_pipeline
 from gnss_citygml.settings import Estimator
 from gnss_citygml.update import COLUMNS, EVIDENCE, update_map
@@ -55,7 +55,7 @@ def city_map(tmp_path):
     pyogrio.write_dataframe(footprints, path, layer="buildings")
     roads = footprints.iloc[:3].assign(geometry=shapely.centroid(footprints.geometry[:3]))
     pyogrio.write_dataframe(roads, path, layer="points")
-    from gnss_citygml.styles import save_default_style
+    from gnss_citygml.files.styles import save_default_style
 
     save_default_style(path, "buildings", "<qgis mine='1'/>")
     return path

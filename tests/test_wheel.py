@@ -25,8 +25,8 @@ import pytest
 import gnss_citygml
 from gnss_citygml.cli.demo import OUTPUTS, REPORT_OUTPUTS
 from gnss_citygml.contracts import SCHEMA_FOLDER
-from gnss_citygml.grids import BUNDLED_GRID_DIR, GRIDS
-from gnss_citygml.styles import heights_qml
+from gnss_citygml.files.styles import heights_qml
+from gnss_citygml.geodesy.grids import BUNDLED_GRID_DIR, GRIDS
 
 ROOT = Path(__file__).resolve().parents[1]
 CITY_FILES = ("observations.parquet", "footprints.gpkg", "dem.tif", "truth.csv")

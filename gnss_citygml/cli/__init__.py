@@ -114,9 +114,9 @@ def _one_line_warning(message, category, filename, lineno, file=None, line=None)
 def _user_side(exc: Exception) -> None:
     """Exit with one line if ``exc`` is the user's side: a library that cannot be imported
     (:func:`~gnss_citygml.errors.broken_install`), or a write that failed (a full disk, a
-    closed or full standard output...: :func:`gnss_citygml.paths.write_error`) that no writer
+    closed or full standard output...: :func:`gnss_citygml.files.paths.write_error`) that no writer
     turned into its own error; else return."""
-    from ..paths import write_error
+    from ..files.paths import write_error
 
     where = getattr(exc, "filename", None) or "standard output"
     error = broken_install(exc) or write_error(exc, str(where))

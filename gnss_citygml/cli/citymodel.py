@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING
 import click
 
 from ..errors import InputError, escape_controls, user_text
-from ..paths import write_error
+from ..files.paths import write_error
 from .options import (
     DEM_CRS,
     GRID_DIR,

@@ -92,7 +92,7 @@ def _can_plot() -> bool:
 
 def _outputs(folder: Path, overwrite: bool) -> list[Path]:
     """The demo's output files in ``folder``, checked before any work (made if it is new)."""
-    from ..paths import check_output_folder, make_folder
+    from ..files.paths import check_output_folder, make_folder
 
     paths = [folder / name for name in OUTPUTS]
     check_output_folder(folder, paths, overwrite=overwrite)
@@ -106,7 +106,7 @@ def _comparison(heights, truth) -> list[str]:
     import pyogrio
 
     from ..compare import compare, summary
-    from ..tables import read_table
+    from ..files.tables import read_table
 
     est = pyogrio.read_dataframe(heights, layer="heights", read_geometry=False)
     table = compare(est, read_table(truth))

@@ -29,8 +29,8 @@ def heights(
     intersections, output, method, init_threshold, weighting, height_rule, signal_model, overwrite
 ):
     """Estimate building heights from an intersections table (CSV or Parquet)."""
+    from ..files.tables import check_table_output, read_table, write_table
     from ..model.estimate import estimate_heights
-    from ..tables import check_table_output, read_table, write_table
 
     estimator = Estimator(
         method=method,

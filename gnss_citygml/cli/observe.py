@@ -61,9 +61,9 @@ def observe(
     One row per epoch and satellite between the elevation masks, with the phone's C/N0, or
     empty C/N0 where the phone received nothing (a blocked signal).
     """
+    from ..files.tables import check_table_output
     from ..gnss.observe import observe as run
     from ..observations import write_observations
-    from ..tables import check_table_output
 
     # before reading anything
     check_table_output(output, overwrite=overwrite, inputs=[*logs, *orbit_files, surveyed])
@@ -102,7 +102,7 @@ def grids(grid_dir, fetch):
     Searched in order: --grid-dir (or $GNSS_CITYGML_GRID_DIR), PROJ's user data folder, PROJ's
     data folders, and last the copy bundled with gnss-citygml, so that nothing needs fetching.
     Exit code 1 if a grid is found nowhere (a damaged install)."""
-    from ..grids import fetch_grids, grid_status
+    from ..geodesy.grids import fetch_grids, grid_status
 
     if fetch:
         for path in fetch_grids():

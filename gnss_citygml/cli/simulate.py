@@ -37,9 +37,9 @@ from .options import GRID_DIR, OVERWRITE, SEED, output_dir
 def simulate(preset, output_dir, locations, seed, interval, fmt, grid_dir, overwrite):
     """Simulate a site and write the files a user brings to `estimate`: observations,
     footprints.gpkg and dem.tif (EPSG:27700), plus the intersections and the true heights."""
+    from ..files.tables import write_table
     from ..simulate import simulate as run
     from ..simulate.files import check_site, write_site
-    from ..tables import write_table
 
     intersections = output_dir / f"intersections.{fmt}"
     check_site(output_dir, fmt, overwrite=overwrite, also=[intersections])

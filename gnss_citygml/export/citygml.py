@@ -7,7 +7,7 @@ per building. A ``bldg:Building`` holds, in the order ``building.xsd`` requires:
 ``gen:stringAttribute``: every column of the buildings table, see
 :mod:`gnss_citygml.export.cityjson` for their meaning, plus the original id when it is not a
 valid ``gml:id``, under the name of its source's field: ``id``, or e.g. ``toid``, see
-:mod:`gnss_citygml.ids`); ``bldg:measuredHeight uom="m"`` (roof - ground); then either
+:mod:`gnss_citygml.files.ids`); ``bldg:measuredHeight uom="m"`` (roof - ground); then either
 ``bldg:lod1Solid`` or, for a MultiPolygon footprint, one ``bldg:consistsOfBuildingPart`` per
 polygon, each a ``bldg:BuildingPart`` with its own ``bldg:lod1Solid``. A solid is a
 ``gml:Solid/gml:exterior/gml:CompositeSurface`` of ``gml:Polygon`` s whose ``gml:posList``
@@ -43,7 +43,7 @@ import pandas as pd
 from lxml import etree
 
 from ..errors import InputError, listing
-from ..paths import StrPath, atomic_path
+from ..files.paths import StrPath, atomic_path
 from .attributes import attribute_columns, attribute_values, creation_date, measured_heights
 from .output import ExportResult, Progress, validated_output
 from .plan import CHECK_CHUNK, Plan, chunks, hash_texts, prepare_buildings, repeated_positions

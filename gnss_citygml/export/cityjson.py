@@ -40,7 +40,7 @@ import pandas as pd
 
 from ..contracts import EXTENSION, load
 from ..errors import InputError, listing
-from ..paths import atomic_path
+from ..files.paths import atomic_path
 from .attributes import attribute_columns, attribute_values, creation_date, measured_heights
 from .output import ExportResult, Progress, validated_output
 from .plan import CHUNK, booleans, chunks, prepare_buildings
@@ -49,7 +49,7 @@ from .prisms import SCALE, SURFACES, Prisms, extrude, part_ids
 if TYPE_CHECKING:
     import datetime as dt
 
-    from ..paths import StrPath
+    from ..files.paths import StrPath
 
 __all__ = ["CRS_URL", "VERSION", "write_cityjson", "write_cityjsonseq"]
 

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import pandas as pd
 
 from ..errors import GnssCityGMLError
-from ..paths import StrPath
+from ..files.paths import StrPath
 from ..validate import Report, validate_file
 
 __all__ = ["ExportResult", "InvalidOutputError", "Progress", "validated_output"]

@@ -33,9 +33,9 @@ import shapely
 
 from ..contracts import HEIGHTS, load
 from ..errors import InputError, MissingColumnError, listing
+from ..files.ids import id_field, id_named, missing_ids, with_id_field
+from ..files.paths import StrPath
 from ..geodesy import check_bng
-from ..ids import id_field, id_named, missing_ids, with_id_field
-from ..paths import StrPath
 from ..validate import Report
 from .output import ExportResult
 from .prisms import part_ids, snap_footprints
@@ -88,7 +88,7 @@ def footprints_with_heights(
     """The footprints joined with a heights table (the ids and the heights columns), e.g. one
     written by ``gnss-citygml heights``. The table's ids are in ``id`` or in a column named
     like the footprints' id field (e.g. ``toid``, as ``estimate`` writes them; see
-    :mod:`gnss_citygml.ids`), and the result keeps that name for the outputs. Footprints
+    :mod:`gnss_citygml.files.ids`), and the result keeps that name for the outputs. Footprints
     without a row keep empty heights (the writers skip and list them); a ``ground`` already on
     the footprints (from a DEM) wins over the table's. Heights of ids that are not among the
     footprints are an error, as is a table without the columns the heights schema requires
@@ -226,7 +226,7 @@ class Plan:
     written
         Buildings handed out so far.
     id_field
-        The name of the source's id field (:mod:`gnss_citygml.ids`), for an id attribute.
+        The name of the source's id field (:mod:`gnss_citygml.files.ids`), for an id attribute.
     """
 
     def __init__(

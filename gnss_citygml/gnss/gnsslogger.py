@@ -54,10 +54,10 @@ import numpy as np
 import pandas as pd
 
 from gnss_citygml.errors import InputError, listing
+from gnss_citygml.files.paths import StrPath
 from gnss_citygml.gnss.gpstime import NAT_NS, utc_ns
 from gnss_citygml.gnss.logrecords import INT_PATTERN, RECORDS, parse_records, split_lines
 from gnss_citygml.gnss.measurements import cut_line_epoch, fix_table, raw_signals, status_table
-from gnss_citygml.paths import StrPath
 
 __all__ = ["GnssLog", "read_gnsslogger"]
 

@@ -24,7 +24,7 @@ import numpy as np
 import pandas as pd
 
 from gnss_citygml.errors import InputError, MissingColumnError
-from gnss_citygml.paths import StrPath
+from gnss_citygml.files.paths import StrPath
 
 __all__ = ["INT_PATTERN", "RECORDS", "parse_records", "split_lines"]
 

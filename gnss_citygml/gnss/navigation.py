@@ -16,6 +16,7 @@ import numpy as np
 import pandas as pd
 
 from gnss_citygml.errors import InputError
+from gnss_citygml.files.paths import StrPath
 from gnss_citygml.gnss.gpstime import BDT_MINUS_GPS, GPS_EPOCH, NS_PER_S, utc_to_gps
 from gnss_citygml.gnss.orbitfile import (
     fortran_float,
@@ -25,7 +26,6 @@ from gnss_citygml.gnss.orbitfile import (
     record_epoch,
 )
 from gnss_citygml.gnss.propagation import KEPLER_CONSTANTS
-from gnss_citygml.paths import StrPath
 
 __all__ = ["EPHEMERIS_PARAMETERS", "read_nav"]
 

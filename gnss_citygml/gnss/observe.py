@@ -20,8 +20,8 @@ import numpy as np
 import pandas as pd
 
 from ..errors import InputError
+from ..files.paths import StrPath
 from ..observations import OBSERVATION_COLUMNS
-from ..paths import StrPath
 from ..settings import check_elevation_mask
 from .gnsslogger import GnssLog, read_gnsslogger
 from .orbits import Orbits, load_orbits

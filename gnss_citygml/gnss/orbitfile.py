@@ -20,8 +20,8 @@ from typing import Literal, overload
 import numpy as np
 
 from gnss_citygml.errors import InputError
+from gnss_citygml.files.paths import StrPath, gunzipped, input_file
 from gnss_citygml.gnss.gpstime import NS_PER_S
-from gnss_citygml.paths import StrPath, gunzipped, input_file
 
 __all__ = ["fortran_float", "garbled", "location", "read_lines", "record_epoch"]
 

@@ -44,6 +44,7 @@ import numpy.typing as npt
 import pandas as pd
 
 from gnss_citygml.errors import InputError, listing
+from gnss_citygml.files.paths import StrPath
 from gnss_citygml.gnss.gpstime import (
     GPS_EPOCH,
     NS_PER_S,
@@ -57,7 +58,6 @@ from gnss_citygml.gnss.navigation import EPHEMERIS_PARAMETERS, read_nav
 from gnss_citygml.gnss.orbitfile import location, read_lines
 from gnss_citygml.gnss.propagation import KEPLER_CONSTANTS, glonass_positions, kepler_positions
 from gnss_citygml.gnss.sp3 import LAGRANGE_POINTS, MAX_MISSING_EPOCHS, lagrange, read_sp3
-from gnss_citygml.paths import StrPath
 
 __all__ = [
     "MAX_AGE",

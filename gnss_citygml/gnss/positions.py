@@ -26,9 +26,9 @@ import numpy as np
 import pandas as pd
 
 from gnss_citygml.errors import InputError, MissingColumnError
+from gnss_citygml.files.paths import StrPath
 from gnss_citygml.gnss.gnsslogger import GnssLog
 from gnss_citygml.gnss.gpstime import Times, utc_ns
-from gnss_citygml.paths import StrPath
 
 __all__ = ["ACCURACY_PER_SD", "positions", "read_surveyed_positions", "surveyed_positions"]
 

@@ -21,6 +21,7 @@ import numpy as np
 import pandas as pd
 
 from gnss_citygml.errors import InputError
+from gnss_citygml.files.paths import StrPath
 from gnss_citygml.gnss.gpstime import BDT_MINUS_GPS, utc_to_gps
 from gnss_citygml.gnss.orbitfile import (
     fortran_float,
@@ -29,7 +30,6 @@ from gnss_citygml.gnss.orbitfile import (
     read_lines,
     record_epoch,
 )
-from gnss_citygml.paths import StrPath
 
 __all__ = ["LAGRANGE_POINTS", "MAX_MISSING_EPOCHS", "lagrange", "read_sp3"]
 

@@ -17,10 +17,10 @@ import rasterio
 import shapely
 from rasterio.transform import from_origin
 
+from ..files.paths import StrPath, atomic_path, check_output_folder, make_folder
+from ..files.tables import write_layer, write_table
 from ..geodesy import to_osgb
 from ..observations import OBSERVATION_COLUMNS, write_observations
-from ..paths import StrPath, atomic_path, check_output_folder, make_folder
-from ..tables import write_layer, write_table
 from . import Simulation, local_to_wgs84
 
 __all__ = ["DEM_CELL", "check_site", "site_paths", "write_site"]

@@ -39,9 +39,9 @@ import numpy as np
 import pandas as pd
 
 from ..errors import InputError, listing, user_text
+from ..files.paths import StrPath, atomic_folder, check_not_input
 from ..geodesy import CrsInput
 from ..observations import read_observations, repeated_signals
-from ..paths import StrPath, atomic_folder, check_not_input
 from ..settings import (
     DEFAULT_TILE_SIZE,
     PositionError,

@@ -27,12 +27,12 @@ import pandas as pd
 import shapely
 
 from ..errors import InputError
+from ..files.paths import StrPath
 from ..model.estimate import HEIGHTS_COLUMNS, intersections_part
 from ..model.fourplb import SignalModel
 from ..model.mixture import Cn0Moments, elevation_units
 from ..model.offsets import SkyCounts, levelled, sky_counts
 from ..model.parts import Engine, InProcess, Part, Shared, Tally, run_parts
-from ..paths import StrPath
 from ..settings import DEFAULT_TILE_SIZE, Estimator, PositionError, Rays
 from ..stages import intersections, recordings
 from .grid import Tile, building_tiles, check_reach, plan_tiles, receiver_tiles

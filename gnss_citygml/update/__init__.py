@@ -6,7 +6,7 @@ style of the file is kept, and the layer's feature ids do not change: the column
 with SQL on the layer's own table, by building id.
 
 - **Never a damaged map.** The work is done on a copy beside the map, which is renamed over it
-  only when complete (:func:`gnss_citygml.paths.atomic_path`); the map as it was is kept as
+  only when complete (:func:`gnss_citygml.files.paths.atomic_path`); the map as it was is kept as
   ``MAP.bak.gpkg`` (unless ``backup=False``). A crash, Ctrl-C or ``kill -9`` at any moment
   leaves the map byte-identical. A map that another program is writing to (a write lock, or
   a write-ahead log that is not empty: QGIS editing a layer) is refused.
@@ -42,7 +42,7 @@ import numpy as np
 import pandas as pd
 
 from ..errors import InputError
-from ..geopackage import (
+from ..files.geopackage import (
     check_geopackage,
     check_no_triggers,
     check_table_layer,
@@ -50,8 +50,8 @@ from ..geopackage import (
     quoted,
     refused,
 )
-from ..ids import id_text
-from ..paths import StrPath, atomic_path, check_not_input, input_file
+from ..files.ids import id_text
+from ..files.paths import StrPath, atomic_path, check_not_input, input_file
 from ..settings import Estimator, Rays, ReceiverHeights
 from .evidence import (
     CAST,
@@ -175,7 +175,7 @@ def update_map(
     ``report`` is a folder for the report of the fit over all the evidence
     (:mod:`gnss_citygml.report`; ``truth``, a simulator's truth table, adds the true heights).
     """
-    from ..ids import id_field as source_id_field
+    from ..files.ids import id_field as source_id_field
     from ..jobs import read_buildings
     from ..observations import read_observation_files
     from ..pipeline import fit_heights
@@ -196,10 +196,10 @@ def update_map(
     true = None
     if report is not None:
         from ..compare import check_truth
-        from ..ids import with_id_field
+        from ..files.ids import with_id_field
+        from ..files.tables import read_table
         from ..pipeline import Run
         from ..report import check_report, write_report
-        from ..tables import read_table
 
         check_report(report, overwrite=True, inputs=inputs)
         true = None if truth is None else check_truth(read_table(truth), str(truth))

@@ -21,7 +21,7 @@ import numpy as np
 import pandas as pd
 
 from ..errors import InputError
-from ..paths import StrPath
+from ..files.paths import StrPath
 from ..settings import Rays, ReceiverHeights
 
 __all__ = [

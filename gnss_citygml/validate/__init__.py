@@ -28,7 +28,7 @@ passes. No DTD is read, no XML entity expanded, nothing fetched from the network
 from __future__ import annotations
 
 from ..errors import InputError
-from ..paths import StrPath, input_file
+from ..files.paths import StrPath, input_file
 from .citygml import validate_citygml
 from .cityjson import validate_cityjson
 from .geometry import PLANARITY_TOLERANCE, SNAP_TOLERANCE

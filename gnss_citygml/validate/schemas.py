@@ -7,7 +7,7 @@ import re
 from pathlib import Path
 
 from ..errors import InputError
-from ..paths import StrPath
+from ..files.paths import StrPath
 
 __all__ = ["SCHEMA_DIR_ENV", "citygml_schema_folder", "cityjson_schema_file", "schema_folder"]
 

@@ -25,8 +25,8 @@ import pandas as pd
 from pyproj.datadir import append_data_dir, get_data_dir, get_user_data_dir
 from pyproj.sync import get_proj_endpoint
 
-from .errors import GnssCityGMLError
-from .paths import StrPath
+from ..errors import GnssCityGMLError
+from ..files.paths import StrPath
 
 __all__ = [
     "BUNDLED_GRID_DIR",
@@ -50,7 +50,7 @@ GRIDS = {
 }
 #: The copy of the grids shipped inside the package (a real folder: PROJ opens grids by path),
 #: searched last; its README names their source and checksums, its LICENSE their terms.
-BUNDLED_GRID_DIR = Path(__file__).resolve().parent / "data" / "grids"
+BUNDLED_GRID_DIR = Path(__file__).resolve().parents[1] / "data" / "grids"
 #: How messages name the bundled copy (``source`` in :func:`grid_status`).
 _BUNDLED = "bundled with gnss-citygml"
 

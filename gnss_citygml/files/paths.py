@@ -22,7 +22,7 @@ from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import BinaryIO, TypeAlias
 
-from .errors import InputError
+from ..errors import InputError
 
 __all__ = [
     "StrPath",

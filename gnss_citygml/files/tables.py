@@ -1,7 +1,7 @@
 """Reading and writing the toolkit's tables (CSV or Parquet) and layers (GeoPackage,
 FlatGeobuf, GeoParquet).
 
-Outputs are written through :func:`gnss_citygml.paths.atomic_path`: to a temporary file in the
+Outputs are written through :func:`gnss_citygml.files.paths.atomic_path`: to a temporary file in the
 target folder, renamed into place only when complete, so a failed run never leaves a
 half-written file behind. A layer written into an existing GeoPackage replaces that layer only:
 every other layer (and the styles table) of the file is kept."""
@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pandas as pd
 
-from .errors import InputError, first_line, user_text
+from ..errors import InputError, first_line, user_text
 from .geopackage import check_no_triggers
 from .ids import source_named
 from .paths import StrPath, atomic_path, check_not_input, check_output, input_file, same_file
@@ -116,7 +116,7 @@ def _suffix(path: Path) -> str:
 def check_table_output(path: StrPath, *, overwrite: bool, inputs: Iterable[object] = ()) -> Path:
     """Check, before the work starts, that a table can be written to ``path`` (CSV, Parquet)
     and that it is none of the command's ``inputs``
-    (:func:`~gnss_citygml.paths.check_not_input`)."""
+    (:func:`~gnss_citygml.files.paths.check_not_input`)."""
     _suffix(Path(path))
     path = check_output(path, overwrite=overwrite)
     check_not_input(path, inputs, folders=False)  # (a table is made of files)
@@ -149,7 +149,7 @@ def check_layer_output(
     existing file of another format, needs ``overwrite``.
 
     The output must be none of the command's ``inputs``
-    (:func:`~gnss_citygml.paths.check_not_input`), but for one case: a GeoPackage that is an
+    (:func:`~gnss_citygml.files.paths.check_not_input`), but for one case: a GeoPackage that is an
     input takes a new layer beside the one read from it (``read_layer``; None: its only one),
     as the footprints' own GeoPackage takes the layer ``heights``. The layer read itself is
     never replaced.
@@ -224,10 +224,10 @@ def write_layer(
     (``.parquet``) hold one layer: the file is replaced. List-valued attributes (OS
     MasterMap's ``descriptiveGroup``, read by GDAL as lists) are written as text joined by
     ``|``, which every GIS reads. The id is written under the name of its source's field
-    (e.g. ``toid``; :func:`gnss_citygml.ids.source_named`).
+    (e.g. ``toid``; :func:`gnss_citygml.files.ids.source_named`).
 
     ``style`` (QGIS QML) is saved in a GeoPackage as the layer's default style
-    (:func:`gnss_citygml.styles.save_default_style`); the other formats have no place for it.
+    (:func:`gnss_citygml.files.styles.save_default_style`); the other formats have no place for it.
     A new GeoPackage is version 1.2, which every GDAL since 2.2 (QGIS 3.22's too) reads
     without a warning."""
     path = check_layer_output(path, layer, overwrite=overwrite)

@@ -17,10 +17,10 @@ it (metres off, silently), so the user transforms the data with the transformati
 it. PROJ's own choice is never taken: without the grids on its search path it picks "OSGB36 to
 WGS 84 (6)", a Helmert transformation 2 m off, without a word.
 
-The grids are found by :mod:`gnss_citygml.grids` (an explicit ``grid_dir`` or
-``$GNSS_CITYGML_GRID_DIR``, PROJ's folders, and last the copy shipped inside the package); a grid
-that cannot be found is a :class:`~gnss_citygml.grids.GridError`, never a fallback to another
-transformation.
+The grids are found by :mod:`gnss_citygml.geodesy.grids` (an explicit ``grid_dir`` or
+``$GNSS_CITYGML_GRID_DIR``, PROJ's folders, and last the copy shipped inside the package); a
+grid that cannot be found is a :class:`~gnss_citygml.geodesy.grids.GridError`, never a fallback
+to another transformation.
 
 Two PROJ behaviours are guarded against:
 
@@ -51,7 +51,7 @@ import pyproj
 from pyproj import Proj, Transformer
 from pyproj.exceptions import ProjError
 
-from .errors import InputError, listing, user_text
+from ..errors import InputError, listing, user_text
 from .grids import GRIDS, HOW_TO_GET, GridError, add_to_proj_path, grid_folders
 
 __all__ = [

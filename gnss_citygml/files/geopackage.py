@@ -1,5 +1,5 @@
 """SQL on a GeoPackage's own tables, where GDAL's layer interface cannot do the job: a style row
-(:mod:`gnss_citygml.styles`), columns updated in place and the evidence of
+(:mod:`gnss_citygml.files.styles`), columns updated in place and the evidence of
 :mod:`gnss_citygml.update`."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import re
 import sqlite3
 from collections.abc import Iterator
 
-from .errors import InputError, first_line
+from ..errors import InputError, first_line
 from .paths import StrPath, write_error
 
 __all__ = [
@@ -133,7 +133,7 @@ def check_table_layer(path: StrPath, layer: str) -> None:
 def refused(path: StrPath) -> Iterator[None]:
     """Turn SQLite's refusal of a write to the GeoPackage ``path`` (a constraint of the
     user's schema: NOT NULL, UNIQUE, CHECK; a trigger's RAISE) into a one-line error; a full
-    disk is left to :func:`gnss_citygml.paths.atomic_path`."""
+    disk is left to :func:`gnss_citygml.files.paths.atomic_path`."""
     try:
         yield
     except sqlite3.DatabaseError as exc:

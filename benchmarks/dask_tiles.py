@@ -27,8 +27,9 @@ import numpy as np
 import shapely
 
 from gnss_citygml.model.classifier import SignalClassifier
+from gnss_citygml.model.engine import InProcess
 from gnss_citygml.model.estimate import estimate_heights
-from gnss_citygml.model.parts import InProcess, Part
+from gnss_citygml.model.parts import Part
 from gnss_citygml.pipeline import intersections, open_sky
 from gnss_citygml.settings import Tiling
 from gnss_citygml.simulate import simulate

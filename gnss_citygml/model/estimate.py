@@ -17,10 +17,11 @@ from ..errors import InputError, MissingColumnError, listing
 from ..settings import Estimator
 from .baselines import bayes_heights, hinge_heights
 from .classifier import SignalClassifier
+from .engine import run_parts
 from .fourplb import BuildingFits, SignalModel
 from .mixture import Cn0Mixture, Cn0Moments, elevation_units
 from .offsets import levelled, sky_counts
-from .parts import Part, run_parts
+from .parts import Part
 
 __all__ = [
     "HEIGHTS_COLUMNS",

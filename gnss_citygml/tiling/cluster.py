@@ -3,7 +3,7 @@
 :func:`connect` gives a :class:`DaskEngine` on a new ``LocalCluster`` (``local``: one worker
 process per core, or ``workers``) or on a running scheduler (``tcp://host:port``), as a
 :class:`~gnss_citygml.settings.Tiling` says.
-Each step of :func:`~gnss_citygml.model.parts.run_parts` becomes a Dask task whose result
+Each step of :func:`~gnss_citygml.model.engine.run_parts` becomes a Dask task whose result
 stays on the worker that made it; a step that fails is run once more, and a worker that dies
 takes its results with it, which Dask recomputes from the steps that made them, with the same
 result. The core package does not import Dask: only this module does, when it is asked for.
@@ -52,7 +52,7 @@ WORKER_MALLOC = {
 
 
 class DaskEngine:
-    """An :class:`~gnss_citygml.model.parts.Engine` on a ``dask.distributed.Client``."""
+    """An :class:`~gnss_citygml.model.engine.Engine` on a ``dask.distributed.Client``."""
 
     def __init__(self, client: Any) -> None:
         self.client = client

@@ -3,7 +3,7 @@
 Each tile casts the rays that can reach its buildings against its buildings and its halo
 (:func:`~gnss_citygml.tiling.grid.plan_tiles`), keeps the signals that cross one of its own
 buildings, and takes part in 4PL-B's map / exchange / reduce
-(:func:`~gnss_citygml.model.parts.run_parts`): the parts whose buildings its rays cross are
+(:func:`~gnss_citygml.model.engine.run_parts`): the parts whose buildings its rays cross are
 its neighbours. Run in one process (the default engine) or on a Dask cluster
 (:mod:`gnss_citygml.tiling.cluster`), the heights are those of :func:`~gnss_citygml.pipeline.run`
 on the same receivers, bit for bit (tested): each building is summed the same way in a tile
@@ -28,11 +28,12 @@ import shapely
 
 from ..errors import InputError
 from ..files.paths import StrPath
+from ..model.engine import Engine, InProcess, run_parts
 from ..model.estimate import HEIGHTS_COLUMNS, intersections_part
 from ..model.fourplb import SignalModel
 from ..model.mixture import Cn0Moments, elevation_units
 from ..model.offsets import SkyCounts, levelled, sky_counts
-from ..model.parts import Engine, InProcess, Part, Shared, Tally, run_parts
+from ..model.parts import Part, Shared, Tally
 from ..settings import DEFAULT_TILE_SIZE, Estimator, PositionError, Rays
 from ..stages import intersections, recordings
 from .grid import Tile, building_tiles, check_reach, plan_tiles, receiver_tiles

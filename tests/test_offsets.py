@@ -131,3 +131,14 @@ def test_levelling_is_a_run_on_the_levelled_signals():
     as_recorded = estimate_heights(cast, Estimator(level_phones=False), open_sky=sky)
     pd.testing.assert_frame_equal(estimate_heights(cast), as_recorded)
     assert not as_recorded.equals(levelled_run)
+
+
+def test_a_signal_without_a_phone_name_is_neither_counted_nor_levelled():
+    """A row whose ``receiver`` is empty belongs to no phone: it says nothing of any phone's
+    level (it used to be counted as the last phone's) and keeps its C/N0."""
+    sky = _sky({"a": 3.0, "b": -3.0}, 800)
+    nameless = pd.DataFrame({"receiver": [None] * 400, "elevation": 45.0, "cn0": 5.0})
+    found = sky_counts(pd.concat([sky, nameless], ignore_index=True)).offsets()
+    assert found.to_dict() == pytest.approx(sky_counts(sky).offsets().to_dict())
+    kept = levelled(nameless, found)
+    assert (kept["cn0"] == 5.0).all()

@@ -61,11 +61,11 @@ class SkyCounts:
         NaN: unknown, left out)."""
         s = np.asarray(cn0, dtype=float)
         e = np.asarray(e, dtype=float)
-        ok = np.isfinite(s) & np.isfinite(e)
-        code, names = pd.factorize(np.asarray(key, dtype=object)[ok])  # each name once
+        code, names = pd.factorize(np.asarray(key, dtype=object))  # each name once
+        ok = np.isfinite(s) & np.isfinite(e) & (code >= 0)  # (-1: no phone named)
         bins = pd.DataFrame(
             {
-                "key": code,
+                "key": code[ok],
                 "e": np.rint(e[ok] * ELEVATION_BINS).astype(np.int64),
                 "cn0": np.rint(s[ok] / CN0_BIN).astype(np.int64),
             }

@@ -88,6 +88,20 @@ def test_the_signal_model_is_an_advanced_choice_with_the_librarys_default(plugin
     assert "signal model" in algorithm.shortHelpString()
 
 
+@pytest.mark.parametrize("name", ["gnsscitygml:estimate", "gnsscitygml:update"])
+def test_levelling_the_phones_is_an_advanced_switch_with_the_librarys_default(plugin, name):
+    from qgis.core import QgsProcessingParameterDefinition
+
+    from gnss_citygml.settings import Estimator
+
+    algorithm = QgsApplication.processingRegistry().algorithmById(name)
+    parameter = algorithm.parameterDefinition("LEVEL_PHONES")
+    assert parameter.type() == "boolean"
+    assert parameter.defaultValue() is Estimator.level_phones
+    assert parameter.flags() & QgsProcessingParameterDefinition.FlagAdvanced
+    assert "one level" in algorithm.shortHelpString()
+
+
 #: A QGIS with its Python's Debian packages only (no site folders, so no gnss-citygml however
 #: this machine's Python is set up), then ``SITE``'s folders: it loads the plugin as QGIS
 #: does and runs an algorithm, printing the plugin's log (LOG), the algorithms (ALGORITHMS)

@@ -64,7 +64,7 @@ _LAZY = {
     "PositionError": "settings",
     "Calibration": "settings",
     # the errors of the geodesy
-    "GridError": "grids",
+    "GridError": "geodesy.grids",
     "OutsideExtentError": "geodesy",
 }
 

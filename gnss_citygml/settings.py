@@ -31,6 +31,7 @@ from .errors import InputError, ModelError
 from .model import METHODS
 
 __all__ = [
+    "DEFAULT_POSITION_DISTANCE",
     "DEFAULT_POSITION_SD",
     "DEFAULT_TILE_SIZE",
     "HEIGHT_RULES",
@@ -77,6 +78,11 @@ TILE_SIZES = (50.0, 100_000.0)
 #: a point placed by hand on a large-scale map, as the paper's receivers were ("an estimated
 #: location error of below 2 metres", taken as two standard deviations).
 DEFAULT_POSITION_SD = 1.0
+#: How far (m) a moving receiver goes with one position error (``PositionError.distance``): a
+#: phone's fix is biased by the reflections of the facades around it, which stay while it
+#: stays in one stretch of street and change when it reaches the next (a London block is
+#: 50-100 m long; measured in docs/issue-28-positions.md).
+DEFAULT_POSITION_DISTANCE = 50.0
 
 
 def _finite(value) -> bool:
@@ -111,6 +117,8 @@ POSITION_SDS = (0.0, 1000.0)
 #: a position error's or calibration offset's window (s, above 0): at most a day, as longer
 #: windows are a whole recording (leave the window out);
 WINDOWS = (0.0, 86_400.0)
+#: how far a moving receiver goes with one position error (m, above 0): up to 100 km;
+POSITION_DISTANCES = (0.0, 100_000.0)
 #: a converged estimate's widest height range (m, above 0);
 UNCERTAINTIES = (0.0, 1000.0)
 #: 4PL-B's iterations and the calibration's rounds: each is a full fit of every building.
@@ -412,17 +420,24 @@ class PositionError:
         Metres per axis for every position, overriding the data's, e.g. 1 for points placed by
         hand on a map. ``0``: the positions are taken as exact, as in the paper (no error is
         modelled). ``None`` (default): from the data.
+    distance
+        How far (m) a moving receiver (a phone's fixes, a walker's traced path) goes with one
+        error: its rows share an error until its reported position is this far from where the
+        error began (:data:`DEFAULT_POSITION_DISTANCE`: the street around a phone biases its
+        fixes, by the reflections it receives, for as long as it is there, and the next
+        stretch of street has its own). ``None``: its whole recording. A receiver standing at
+        one reported point (a point placed by hand) shares one error over its stay either way,
+        and so does a phone lying still, whose fixes wander less than this
+        (:func:`~gnss_citygml.recordings.position_groups`).
     window
-        How long (s) one error of a moving receiver (a phone's fixes, a walker's traced path)
-        lasts: its rows share an error within windows of this length (windows of each recording
-        from its own first epoch). ``None`` (default): its whole recording, as the street around
-        it biases a phone's fixes (the reflections it receives) for as long as it is there. A
-        receiver standing at one reported point (a point placed by hand) shares one error over
-        its stay either way (:func:`~gnss_citygml.recordings.position_groups`).
+        Instead of ``distance``: how long (s) one error of a moving receiver lasts, its rows
+        sharing an error within windows of this length (windows of each recording from its own
+        first epoch).
     """
 
     sd: float | None = None
     window: float | None = None
+    distance: float | None = DEFAULT_POSITION_DISTANCE
 
     def __post_init__(self):
         if self.sd is not None and not _within(self.sd, POSITION_SDS):
@@ -437,6 +452,12 @@ class PositionError:
                 f"{WINDOWS[1]:g} (a day), not {self.window}",
                 fix="give --position-window, e.g. 30 for a walker's traced path, or leave it "
                 "out for the whole recording",
+            )
+        if self.distance is not None and not _within(self.distance, POSITION_DISTANCES, above=True):
+            raise InputError(
+                f"the position error's distance must be a positive number of metres up to "
+                f"{POSITION_DISTANCES[1]:g}, not {self.distance}",
+                fix=f"give --position-distance in metres, e.g. {DEFAULT_POSITION_DISTANCE:g}",
             )
 
     @property

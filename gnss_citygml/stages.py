@@ -190,11 +190,12 @@ def open_sky(receivers: pd.DataFrame, intersections: pd.DataFrame) -> pd.DataFra
 def recordings(
     receivers: pd.DataFrame, position_error: PositionError = PositionError()
 ) -> pd.Categorical:
-    """Each row's position group (:func:`~gnss_citygml.recordings.position_groups`, windows
-    of ``position_error.window`` seconds) named by its receiver and first epoch (``phone1
+    """Each row's position group (:func:`~gnss_citygml.recordings.position_groups`: stretches
+    of ``position_error.distance`` metres, or windows of ``position_error.window`` seconds)
+    named by its receiver and first epoch (``phone1
     2020-02-11T08:49:00Z``): a name that another run over more observations gives the same
     group (``update`` keeps it with its evidence)."""
-    codes = position_groups(receivers, position_error.window)
+    codes = position_groups(receivers, position_error.window, position_error.distance)
     first = receivers["time_utc"].groupby(codes).min()
     who = receivers["receiver"].groupby(codes).first()
     utc = pd.to_datetime(first, utc=True).dt.strftime("%Y-%m-%dT%H:%M:%S.%fZ")

@@ -70,7 +70,7 @@ def test_demo_writes_the_models_and_compares_with_the_truth(tmp_path, capsys, mo
         f"the roof span, {np.sqrt(np.mean(errors**2)):.2f} m to its middle, range meeting the "
         f"span for {(meets & ok).sum()} of {ok.sum()}"
     )
-    assert ok.sum() == 23  # as `estimate` on the sample city (README)
+    assert ok.sum() == 24  # as `estimate` on the sample city (README)
 
     # Again without --overwrite: refused before any work, the files untouched.
     before = {p.name: p.stat().st_mtime_ns for p in folder.iterdir()}

@@ -18,11 +18,11 @@ from gnss_citygml.jobs import estimate_file
 from gnss_citygml.model.estimate import estimate_heights
 from gnss_citygml.observations import read_observations, write_observations
 from gnss_citygml.pipeline import in_mask, intersections, open_sky, receivers, run_partitioned
-from gnss_citygml.settings import Estimator, ReceiverHeights, Tiling
+from gnss_citygml.settings import Estimator, PositionError, Rays, ReceiverHeights, Tiling
 from gnss_citygml.terrain import building_ground
 from gnss_citygml.tiling.grid import building_tiles
 from gnss_citygml.tiling.output import TileFolder
-from gnss_citygml.tiling.partition import INDEX, partition_observations, read_index
+from gnss_citygml.tiling.partition import INDEX, check_partition, partition_observations, read_index
 from gnss_citygml.tiling.run import partitioned_heights
 
 DEM = CITY / "dem.tif"
@@ -194,7 +194,14 @@ def test_the_commands_partition_and_estimate_from_it_on_a_local_cluster(
     [
         ([], "a partition folder is read by a run in tiles"),
         (["--scheduler", "local", "--min-elevation", "20"], "written with elevations 10-85 deg"),
-        (["--scheduler", "local", "--position-window", "30"], "window None, not 30.0"),
+        (
+            ["--scheduler", "local", "--position-window", "30"],
+            "grouped position errors by stretches of 50 m, not by windows of 30 s",
+        ),
+        (
+            ["--scheduler", "local", "--position-distance", "80"],
+            "grouped position errors by stretches of 50 m, not by stretches of 80 m",
+        ),
         (["--scheduler", "local", "--antenna-height", "1.5"], "took the receivers' heights"),
         (["--scheduler", "local", "--tile-size", "500"], "tiles are 100 m, not 500"),
         (["--scheduler", "local", "--tile-size", "1000"], "tiles are 100 m, not 1000"),
@@ -207,6 +214,20 @@ def test_a_run_unlike_its_partition_is_refused(halves, grid_args, tmp_path, caps
     code, _, err = run(args, capsys)
     assert code == 2 and err.startswith("error: ") and message in err, err
     assert not (tmp_path / "h.gpkg").exists()
+
+
+def test_a_partition_from_before_the_distance_grouped_whole_recordings(halves, tmp_path):
+    """partition.json without a position distance (written by 0.1) grouped each moving
+    receiver's errors over its whole recording: a run asking that reads it, the default is told
+    how to match it."""
+    partition_observations(halves[:1], tmp_path / "p", DEM, tile_size=100.0)
+    index = json.loads((tmp_path / "p" / INDEX).read_text())
+    assert index["position_distance"] == PositionError().distance
+    del index["position_distance"]
+    (tmp_path / "p" / INDEX).write_text(json.dumps(index))
+    check_partition(read_index(tmp_path / "p"), Rays(), PositionError(distance=None))
+    with pytest.raises(InputError, match="by whole recordings, not by stretches of 50 m"):
+        check_partition(read_index(tmp_path / "p"), Rays(), PositionError())
 
 
 def test_a_folder_that_is_not_a_partition_is_a_clear_error(tmp_path):

@@ -1,6 +1,7 @@
-"""Time windows of recordings: one rule for the modelled position errors and the calibration."""
+"""Which rows share one position error: stays, stretches of a way, time windows of recordings."""
 
 import geopandas as gpd
+import numpy as np
 import pandas as pd
 import pytest
 import shapely
@@ -8,7 +9,7 @@ import shapely
 from gnss_citygml.errors import InputError
 from gnss_citygml.pipeline import intersections
 from gnss_citygml.recordings import position_groups, recording_windows
-from gnss_citygml.settings import PositionError
+from gnss_citygml.settings import DEFAULT_POSITION_DISTANCE, PositionError
 
 START = pd.Timestamp("2020-02-11T10:00:00Z")
 
@@ -77,3 +78,41 @@ def test_a_receiver_standing_still_shares_one_error_over_its_stay():
     # the order of the rows does not matter (row i is now row 10 - i)
     backwards = groups(position_groups(table.iloc[::-1].reset_index(drop=True), 30.0))
     assert backwards == sorted(sorted(10 - i for i in g) for g in by_30)
+
+
+def test_a_moving_receiver_shares_one_error_per_stretch_of_its_way():
+    """With a distance, a walker's error lasts until its reported position is that far from
+    where the error began (the next stretch of street); a phone lying still, whose fixes
+    wander a few metres, keeps one; an unknown position is never far; a window wins."""
+    walk = np.arange(0.0, 201.0, 10.0)  # 0, 10, ... 200 m along a street, one fix a second
+    walker = rows(["w"] * walk.size, np.arange(walk.size)).assign(e=walk, n=0.0)
+    still = rows(["s"] * 40, np.arange(40)).assign(
+        e=np.random.default_rng(0).normal(0.0, 3.0, 40), n=0.0
+    )
+    table = pd.concat([walker, still], ignore_index=True)
+    codes = position_groups(table, distance=50.0)
+    # the walker: 0-50 m, 60-110 m, 120-170 m, 180-200 m; the phone lying still: one
+    assert groups(codes) == [
+        list(range(0, 6)),
+        list(range(6, 12)),
+        list(range(12, 18)),
+        list(range(18, 21)),
+        list(range(21, 61)),
+    ]
+    assert len(set(position_groups(table))) == 2  # without: one per recording
+    assert len(set(position_groups(table, 30.0, 50.0))) == 3  # 21 s and 40 s of 30 s windows
+    lost = walker.assign(e=np.where(walker.index == 3, np.nan, walker["e"]))
+    assert groups(position_groups(lost, distance=50.0))[0] == list(range(0, 6))
+
+
+def test_the_pipelines_errors_follow_the_stretches_by_default():
+    wall = gpd.GeoDataFrame({"id": ["w"]}, geometry=[shapely.box(-50, 20, 300, 30)])
+    walk = np.arange(0.0, 201.0, 10.0)
+    walker = rows(["w"] * walk.size, np.arange(walk.size)).assign(
+        e=walk, n=0.0, z=1.0, bearing=0.0, elevation=30.0, cn0=40.0
+    )
+    out = intersections(walker, wall, position_error=PositionError(sd=1.0))
+    assert PositionError().distance == DEFAULT_POSITION_DISTANCE
+    assert out["recording"].nunique() == 4
+    whole = intersections(walker, wall, position_error=PositionError(sd=1.0, distance=None))
+    assert whole["recording"].nunique() == 1

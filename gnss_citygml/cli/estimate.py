@@ -20,6 +20,7 @@ from .options import (
     METHOD,
     MIN_ELEVATION,
     OVERWRITE,
+    POSITION_DISTANCE,
     POSITION_WINDOW,
     QUIET,
     RECEIVER_HEIGHT,
@@ -62,6 +63,7 @@ _RUN_OPTIONS = together(
         "Default: each observation's position_sd (a phone fix's accuracy), 1 m where it is "
         "empty.",
     ),
+    POSITION_DISTANCE,
     POSITION_WINDOW,
     click.option(
         "--calibration-sd",
@@ -171,6 +173,7 @@ def _run(
     level_phones,
     max_range,
     position_sd,
+    position_distance,
     position_window,
     calibration_sd,
     calibration_window,
@@ -214,7 +217,9 @@ def _run(
                 signal_model=signal_model,
                 level_phones=level_phones,
             ),
-            position_error=PositionError(sd=position_sd, window=position_window),
+            position_error=PositionError(
+                sd=position_sd, window=position_window, distance=position_distance
+            ),
             calibration=Calibration(prior_sd=calibration_sd, window=calibration_window),
             tiling=tiling,
             dem_crs=dem_crs,

@@ -23,6 +23,7 @@ from ..settings import (
     RECEIVER_HEIGHTS,
     SIGNAL_MODELS,
     Estimator,
+    PositionError,
     Rays,
     ReceiverHeights,
 )
@@ -40,6 +41,7 @@ __all__ = [
     "MIN_ELEVATION",
     "MODEL_OUTPUT",
     "OVERWRITE",
+    "POSITION_DISTANCE",
     "POSITION_WINDOW",
     "QUIET",
     "RECEIVER_HEIGHT",
@@ -85,12 +87,22 @@ ANTENNA_HEIGHT = click.option(
     show_default=True,
     help="Metres.",
 )
+POSITION_DISTANCE = click.option(
+    "--position-distance",
+    type=float,
+    default=PositionError.distance,
+    show_default=True,
+    help="Metres a moving receiver (a walker's traced path, a phone's fixes) goes with one "
+    "position error: the next begins once its reported position is this far from where the "
+    "last began (the next stretch of street has other reflections). A receiver standing at one "
+    "point, or a phone lying still, keeps one. Longer than the walk: one per recording.",
+)
 POSITION_WINDOW = click.option(
     "--position-window",
     type=float,
-    help="Seconds one position error of a moving receiver lasts (a walker's traced path, "
-    "a phone's fixes). Default: its whole recording. A receiver standing at one point (a "
-    "point placed by hand) shares one error over its stay either way.",
+    help="Instead of --position-distance: seconds one position error of a moving receiver "
+    "lasts. A receiver standing at one point (a point placed by hand) shares one error over "
+    "its stay either way.",
 )
 TILE_SIZE = click.option(
     "--tile-size",

@@ -14,6 +14,7 @@ from .options import (
     MAX_ELEVATION,
     MIN_ELEVATION,
     OVERWRITE,
+    POSITION_DISTANCE,
     POSITION_WINDOW,
     QUIET,
     RECEIVER_HEIGHT,
@@ -35,6 +36,7 @@ from .options import (
 @MAX_ELEVATION
 @RECEIVER_HEIGHT
 @ANTENNA_HEIGHT
+@POSITION_DISTANCE
 @POSITION_WINDOW
 @DEM_CRS
 @GRID_DIR
@@ -49,6 +51,7 @@ def partition(
     max_elevation,
     receiver_height,
     antenna_height,
+    position_distance,
     position_window,
     dem_crs,
     grid_dir,
@@ -78,7 +81,7 @@ def partition(
             dem,
             rays=Rays(min_elevation=min_elevation, max_elevation=max_elevation),
             receiver_heights=ReceiverHeights(source=receiver_height, antenna_height=antenna_height),
-            position_error=PositionError(window=position_window),
+            position_error=PositionError(window=position_window, distance=position_distance),
             tile_size=tile_size,
             grid_dir=grid_dir,
             dem_crs=dem_crs,

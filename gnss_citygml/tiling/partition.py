@@ -99,8 +99,8 @@ def partition_observations(
 
     The folder appears whole or not at all: it is written beside, under another name, and
     renamed into place at the end (replacing an old one only with ``overwrite``).
-    ``position_error.window`` decides the position-error groups here; the run in tiles must
-    use the same (it checks). ``progress`` is told each file's name as it starts.
+    ``position_error``'s window or distance decides the position-error groups here; the run in
+    tiles must use the same (it checks). ``progress`` is told each file's name as it starts.
     """
     tile_size = DEFAULT_TILE_SIZE if tile_size is None else tile_size
     check_tile_size(tile_size)
@@ -148,6 +148,7 @@ def partition_observations(
             "rays": {"min_elevation": rays.min_elevation, "max_elevation": rays.max_elevation},
             "receiver_heights": asdict(receiver_heights),
             "position_window": position_error.window,
+            "position_distance": position_error.distance,
             "observations": [str(p) for p in observations],
             "signals": signals,
             "tiles": dict(sorted(tiles.items())),
@@ -404,9 +405,9 @@ def check_partition(
     position_error: PositionError,
     receiver_heights: ReceiverHeights | None = None,
 ) -> None:
-    """Refuse a run whose elevation mask, position-error window or (if given) receiver
-    heights are not the partition's: they were applied when it was written; and tiles too
-    small for the run's rays (:func:`~gnss_citygml.tiling.grid.check_reach`)."""
+    """Refuse a run whose elevation mask, position-error groups (window or distance) or (if
+    given) receiver heights are not the partition's: they were applied when it was written;
+    and tiles too small for the run's rays (:func:`~gnss_citygml.tiling.grid.check_reach`)."""
     check_reach(index["tile_size"], rays.max_range)
     mask = index["rays"]
     if (mask["min_elevation"], mask["max_elevation"]) != (rays.min_elevation, rays.max_elevation):
@@ -421,12 +422,21 @@ def check_partition(
             f"{asdict(receiver_heights)}",
             fix="give the partition's --receiver-height and --antenna-height, or partition again",
         )
-    if index["position_window"] != position_error.window:
+    # (a partition written before the distance was asked for grouped a whole recording)
+    made = _grouping(index["position_window"], index.get("position_distance"))
+    if made != _grouping(position_error.window, position_error.distance):
         raise InputError(
-            f"the partition grouped position errors with window {index['position_window']}, "
-            f"not {position_error.window}",
-            fix="give the partition's --position-window, or partition again",
+            f"the partition grouped position errors by {made}, not by "
+            f"{_grouping(position_error.window, position_error.distance)}",
+            fix="give the partition's --position-window or --position-distance, or partition again",
         )
+
+
+def _grouping(window: float | None, distance: float | None) -> str:
+    """How a moving receiver's rows share position errors, in words."""
+    if window is not None:
+        return f"windows of {window:g} s"
+    return "whole recordings" if distance is None else f"stretches of {distance:g} m"
 
 
 def tile_files(folder: StrPath, index: dict[str, Any]) -> dict[str, list[Path]]:

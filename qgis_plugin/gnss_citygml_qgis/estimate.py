@@ -98,11 +98,13 @@ class EstimateAlgorithm(Algorithm):
             CN0S,
             HEIGHT_RULES,
             MAX_RANGES,
+            POSITION_DISTANCES,
             POSITION_SDS,
             RECEIVER_HEIGHTS,
             SIGNAL_MODELS,
             WINDOWS,
             Estimator,
+            PositionError,
             Rays,
             ReceiverHeights,
         )
@@ -214,10 +216,22 @@ class EstimateAlgorithm(Algorithm):
                 )
             )
         )
+        self.addParameter(
+            advanced(
+                QgsProcessingParameterNumber(
+                    "POSITION_DISTANCE",
+                    "Position error of a moving receiver lasts for (m)",
+                    double,
+                    defaultValue=PositionError.distance,
+                    minValue=POSITION_DISTANCES[0],
+                    maxValue=POSITION_DISTANCES[1],
+                )
+            )
+        )
         for name, description, (low, high) in (
             (
                 "POSITION_WINDOW",
-                "Position error of a moving receiver lasts (s; default: all)",
+                "Instead: position error of a moving receiver lasts (s)",
                 WINDOWS,
             ),
             (
@@ -286,6 +300,7 @@ class EstimateAlgorithm(Algorithm):
             "position_error": {
                 "sd": optional(parameters, "POSITION_SD", context),
                 "window": optional(parameters, "POSITION_WINDOW", context),
+                "distance": number(parameters, "POSITION_DISTANCE", context),
             },
             "calibration": {
                 "prior_sd": optional(parameters, "CALIBRATION_SD", context),

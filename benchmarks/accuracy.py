@@ -73,15 +73,21 @@ POSITION_ERRORS = ("data", "exact", "fixed")
 POSITION_SD = {"manual": 1.0, "gnss": 5.0}
 
 
-def position_error(kind: str, locations: str, window: float | None = None) -> PositionError:
+def position_error(
+    kind: str, locations: str, window: float | None = None, distance: float | None = ...
+) -> PositionError:
     """The :class:`~gnss_citygml.settings.PositionError` of ``kind`` (one of
-    :data:`POSITION_ERRORS`) for positions of ``locations``."""
+    :data:`POSITION_ERRORS`) for positions of ``locations``, its moving receivers' errors
+    lasting ``window`` seconds or ``distance`` metres (default: the API's; None: a whole
+    recording)."""
     if kind not in POSITION_ERRORS:
         raise ValueError(
             f"position errors must be one of {', '.join(POSITION_ERRORS)}, not {kind!r}"
         )
     sd = {"data": None, "exact": 0.0, "fixed": POSITION_SD[locations]}[kind]
-    return PositionError(sd=sd, window=window)
+    if distance is ...:
+        return PositionError(sd=sd, window=window)
+    return PositionError(sd=sd, window=window, distance=distance)
 
 
 def run_accuracy(

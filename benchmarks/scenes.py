@@ -39,6 +39,7 @@ on the uncalibrated positions).
 
     python benchmarks/scenes.py [--scenes 8] [--physics | --regimes]
                                 [--position-errors data|exact|fixed] [--position-window 30]
+                                [--position-distance 50|recording]
                                 [--weighting looks] [--labels cn0|los] [--reference los]
                                 [--positions reported|common|true]
                                 [--calibrate [--calibration-window 30]] [--phones each]
@@ -178,10 +179,17 @@ def _parser() -> argparse.ArgumentParser:
         "none (exact, as the paper) or fixed sizes (manual 1 m, phone fixes 5 m per axis)",
     )
     parser.add_argument(
+        "--position-distance",
+        type=lambda v: None if v == "recording" else float(v),
+        default=...,
+        help="metres a moving receiver goes with one position error (default: the API's 50); "
+        "'recording': one per recording (before issue 28)",
+    )
+    parser.add_argument(
         "--position-window",
         type=float,
         default=None,
-        help="seconds one position error of a moving receiver lasts (default: its recording)",
+        help="instead of the distance: seconds one position error of a moving receiver lasts",
     )
     parser.add_argument(
         "--physics", action="store_true", help="draw each scene's physics too (PHYSICS)"
@@ -279,7 +287,9 @@ def main():
             layout += "; each session its own phone"
         for locations in LOCATIONS:
             sim = simulate(scene, locations=locations, seed=k, start=start, physics=physics)
-            error = position_error(args.position_errors, locations, args.position_window)
+            error = position_error(
+                args.position_errors, locations, args.position_window, args.position_distance
+            )
             rays, _, cast = site_tables(sim, positions=args.positions, position_error=error)
             sky = None if args.no_open_sky else open_sky(rays, cast)
             recast = None

@@ -114,11 +114,9 @@ MAX_RANGES = (0.0, 10_000.0)
 CN0S = (0.0, 100.0)
 #: a position error or a calibration prior (m per axis), as the observations' position_sd;
 POSITION_SDS = (0.0, 1000.0)
-#: a position error's or calibration offset's window (s, above 0): at most a day, as longer
-#: windows are a whole recording (leave the window out);
-WINDOWS = (0.0, 86_400.0)
-#: how far a moving receiver goes with one position error (m, above 0): up to 100 km;
-POSITION_DISTANCES = (0.0, 100_000.0)
+#: a position error's or calibration offset's window (s, above 0): at most a day; its distance
+#: (m, above 0): at most 100 km (longer: a whole recording, leave them out);
+WINDOWS, POSITION_DISTANCES = (0.0, 86_400.0), (0.0, 100_000.0)
 #: a converged estimate's widest height range (m, above 0);
 UNCERTAINTIES = (0.0, 1000.0)
 #: 4PL-B's iterations and the calibration's rounds: each is a full fit of every building.
@@ -320,13 +318,10 @@ class Estimator:
         of being open from C/N0 densities of open and closed signals by elevation, learnt with
         the buildings' 4PLs by expectation-maximisation.
     level_phones
-        Put every phone's C/N0 on one level before the signals are classified (default): each
-        phone's (each ``receiver``'s) offset is learnt from its open sky, the signals whose
-        rays cross no footprint (:mod:`gnss_citygml.model.offsets`). Phones differ by a few
-        dB-Hz (antenna, front end, a body or a pocket), which one threshold or one mixture
-        would read as blocking. 4PL-B only (the other methods are run as published); needs the
-        open sky (a run from observations: ``estimate``, ``update``). ``False``: the C/N0 as
-        recorded, as in the paper.
+        Put every phone's (``receiver``'s) C/N0 on one level, learnt from its signals whose rays
+        cross no footprint, before the signals are classified (:mod:`gnss_citygml.model.offsets`):
+        phones differ by a few dB-Hz, which one threshold would read as blocking. 4PL-B only,
+        with an open sky (``estimate``, ``update``); ``False``: as recorded, as in the paper.
     acceptance
         What an estimate must satisfy to count as converged.
 
@@ -422,12 +417,9 @@ class PositionError:
         modelled). ``None`` (default): from the data.
     distance
         How far (m) a moving receiver (a phone's fixes, a walker's traced path) goes with one
-        error: its rows share an error until its reported position is this far from where the
-        error began (:data:`DEFAULT_POSITION_DISTANCE`: the street around a phone biases its
-        fixes, by the reflections it receives, for as long as it is there, and the next
-        stretch of street has its own). ``None``: its whole recording. A receiver standing at
-        one reported point (a point placed by hand) shares one error over its stay either way,
-        and so does a phone lying still, whose fixes wander less than this
+        error: until its reported position is this far from where the error began
+        (:data:`DEFAULT_POSITION_DISTANCE`). ``None``: its whole recording. A receiver standing
+        at one point, or a phone lying still, keeps one error
         (:func:`~gnss_citygml.recordings.position_groups`).
     window
         Instead of ``distance``: how long (s) one error of a moving receiver lasts, its rows

@@ -28,7 +28,7 @@ __all__ = [
     "estimate_heights",
     "fourplb",
     "intersections_part",
-    "level_phones",
+    "phone_offsets",
     "open_sky_moments",
     "signal_model",
 ]
@@ -118,9 +118,11 @@ def estimate_heights(
     0  a      False  fewer than 10 signals
     """
     method = estimator.method
-    intersections, open_sky = level_phones(_as_table(intersections), open_sky, estimator)
     if estimator.fourpl:
-        ids, part = intersections_part(intersections, estimator)
+        ids, part = intersections_part(intersections, estimator, phones=estimator.levels_phones)
+        offsets = phone_offsets(open_sky, estimator)
+        if offsets is not None and open_sky is not None and part.phone is not None:
+            part, open_sky = part.levelled(offsets), levelled(open_sky, offsets)
         moments = open_sky_moments(open_sky, estimator)
         (fits,), classifier = run_parts([part], [[0]], estimator, open_sky=moments)
         columns = fits.columns()
@@ -150,19 +152,16 @@ def estimate_heights(
     return out
 
 
-def level_phones(
-    intersections: pd.DataFrame, open_sky: pd.DataFrame | None, estimator: Estimator
-) -> tuple[pd.DataFrame, pd.DataFrame | None]:
-    """The intersections and the open sky with each phone's C/N0 levelled by its open sky
-    (:mod:`.offsets`), as ``estimator.level_phones`` asks; as they are without an open sky, or
-    without each signal's ``receiver`` and ``elevation``."""
-    columns = {"receiver", "elevation"}
+def phone_offsets(open_sky: pd.DataFrame | None, estimator: Estimator) -> pd.Series | None:
+    """Each phone's C/N0 offset learnt from ``open_sky`` (:mod:`.offsets`), as
+    ``estimator.level_phones`` asks (None: not asked, no open sky, or one without each
+    signal's ``receiver`` and ``elevation``). The rows are levelled by the run's parts
+    (:meth:`~.parts.Part.levelled`), in one process as in tiles."""
     if not estimator.levels_phones or open_sky is None:
-        return intersections, open_sky
-    if not (columns <= set(intersections.columns) and columns <= set(open_sky.columns)):
-        return intersections, open_sky
-    offsets = sky_counts(open_sky).offsets()
-    return levelled(intersections, offsets), levelled(open_sky, offsets)
+        return None
+    if not {"receiver", "elevation"} <= set(open_sky.columns):
+        return None
+    return sky_counts(open_sky).offsets()
 
 
 def intersections_part(

@@ -30,27 +30,19 @@ with SQL on the layer's own table, by building id.
 from __future__ import annotations
 
 import contextlib
-import datetime as dt
 import os
 import shutil
 import sqlite3
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
 
 from ..errors import InputError
-from ..files.geopackage import (
-    check_geopackage,
-    check_no_triggers,
-    check_table_layer,
-    connect,
-    quoted,
-    refused,
-)
-from ..files.ids import id_text
+from ..files.geopackage import check_geopackage, check_no_triggers, check_table_layer, refused
 from ..files.paths import StrPath, atomic_path, check_not_input, input_file
 from ..settings import Estimator, Rays, ReceiverHeights
 from .evidence import (
@@ -66,35 +58,19 @@ from .evidence import (
     read_evidence,
     signal_keys,
 )
+from .layer import (
+    COLUMNS,
+    current_values,
+    key_column,
+    layer_name,
+    new_values,
+    write_columns,
+)
+
+if TYPE_CHECKING:
+    import geopandas as gpd
 
 __all__ = ["COLUMNS", "EVIDENCE", "UpdateResult", "update_map"]
-
-#: The columns written on the layer, with their GeoPackage types.
-COLUMNS = {
-    "height_gnss": "REAL",
-    "height_lower": "REAL",
-    "height_upper": "REAL",
-    "height_paper": "REAL",
-    "c_gnss": "REAL",
-    "n_signals": "INTEGER",
-    "converged": "BOOLEAN",
-    "method": "TEXT",
-    "status_gnss": "TEXT",
-    "updated_utc": "DATETIME",
-}
-
-#: The estimate's columns each of them is taken from.
-_FROM = {
-    "height_gnss": "height",
-    "height_lower": "height_lower",
-    "height_upper": "height_upper",
-    "height_paper": "height_paper",
-    "c_gnss": "c",
-    "n_signals": "n_signals",
-    "converged": "converged",
-    "method": "method",
-    "status_gnss": "status",
-}
 
 
 @dataclass
@@ -175,15 +151,111 @@ def update_map(
     ``report`` is a folder for the report of the fit over all the evidence
     (:mod:`gnss_citygml.report`; ``truth``, a simulator's truth table, adds the true heights).
     """
-    from ..files.ids import id_field as source_id_field
-    from ..jobs import read_buildings
-    from ..observations import read_observation_files
     from ..pipeline import fit_heights
-    from ..stages import in_mask, intersections, receivers
 
     say = progress or (lambda what, done: None)
     path = _check_map(path)
     check_no_triggers(path)
+    true = _check_request(path, observations, dem, truth, report, backup, min_signals, threshold)
+    say("reading", 0.0)
+    read_at = _stamp(path)
+    here = _read_layer(path, layer, id_field, dem, dem_crs, grid_dir)
+    name, buildings = here.name, here.buildings
+    # the phones' levels and the mixture learn from every signal cast (the open sky)
+    sky_needed = estimator.levels_phones or estimator.signal_model == "mixture"
+    before = read_evidence(path, name, with_signals=report is not None or sky_needed)
+    settings = cast_settings(rays, receiver_heights)
+    check_cast_with(path, before, settings)
+    check_receiver_heights(before.cast, dem, receiver_heights, dem_crs)
+    cast = _cast_new(
+        observations, before.cast, buildings, dem, rays, receiver_heights, grid_dir, dem_crs, say
+    )
+    evidence, gone = _evidence(path, before.intersections, buildings, cast.fresh)
+    say("fitting", 0.5)
+    everything = cast.signals.iloc[:0]  # every signal cast, where the sky or the report needs it
+    if sky_needed or report is not None:
+        everything = _every_signal(before.cast, cast.signals)
+    model, sky = _fit_input(evidence, buildings, everything if sky_needed else None)
+    estimate, classifier = fit_heights(model, buildings, estimator, open_sky=sky)
+    values, table = new_values(estimate, here.current, min_signals)
+    touched = frozenset(cast.fresh["building"].astype(str))
+    result = UpdateResult(cast.n_new, len(cast.fresh), table, threshold, touched)
+    result.notes += _notes(gone, before.outlines, here.outlines)
+    if report is not None:
+        say("report", 0.6)
+        _write_report(report, true, estimate, here, everything, model, evidence, classifier)
+    if dry_run or (cast.signals.empty and not table["changed"].any()):
+        if not dry_run:
+            result.notes.append("nothing changed: the map is untouched")
+        return result
+    say("writing", 0.75)
+    changed = values[table["changed"].to_numpy()]
+    result.backup = _write_map(path, read_at, here, cast, changed, settings, backup)
+    result.written = True
+    say("done", 1.0)
+    return result
+
+
+@dataclass(frozen=True)
+class _Layer:
+    """The footprint layer as read: its table's name (as the database names it: the evidence's
+    key), the buildings grounded on the DEM, the source's id field, a digest of the outlines,
+    the column of the table holding the ids with its values by id, and the estimate columns
+    now."""
+
+    name: str
+    buildings: gpd.GeoDataFrame
+    id_column: str
+    outlines: str
+    key: str
+    stored_ids: pd.Series
+    current: pd.DataFrame
+
+
+def _read_layer(path, layer, id_field, dem, dem_crs, grid_dir) -> _Layer:
+    """Read the map's footprint layer (:class:`_Layer`)."""
+    from ..files.ids import id_field as source_id_field
+    from ..jobs import read_buildings
+
+    name = layer_name(path, layer)
+    check_table_layer(path, name)
+    buildings = read_buildings(
+        path,
+        layer=None if layer is None else name,
+        id_field=id_field,
+        dem=dem,
+        dem_crs=dem_crs,
+        grid_dir=grid_dir,
+    )
+    id_column = source_id_field(buildings)
+    key, stored_ids = key_column(path, name, [id_column, id_field, "fid"], buildings["id"])
+    current = current_values(path, name, key, buildings["id"])  # (checks our columns' types)
+    return _Layer(name, buildings, id_column, _outlines(buildings), key, stored_ids, current)
+
+
+def _write_map(path, read_at, here: _Layer, cast: _Cast, changed, settings, backup) -> Path | None:
+    """Write the new evidence and the ``changed`` buildings' values through a copy of the map
+    renamed over it, with the map as it was kept beside it (``backup``: its path, else None)."""
+    if _stamp(path) != read_at:  # (from here on, atomic_path watches the file)
+        raise InputError(
+            "the map changed while this update ran (another update?)",
+            where=str(path),
+            fix="run again once the other program has finished with it",
+        )
+    with atomic_path(path, overwrite=True, update=True) as tmp, refused(path):
+        if len(cast.fresh):
+            append_evidence(tmp, here.name, INTERSECTIONS, cast.fresh, here.outlines, settings)
+        if len(cast.signals):
+            append_evidence(tmp, here.name, CAST, cast.signals, here.outlines, settings)
+        ids = changed["id"].map(here.stored_ids)
+        write_columns(tmp, here.name, here.key, changed.assign(id=ids))
+        return _backup(path) if backup else None
+
+
+def _check_request(path, observations, dem, truth, report, backup, min_signals, threshold):
+    """The request's own checks, before anything is read: outputs that would overwrite an
+    input, a truth table without a report, the counts and the threshold. Returns the truth
+    table, read (None without one)."""
     inputs = [path, *observations, dem, truth]
     if backup:  # (the map itself is written through a copy: a new layer's columns, not a file)
         check_not_input(_backup_path(path), inputs, what="backup")
@@ -196,10 +268,8 @@ def update_map(
     true = None
     if report is not None:
         from ..compare import check_truth
-        from ..files.ids import with_id_field
         from ..files.tables import read_table
-        from ..pipeline import Run
-        from ..report import check_report, write_report
+        from ..report import check_report
 
         check_report(report, overwrite=True, inputs=inputs)
         true = None if truth is None else check_truth(read_table(truth), str(truth))
@@ -210,122 +280,114 @@ def update_map(
             f"the change threshold must be a number of metres, 0 or more, not {threshold}",
             fix="give --threshold in metres, e.g. 0.5",
         )
-    say("reading", 0.0)
-    read_at = _stamp(path)
-    name = _layer_name(path, layer)  # (as the database names it: the evidence's key)
-    check_table_layer(path, name)
-    buildings = read_buildings(
-        path,
-        layer=None if layer is None else name,
-        id_field=id_field,
-        dem=dem,
-        dem_crs=dem_crs,
-        grid_dir=grid_dir,
-    )
-    id_column = source_id_field(buildings)
-    outlines = _outlines(buildings)
-    key, stored_ids = _key_column(path, name, [id_column, id_field, "fid"], buildings["id"])
-    current = _current_values(path, name, key, buildings["id"])  # (checks our columns' types)
-    # the phones' levels and the mixture learn from every signal cast (the open sky)
-    sky_needed = estimator.levels_phones or estimator.signal_model == "mixture"
-    before = read_evidence(path, name, with_signals=report is not None or sky_needed)
-    settings = cast_settings(rays, receiver_heights)
-    check_cast_with(path, before, settings)
-    check_receiver_heights(before.cast, dem, receiver_heights, dem_crs)
-    stored, cast_before = before.intersections, before.cast
-    gone = ~stored["building"].isin(buildings["id"].astype(str)).to_numpy()
-    stored = stored[~gone].reset_index(drop=True)  # footprints deleted since: their evidence
+    return true
+
+
+@dataclass(frozen=True)
+class _Cast:
+    """The observations not in the evidence yet, cast: how many, their intersections (the
+    evidence's columns) and their signals (:data:`~.evidence.SIGNAL_COLUMNS`)."""
+
+    n_new: int
+    fresh: pd.DataFrame
+    signals: pd.DataFrame
+
+
+def _cast_new(
+    observations, cast_before, buildings, dem, rays, receiver_heights, grid_dir, dem_crs, say
+) -> _Cast:
+    """Read the observation files and cast the signals the evidence has not seen yet."""
+    from ..observations import read_observation_files
+    from ..stages import in_mask, intersections, receivers
+
     obs = in_mask(read_observation_files(observations), rays)  # each signal once (it warns)
-    keys = signal_keys(obs)
-    unseen = ~keys.isin(cast_before["signal_key"]).to_numpy()
+    unseen = ~signal_keys(obs).isin(cast_before["signal_key"]).to_numpy()
     new = obs[unseen].reset_index(drop=True)
-    fresh, signals = stored.iloc[:0], pd.DataFrame(columns=SIGNAL_COLUMNS)
-    if len(new):
-        say("casting", 0.25)
-        rx = receivers(new, dem, heights=receiver_heights, grid_dir=grid_dir, dem_crs=dem_crs)
-        rx["signal_key"] = signal_keys(rx).to_numpy()
-        cast = intersections(rx, buildings, rays=rays)
-        fresh = cast.assign(
-            signal_key=rx["signal_key"].to_numpy()[cast["signal"].to_numpy()],
-            building=cast["building"].astype(str),
-            satellite=cast["satellite"].astype(str),
-            recording=cast["recording"].astype(str),
-        )[EVIDENCE_COLUMNS]
-        signals = rx.drop_duplicates("signal_key")[SIGNAL_COLUMNS]
-    evidence = pd.concat([stored, fresh], ignore_index=True)
+    if not len(new):
+        return _Cast(
+            0, pd.DataFrame(columns=EVIDENCE_COLUMNS), pd.DataFrame(columns=SIGNAL_COLUMNS)
+        )
+    say("casting", 0.25)
+    rx = receivers(new, dem, heights=receiver_heights, grid_dir=grid_dir, dem_crs=dem_crs)
+    rx["signal_key"] = signal_keys(rx).to_numpy()
+    cast = intersections(rx, buildings, rays=rays)
+    fresh = cast.assign(
+        signal_key=rx["signal_key"].to_numpy()[cast["signal"].to_numpy()],
+        building=cast["building"].astype(str),
+        satellite=cast["satellite"].astype(str),
+        recording=cast["recording"].astype(str),
+    )[EVIDENCE_COLUMNS]
+    return _Cast(len(new), fresh, rx.drop_duplicates("signal_key")[SIGNAL_COLUMNS])
+
+
+def _evidence(path, stored, buildings, fresh) -> tuple[pd.DataFrame, int]:
+    """All the evidence to fit: what is stored for the layer's footprints and what was cast
+    now; and how many stored rows were left out (footprints deleted since). None is an
+    error."""
+    gone = ~stored["building"].isin(buildings["id"].astype(str)).to_numpy()
+    stored = stored[~gone].reset_index(drop=True)
+    evidence = pd.concat([stored, fresh], ignore_index=True) if len(fresh) else stored
     if evidence.empty:
         raise InputError(
             "no evidence: no signal's ray enters a footprint of the map",
             where=str(path),
             fix="give observations made among the map's buildings",
         )
-    say("fitting", 0.5)
+    return evidence, int(gone.sum())
+
+
+def _every_signal(cast_before, signals) -> pd.DataFrame:
+    """Every signal cast, once each (a damaged store's repeats would break the lookups)."""
+    everything = pd.concat([cast_before, signals], ignore_index=True)
+    return everything.drop_duplicates("signal_key", ignore_index=True)
+
+
+def _fit_input(evidence, buildings, everything) -> tuple[pd.DataFrame, pd.DataFrame | None]:
+    """The evidence as the height fits take it (signals coded, buildings the layer's), and,
+    given ``everything`` (every signal cast), each row's elevation and the open sky: the
+    signals whose rays entered no footprint."""
     model = evidence.assign(
         signal=pd.factorize(evidence["signal_key"])[0],
         building=pd.Categorical(evidence["building"], categories=buildings["id"].astype(str)),
     ).drop(columns="signal_key")
-    # every signal cast, once each (a damaged store's repeats would break the lookups), where
-    # the open sky or the report needs them
-    everything = signals.iloc[:0]
-    if sky_needed or report is not None:
-        everything = pd.concat([cast_before, signals], ignore_index=True)
-        everything = everything.drop_duplicates("signal_key", ignore_index=True)
-    sky = None
-    if sky_needed:
-        signal_elevations = everything.set_index("signal_key")["elevation"]
-        model["elevation"] = signal_elevations.reindex(evidence["signal_key"]).to_numpy()
-        sky = everything[~everything["signal_key"].isin(evidence["signal_key"])]
-    estimate, classifier = fit_heights(model, buildings, estimator, open_sky=sky)
-    values, table = _new_values(estimate, current, min_signals)
-    result = UpdateResult(
-        len(new), len(fresh), table, threshold, frozenset(fresh["building"].astype(str))
-    )
-    if gone.any():
-        result.notes.append(
-            f"{int(gone.sum())} intersections with footprints no longer in the layer left out"
-        )
-    if before.outlines not in (None, outlines):
-        result.notes.append(
+    if everything is None:
+        return model, None
+    signal_elevations = everything.set_index("signal_key")["elevation"]
+    model["elevation"] = signal_elevations.reindex(evidence["signal_key"]).to_numpy()
+    return model, everything[~everything["signal_key"].isin(evidence["signal_key"])]
+
+
+def _notes(gone: int, outlines_before: str | None, outlines: str) -> list[str]:
+    """What the change report says of the evidence: some left out, outlines changed."""
+    notes = []
+    if gone:
+        notes.append(f"{gone} intersections with footprints no longer in the layer left out")
+    if outlines_before not in (None, outlines):
+        notes.append(
             "the footprints changed since the evidence was cast; signals cast before are "
             "not cast again against new or edited outlines (to cast everything again, delete "
             f"the table {EVIDENCE})"
         )
-    if report is not None:
-        say("report", 0.6)
-        run = Run(
-            heights=with_id_field(estimate, id_column),
-            receivers=everything.drop(columns="z"),
-            intersections=model.assign(
-                signal=pd.Index(everything["signal_key"]).get_indexer(evidence["signal_key"]),
-                building=evidence["building"].to_numpy(),
-            ),
-            buildings=buildings,
-            classifier=classifier,
-        )
-        write_report(run, report, truth=true)
-    if dry_run or (signals.empty and not table["changed"].any()):
-        if not dry_run:
-            result.notes.append("nothing changed: the map is untouched")
-        return result
-    say("writing", 0.75)
-    if _stamp(path) != read_at:  # (from here on, atomic_path watches the file)
-        raise InputError(
-            "the map changed while this update ran (another update?)",
-            where=str(path),
-            fix="run again once the other program has finished with it",
-        )
-    with atomic_path(path, overwrite=True, update=True) as tmp, refused(path):
-        if len(fresh):
-            append_evidence(tmp, name, INTERSECTIONS, fresh, outlines, settings)
-        if len(signals):
-            append_evidence(tmp, name, CAST, signals, outlines, settings)
-        changed = values[table["changed"].to_numpy()]
-        _write_columns(tmp, name, key, changed.assign(id=changed["id"].map(stored_ids)))
-        if backup:
-            result.backup = _backup(path)
-    result.written = True
-    say("done", 1.0)
-    return result
+    return notes
+
+
+def _write_report(report, true, estimate, here: _Layer, everything, model, evidence, classifier):
+    """The report of the fit over all the evidence (:mod:`gnss_citygml.report`)."""
+    from ..files.ids import with_id_field
+    from ..pipeline import Run
+    from ..report import write_report
+
+    run = Run(
+        heights=with_id_field(estimate, here.id_column),
+        receivers=everything.drop(columns="z"),
+        intersections=model.assign(
+            signal=pd.Index(everything["signal_key"]).get_indexer(evidence["signal_key"]),
+            building=evidence["building"].to_numpy(),
+        ),
+        buildings=here.buildings,
+        classifier=classifier,
+    )
+    write_report(run, report, truth=true)
 
 
 def _check_map(path: StrPath) -> Path:
@@ -385,154 +447,6 @@ def _stamp(path: Path) -> tuple[int, int, int]:
     """The file's inode, size and modification time: what changes when it is written."""
     info = path.stat()
     return info.st_ino, info.st_size, info.st_mtime_ns
-
-
-def _layer_name(path: Path, layer: str | None) -> str:
-    """The footprint layer's table: ``layer`` as the database names it (SQLite's names are
-    the same in any letter case: ``FOOTPRINTS`` is the table ``footprints``, and its evidence
-    is that table's), or the file's only polygon layer."""
-    import pyogrio
-
-    if layer is not None:
-        with contextlib.closing(sqlite3.connect(path)) as db:
-            row = db.execute(
-                "SELECT table_name FROM gpkg_contents WHERE table_name = ? COLLATE NOCASE "
-                "UNION ALL SELECT name FROM sqlite_master WHERE name = ? COLLATE NOCASE",
-                (layer, layer),
-            ).fetchone()
-        return layer if row is None else str(row[0])  # (none: read_footprints says so)
-    layers = pyogrio.list_layers(path)
-    spatial = [str(n) for n, kind in layers if kind is not None]
-    polygons = [n for n, kind in layers if kind and "Polygon" in str(kind)]
-    return str((polygons or spatial)[0])  # (read_footprints has refused a file with several)
-
-
-def _column_types(db: sqlite3.Connection, layer: str) -> dict[str, str]:
-    """The layer's columns (lower case, as SQLite compares them) and their types; a column of
-    ours that is there with another type is a one-line error."""
-    info = {row[1].lower(): row[2] for row in db.execute(f"PRAGMA table_info({quoted(layer)})")}
-    for column, kind in COLUMNS.items():
-        if column in info and info[column].upper() != kind:
-            raise InputError(
-                f"the layer has a column {column!r} of type {info[column]}, not {kind}",
-                where=f"layer {layer}",
-                fix=f"rename that column: the update writes its {column} there",
-            )
-    return info
-
-
-def _current_values(path: Path, layer: str, key: str, ids: pd.Series) -> pd.DataFrame:
-    """The layer's estimate columns now, by building id (NaN/None where absent)."""
-    with contextlib.closing(sqlite3.connect(path)) as db:
-        have = _column_types(db, layer)
-        present = [c for c in COLUMNS if c in have]
-        query = ", ".join(quoted(c) for c in [key, *present])
-        rows = db.execute(f"SELECT {query} FROM {quoted(layer)}").fetchall()
-    table = pd.DataFrame(rows, columns=["id", *present])
-    table["id"] = id_text(pd.Series(table["id"].tolist()))
-    return table.set_index("id").reindex(ids.astype(str), columns=list(COLUMNS))
-
-
-def _key_column(path: Path, layer: str, candidates: list, ids: pd.Series) -> tuple[str, pd.Series]:
-    """The column of the layer's table that holds the building ids: the first of
-    ``candidates`` (the id field, as read and as asked for; GDAL's ``fid``, the primary key)
-    whose values are the buildings' ids; and its values as stored, by id (the rows are
-    written by them: ``"001"`` is not ``1``). None is a one-line error, never a silent update
-    of nothing."""
-    with contextlib.closing(sqlite3.connect(path)) as db:
-        info = list(db.execute(f"PRAGMA table_info({quoted(layer)})"))
-        columns = {row[1].lower(): row[1] for row in info}
-        primary = next((row[1] for row in info if row[5]), None)
-        wanted = set(ids.astype(str))
-        for name in candidates:
-            column = columns.get(str(name).lower()) if name else None
-            if column is None and name == "fid":
-                column = primary
-            if column is None:
-                continue
-            values = [row[0] for row in db.execute(f"SELECT {quoted(column)} FROM {quoted(layer)}")]
-            texts = id_text(pd.Series(values))
-            if set(texts) == wanted and not texts.duplicated().any():
-                return column, pd.Series(values, index=texts.to_numpy(), dtype=object)
-    raise InputError(
-        "cannot find the column of the layer that holds the building ids",
-        where=f"{path.name}, layer {layer}",
-        fix="name it with --id-field",
-    )
-
-
-def _new_values(
-    estimate: pd.DataFrame, current: pd.DataFrame, min_signals: int
-) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """The values to write (every column of :data:`COLUMNS`, by id) and the per-building
-    table of :class:`UpdateResult`."""
-    ids = estimate["id"].astype(str).to_numpy()
-    new = pd.DataFrame({col: estimate[src].to_numpy() for col, src in _FROM.items()}, index=ids)
-    enough = new["n_signals"].to_numpy() >= min_signals
-    old = current.reindex(pd.Index(ids))
-    same = np.ones(len(ids), dtype=bool)
-    for column in _FROM:
-        same &= _equal(old[column].to_numpy(), new[column].to_numpy(), column)
-    changed = enough & ~same
-    now = dt.datetime.now(dt.UTC)
-    stamp = now.strftime("%Y-%m-%dT%H:%M:%S.") + f"{now.microsecond // 1000:03d}Z"  # GeoPackage
-    new["updated_utc"] = np.where(changed, stamp, old["updated_utc"].to_numpy(dtype=object))
-    skipped = np.where(enough, "", f"fewer than {min_signals} signals")
-    before = pd.to_numeric(old["height_gnss"], errors="coerce").to_numpy(float)
-    after = np.where(changed, new["height_gnss"].to_numpy(float), before)
-    table = pd.DataFrame(
-        {"id": ids, "before": before, "after": after, "changed": changed, "skipped": skipped}
-    )
-    return new.reset_index(names="id"), table
-
-
-def _equal(old: np.ndarray, new: np.ndarray, column: str) -> np.ndarray:
-    """Element-wise: the layer's value equals the new one (NaN/None equal to each other)."""
-    kind = COLUMNS[column]
-    if kind == "REAL":
-        a, b = pd.to_numeric(old, errors="coerce").astype(float), new.astype(float)
-        return (a == b) | (np.isnan(a) & np.isnan(b))
-    if kind in ("INTEGER", "BOOLEAN"):
-        a = pd.to_numeric(old, errors="coerce").astype(float)
-        return a == new.astype(float)
-    return np.array([o == n for o, n in zip(old, new, strict=True)])
-
-
-def _write_columns(path: Path, layer: str, key: str, values: pd.DataFrame) -> None:
-    """Add the missing columns to the layer's table and write ``values`` by building id."""
-    with contextlib.closing(connect(path)) as db, db:
-        info = _column_types(db, layer)
-        for column, kind in COLUMNS.items():
-            if column not in info:
-                db.execute(f"ALTER TABLE {quoted(layer)} ADD COLUMN {quoted(column)} {kind}")
-        columns = list(COLUMNS)
-        assignments = ", ".join(f"{quoted(c)} = ?" for c in columns)
-        rows = [
-            [_sql(row[c]) for c in columns] + [_sql(row["id"])] for row in values.to_dict("records")
-        ]
-        done = db.executemany(
-            f"UPDATE {quoted(layer)} SET {assignments} WHERE {quoted(key)} = ?", rows
-        ).rowcount
-        if done != len(rows):  # (the key column was checked: a bug if this happens)
-            raise InputError(
-                f"{len(rows)} buildings to update, {done} rows found by {key!r}",
-                where=f"layer {layer}",
-                fix="check that the ids are unique, or name the id column with --id-field",
-            )
-        db.execute(
-            "UPDATE gpkg_contents SET last_change = strftime('%Y-%m-%dT%H:%M:%fZ', 'now') "
-            "WHERE table_name = ?",
-            (layer,),
-        )
-
-
-def _sql(value):
-    """A value as SQLite takes it (numpy scalars, NaN -> NULL)."""
-    if value is None or (isinstance(value, float) and np.isnan(value)):
-        return None
-    if isinstance(value, np.generic):
-        return value.item()
-    return value
 
 
 def _backup_path(path: Path) -> Path:

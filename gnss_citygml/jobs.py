@@ -21,6 +21,7 @@ from .settings import Calibration, Estimator, PositionError, Rays, ReceiverHeigh
 
 if TYPE_CHECKING:
     import geopandas as gpd
+    import pandas as pd
 
     from .export import ExportResult
 
@@ -80,58 +81,17 @@ def estimate_file(
     without a suffix is a folder that each tile's worker writes its heights into
     (:func:`~gnss_citygml.pipeline.write_tiles`): the heights are not gathered, and the tile
     index is returned in their place."""
-    from .compare import check_truth
-    from .files.paths import check_not_input
-    from .files.styles import heights_qml
-    from .files.tables import check_layer_output, read_table, write_layer
     from .footprints import read_footprints
     from .observations import read_observations
     from .pipeline import STAGES, run, run_partitioned, write_tiles
-    from .report import check_report, write_report
-    from .tiling.grid import check_reach
-    from .tiling.output import check_tile_folder
-    from .tiling.partition import partition_run
 
-    if output is None and report is None:
-        raise InputError("nothing to write", fix="give an output file or a report folder")
-    if truth is not None and report is None:
-        raise InputError(
-            "a truth table is for the report, and no report was asked for",
-            where=str(truth),
-            fix="give a report folder too (--report DIR), or leave the truth out",
-        )
     calibration.check_method(estimator)  # as the pipeline does, but before any file is read
     tiling.check(estimator, calibration)
-    if tiling.on and report is not None:
-        raise InputError(
-            "the report needs every intersection on one machine, and a run on a Dask "
-            "scheduler does not gather them",
-            fix="leave out --report, or --scheduler",
-        )
-    partitioned = Path(observations).is_dir()
-    if partitioned:
-        partition_run(observations, tiling)
-    elif tiling.on:
-        check_reach(tiling.side, rays.max_range)  # (before a cluster starts)
-    inputs = [observations, footprints, dem, truth]  # never written over (nor into)
-    folder = output if output is not None and is_tile_folder(output) else None
-    if folder is not None:
-        check_not_input(check_tile_folder(folder, tiling, overwrite=overwrite), inputs)
-    elif output is not None:
-        check_layer_output(output, "heights", overwrite=overwrite, inputs=inputs, read_layer=layer)
-    if report is not None:
-        check_report(report, overwrite=overwrite, inputs=inputs)
-    true = None if truth is None else check_truth(read_table(truth), str(truth))
+    partitioned, folder, true = _check_estimate(
+        observations, footprints, dem, output, report, truth, layer, rays, tiling, overwrite
+    )
     steps = [*STAGES, "report"] if report is not None else list(STAGES)
-    stages = iter(range(len(steps)))
-    done = 0.0
-
-    def stage(name: str) -> None:
-        nonlocal done
-        if name in steps:  # a stage starts; anything else is news within it (a tile run's)
-            done = next(stages) / len(steps)
-        progress(name, done)
-
+    stage = _stage_progress(steps, progress)
     settings: dict[str, Any] = {
         "rays": rays,
         "receiver_heights": receiver_heights,
@@ -156,13 +116,83 @@ def estimate_file(
     else:
         result = run(obs, fp, dem, calibration=calibration, grid_dir=grid_dir, **settings)
         heights = result.heights
+    _write_outputs(heights, result, output, report, true, overwrite, stage)
+    progress("done", 1.0)
+    return heights
+
+
+def _write_outputs(heights, result, output, report, true, overwrite, stage) -> None:
+    """The heights layer into ``output`` and, from a single run's ``result``, the report."""
+    from .files.styles import heights_qml
+    from .files.tables import write_layer
+    from .report import write_report
+
     if output is not None:
         write_layer(heights, output, "heights", overwrite=overwrite, style=heights_qml())
     if result is not None and report is not None:
         stage("report")
         write_report(result, report, truth=true, overwrite=overwrite)
-    progress("done", 1.0)
-    return heights
+
+
+def _check_estimate(
+    observations, footprints, dem, output, report, truth, layer, rays, tiling, overwrite
+) -> tuple[bool, StrPath | None, pd.DataFrame | None]:
+    """:func:`estimate_file`'s checks of its files, before any work: the outputs never over an
+    input, a report only where the intersections are gathered. Returns whether
+    ``observations`` is a partition folder, the tile folder to write into (None: one file),
+    and the truth table, read (None without one)."""
+    from .compare import check_truth
+    from .files.paths import check_not_input
+    from .files.tables import check_layer_output, read_table
+    from .report import check_report
+    from .tiling.grid import check_reach
+    from .tiling.output import check_tile_folder
+    from .tiling.partition import partition_run
+
+    if output is None and report is None:
+        raise InputError("nothing to write", fix="give an output file or a report folder")
+    if truth is not None and report is None:
+        raise InputError(
+            "a truth table is for the report, and no report was asked for",
+            where=str(truth),
+            fix="give a report folder too (--report DIR), or leave the truth out",
+        )
+    if tiling.on and report is not None:
+        raise InputError(
+            "the report needs every intersection on one machine, and a run on a Dask "
+            "scheduler does not gather them",
+            fix="leave out --report, or --scheduler",
+        )
+    partitioned = Path(observations).is_dir()
+    if partitioned:
+        partition_run(observations, tiling)
+    elif tiling.on:
+        check_reach(tiling.side, rays.max_range)  # (before a cluster starts)
+    inputs = [observations, footprints, dem, truth]  # never written over (nor into)
+    folder = output if output is not None and is_tile_folder(output) else None
+    if folder is not None:
+        check_not_input(check_tile_folder(folder, tiling, overwrite=overwrite), inputs)
+    elif output is not None:
+        check_layer_output(output, "heights", overwrite=overwrite, inputs=inputs, read_layer=layer)
+    if report is not None:
+        check_report(report, overwrite=overwrite, inputs=inputs)
+    true = None if truth is None else check_truth(read_table(truth), str(truth))
+    return partitioned, folder, true
+
+
+def _stage_progress(steps: list[str], progress: Progress) -> Callable[[str], None]:
+    """The pipeline's progress callback: each of ``steps`` that starts moves the share done
+    on; anything else is news within the current one (a tile run's)."""
+    stages = iter(range(len(steps)))
+    done = 0.0
+
+    def stage(name: str) -> None:
+        nonlocal done
+        if name in steps:
+            done = next(stages) / len(steps)
+        progress(name, done)
+
+    return stage
 
 
 def is_tile_folder(output: StrPath) -> bool:

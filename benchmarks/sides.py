@@ -9,6 +9,12 @@ out and leaves both rows alike.
 
     python benchmarks/scenes.py --regimes --scenes 30 --phones each --save runs.csv
     python benchmarks/sides.py runs.csv
+
+With ``--fixes N`` it prints the phone fixes' own errors in the first N scenes of each street
+regime instead (``scenes.py --regimes --phones each``'s, by the simulator's truth): across the
+street (north) and along it (east), their mean, and what the phones claim.
+
+    python benchmarks/sides.py --fixes 10
 """
 
 from __future__ import annotations
@@ -38,10 +44,66 @@ def side_table(runs: pd.DataFrame) -> pd.DataFrame:
     )
 
 
+def fix_errors(regime: str, n_scenes: int) -> dict[str, float]:
+    """The phone fixes' errors (m) in the first ``n_scenes`` scenes of ``regime``, each fix
+    once: RMS across (north) and along (east) the street, the mean across (positive: towards
+    the north row), the share of scenes and of recordings whose mean is north, and the mean
+    claimed error (``position_sd``, per axis)."""
+    from scenes import phones, random_physics, regime_scene
+
+    from gnss_citygml.simulate import simulate
+
+    rows = []
+    for k in range(n_scenes):
+        scene, start, _ = regime_scene(k, regime)
+        physics = phones(k, random_physics(k), len(scene.sessions))
+        sim = simulate(scene, locations="gnss", seed=k, start=start, physics=physics)
+        fixes = sim.observations.drop_duplicates(["receiver", "time_utc"])
+        north = fixes["n"] - fixes["n_true"]
+        east = (fixes["e"] - fixes["e_true"]).to_numpy()
+        by_recording = north.groupby(fixes["receiver"]).mean()
+        rows.append(
+            [
+                np.sqrt(np.mean(north**2)),
+                np.sqrt(np.mean(east**2)),
+                north.mean(),
+                (by_recording > 0).mean(),
+                fixes["position_sd"].mean(),
+            ]
+        )
+    r = np.array(rows)
+    return {
+        "rms_across": r[:, 0].mean(),
+        "rms_along": r[:, 1].mean(),
+        "mean_across": r[:, 2].mean(),
+        "scenes_north": (r[:, 2] > 0).mean(),
+        "recordings_north": r[:, 3].mean(),
+        "claimed": r[:, 4].mean(),
+    }
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("runs", help="a CSV written by scenes.py --save")
-    table = side_table(pd.read_csv(parser.parse_args().runs))
+    parser.add_argument("runs", nargs="?", help="a CSV written by scenes.py --save")
+    parser.add_argument("--fixes", type=int, help="the fixes' own errors in this many scenes")
+    args = parser.parse_args()
+    if args.fixes:
+        print(
+            "| regime | RMS across | RMS along | claimed | mean across | scenes north | "
+            "recordings north |"
+        )
+        print("|---" * 7 + "|")
+        for regime in ("street", "narrow street", "square"):
+            f = fix_errors(regime, args.fixes)
+            print(
+                f"| {regime} | {f['rms_across']:.2f} m | {f['rms_along']:.2f} m | "
+                f"{f['claimed']:.2f} m | {f['mean_across']:+.2f} m | {f['scenes_north']:.0%} | "
+                f"{f['recordings_north']:.0%} |"
+            )
+        return
+    if not args.runs:
+        parser.error("give a CSV written by scenes.py --save, or --fixes N")
+    table = side_table(pd.read_csv(args.runs))
     print(
         "| regime, locations | row | runs | mean error | median error | RMSE to span | "
         "range meets span | mean error of the ranges missing it |"

@@ -155,6 +155,16 @@ def split_lines(text: str, path: Path, lenient: bool) -> _Lines:
             fix="give a log written by Android GnssLogger, with its header",
         )
     version = _check_version(version, path, version_line, lenient)
+    cut, cut_raw = _drop_miscounted(records, headers, open_last, cut, cut_raw, bad, garbled)
+    return _Lines(
+        version, headers, records, bad, garbled, cut, cut_raw, open_last, last_record, lines
+    )
+
+
+def _drop_miscounted(records, headers, open_last, cut, cut_raw, bad, garbled):
+    """Leave out of ``records`` (in place) the rows whose field count is not their header's,
+    each one added to ``bad`` (and a Raw one to ``garbled``), except a short last line without
+    line end: that is ``cut``. Returns ``cut`` and whether it is a Raw row."""
     for kind, (numbers, texts) in records.items():
         if kind not in headers or not numbers:
             continue
@@ -183,9 +193,7 @@ def split_lines(text: str, path: Path, lenient: bool) -> _Lines:
             [n for n, k in zip(numbers, keep, strict=True) if k],
             [t for t, k in zip(texts, keep, strict=True) if k],
         )
-    return _Lines(
-        version, headers, records, bad, garbled, cut, cut_raw, open_last, last_record, lines
-    )
+    return cut, cut_raw
 
 
 def _check_version(text: str, path: Path, line: int | None, lenient: bool) -> str:

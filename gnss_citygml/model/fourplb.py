@@ -266,6 +266,23 @@ def _far_from(h, g, c, reach, n_groups, min_signals):
     return np.bincount(g, near, n_groups) < min_signals
 
 
+def _hidden(h, g, c, seen, n_groups) -> np.ndarray:
+    """Per building: whether fewer than :data:`MIN_VISIBLE` of the signals crossing it below
+    its roof line ``c`` are ``seen`` (not blocked by other buildings)."""
+    below = h < c[g]
+    return np.bincount(g, below & seen, n_groups) < MIN_VISIBLE * np.bincount(g, below, n_groups)
+
+
+def _height_range(b, c, offset, c_lo, c_hi, margin) -> tuple[np.ndarray, np.ndarray]:
+    """The range of a height ``c + offset``: the 3/b-wide transition centred on it, widened at
+    each end by that side of the interval ``(c_lo, c_hi)`` of ``c`` and the ``margin`` in
+    quadrature (the data's uncertainty of c and the receivers' shared position errors are
+    independent; the transition, the roof line's own blur, adds to both)."""
+    lower = c + offset - 1.5 / b - np.hypot(c - c_lo, margin)
+    upper = c + offset + 1.5 / b + np.hypot(c_hi - c, margin)
+    return lower, upper
+
+
 def _judge(
     fit,
     g,
@@ -287,13 +304,9 @@ def _judge(
     The height is ``c`` (``c + 1.5/b`` by the ``paper_rule``), its range the 3/b-wide
     transition centred on it, widened at each end by that side of the interval of ``c`` and
     the ``margin`` in quadrature."""
-    below_all = h < fit.c[g]
-    hidden = np.bincount(g, below_all & seen, n_groups) < MIN_VISIBLE * np.bincount(
-        g, below_all, n_groups
-    )
+    hidden = _hidden(h, g, fit.c, seen, n_groups)
     g, h, labels = g[seen], h[seen], labels[seen]
-    label_tol, min_signals = accept.label_tol, accept.min_signals
-    min_separation, max_uncertainty = accept.min_separation, accept.max_uncertainty
+    min_signals, max_uncertainty = accept.min_signals, accept.max_uncertainty
     a, b, c, d = (v.copy() for v in (fit.a, fit.b, fit.c, fit.d))
     n_rows = np.bincount(g, minlength=n_groups)
     usable = n_rows >= min_signals
@@ -302,18 +315,15 @@ def _judge(
     n_below = np.bincount(g, h < c[g], minlength=n_groups)
     c_lo, c_hi = (c, c) if c_range is None else c_range  # c_interval's ends hold c
     offset = 1.5 / b if paper_rule else 0.0
-    # the data's uncertainty of c and the receivers' shared position errors are independent:
-    # they add in quadrature; the transition, the roof line's own blur, adds to both
-    lower = c + offset - 1.5 / b - np.hypot(c - c_lo, margin)
-    upper = c + offset + 1.5 / b + np.hypot(c_hi - c, margin)
+    lower, upper = _height_range(b, c, offset, c_lo, c_hi, margin)
     wide = upper - lower > max_uncertainty
     status = np.full(n_groups, "ok", dtype=object)
     wide_text = f"height range wider than {max_uncertainty:g} m"
     plausibility = [
-        (change >= label_tol, f"labels still changing after {iterations} iterations"),
+        (change >= accept.label_tol, f"labels still changing after {iterations} iterations"),
         (b <= B_BOUNDS[0] * 1.0001, "no slope: the height does not change the open probability"),
         ((c < lo) | (c > hi), "inflection point outside the observed intersection heights"),
-        (a - d < min_separation, f"asymptotes closer than {min_separation} (a - d)"),
+        (a - d < accept.min_separation, f"asymptotes closer than {accept.min_separation} (a - d)"),
         # Relabelling by h > c presumes the map classifies below c as closed and above as open.
         ((d >= 0.5) | (a <= 0.5), "the roof line does not separate open from closed signals"),
         (wide, wide_text),

@@ -114,37 +114,13 @@ def calibrate_receivers(
     best = None
     for _ in range(calibration.rounds):
         cast = origins.cast(offsets[unit])
-        fits, classifier = fourplb(
-            cast.building,
-            cast.height,
-            cast.cn0,
-            origins.n_buildings,
-            estimator,
-            signal=cast.ray,
-            order=cast.order,
-            elevation=origins.elevation[cast.ray],
-            open_sky=origins.open_sky(cast, estimator),
-        )
+        fits, classifier = _heights(origins, cast, estimator)
         n_ok = int(fits.converged.sum())
         if best is not None and n_ok < best[0]:
             offsets = best[1]  # the fits fell apart: keep the last offsets that held them
             break
         best = (n_ok, offsets)
-        use = _usable(cast, fits)
-        labels = classifier.label(cast.cn0[use], elevation_units(origins.elevation[cast.ray[use]]))
-        slope = cast.height_gradient[use]
-        params = np.column_stack([fits.a, fits.b, fits.c, fits.d])[cast.building[use]]
-        step = _best_offsets(
-            cast.height[use],
-            slope,
-            labels,
-            params,
-            unit[cast.ray[use]],
-            n_units,
-            offsets,
-            sd,
-            temper,
-        )
+        step = _offset_step(origins, cast, fits, classifier, unit, n_units, offsets, sd, temper)
         offsets = offsets + step
         if np.max(np.abs(step), initial=0.0) < 0.01 * sd:
             break
@@ -153,6 +129,33 @@ def calibrate_receivers(
     out["e"] = out["e"] + out["offset_e"]
     out["n"] = out["n"] + out["offset_n"]
     return out
+
+
+def _heights(origins, cast, estimator):
+    """4PL-B on the intersections cast from the current positions: the fits and classifier."""
+    return fourplb(
+        cast.building,
+        cast.height,
+        cast.cn0,
+        origins.n_buildings,
+        estimator,
+        signal=cast.ray,
+        order=cast.order,
+        elevation=origins.elevation[cast.ray],
+        open_sky=origins.open_sky(cast, estimator),
+    )
+
+
+def _offset_step(origins, cast, fits, classifier, unit, n_units, offsets, sd, temper):
+    """Each recording's (or window's) step of offset given the heights: the usable rows'
+    labels under the classifier and their buildings' fitted 4PLs (:func:`_best_offsets`)."""
+    use = _usable(cast, fits)
+    labels = classifier.label(cast.cn0[use], elevation_units(origins.elevation[cast.ray[use]]))
+    slope = cast.height_gradient[use]
+    params = np.column_stack([fits.a, fits.b, fits.c, fits.d])[cast.building[use]]
+    return _best_offsets(
+        cast.height[use], slope, labels, params, unit[cast.ray[use]], n_units, offsets, sd, temper
+    )
 
 
 class _Cast:

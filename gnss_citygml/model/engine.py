@@ -96,34 +96,7 @@ def run_parts(
         ]
         if not bootstrap:
             break
-        shared = [
-            engine.submit(_shared, p, key=f"share-{iterations}-{name}")
-            for p, name in zip(parts, names, strict=True)
-        ]
-        steps = [
-            engine.submit(
-                _exchanged, p, *(shared[j] for j in near), key=f"exchange-{iterations}-{name}"
-            )
-            for p, near, name in zip(parts, neighbours, names, strict=True)
-        ]
-        parts = [
-            engine.submit(_first, step, key=f"part-{iterations}-{name}")
-            for step, name in zip(steps, names, strict=True)
-        ]
-        tallies = [
-            engine.submit(_second, step, key=f"tally-{iterations}-{name}")
-            for step, name in zip(steps, names, strict=True)
-        ]
-        level = 0
-        while len(tallies) > 1:
-            level += 1
-            tallies = [
-                engine.submit(
-                    _total, *tallies[k : k + _FAN_IN], key=f"sum-{iterations}-{level}-{k}"
-                )
-                for k in range(0, len(tallies), _FAN_IN)
-            ]
-        tally = engine.gather(tallies[0])
+        parts, tally = _exchange(engine, parts, neighbours, names, iterations)
         if open_sky is not None and isinstance(tally.evidence, Cn0Moments):
             tally = replace(tally, evidence=tally.evidence + open_sky)
         before, model = model, tally.refit(model)
@@ -138,6 +111,37 @@ def run_parts(
         for p, name in zip(parts, names, strict=True)
     ]
     return done, model
+
+
+def _exchange(engine, parts, neighbours, names, iterations) -> tuple[list[Any], Tally]:
+    """One iteration's exchange and reduce: each part takes its neighbours' fits (the parts
+    it returns) and counts its signals; the counts are summed in a tree of :data:`_FAN_IN`."""
+    shared = [
+        engine.submit(_shared, p, key=f"share-{iterations}-{name}")
+        for p, name in zip(parts, names, strict=True)
+    ]
+    steps = [
+        engine.submit(
+            _exchanged, p, *(shared[j] for j in near), key=f"exchange-{iterations}-{name}"
+        )
+        for p, near, name in zip(parts, neighbours, names, strict=True)
+    ]
+    parts = [
+        engine.submit(_first, step, key=f"part-{iterations}-{name}")
+        for step, name in zip(steps, names, strict=True)
+    ]
+    tallies = [
+        engine.submit(_second, step, key=f"tally-{iterations}-{name}")
+        for step, name in zip(steps, names, strict=True)
+    ]
+    level = 0
+    while len(tallies) > 1:
+        level += 1
+        tallies = [
+            engine.submit(_total, *tallies[k : k + _FAN_IN], key=f"sum-{iterations}-{level}-{k}")
+            for k in range(0, len(tallies), _FAN_IN)
+        ]
+    return parts, engine.gather(tallies[0])
 
 
 # The steps as functions of the part, for engines (a Part or a FailedTile alike).

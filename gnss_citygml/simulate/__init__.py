@@ -264,10 +264,47 @@ class _Site:
     physics: tuple[SignalModel, ...]  # each session's
 
 
+def _line_of_sight(site: _Site, xt, yt, zt, s_az, s_el) -> tuple[np.ndarray, np.ndarray]:
+    """Each signal's true line of sight against the true roofs: blocked or not, and the
+    diffraction loss (dB) of its direct path over the roof edges it passes."""
+    ray, part, dist, _ = footprint_entries(xt, yt, s_az, site.parts)
+    clearance = site.tops[part] - (zt + dist * np.tan(np.radians(s_el[ray])))
+    blocked = np.zeros(s_az.size, dtype=bool)
+    blocked[ray[clearance > 0]] = True
+    loss = np.zeros(s_az.size)
+    np.maximum.at(loss, ray, diffraction_loss(clearance, dist, s_el[ray]))
+    return blocked, loss
+
+
+def _position_errors(
+    rng, m, session, locations, interval, az, el, visible, signals, received, nlos, cn0
+) -> tuple[np.ndarray, np.ndarray]:
+    """The errors (east, north; m) of the positions the user has, epoch by epoch, and the
+    error they are reported with (none for points placed by hand: the user does not know it,
+    and the estimator's default applies). ``signals``: each signal's epoch and satellite."""
+    n_ep = az.shape[0]
+    reported_sd = np.full(n_ep, np.nan)
+    if locations == "manual":
+        if session.walking:
+            return ar1(rng, n_ep, interval, 30.0, m.manual_sd, (2,)), reported_sd
+        return np.tile(rng.normal(0.0, m.manual_sd, 2), (n_ep, 1)), reported_sd
+    rec, nl, c = np.zeros(az.shape, bool), np.zeros(az.shape, bool), np.full(az.shape, np.nan)
+    rec[signals], nl[signals], c[signals] = received, nlos, cn0
+    de, dn, reported_sd = gnss_fix_errors(
+        rng,
+        np.where(visible, az, np.nan),
+        np.where(visible, el, np.nan),
+        rec,
+        nl,
+        c,
+        dt=interval,
+    )
+    return np.column_stack([de, dn]), reported_sd
+
+
 def _session(rng, site: _Site, k: int, session: Session, locations, interval):
     scene = site.scene
     t = session.start + np.arange(0.0, session.duration, interval)
-    n_ep = t.size
     true_xy = _positions(session, t)
     antenna = rng.normal(1.1, 0.1)  # a phone held in the hand
     letters, svids, sat_xyz = satellite_ecef(t + (site.start - EPOCH).total_seconds())
@@ -278,13 +315,7 @@ def _session(rng, site: _Site, k: int, session: Session, locations, interval):
     xt, yt = true_xy[ep, 0], true_xy[ep, 1]
     zt = scene.ground + antenna
 
-    # True line of sight against the true roofs.
-    ray, part, dist, _ = footprint_entries(xt, yt, s_az, site.parts)
-    clearance = site.tops[part] - (zt + dist * np.tan(np.radians(s_el[ray])))
-    blocked = np.zeros(ep.size, dtype=bool)
-    blocked[ray[clearance > 0]] = True
-    loss = np.zeros(ep.size)
-    np.maximum.at(loss, ray, diffraction_loss(clearance, dist, s_el[ray]))
+    blocked, loss = _line_of_sight(site, xt, yt, zt, s_az, s_el)
 
     # C/N0 of the direct (possibly diffracted) and reflected components.
     m = site.physics[k]
@@ -311,27 +342,9 @@ def _session(rng, site: _Site, k: int, session: Session, locations, interval):
     nlos = received & blocked & (reflected > direct)
     cn0 = np.where(received, np.round(cn0, 1), np.nan)
 
-    # The positions the user has, and the error they are reported with (none for points placed
-    # by hand: the user does not know it, and the estimator's default applies).
-    reported_sd = np.full(n_ep, np.nan)
-    if locations == "manual":
-        if session.walking:
-            err = ar1(rng, n_ep, interval, 30.0, m.manual_sd, (2,))
-        else:
-            err = np.tile(rng.normal(0.0, m.manual_sd, 2), (n_ep, 1))
-    else:
-        rec, nl, c = np.zeros(az.shape, bool), np.zeros(az.shape, bool), np.full(az.shape, np.nan)
-        rec[ep, sat], nl[ep, sat], c[ep, sat] = received, nlos, cn0
-        de, dn, reported_sd = gnss_fix_errors(
-            rng,
-            np.where(visible, az, np.nan),
-            np.where(visible, el, np.nan),
-            rec,
-            nl,
-            c,
-            dt=interval,
-        )
-        err = np.column_stack([de, dn])
+    err, reported_sd = _position_errors(
+        rng, m, session, locations, interval, az, el, visible, (ep, sat), received, nlos, cn0
+    )
     rep = true_xy + err
     lon, lat = local_to_wgs84(scene, rep[:, 0], rep[:, 1])
     return pd.DataFrame(

@@ -149,9 +149,19 @@ def simulate(
     rng = np.random.default_rng(seed)
     scene = preset if isinstance(preset, Scene) else make_scene(preset, rng)
     _check_size(scene, interval)
+    site = _site(rng, scene, physics, start)
+    frames = [_session(rng, site, k, s, locations, interval) for k, s in enumerate(scene.sessions)]
+    obs = pd.concat(frames, ignore_index=True)
+    inter = _intersections(obs, scene, site.footprints, max_range)
+    return Simulation(scene, obs, inter, _truth(scene))
+
+
+def _site(rng, scene: Scene, physics, start: pd.Timestamp) -> _Site:
+    """What the scene's sessions share: its roof parts, footprints and phones (their offsets
+    drawn)."""
     phones = _phones(physics, scene)
     parts = [(p, top) for b in scene.buildings for p, top in b.parts]
-    site = _Site(
+    return _Site(
         scene=scene,
         parts=np.array([p for p, _ in parts], dtype=object),
         tops=np.array([t for _, t in parts]),
@@ -160,11 +170,12 @@ def simulate(
         physics=phones,
         start=start,
     )
-    frames = [_session(rng, site, k, s, locations, interval) for k, s in enumerate(scene.sessions)]
-    obs = pd.concat(frames, ignore_index=True)
-    inter = _intersections(obs, scene, site.footprints, max_range)
+
+
+def _truth(scene: Scene) -> pd.DataFrame:
+    """The truth table of :class:`Simulation`: each building's heights and whether a target."""
     targets = set(scene.targets) or {b.id for b in scene.buildings}
-    truth = pd.DataFrame(
+    return pd.DataFrame(
         {
             "id": [b.id for b in scene.buildings],
             "height": [b.true_height for b in scene.buildings],
@@ -174,7 +185,6 @@ def simulate(
             "roof_high": [b.roof_span[1] for b in scene.buildings],
         }
     )
-    return Simulation(scene, obs, inter, truth)
 
 
 def _check_arguments(seed, interval, max_range, start) -> pd.Timestamp:

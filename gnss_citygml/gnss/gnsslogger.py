@@ -160,35 +160,14 @@ def read_gnsslogger(path: StrPath, *, lenient: bool = False) -> GnssLog:
     bad = list(split.bad)
     suspects = dict.fromkeys(split.garbled, "garbled")  # damaged lines that may be Raw rows
     value_bad: set[int] = set()
-    tables = {}
-    for kind, columns in RECORDS.items():
-        numbers, lines = split.records[kind]
-        if numbers and kind not in split.headers:
-            raise InputError(
-                f"{kind} records but no '# {kind},...' header line",
-                where=f"{path}, line {numbers[0]}",
-                fix=f"restore the log's header (its '# {kind},' line names the columns)",
-            )
-        header = split.headers.get(kind)
-        table, bad_rows = parse_records(kind, header, numbers, lines, columns, path)
-        bad += bad_rows
-        value_bad.update(n for n, _ in bad_rows)
-        if kind == "Raw":
-            suspects.update(dict.fromkeys((n for n, _ in bad_rows), "row"))
-        tables[kind] = (table, np.asarray(numbers, dtype=np.int64))
+    tables = _parse_tables(split, path, bad, value_bad, suspects)
     raw_table, raw_numbers = tables["Raw"]
     signals, bad_time = raw_signals(raw_table, raw_numbers)
     bad += bad_time
     value_bad.update(n for n, _ in bad_time)
     suspects.update(dict.fromkeys((n for n, _ in bad_time), "garbled"))
-    cut, cut_raw = split.cut, split.cut_raw
-    if cut is None and split.open_last in value_bad:  # cut inside its last field
-        cut, cut_raw = split.open_last, split.open_last in split.records["Raw"][0]
-    if cut is not None:
-        bad = [(n, reason) for n, reason in bad if n != cut]
-        suspects.pop(cut, None)
-        if cut_raw:
-            suspects[cut] = "cut"
+    cut = _cut_line(split, value_bad, suspects)
+    bad = [(n, reason) for n, reason in bad if n != cut]
     if bad and not lenient:
         line, reason = min(bad)
         raise InputError(f"bad line: {reason}", where=f"{path}, line {line}", fix=_FIX_HINT)
@@ -220,6 +199,44 @@ def read_gnsslogger(path: StrPath, *, lenient: bool = False) -> GnssLog:
         status=status_table(_without(*tables["Status"], bad_lines)),
         skipped_lines=len(bad) + (cut is not None),
     )
+
+
+def _cut_line(split, value_bad: set[int], suspects: dict[int, str]) -> int | None:
+    """The line of a log closed while being written (None: none), also where its last line
+    was cut inside its last field (a value that does not parse); a cut Raw row is a suspect
+    of its epoch (``cut``), anything else it was suspected of is not."""
+    cut, cut_raw = split.cut, split.cut_raw
+    if cut is None and split.open_last in value_bad:  # cut inside its last field
+        cut, cut_raw = split.open_last, split.open_last in split.records["Raw"][0]
+    if cut is not None:
+        suspects.pop(cut, None)
+        if cut_raw:
+            suspects[cut] = "cut"
+    return cut
+
+
+def _parse_tables(
+    split, path: Path, bad, value_bad, suspects
+) -> dict[str, tuple[pd.DataFrame, np.ndarray]]:
+    """Each record type's table and line numbers; its rows with bad values added to ``bad``
+    and ``value_bad`` (a Raw one also to ``suspects``, as a damaged row)."""
+    tables = {}
+    for kind, columns in RECORDS.items():
+        numbers, lines = split.records[kind]
+        if numbers and kind not in split.headers:
+            raise InputError(
+                f"{kind} records but no '# {kind},...' header line",
+                where=f"{path}, line {numbers[0]}",
+                fix=f"restore the log's header (its '# {kind},' line names the columns)",
+            )
+        header = split.headers.get(kind)
+        table, bad_rows = parse_records(kind, header, numbers, lines, columns, path)
+        bad += bad_rows
+        value_bad.update(n for n, _ in bad_rows)
+        if kind == "Raw":
+            suspects.update(dict.fromkeys((n for n, _ in bad_rows), "row"))
+        tables[kind] = (table, np.asarray(numbers, dtype=np.int64))
+    return tables
 
 
 def _incomplete_epochs(signals, table, numbers, good, suspects, lines, header, last_record):

@@ -86,21 +86,8 @@ def positions(
         )
     fixes = fixes.sort_values("time_utc").drop_duplicates("time_utc", keep="last")
     epochs = log.epochs
-    fix_ns, t = utc_ns(fixes["time_utc"]), utc_ns(epochs)
-    gap = round(max_gap * 1e9)
-    # the fixes at or just before and at or just after each epoch (clipped to the ends)
-    before = np.searchsorted(fix_ns, t, side="right").clip(1, len(fix_ns)) - 1
-    after = np.searchsorted(fix_ns, t, side="left").clip(0, len(fix_ns) - 1)
-    d_before, d_after = t - fix_ns[before], fix_ns[after] - t
-    nearest = np.where(np.abs(d_after) < np.abs(d_before), after, before)
-    ok = np.abs(t - fix_ns[nearest]) <= gap
-    if method == "nearest":
-        lo = hi = nearest
-        weight = np.zeros(len(t))
-    else:  # before the first or after the last fix: lo == hi, the end fix
-        lo, hi = before, after
-        span = (fix_ns[hi] - fix_ns[lo]).astype(float)
-        weight = np.divide(d_before, span, out=np.zeros(len(t)), where=span > 0)
+    t = utc_ns(epochs)
+    lo, hi, weight, ok = _fix_weights(utc_ns(fixes["time_utc"]), t, method, max_gap)
     if not ok.all():
         raise InputError(
             f"{np.count_nonzero(~ok)} of {len(t)} epochs have no {provider!r} fix within "
@@ -121,6 +108,22 @@ def positions(
             "position_sd": sd[lo] + weight * (sd[hi] - sd[lo]),
         }
     )
+
+
+def _fix_weights(fix_ns, t, method: str, max_gap: float):
+    """For each epoch ``t`` (ns): the fixes its position is taken from (``lo``, ``hi``), the
+    weight of ``hi`` (0 for the nearest fix) and whether a fix is within ``max_gap`` s."""
+    # the fixes at or just before and at or just after each epoch (clipped to the ends)
+    before = np.searchsorted(fix_ns, t, side="right").clip(1, len(fix_ns)) - 1
+    after = np.searchsorted(fix_ns, t, side="left").clip(0, len(fix_ns) - 1)
+    d_before, d_after = t - fix_ns[before], fix_ns[after] - t
+    nearest = np.where(np.abs(d_after) < np.abs(d_before), after, before)
+    ok = np.abs(t - fix_ns[nearest]) <= round(max_gap * 1e9)
+    if method == "nearest":
+        return nearest, nearest, np.zeros(len(t)), ok
+    # before the first or after the last fix: lo == hi, the end fix
+    span = (fix_ns[after] - fix_ns[before]).astype(float)
+    return before, after, np.divide(d_before, span, out=np.zeros(len(t)), where=span > 0), ok
 
 
 def read_surveyed_positions(path: StrPath) -> pd.DataFrame:

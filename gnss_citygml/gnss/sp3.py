@@ -70,19 +70,7 @@ def read_sp3(path: StrPath) -> pd.DataFrame:
             fix="give an SP3-c/d file (e.g. an IGS or MGEX *_ORB.SP3 product)",
         )
     version = lines[0][1]
-    time_system = "GPS"
-    for line in lines:
-        if line.startswith("%c"):
-            time_system = line[9:12].strip()
-            break
-    if time_system in ("", "ccc"):
-        time_system = "GPS"
-    if time_system not in _SP3_TIME_SYSTEMS and time_system not in ("UTC", "GLO"):
-        raise InputError(
-            f"unsupported SP3 time system {time_system!r}",
-            where=str(path),
-            fix="use a product in GPS, GAL, QZS, BDT, TAI, UTC or GLO time",
-        )
+    time_system = _time_system(lines, path)
     times, cons, svids, values = [], [], [], []
     epoch = None
     for no, line in enumerate(lines, start=1):
@@ -123,6 +111,24 @@ def read_sp3(path: StrPath) -> pd.DataFrame:
     )
     table.attrs.update(version=version, time_system=time_system)
     return table
+
+
+def _time_system(lines: list[str], path: StrPath) -> str:
+    """The file's time system, from its first ``%c`` line (GPS where it names none)."""
+    time_system = "GPS"
+    for line in lines:
+        if line.startswith("%c"):
+            time_system = line[9:12].strip()
+            break
+    if time_system in ("", "ccc"):
+        time_system = "GPS"
+    if time_system not in _SP3_TIME_SYSTEMS and time_system not in ("UTC", "GLO"):
+        raise InputError(
+            f"unsupported SP3 time system {time_system!r}",
+            where=str(path),
+            fix="use a product in GPS, GAL, QZS, BDT, TAI, UTC or GLO time",
+        )
+    return time_system
 
 
 def _to_gps_time(times: np.ndarray, time_system: str) -> np.ndarray:

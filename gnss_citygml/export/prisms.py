@@ -159,17 +159,9 @@ def extrude(
     footprints = np.asarray(footprints, dtype=object)
     ground_mm = np.rint(np.asarray(ground, dtype=float) * 1000).astype(np.int64)
     roof_mm = np.rint(np.asarray(roof, dtype=float) * 1000).astype(np.int64)
-    parts, part_building = shapely.get_parts(footprints, return_index=True)
-    rings, ring_part = shapely.get_rings(parts, return_index=True)
-    coords, coord_ring = shapely.get_coordinates(rings, return_index=True)
-    closed_size = np.bincount(coord_ring, minlength=len(rings))
-    last = np.cumsum(closed_size) - 1
-    keep = np.ones(len(coords), dtype=bool)
-    keep[last] = False  # drop each ring's closing point
-    xy = np.rint(coords[keep] * 1000).astype(np.int64)
-    size = closed_size - 1
+    part_building, ring_part, xy, size = _ring_points(footprints)
     start = np.concatenate([[0], np.cumsum(size)])
-    point_ring = np.repeat(np.arange(len(rings)), size)
+    point_ring = np.repeat(np.arange(len(ring_part)), size)
     point_building = part_building[ring_part[point_ring]]
 
     bottom, top, vertices, vertex_start = _shared_vertices(
@@ -182,7 +174,7 @@ def extrude(
     walls = np.stack([bottom[j], bottom[following], top[following], top[j]], axis=1).ravel()
 
     # Rings in output order: per solid (part), bottom rings, top rings, then one quad per edge.
-    n_rings, n_points = len(rings), len(xy)
+    n_rings, n_points = len(ring_part), len(xy)
     record_part = np.concatenate([ring_part, ring_part, ring_part[point_ring]])
     record_section = np.repeat([0, 1, 2], [n_rings, n_rings, n_points])
     record_sub = np.concatenate([np.arange(n_rings), np.arange(n_rings), j])
@@ -211,6 +203,20 @@ def extrude(
         solid_start=solid_start,
         building_start=building_start,
     )
+
+
+def _ring_points(footprints: np.ndarray):
+    """The footprints' polygons (parts) and rings: each part's building, each ring's part,
+    the rings' points in mm without their closing ones, and each ring's number of points."""
+    parts, part_building = shapely.get_parts(footprints, return_index=True)
+    rings, ring_part = shapely.get_rings(parts, return_index=True)
+    coords, coord_ring = shapely.get_coordinates(rings, return_index=True)
+    closed_size = np.bincount(coord_ring, minlength=len(rings))
+    last = np.cumsum(closed_size) - 1
+    keep = np.ones(len(coords), dtype=bool)
+    keep[last] = False  # drop each ring's closing point
+    xy = np.rint(coords[keep] * 1000).astype(np.int64)
+    return part_building, ring_part, xy, closed_size - 1
 
 
 def _shared_vertices(xy, point_building, ground_mm, roof_mm, n_buildings, numbering):

@@ -156,25 +156,8 @@ def write_citygml(
     plan = prepare_buildings(buildings, strict=strict)
     date = creation_date(date)
     _check_unique(plan)
-    replaced: list[str] = []
     with atomic_path(path, overwrite=overwrite) as tmp:
-        with open(tmp, "wb") as raw:
-            with etree.xmlfile(raw, encoding="utf-8") as xf:
-                xf.write_declaration()
-                root = etree.QName(_NS["core"], "CityModel")
-                location = {etree.QName(_NS["xsi"], "schemaLocation"): _SCHEMA_LOCATION}
-                with xf.element(root, location, nsmap=_NS):
-                    _envelope(xf, plan.bounds_mm())
-                    for rows in plan.chunks():
-                        replaced.extend(_unwritable(rows))
-                        prisms = extrude(
-                            rows.geometry, rows["ground"], rows["height"], numbering="all"
-                        )
-                        xf.flush()
-                        members = _members(rows, prisms, date, plan.id_field)
-                        raw.write(members.encode("utf-8"))
-                        if progress is not None:
-                            progress(len(rows))
+        replaced = _write_model(tmp, plan, date, progress)
         result = plan.result(path, None)  # raises if nothing was written
         result.report = validated_output(tmp, path, validate, schema_dir)
     if replaced:
@@ -185,6 +168,28 @@ def write_citygml(
             stacklevel=2,
         )
     return result
+
+
+def _write_model(tmp, plan, date: str, progress) -> list[str]:
+    """Stream the city model into ``tmp``, chunk by chunk of buildings; returns the ids of
+    those whose text XML cannot hold (:func:`_unwritable`)."""
+    replaced: list[str] = []
+    with open(tmp, "wb") as raw:
+        with etree.xmlfile(raw, encoding="utf-8") as xf:
+            xf.write_declaration()
+            root = etree.QName(_NS["core"], "CityModel")
+            location = {etree.QName(_NS["xsi"], "schemaLocation"): _SCHEMA_LOCATION}
+            with xf.element(root, location, nsmap=_NS):
+                _envelope(xf, plan.bounds_mm())
+                for rows in plan.chunks():
+                    replaced.extend(_unwritable(rows))
+                    prisms = extrude(rows.geometry, rows["ground"], rows["height"], numbering="all")
+                    xf.flush()
+                    members = _members(rows, prisms, date, plan.id_field)
+                    raw.write(members.encode("utf-8"))
+                    if progress is not None:
+                        progress(len(rows))
+    return replaced
 
 
 def _unwritable(rows: gpd.GeoDataFrame) -> list[str]:

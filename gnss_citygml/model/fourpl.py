@@ -177,6 +177,29 @@ def fit_4pl(
     >>> bool(abs(fit.c[0] - 20.0) < 1.0)
     True
     """
+    x, y, w, g, v, n_groups = _samples(x, y, weights, groups, n_groups, sd)
+    counts = np.bincount(g, weights=(w > 0).astype(float), minlength=n_groups)
+    lo, hi = group_range(x, g, n_groups)
+    span = np.maximum(hi - lo, 1e-6)
+    theta0 = _start(x, y, w, g, v, n_groups, lo, hi, init)
+    box_lo, box_hi = _box(lo, hi, span, b_bounds, n_groups)
+    theta = np.clip(np.nan_to_num(theta0), box_lo, box_hi)
+    active = counts > 0
+    data = _ActiveRows(x, y, w, g, v, active)
+    theta, ll, converged, n_iter = _levenberg_marquardt(
+        theta, data, active, box_lo, box_hi, n_groups, max_iter, tol
+    )
+    a, b, c, d = _from_theta(theta).T
+    empty = counts == 0
+    for v in (a, b, c, d, ll):
+        v[empty] = np.nan
+    separable = ~empty & (theta[:, 1] >= box_hi[:, 1] - 1e-9)
+    return FourPLFit(a, b, c, d, ll, converged & ~empty, n_iter, separable)
+
+
+def _samples(x, y, weights, groups, n_groups, sd):
+    """The samples as arrays (weights, groups and ``x``'s variances filled in), grouped
+    (the likelihood sums run block by block), and the number of groups."""
     x = np.asarray(x, dtype=float)
     y = np.asarray(y, dtype=float)
     w = np.ones_like(x) if weights is None else np.asarray(weights, dtype=float)
@@ -184,39 +207,38 @@ def fit_4pl(
     v = np.zeros_like(x) if sd is None else np.asarray(sd, dtype=float) ** 2
     if n_groups is None:
         n_groups = int(g.max()) + 1 if g.size else 1
-    if np.any(g[1:] < g[:-1]):  # group the samples: the likelihood sums run block by block
+    if np.any(g[1:] < g[:-1]):
         order = np.argsort(g, kind="stable")
         x, y, w, g, v = x[order], y[order], w[order], g[order], v[order]
-    counts = np.bincount(g, weights=(w > 0).astype(float), minlength=n_groups)
-    lo, hi = group_range(x, g, n_groups)
-    span = np.maximum(hi - lo, 1e-6)
+    return x, y, w, g, v, n_groups
 
+
+def _start(x, y, w, g, v, n_groups, lo, hi, init) -> np.ndarray:
+    """Each group's starting parameters: the likeliest of the best increasing step at three
+    slopes (b, 4b, b/4) and ``init``."""
     step = _initial_theta(x, y, w, g, n_groups, lo, hi)
     slope = np.array([0.0, 1.0, 0.0, 0.0])
     starts = [step, step + np.log(4.0) * slope, step - np.log(4.0) * slope]  # b, 4b, b/4
     if init is not None:
         starts.append(np.nan_to_num(_to_theta(init)))
-    theta0 = _likeliest(starts, x, y, w, g, v, n_groups)
-    box_lo = np.column_stack(
-        [
-            np.full(n_groups, -_LOGIT_BOUND),
-            np.full(n_groups, np.log(b_bounds[0])),
-            lo - span,
-            np.full(n_groups, -_LOGIT_BOUND),
-        ]
-    )
-    box_hi = np.column_stack(
-        [
-            np.full(n_groups, _LOGIT_BOUND),
-            np.full(n_groups, np.log(b_bounds[1])),
-            hi + span,
-            np.full(n_groups, _LOGIT_BOUND),
-        ]
-    )
-    theta = np.clip(np.nan_to_num(theta0), box_lo, box_hi)
+    return _likeliest(starts, x, y, w, g, v, n_groups)
 
-    active = counts > 0
-    data = _ActiveRows(x, y, w, g, v, active)
+
+def _box(lo, hi, span, b_bounds, n_groups) -> tuple[np.ndarray, np.ndarray]:
+    """The bounds of each group's parameters (logits of a and d, log b, c within a span of
+    its observed range)."""
+    logit, log_b = np.full(n_groups, _LOGIT_BOUND), (np.log(b_bounds[0]), np.log(b_bounds[1]))
+    box_lo = np.column_stack([-logit, np.full(n_groups, log_b[0]), lo - span, -logit])
+    box_hi = np.column_stack([logit, np.full(n_groups, log_b[1]), hi + span, logit])
+    return box_lo, box_hi
+
+
+def _levenberg_marquardt(
+    theta, data: _ActiveRows, active, box_lo, box_hi, n_groups: int, max_iter: int, tol: float
+):
+    """Damped (projected) Newton steps on the Fisher information of every active group at
+    once, until each converges or ``max_iter``: the parameters, log-likelihoods, convergence
+    flags and iteration counts."""
     ll, grad, fisher = _evaluate(theta, *data.arrays, n_groups, active)
     lam = np.full(n_groups, 1e-3)
     converged = np.zeros(n_groups, dtype=bool)
@@ -238,25 +260,15 @@ def fit_4pl(
         accept = gain >= -1e-12 * (1.0 + np.abs(ll[idx]))
         acc = idx[accept]
         moved = np.max(np.abs(trial[idx] - theta[idx]), axis=1)
-        theta[acc], ll[acc], grad[acc], fisher[acc] = (
-            trial[acc],
-            t_ll[acc],
-            t_grad[acc],
-            t_fisher[acc],
-        )
+        theta[acc], ll[acc] = trial[acc], t_ll[acc]
+        grad[acc], fisher[acc] = t_grad[acc], t_fisher[acc]
         lam[acc] = np.maximum(lam[acc] / 4.0, 1e-9)
         lam[idx[~accept]] *= 8.0
         small = np.abs(gain) <= tol * (1.0 + np.abs(ll[idx]))
         done = (accept & (small | (moved < 1e-10))) | (lam[idx] > 1e12)
         converged[idx[done]] = True
         active[idx[done]] = False
-
-    a, b, c, d = _from_theta(theta).T
-    empty = counts == 0
-    for v in (a, b, c, d, ll):
-        v[empty] = np.nan
-    separable = ~empty & (theta[:, 1] >= box_hi[:, 1] - 1e-9)
-    return FourPLFit(a, b, c, d, ll, converged & ~empty, n_iter, separable)
+    return theta, ll, converged, n_iter
 
 
 def c_interval(

@@ -417,34 +417,39 @@ def building_ground(
     ids = buildings["id"].astype(str).to_numpy()
     check_polygonal(geoms, ids, "buildings")
     with _open_dem(dem, assume_crs, band) as ds:
-        row0, row1, col0, col1 = _pixel_bounds(ds, shapely.bounds(geoms))
-        off = (row0 < 0) | (col0 < 0) | (row1 > ds.height) | (col1 > ds.width)
-        if off.any():
-            raise DemCoverageError(
-                "building(s) not wholly on the DEM",
-                ids[off].tolist(),
-                where=ds.name,
-                fix="use a DEM that covers every footprint, or drop those footprints",
-            )
-        ground, over_nodata, fallback = _ground_under(
-            ds, band, geoms, row0, row1, col0, col1, statistic
-        )
-        nodata = np.flatnonzero(over_nodata)
-        inside = shapely.point_on_surface(geoms)
-        heights, _, small_nodata = _bilinear(
-            ds, band, shapely.get_x(inside[fallback]), shapely.get_y(inside[fallback])
-        )
-        nodata = np.union1d(nodata, np.flatnonzero(fallback)[small_nodata])
-        if nodata.size:
-            raise DemCoverageError(
-                "building(s) over nodata cells of the DEM",
-                ids[nodata].tolist(),
-                where=ds.name,
-                fix="fill the DEM's gaps (e.g. gdal_fillnodata) or drop those footprints",
-            )
-    ground[fallback] = heights
-    out["ground"] = ground
+        out["ground"] = _grounds(ds, band, geoms, ids, statistic)
     return out
+
+
+def _grounds(ds, band: int, geoms: np.ndarray, ids: np.ndarray, statistic: str) -> np.ndarray:
+    """Each footprint's ground on the open DEM ``ds`` (see :func:`building_ground`)."""
+    row0, row1, col0, col1 = _pixel_bounds(ds, shapely.bounds(geoms))
+    off = (row0 < 0) | (col0 < 0) | (row1 > ds.height) | (col1 > ds.width)
+    if off.any():
+        raise DemCoverageError(
+            "building(s) not wholly on the DEM",
+            ids[off].tolist(),
+            where=ds.name,
+            fix="use a DEM that covers every footprint, or drop those footprints",
+        )
+    ground, over_nodata, fallback = _ground_under(
+        ds, band, geoms, row0, row1, col0, col1, statistic
+    )
+    nodata = np.flatnonzero(over_nodata)
+    inside = shapely.point_on_surface(geoms)
+    heights, _, small_nodata = _bilinear(
+        ds, band, shapely.get_x(inside[fallback]), shapely.get_y(inside[fallback])
+    )
+    nodata = np.union1d(nodata, np.flatnonzero(fallback)[small_nodata])
+    if nodata.size:
+        raise DemCoverageError(
+            "building(s) over nodata cells of the DEM",
+            ids[nodata].tolist(),
+            where=ds.name,
+            fix="fill the DEM's gaps (e.g. gdal_fillnodata) or drop those footprints",
+        )
+    ground[fallback] = heights
+    return ground
 
 
 def _pixel_bounds(ds: DatasetReader, bounds: np.ndarray):

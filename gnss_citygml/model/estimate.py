@@ -117,39 +117,47 @@ def estimate_heights(
       id  converged                 status
     0  a      False  fewer than 10 signals
     """
-    method = estimator.method
-    if estimator.fourpl:
-        ids, part = intersections_part(intersections, estimator, phones=estimator.levels_phones)
-        offsets = phone_offsets(open_sky, estimator)
-        if offsets is not None and open_sky is not None and part.phone is not None:
-            part, open_sky = part.levelled(offsets), levelled(open_sky, offsets)
-        moments = open_sky_moments(open_sky, estimator)
-        (fits,), classifier = run_parts([part], [[0]], estimator, open_sky=moments)
-        columns = fits.columns()
-    else:
-        table = _as_table(intersections)
-        ids, codes, height, cn0, _, _ = _columns(table)
-        n = len(ids)
-        func = hinge_heights if method == "hinge" else bayes_heights
-        h = func(codes, height, cn0, n, init_threshold=estimator.init_threshold)
-        n_signals = np.bincount(codes, minlength=n)
-        min_signals = estimator.acceptance.min_signals
-        ok = n_signals >= min_signals
-        nan = np.full(n, np.nan)
-        columns = {
-            "height": np.where(ok, h, np.nan),
-            **dict.fromkeys(
-                ["height_lower", "height_upper", "height_paper", "a", "b", "c", "d"], nan
-            ),
-            "n_signals": n_signals,
-            "iterations": np.where(ok, 1, 0),
-            "converged": ok,
-            "status": np.where(ok, "ok", f"fewer than {min_signals} signals").astype(object),
-        }
-    out = pd.DataFrame({"id": ids, **columns, "method": method})[HEIGHTS_COLUMNS]
-    if estimator.fourpl:
-        out.attrs["signal_classifier"] = asdict(classifier)
+    if not estimator.fourpl:
+        ids, columns = _baseline_columns(intersections, estimator)
+        return pd.DataFrame({"id": ids, **columns, "method": estimator.method})[HEIGHTS_COLUMNS]
+    ids, columns, classifier = _fourpl_columns(intersections, estimator, open_sky)
+    out = pd.DataFrame({"id": ids, **columns, "method": estimator.method})[HEIGHTS_COLUMNS]
+    out.attrs["signal_classifier"] = asdict(classifier)
     return out
+
+
+def _fourpl_columns(intersections, estimator: Estimator, open_sky):
+    """4PL-B (or 4PL) in one process: the buildings' ids, the heights table's columns and the
+    final signal model, the phones levelled by the open sky where the estimator says so."""
+    ids, part = intersections_part(intersections, estimator, phones=estimator.levels_phones)
+    offsets = phone_offsets(open_sky, estimator)
+    if offsets is not None and open_sky is not None and part.phone is not None:
+        part, open_sky = part.levelled(offsets), levelled(open_sky, offsets)
+    moments = open_sky_moments(open_sky, estimator)
+    (fits,), classifier = run_parts([part], [[0]], estimator, open_sky=moments)
+    return ids, fits.columns(), classifier
+
+
+def _baseline_columns(intersections, estimator: Estimator):
+    """The hinge or Bayes baseline: the buildings' ids and the heights table's columns (no
+    range, no 4PL parameters)."""
+    table = _as_table(intersections)
+    ids, codes, height, cn0, _, _ = _columns(table)
+    n = len(ids)
+    func = hinge_heights if estimator.method == "hinge" else bayes_heights
+    h = func(codes, height, cn0, n, init_threshold=estimator.init_threshold)
+    n_signals = np.bincount(codes, minlength=n)
+    min_signals = estimator.acceptance.min_signals
+    ok = n_signals >= min_signals
+    nan = np.full(n, np.nan)
+    return ids, {
+        "height": np.where(ok, h, np.nan),
+        **dict.fromkeys(["height_lower", "height_upper", "height_paper", "a", "b", "c", "d"], nan),
+        "n_signals": n_signals,
+        "iterations": np.where(ok, 1, 0),
+        "converged": ok,
+        "status": np.where(ok, "ok", f"fewer than {min_signals} signals").astype(object),
+    }
 
 
 def phone_offsets(open_sky: pd.DataFrame | None, estimator: Estimator) -> pd.Series | None:

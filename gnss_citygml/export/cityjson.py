@@ -31,6 +31,7 @@ chunk by chunk: memory does not grow with the number of buildings.
 
 from __future__ import annotations
 
+import functools
 import json
 from typing import TYPE_CHECKING
 
@@ -106,13 +107,11 @@ def write_cityjson(
     schema_dir
         Folder of the official CityJSON JSON schemas, for the validation (default:
         ``$GNSS_CITYGML_SCHEMA_DIR``; without it the JSON Schema check is left out).
-    overwrite
-        Replace an existing file.
-    strict
-        Stop with an error if a building has no usable height, instead of skipping it.
-    date
-        The creation date written (``datetime.date`` or ``YYYY-MM-DD``; default today).
-    title
+    overwrite, strict
+        Replace an existing file; stop with an error if a building has no usable height,
+        instead of skipping it.
+    date, title
+        The creation date written (``datetime.date`` or ``YYYY-MM-DD``; default today) and
         ``metadata.title``.
     progress
         Called with the number of buildings written after each chunk.
@@ -145,40 +144,43 @@ def write_cityjson(
     (1, True)
     >>> model["CityObjects"]["osgb1"]["attributes"]
     {'measuredHeight': 12.5, 'creationDate': '2024-05-01', 'ground': 20.0, 'height': 32.5}
-    >>> with tempfile.TemporaryDirectory() as folder:
-    ...     out = write_cityjson(frame, f"{folder}/b.city.json", date="2024-05-01",
-    ...                          typed_attributes=True)
-    ...     model = json.load(open(out.path))
-    >>> model["extensions"]["GnssCityGML"]["version"]
-    '1.1'
-    >>> model["CityObjects"]["osgb1"]["attributes"]
-    {'measuredHeight': 12.5, 'creationDate': '2024-05-01', '+ground': 20.0, '+height': 32.5}
     """
     plan = prepare_buildings(buildings, strict=strict)
     date = creation_date(date)
     header, translate = _header(plan.bounds_mm(), date, title, typed_attributes)
-    frames = list(plan.chunks())
-    if not frames:
-        return plan.result(path, None)  # raises: nothing to write
-    frame = pd.concat(frames, ignore_index=True)
+    frame = _all_chunks(plan, path)
     parts = part_ids(frame["id"], frame.geometry)
     prisms = extrude(frame.geometry, frame["ground"], frame["height"], numbering="all")
     with atomic_path(path, overwrite=overwrite) as tmp:
         with open(tmp, "w", encoding="utf-8") as out:
-            out.write(_dumps(header)[:-1] + ',"CityObjects":{')
-            for part in chunks(len(frame)):
-                rows = frame.iloc[part]
-                objects = _objects(rows, prisms.take(part), parts[part], date, typed_attributes)
-                out.write(("," if part.start else "") + ",".join(objects))
-                if progress is not None:
-                    progress(part.stop - part.start)
-            out.write('},"vertices":[')
-            for part in chunks(len(prisms.vertices), 64 * CHUNK):
-                text = ",".join(_vertex_texts(prisms.vertices[part] - translate))
-                out.write(("," if part.start else "") + text)
-            out.write("]}\n")
+            objects = functools.partial(_objects, date=date, typed=typed_attributes)
+            _write_model(out, header, frame, prisms, parts, objects, translate, progress)
         report = validated_output(tmp, path, validate, schema_dir)
     return plan.result(path, report)
+
+
+def _all_chunks(plan, path) -> gpd.GeoDataFrame:
+    """The buildings to write, in one table (one file holds them all)."""
+    frames = list(plan.chunks())
+    if not frames:
+        plan.result(path, None)  # raises: nothing to write
+    return pd.concat(frames, ignore_index=True)
+
+
+def _write_model(out, header: dict, frame, prisms, parts, objects, translate, progress) -> None:
+    """Stream the file: the header, the city objects chunk by chunk of buildings (their texts
+    by ``objects``, :func:`_objects`), the vertices less ``translate``."""
+    out.write(_dumps(header)[:-1] + ',"CityObjects":{')
+    for part in chunks(len(frame)):
+        texts = objects(frame.iloc[part], prisms.take(part), parts[part])
+        out.write(("," if part.start else "") + ",".join(texts))
+        if progress is not None:
+            progress(part.stop - part.start)
+    out.write('},"vertices":[')
+    for part in chunks(len(prisms.vertices), 64 * CHUNK):
+        text = ",".join(_vertex_texts(prisms.vertices[part] - translate))
+        out.write(("," if part.start else "") + text)
+    out.write("]}\n")
 
 
 def write_cityjsonseq(

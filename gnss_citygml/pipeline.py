@@ -134,32 +134,19 @@ def run(
     dem
         A DEM rasterio opens, in EPSG:27700 (a path or an open dataset): each building's
         ``ground`` and, with receiver heights from the DEM, the receivers' heights.
-    rays
-        The elevation mask and the rays' range (:class:`~gnss_citygml.settings.Rays`; see
-        :func:`intersections`).
-    receiver_heights
-        Where the antenna's height comes from (:class:`~gnss_citygml.settings.ReceiverHeights`;
-        see :func:`receivers`).
-    estimator
-        The height estimator and its settings (:class:`~gnss_citygml.settings.Estimator`; see
-        :func:`~gnss_citygml.model.estimate.estimate_heights`).
-    position_error
-        How far the receiver positions may be off (:class:`~gnss_citygml.settings.PositionError`;
-        default: each observation's ``position_sd``, 1 m where it is empty): the height fits
-        model each signal's resulting height error (``height_sd`` of :func:`intersections`)
-        and the ranges carry the roof line's position uncertainty. ``PositionError(sd=0)``
-        takes the positions as exact, as in the paper.
-    calibration
-        With ``Calibration(prior_sd=...)`` (m per axis, the prior of the offsets), 4PL-B first
-        estimates one position offset per recording (or per ``window`` seconds of it) jointly
-        with the heights (:func:`~gnss_citygml.calibrate.calibrate_receivers`). Off by default:
-        it costs a few extra casts and fits. Only 4PL-B can use it: with another method it is
-        an error.
-    tiling
-        With ``Tiling(scheduler=...)``, the rays are cast and 4PL-B runs in tiles on a Dask
-        cluster (:func:`~gnss_citygml.tiling.run.tiled_heights`): the same heights, and no
-        machine holds every intersection (``Run.intersections`` is None). 4PL-B or 4PL,
-        without self-calibration.
+    rays, receiver_heights, estimator, position_error, calibration, tiling
+        The run's settings (:mod:`gnss_citygml.settings`): the elevation mask and the rays'
+        range (:func:`intersections`); where the antenna's height comes from
+        (:func:`receivers`); the height estimator
+        (:func:`~gnss_citygml.model.estimate.estimate_heights`); how far the receiver
+        positions may be off (default: each observation's ``position_sd``, 1 m where it is
+        empty; the fits model each height's error, ``height_sd`` of :func:`intersections`, and
+        the ranges carry the roof line's; ``PositionError(sd=0)``: exact, as in the paper);
+        the opt-in self-calibration of one position offset per recording, jointly with the
+        heights (:func:`~gnss_citygml.calibrate.calibrate_receivers`; 4PL-B only); and with
+        ``Tiling(scheduler=...)``, the rays cast and 4PL-B run in tiles on a Dask cluster
+        (:func:`~gnss_citygml.tiling.run.tiled_heights`: the same heights, no machine holding
+        every intersection, ``Run.intersections`` None; 4PL-B or 4PL, no self-calibration).
     grid_dir
         Folder of the OSTN15/OSGM15 grids (see :mod:`gnss_citygml.geodesy`).
     dem_crs
@@ -173,12 +160,11 @@ def run(
     -------
     Run
         ``heights``: one row per footprint: its geometry and attributes, ``ground``, the
-        heights table columns and ``relative_height`` (height - ground). Buildings no ray
-        enters, or whose estimate did not converge, have empty heights and ``converged =
-        False`` with the reason in ``status``: never a guess. The id column has the name of
-        the footprints' id field (``toid`` for footprints read with ``id_field="toid"``;
-        ``attrs["id_field"]``, see :mod:`gnss_citygml.files.ids`). With them, the receivers,
-        intersections, buildings and final signal classifier the heights came from.
+        heights table columns and ``relative_height`` (height - ground); empty heights,
+        ``converged = False`` and the reason in ``status`` where no ray enters or the estimate
+        did not converge: never a guess; the id column named as the footprints' id field
+        (:mod:`gnss_citygml.files.ids`). With them, the receivers, intersections, buildings
+        and final signal classifier the heights came from.
 
     Raises
     ------
@@ -193,17 +179,29 @@ def run(
         observations, footprints, dem, rays, receiver_heights, grid_dir, dem_crs, say
     )
     if tiling.on:
-        in_tiles = _in_memory(rx, buildings, rays, estimator, position_error, tiling.side, say)
-        heights, classifier = _on_cluster(
-            in_tiles, buildings, estimator, tiling, tiling.side, footprints, say
-        )
-        return Run(heights, rx, None, buildings, classifier)
+        return _in_tiles(rx, buildings, footprints, rays, estimator, position_error, tiling, say)
     if calibration.on:
         rx = calibrate_receivers(rx, buildings, calibration, estimator=estimator, rays=rays)
+    return _in_one_process(
+        rx, buildings, id_field(footprints), rays, estimator, position_error, say
+    )
+
+
+def _in_tiles(rx, buildings, footprints, rays, estimator, position_error, tiling, say) -> Run:
+    """The rest of :func:`run` on a Dask cluster: the rays cast and 4PL-B run in tiles."""
+    in_tiles = _in_memory(rx, buildings, rays, estimator, position_error, tiling.side, say)
+    heights, classifier = _on_cluster(
+        in_tiles, buildings, estimator, tiling, tiling.side, footprints, say
+    )
+    return Run(heights, rx, None, buildings, classifier)
+
+
+def _in_one_process(rx, buildings, name, rays, estimator, position_error, say) -> Run:
+    """The rest of :func:`run` in this process: the rays cast, the heights fitted (their id
+    column called ``name``)."""
     inter = intersections(rx, buildings, rays=rays, position_error=position_error)
-    sky = open_sky(rx, inter)
     heights, classifier = fit_heights(
-        inter, buildings, estimator, id_field(footprints), say, open_sky=sky
+        inter, buildings, estimator, name, say, open_sky=open_sky(rx, inter)
     )
     return Run(heights, rx, inter, buildings, classifier)
 

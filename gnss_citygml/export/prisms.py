@@ -149,8 +149,8 @@ def extrude(
     Examples
     --------
     >>> p = extrude(snap_footprints([shapely.box(0, 0, 2, 1)]), [10.0], [13.5])
-    >>> p.vertices.shape, len(p.face_kind), p.face_kind.tolist()
-    ((8, 3), 6, [0, 1, 2, 2, 2, 2])
+    >>> p.vertices.shape, p.face_kind.tolist()
+    ((8, 3), [0, 1, 2, 2, 2, 2])
     >>> p.vertices[p.ring_vertices[p.ring_start[1]:p.ring_start[2]]].tolist()  # the roof
     [[2000, 0, 13500], [2000, 1000, 13500], [0, 1000, 13500], [0, 0, 13500]]
     """
@@ -163,7 +163,6 @@ def extrude(
     start = np.concatenate([[0], np.cumsum(size)])
     point_ring = np.repeat(np.arange(len(ring_part)), size)
     point_building = part_building[ring_part[point_ring]]
-
     bottom, top, vertices, vertex_start = _shared_vertices(
         xy, point_building, ground_mm, roof_mm, len(footprints), numbering
     )

@@ -110,8 +110,8 @@ def _within(value, bounds: tuple[float, float], *, above: bool = False) -> bool:
 ANTENNA_HEIGHTS = (0.0, 500.0)
 #: a ray's horizontal length (m, above 0): a building 10 km away rises less than 2 deg;
 MAX_RANGES = (0.0, 10_000.0)
-#: C/N0 (dB-Hz), as the observations' cn0 (schemas/observations.schema.json);
-CN0S = (0.0, 100.0)
+#: C/N0 (dB-Hz), as the observations' cn0 (schemas/observations.schema.json); an elevation (deg);
+CN0S, ELEVATIONS = (0.0, 100.0), (-90.0, 90.0)
 #: a position error or a calibration prior (m per axis), as the observations' position_sd;
 POSITION_SDS = (0.0, 1000.0)
 #: a position error's or calibration offset's window (s, above 0): at most a day; its distance
@@ -168,7 +168,7 @@ def check_elevation_mask(min_elevation: float, max_elevation: float) -> None:
     """Refuse an elevation mask (deg) that is not a band of elevations, -90 <= min < max <= 90
     (the rays' and ``observe``'s)."""
     band = (min_elevation, max_elevation)
-    if not (all(map(_finite, band)) and -90.0 <= band[0] < band[1] <= 90.0):
+    if not (all(map(_finite, band)) and ELEVATIONS[0] <= band[0] < band[1] <= ELEVATIONS[1]):
         raise InputError(
             f"elevation mask {band[0]}..{band[1]} deg is not a band of elevations",
             fix="give --min-elevation and --max-elevation in degrees, -90 <= min < max <= 90, "

@@ -30,6 +30,7 @@ from .options import (
     TILE_SIZE,
     TRUTH,
     dem_file,
+    option,
     output_dir,
     progress,
     together,
@@ -51,32 +52,12 @@ _RUN_OPTIONS = together(
     HEIGHT_RULE,
     SIGNAL_MODEL,
     LEVEL_PHONES,
-    click.option(
-        "--max-range", type=float, default=Rays.max_range, show_default=True, help="Ray length (m)."
-    ),
-    click.option(
-        "--position-sd",
-        type=float,
-        help="How far every receiver position may be off (m per axis; about 1 for points placed "
-        "by hand), overriding the observations' position_sd: the fits model the height errors "
-        "that follow and the ranges widen. 0: positions taken as exact, as in the paper. "
-        "Default: each observation's position_sd (a phone fix's accuracy), 1 m where it is "
-        "empty.",
-    ),
+    option("MAX_RANGE"),
+    option("POSITION_SD"),
     POSITION_DISTANCE,
     POSITION_WINDOW,
-    click.option(
-        "--calibration-sd",
-        type=float,
-        help="Self-calibrate one position offset per recording with this prior (m per axis; "
-        "about 1 for hand-placed points, 5 for phone fixes; method 4PL-B only). Off by default.",
-    ),
-    click.option(
-        "--calibration-window",
-        type=float,
-        help="With --calibration-sd: one offset per this many seconds of a recording (about 30 "
-        "for phone fixes, whose errors drift) instead of one per recording.",
-    ),
+    option("CALIBRATION_SD"),
+    option("CALIBRATION_WINDOW"),
     TRUTH,
     DEM_CRS,
     GRID_DIR,

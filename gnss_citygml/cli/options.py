@@ -16,17 +16,8 @@ from typing import TYPE_CHECKING
 
 import click
 
-from ..model import METHODS
-from ..settings import (
-    DEFAULT_TILE_SIZE,
-    HEIGHT_RULES,
-    RECEIVER_HEIGHTS,
-    SIGNAL_MODELS,
-    Estimator,
-    PositionError,
-    Rays,
-    ReceiverHeights,
-)
+from ..options import OPTIONS, Option
+from ..settings import DEFAULT_TILE_SIZE
 
 __all__ = [
     "ANTENNA_HEIGHT",
@@ -55,6 +46,7 @@ __all__ = [
     "TRUTH",
     "TYPED_ATTRIBUTES",
     "dem_file",
+    "option",
     "output_dir",
     "output_file",
     "progress",
@@ -73,37 +65,33 @@ SEED = click.option(
 )
 OVERWRITE = click.option("--overwrite", is_flag=True, help="Replace an existing output.")
 QUIET = click.option("--quiet", "-q", is_flag=True, help="No progress output.")
-RECEIVER_HEIGHT = click.option(
-    "--receiver-height",
-    type=click.Choice(list(RECEIVER_HEIGHTS)),
-    default=ReceiverHeights.source,
-    show_default=True,
-    help="Antenna height from the DEM (+ --antenna-height) or from the observations' h.",
-)
-ANTENNA_HEIGHT = click.option(
-    "--antenna-height",
-    type=float,
-    default=ReceiverHeights.antenna_height,
-    show_default=True,
-    help="Metres.",
-)
-POSITION_DISTANCE = click.option(
-    "--position-distance",
-    type=float,
-    default=PositionError.distance,
-    show_default=True,
-    help="Metres a moving receiver (a walker's traced path, a phone's fixes) goes with one "
-    "position error: the next begins once its reported position is this far from where the "
-    "last began (the next stretch of street has other reflections). A receiver standing at one "
-    "point, or a phone lying still, keeps one. Longer than the walk: one per recording.",
-)
-POSITION_WINDOW = click.option(
-    "--position-window",
-    type=float,
-    help="Instead of --position-distance: seconds one position error of a moving receiver "
-    "lasts. A receiver standing at one point (a point placed by hand) shares one error over "
-    "its stay either way.",
-)
+
+
+def option(name: str) -> Callable[[FC], FC]:
+    """The click option of :data:`gnss_citygml.options.OPTIONS`'s ``name`` (``MIN_ELEVATION``):
+    its flag, type, default and help as declared there, once for the command line and QGIS."""
+    spec: Option = OPTIONS[name]
+    if spec.kind == "switch":
+        flags = f"{spec.flag}/--no-{spec.flag.removeprefix('--')}"
+        return click.option(flags, default=spec.default, show_default=True, help=spec.help)
+    kind = click.Choice(list(spec.choices)) if spec.kind == "choice" else float
+    return click.option(
+        spec.flag, type=kind, default=spec.default, show_default=not spec.optional, help=spec.help
+    )
+
+
+MIN_ELEVATION = option("MIN_ELEVATION")
+MAX_ELEVATION = option("MAX_ELEVATION")
+RECEIVER_HEIGHT = option("RECEIVER_HEIGHT")
+ANTENNA_HEIGHT = option("ANTENNA_HEIGHT")
+THRESHOLD = option("INIT_THRESHOLD")
+METHOD = option("METHOD")
+HEIGHT_RULE = option("HEIGHT_RULE")
+SIGNAL_MODEL = option("SIGNAL_MODEL")
+LEVEL_PHONES = option("LEVEL_PHONES")
+POSITION_DISTANCE = option("POSITION_DISTANCE")
+POSITION_WINDOW = option("POSITION_WINDOW")
+
 TILE_SIZE = click.option(
     "--tile-size",
     type=float,
@@ -130,59 +118,6 @@ ID_FIELD = click.option(
     "column keeps its name.",
 )
 DEM_CRS = click.option("--dem-crs", help="CRS of a DEM that has none, e.g. EPSG:27700.")
-MIN_ELEVATION = click.option(
-    "--min-elevation",
-    type=float,
-    default=Rays.min_elevation,
-    show_default=True,
-    help="Signals below this elevation (deg) are left out.",
-)
-MAX_ELEVATION = click.option(
-    "--max-elevation",
-    type=float,
-    default=Rays.max_elevation,
-    show_default=True,
-    help="Signals above this elevation (deg) are left out.",
-)
-METHOD = click.option(
-    "--method",
-    type=click.Choice(list(METHODS)),
-    default=Estimator.method,
-    show_default=True,
-    help="Height estimator: 4PL-B, the paper's one-shot 4PL, or the hinge or Bayes baseline.",
-)
-HEIGHT_RULE = click.option(
-    "--height-rule",
-    type=click.Choice(list(HEIGHT_RULES)),
-    default=Estimator.height_rule,
-    show_default=True,
-    help="How the height is read off a building's 4PL: its inflection point c, or the paper's "
-    "c + 1.5/b (both are in every output: c and height_paper).",
-)
-SIGNAL_MODEL = click.option(
-    "--signal-model",
-    type=click.Choice(list(SIGNAL_MODELS)),
-    default=Estimator.signal_model,
-    show_default=True,
-    help="How 4PL-B tells open signals from closed ones: the paper's C/N0 threshold trained "
-    "on the map's labels, or a mixture of open and closed signals' C/N0 by elevation learnt "
-    "by EM (method 4PL-B only).",
-)
-LEVEL_PHONES = click.option(
-    "--level-phones/--no-level-phones",
-    default=Estimator.level_phones,
-    show_default=True,
-    help="Put every phone's C/N0 on one level before the signals are classified, each "
-    "phone's offset learnt from its signals that cross no footprint (phones differ by a few "
-    "dB-Hz; method 4PL-B). --no-level-phones: the C/N0 as recorded, as in the paper.",
-)
-THRESHOLD = click.option(
-    "--init-threshold",
-    type=float,
-    default=Estimator.init_threshold,
-    show_default=True,
-    help="C/N0 (dB-Hz) where the initial signal classifier gives 50 %.",
-)
 
 REPORT = click.option(
     "--report",

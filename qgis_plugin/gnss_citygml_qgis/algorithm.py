@@ -12,9 +12,11 @@ import tempfile
 from qgis.core import (
     QgsProcessingAlgorithm,
     QgsProcessingException,
+    QgsProcessingParameterBoolean,
     QgsProcessingParameterDefinition,
     QgsProcessingParameterEnum,
     QgsProcessingParameterFile,
+    QgsProcessingParameterNumber,
 )
 from qgis.PyQt.QtGui import QIcon
 
@@ -157,8 +159,26 @@ class Algorithm(QgsProcessingAlgorithm):
         return self.parameterAsString(parameters, name, context) or None
 
     def chosen(self, parameters, name, options, context):
-        """The one of ``options`` that a :func:`choice` parameter chose."""
+        """The one of ``options`` that a choice parameter chose."""
         return options[self.parameterAsEnum(parameters, name, context)]
+
+    def settings(self, parameters, names, context):
+        """The settings objects' arguments (``{"rays": {...}, "estimator": {...}}``) from the
+        parameters of the library's options ``names`` (:func:`option`)."""
+        from gnss_citygml.options import OPTIONS, settings_arguments
+
+        values = {}
+        for name in names:
+            spec = OPTIONS[name]
+            if spec.kind == "switch":
+                values[name] = self.parameterAsBoolean(parameters, name, context)
+            elif spec.kind == "choice":
+                values[name] = self.chosen(parameters, name, spec.choices, context)
+            elif spec.optional:
+                values[name] = self.optional_number(parameters, name, context)
+            else:
+                values[name] = self.parameterAsDouble(parameters, name, context)
+        return settings_arguments(values, names)
 
 
 def advanced(parameter):
@@ -167,18 +187,6 @@ def advanced(parameter):
     return parameter
 
 
-#: The description of the height rule parameter (estimate, update).
-HEIGHT_RULE = "Height rule (c: the 4PL's inflection point; paper: c + 1.5/b)"
-#: The description of the signal model parameter (estimate, update).
-SIGNAL_MODEL = (
-    "Signal model (paper: a C/N0 threshold; mixture: open and closed signals' C/N0 by "
-    "elevation, learnt by EM; 4PL-B only)"
-)
-#: The description of the phones' levelling parameter (estimate, update).
-LEVEL_PHONES = (
-    "Level each phone's C/N0 by its signals that cross no footprint (off: as recorded, as in "
-    "the paper; 4PL-B only)"
-)
 #: The sentence of the algorithms' help on the signal model (estimate, update).
 SIGNAL_MODEL_HELP = (
     "The signal model (advanced) is how 4PL-B tells open signals from closed ones: the "
@@ -188,11 +196,31 @@ SIGNAL_MODEL_HELP = (
 )
 
 
-def choice(name, description, options, default):
-    """A parameter choosing one of ``options`` (shown by name), ``default`` at first."""
-    options = list(options)
-    return QgsProcessingParameterEnum(
-        name, description, options=options, defaultValue=options.index(default)
+def option(name):
+    """The parameter of the library's option ``name`` (``gnss_citygml.options.OPTIONS``: the
+    command line's option made from the same declaration): its label, default, range and
+    choices."""
+    from gnss_citygml.options import OPTIONS
+
+    spec = OPTIONS[name]
+    if spec.kind == "switch":
+        return QgsProcessingParameterBoolean(name, spec.label, defaultValue=spec.default)
+    if spec.kind == "choice":
+        return QgsProcessingParameterEnum(
+            name,
+            spec.label,
+            options=list(spec.words or spec.choices),
+            defaultValue=spec.choices.index(spec.default),
+        )
+    low, high = spec.bounds
+    return QgsProcessingParameterNumber(
+        name,
+        spec.label,
+        QgsProcessingParameterNumber.Double,
+        spec.default,
+        optional=spec.optional,
+        minValue=low,
+        maxValue=high,
     )
 
 

@@ -8,28 +8,37 @@ from qgis.core import (
     QgsProcessing,
     QgsProcessingLayerPostProcessorInterface,
     QgsProcessingOutputNumber,
-    QgsProcessingParameterBoolean,
-    QgsProcessingParameterEnum,
     QgsProcessingParameterFeatureSource,
     QgsProcessingParameterField,
     QgsProcessingParameterFile,
-    QgsProcessingParameterNumber,
     QgsProcessingParameterRasterLayer,
     QgsProcessingParameterVectorDestination,
 )
 
-from .algorithm import (
-    HEIGHT_RULE,
-    LEVEL_PHONES,
-    SIGNAL_MODEL,
-    SIGNAL_MODEL_HELP,
-    Algorithm,
-    advanced,
-    choice,
-    folder,
-)
+from .algorithm import SIGNAL_MODEL_HELP, Algorithm, advanced, folder, option
 
 LAYER = "heights"
+
+#: The library's options (``gnss_citygml.options``) the algorithm offers, in order, and those
+#: of them shown under "Advanced parameters".
+_OPTIONS = (
+    "MIN_ELEVATION",
+    "MAX_ELEVATION",
+    "RECEIVER_HEIGHT",
+    "ANTENNA_HEIGHT",
+    "INIT_THRESHOLD",
+    "METHOD",
+    "HEIGHT_RULE",
+    "SIGNAL_MODEL",
+    "LEVEL_PHONES",
+    "MAX_RANGE",
+    "POSITION_SD",
+    "POSITION_DISTANCE",
+    "POSITION_WINDOW",
+    "CALIBRATION_SD",
+    "CALIBRATION_WINDOW",
+)
+_ADVANCED = set(_OPTIONS[7:])
 
 HELP = (
     """Estimates the height of every building footprint from the GNSS signals that \
@@ -92,24 +101,6 @@ class EstimateAlgorithm(Algorithm):
         return HELP
 
     def define(self):
-        from gnss_citygml.model import METHODS
-        from gnss_citygml.settings import (
-            ANTENNA_HEIGHTS,
-            CN0S,
-            HEIGHT_RULES,
-            MAX_RANGES,
-            POSITION_DISTANCES,
-            POSITION_SDS,
-            RECEIVER_HEIGHTS,
-            SIGNAL_MODELS,
-            WINDOWS,
-            Estimator,
-            PositionError,
-            Rays,
-            ReceiverHeights,
-        )
-
-        double = QgsProcessingParameterNumber.Double
         self.addParameter(
             QgsProcessingParameterFile(
                 "OBSERVATIONS",
@@ -131,127 +122,9 @@ class EstimateAlgorithm(Algorithm):
                 optional=True,
             )
         )
-        self.addParameter(
-            QgsProcessingParameterNumber(
-                "MIN_ELEVATION",
-                "Lowest satellite elevation (degrees)",
-                double,
-                Rays.min_elevation,
-                minValue=0,
-                maxValue=90,
-            )
-        )
-        self.addParameter(
-            QgsProcessingParameterNumber(
-                "MAX_ELEVATION",
-                "Highest satellite elevation (degrees)",
-                double,
-                Rays.max_elevation,
-                minValue=0,
-                maxValue=90,
-            )
-        )
-        self.addParameter(
-            QgsProcessingParameterEnum(
-                "RECEIVER_HEIGHT",
-                "Receiver height from",
-                options=["the DEM + antenna height", "the observations' h (the log)"],
-                defaultValue=RECEIVER_HEIGHTS.index(ReceiverHeights.source),
-            )
-        )
-        self.addParameter(
-            QgsProcessingParameterNumber(
-                "ANTENNA_HEIGHT",
-                "Antenna height above the ground (m)",
-                double,
-                ReceiverHeights.antenna_height,
-                minValue=ANTENNA_HEIGHTS[0],
-                maxValue=ANTENNA_HEIGHTS[1],
-            )
-        )
-        self.addParameter(
-            QgsProcessingParameterNumber(
-                "INIT_THRESHOLD",
-                "Initial C/N0 threshold (dB-Hz)",
-                double,
-                Estimator.init_threshold,
-                minValue=CN0S[0],
-                maxValue=CN0S[1],
-            )
-        )
-        self.addParameter(choice("METHOD", "Method", METHODS, Estimator.method))
-        self.addParameter(choice("HEIGHT_RULE", HEIGHT_RULE, HEIGHT_RULES, Estimator.height_rule))
-        self.addParameter(
-            advanced(choice("SIGNAL_MODEL", SIGNAL_MODEL, SIGNAL_MODELS, Estimator.signal_model))
-        )
-        self.addParameter(
-            advanced(
-                QgsProcessingParameterBoolean(
-                    "LEVEL_PHONES", LEVEL_PHONES, defaultValue=Estimator.level_phones
-                )
-            )
-        )
-        self.addParameter(
-            advanced(
-                QgsProcessingParameterNumber(
-                    "MAX_RANGE",
-                    "Ray length (m)",
-                    double,
-                    Rays.max_range,
-                    minValue=MAX_RANGES[0],
-                    maxValue=MAX_RANGES[1],
-                )
-            )
-        )
-        self.addParameter(
-            advanced(
-                QgsProcessingParameterNumber(
-                    "POSITION_SD",
-                    "Receiver position error (m per axis; default: the observations', 1 m where "
-                    "empty; 0: exact)",
-                    double,
-                    optional=True,
-                    minValue=POSITION_SDS[0],
-                    maxValue=POSITION_SDS[1],
-                )
-            )
-        )
-        self.addParameter(
-            advanced(
-                QgsProcessingParameterNumber(
-                    "POSITION_DISTANCE",
-                    "Position error of a moving receiver lasts for (m)",
-                    double,
-                    defaultValue=PositionError.distance,
-                    minValue=POSITION_DISTANCES[0],
-                    maxValue=POSITION_DISTANCES[1],
-                )
-            )
-        )
-        for name, description, (low, high) in (
-            (
-                "POSITION_WINDOW",
-                "Instead: position error of a moving receiver lasts (s)",
-                WINDOWS,
-            ),
-            (
-                "CALIBRATION_SD",
-                "Self-calibrate receiver offsets with prior (m; 4PL-B only)",
-                POSITION_SDS,
-            ),
-            (
-                "CALIBRATION_WINDOW",
-                "One calibration offset per (s; default: per recording)",
-                WINDOWS,
-            ),
-        ):
-            self.addParameter(
-                advanced(
-                    QgsProcessingParameterNumber(
-                        name, description, double, optional=True, minValue=low, maxValue=high
-                    )
-                )
-            )
+        for name in _OPTIONS:
+            parameter = option(name)
+            self.addParameter(advanced(parameter) if name in _ADVANCED else parameter)
         self.addParameter(folder("GRID_DIR", "Folder with the OSTN15/OSGM15 grids"))
         self.addParameter(
             QgsProcessingParameterVectorDestination(
@@ -262,11 +135,6 @@ class EstimateAlgorithm(Algorithm):
         self.addOutput(QgsProcessingOutputNumber("CONVERGED", "Buildings with a height"))
 
     def job(self, parameters, context, feedback):
-        from gnss_citygml.model import METHODS
-        from gnss_citygml.settings import HEIGHT_RULES, RECEIVER_HEIGHTS, SIGNAL_MODELS
-
-        number = self.parameterAsDouble
-        optional = self.optional_number
         footprints, layer = self.parameterAsCompatibleSourceLayerPathAndLayerName(
             parameters, "FOOTPRINTS", context, ["gpkg", "fgb", "shp", "gml"], "gpkg", feedback
         )
@@ -279,33 +147,7 @@ class EstimateAlgorithm(Algorithm):
             "output": output,
             "layer": layer or None,
             "id_field": self.optional_text(parameters, "ID_FIELD", context),
-            "rays": {
-                "min_elevation": number(parameters, "MIN_ELEVATION", context),
-                "max_elevation": number(parameters, "MAX_ELEVATION", context),
-                "max_range": number(parameters, "MAX_RANGE", context),
-            },
-            "receiver_heights": {
-                "source": RECEIVER_HEIGHTS[
-                    self.parameterAsEnum(parameters, "RECEIVER_HEIGHT", context)
-                ],
-                "antenna_height": number(parameters, "ANTENNA_HEIGHT", context),
-            },
-            "estimator": {
-                "method": self.chosen(parameters, "METHOD", METHODS, context),
-                "init_threshold": number(parameters, "INIT_THRESHOLD", context),
-                "height_rule": self.chosen(parameters, "HEIGHT_RULE", HEIGHT_RULES, context),
-                "signal_model": self.chosen(parameters, "SIGNAL_MODEL", SIGNAL_MODELS, context),
-                "level_phones": self.parameterAsBoolean(parameters, "LEVEL_PHONES", context),
-            },
-            "position_error": {
-                "sd": optional(parameters, "POSITION_SD", context),
-                "window": optional(parameters, "POSITION_WINDOW", context),
-                "distance": number(parameters, "POSITION_DISTANCE", context),
-            },
-            "calibration": {
-                "prior_sd": optional(parameters, "CALIBRATION_SD", context),
-                "window": optional(parameters, "CALIBRATION_WINDOW", context),
-            },
+            **self.settings(parameters, _OPTIONS, context),
             "dem_crs": dem.crs().authid() or None,
             "grid_dir": self.optional_text(parameters, "GRID_DIR", context),
             "overwrite": True,  # QGIS's file dialog has asked; a GeoPackage keeps other layers

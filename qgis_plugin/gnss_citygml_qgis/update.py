@@ -18,16 +18,10 @@ from qgis.core import (
     QgsProviderRegistry,
 )
 
-from .algorithm import (
-    HEIGHT_RULE,
-    LEVEL_PHONES,
-    SIGNAL_MODEL,
-    SIGNAL_MODEL_HELP,
-    Algorithm,
-    advanced,
-    choice,
-    folder,
-)
+from .algorithm import SIGNAL_MODEL_HELP, Algorithm, advanced, folder, option
+
+#: The library's options (``gnss_citygml.options``) the algorithm offers (advanced), in order.
+_OPTIONS = ("METHOD", "HEIGHT_RULE", "SIGNAL_MODEL", "LEVEL_PHONES", "INIT_THRESHOLD")
 
 HELP = (
     """Keeps the building heights of a GeoPackage map up to date as new GNSS observations \
@@ -62,9 +56,6 @@ class UpdateAlgorithm(Algorithm):
         return HELP
 
     def define(self):
-        from gnss_citygml.model import METHODS
-        from gnss_citygml.settings import CN0S, HEIGHT_RULES, SIGNAL_MODELS, Estimator
-
         self.addParameter(
             QgsProcessingParameterVectorLayer(
                 "MAP", "Map layer (in a GeoPackage)", [QgsProcessing.TypeVectorPolygon]
@@ -105,40 +96,13 @@ class UpdateAlgorithm(Algorithm):
         self.addParameter(
             QgsProcessingParameterBoolean("BACKUP", "Keep the map as it was (MAP.bak.gpkg)", True)
         )
-        self.addParameter(advanced(choice("METHOD", "Method", METHODS, Estimator.method)))
-        self.addParameter(
-            advanced(choice("HEIGHT_RULE", HEIGHT_RULE, HEIGHT_RULES, Estimator.height_rule))
-        )
-        self.addParameter(
-            advanced(choice("SIGNAL_MODEL", SIGNAL_MODEL, SIGNAL_MODELS, Estimator.signal_model))
-        )
-        self.addParameter(
-            advanced(
-                QgsProcessingParameterBoolean(
-                    "LEVEL_PHONES", LEVEL_PHONES, defaultValue=Estimator.level_phones
-                )
-            )
-        )
-        self.addParameter(
-            advanced(
-                QgsProcessingParameterNumber(
-                    "INIT_THRESHOLD",
-                    "Initial C/N0 threshold (dB-Hz)",
-                    QgsProcessingParameterNumber.Double,
-                    Estimator.init_threshold,
-                    minValue=CN0S[0],
-                    maxValue=CN0S[1],
-                )
-            )
-        )
+        for name in _OPTIONS:
+            self.addParameter(advanced(option(name)))
         self.addParameter(folder("GRID_DIR", "Folder with the OSTN15/OSGM15 grids"))
         self.addOutput(QgsProcessingOutputNumber("UPDATED", "Buildings updated"))
         self.addOutput(QgsProcessingOutputBoolean("WRITTEN", "Map written"))
 
     def job(self, parameters, context, feedback):
-        from gnss_citygml.model import METHODS
-        from gnss_citygml.settings import HEIGHT_RULES, SIGNAL_MODELS
-
         layer = self.parameterAsVectorLayer(parameters, "MAP", context)
         parts = QgsProviderRegistry.instance().decodeUri(layer.providerType(), layer.source())
         path = parts.get("path", "")
@@ -158,13 +122,7 @@ class UpdateAlgorithm(Algorithm):
             "threshold": self.parameterAsDouble(parameters, "THRESHOLD", context),
             "dry_run": self.parameterAsBoolean(parameters, "DRY_RUN", context),
             "backup": self.parameterAsBoolean(parameters, "BACKUP", context),
-            "estimator": {
-                "method": self.chosen(parameters, "METHOD", METHODS, context),
-                "init_threshold": self.parameterAsDouble(parameters, "INIT_THRESHOLD", context),
-                "height_rule": self.chosen(parameters, "HEIGHT_RULE", HEIGHT_RULES, context),
-                "signal_model": self.chosen(parameters, "SIGNAL_MODEL", SIGNAL_MODELS, context),
-                "level_phones": self.parameterAsBoolean(parameters, "LEVEL_PHONES", context),
-            },
+            **self.settings(parameters, _OPTIONS, context),
             "grid_dir": self.optional_text(parameters, "GRID_DIR", context),
             "dem_crs": dem.crs().authid() or None,
         }

@@ -75,6 +75,30 @@ def test_estimate_parameters_take_the_librarys_defaults(plugin):
 
 
 @pytest.mark.parametrize("name", ["gnsscitygml:estimate", "gnsscitygml:update"])
+def test_qgis_and_the_command_line_cannot_disagree(plugin, name):
+    """Each of the library's options in QGIS is its declaration in gnss_citygml.options:
+    label, default, range, choices (the command line's options are checked against the same
+    declarations by tests/test_options.py), so the two cannot disagree (issue 29)."""
+    from gnss_citygml.options import OPTIONS
+
+    algorithm = QgsApplication.processingRegistry().algorithmById(name)
+    given = [p for p in algorithm.parameterDefinitions() if p.name() in OPTIONS]
+    assert len(given) >= 5
+    for parameter in given:
+        spec = OPTIONS[parameter.name()]
+        assert parameter.description() == spec.label
+        if spec.kind == "choice":
+            assert list(spec.choices)[parameter.defaultValue()] == spec.default
+            assert parameter.options() == list(spec.words or spec.choices)
+        elif spec.kind == "switch":
+            assert parameter.defaultValue() is spec.default
+        else:
+            assert parameter.defaultValue() == spec.default
+            assert (parameter.minimum(), parameter.maximum()) == spec.bounds
+            assert bool(parameter.flags() & parameter.FlagOptional) == spec.optional
+
+
+@pytest.mark.parametrize("name", ["gnsscitygml:estimate", "gnsscitygml:update"])
 def test_the_signal_model_is_an_advanced_choice_with_the_librarys_default(plugin, name):
     from qgis.core import QgsProcessingParameterDefinition
 

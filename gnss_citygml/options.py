@@ -1,0 +1,261 @@
+"""The settings a user chooses, each declared once: its name on the command line and in QGIS,
+its kind, default, range and words.
+
+The command line's options (:mod:`gnss_citygml.cli.options`) and the QGIS plugin's parameters
+are both made from :data:`OPTIONS`, so they cannot disagree: the same default, the same range,
+the same choices. The defaults are the settings objects' own (:mod:`gnss_citygml.settings`)
+and the ranges those their checks enforce, so the Python API agrees too. A range is not
+checked by click or QGIS but once, where the settings object is made: a bad value is the
+toolkit's one-line error naming the option (QGIS's spin boxes only stop at the ends).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from .model import METHODS
+from .settings import (
+    ANTENNA_HEIGHTS,
+    CN0S,
+    ELEVATIONS,
+    HEIGHT_RULES,
+    MAX_RANGES,
+    POSITION_DISTANCES,
+    POSITION_SDS,
+    RECEIVER_HEIGHTS,
+    SIGNAL_MODELS,
+    WINDOWS,
+    Calibration,
+    Estimator,
+    PositionError,
+    Rays,
+    ReceiverHeights,
+)
+
+__all__ = ["OPTIONS", "Option"]
+
+#: The kinds of option: a number, one of some choices, a switch (on or off).
+KINDS = ("number", "choice", "switch")
+
+
+@dataclass(frozen=True)
+class Option:
+    """One setting a user chooses.
+
+    ``setting`` is where it goes: the settings object's argument of the job (``rays``,
+    ``estimator``, ...) and its field. ``flag`` is the command line's name (``--min-elevation``;
+    the QGIS parameter is :attr:`name`, ``MIN_ELEVATION``). ``label`` is QGIS's short
+    description, ``help`` the command line's. ``default`` is the settings object's (None: left
+    out, the option is optional); ``bounds`` the range its check enforces; ``choices`` the
+    values of a choice, and ``words`` how QGIS shows them (default: the values themselves).
+    """
+
+    setting: tuple[str, str]
+    flag: str
+    kind: str
+    label: str
+    help: str
+    default: Any = None
+    bounds: tuple[float, float] | None = None
+    choices: tuple[str, ...] = ()
+    words: tuple[str, ...] = ()
+
+    def __post_init__(self):
+        if self.kind not in KINDS:
+            raise ValueError(f"an option's kind is one of {KINDS}, not {self.kind!r}")
+        if (self.kind == "choice") != bool(self.choices):
+            raise ValueError(f"{self.flag}: choices are for a choice, and a choice needs them")
+
+    @property
+    def name(self) -> str:
+        """The QGIS parameter's name: ``MIN_ELEVATION`` for ``--min-elevation``."""
+        return self.flag.removeprefix("--").replace("-", "_").upper()
+
+    @property
+    def dest(self) -> str:
+        """The command line's parameter name: ``min_elevation``."""
+        return self.name.lower()
+
+    @property
+    def optional(self) -> bool:
+        """Whether it may be left out (no default: the settings object's own logic)."""
+        return self.default is None
+
+
+def _default(settings: type, field: str) -> Any:
+    """A settings class's default for ``field`` (a frozen dataclass: the class attribute)."""
+    return getattr(settings, field)
+
+
+_OPTIONS = (
+    Option(
+        ("rays", "min_elevation"),
+        "--min-elevation",
+        "number",
+        "Lowest satellite elevation (degrees)",
+        "Signals below this elevation (deg) are left out.",
+        _default(Rays, "min_elevation"),
+        ELEVATIONS,
+    ),
+    Option(
+        ("rays", "max_elevation"),
+        "--max-elevation",
+        "number",
+        "Highest satellite elevation (degrees)",
+        "Signals above this elevation (deg) are left out.",
+        _default(Rays, "max_elevation"),
+        ELEVATIONS,
+    ),
+    Option(
+        ("receiver_heights", "source"),
+        "--receiver-height",
+        "choice",
+        "Receiver height from",
+        "Antenna height from the DEM (+ --antenna-height) or from the observations' h.",
+        _default(ReceiverHeights, "source"),
+        choices=RECEIVER_HEIGHTS,
+        words=("the DEM + antenna height", "the observations' h (the log)"),
+    ),
+    Option(
+        ("receiver_heights", "antenna_height"),
+        "--antenna-height",
+        "number",
+        "Antenna height above the ground (m)",
+        "Metres.",
+        _default(ReceiverHeights, "antenna_height"),
+        ANTENNA_HEIGHTS,
+    ),
+    Option(
+        ("estimator", "init_threshold"),
+        "--init-threshold",
+        "number",
+        "Initial C/N0 threshold (dB-Hz)",
+        "C/N0 (dB-Hz) where the initial signal classifier gives 50 %.",
+        _default(Estimator, "init_threshold"),
+        CN0S,
+    ),
+    Option(
+        ("estimator", "method"),
+        "--method",
+        "choice",
+        "Method",
+        "Height estimator: 4PL-B, the paper's one-shot 4PL, or the hinge or Bayes baseline.",
+        _default(Estimator, "method"),
+        choices=METHODS,
+    ),
+    Option(
+        ("estimator", "height_rule"),
+        "--height-rule",
+        "choice",
+        "Height rule (c: the 4PL's inflection point; paper: c + 1.5/b)",
+        "How the height is read off a building's 4PL: its inflection point c, or the paper's "
+        "c + 1.5/b (both are in every output: c and height_paper).",
+        _default(Estimator, "height_rule"),
+        choices=HEIGHT_RULES,
+    ),
+    Option(
+        ("estimator", "signal_model"),
+        "--signal-model",
+        "choice",
+        "Signal model (paper: a C/N0 threshold; mixture: open and closed signals' C/N0 by "
+        "elevation, learnt by EM; 4PL-B only)",
+        "How 4PL-B tells open signals from closed ones: the paper's C/N0 threshold trained "
+        "on the map's labels, or a mixture of open and closed signals' C/N0 by elevation learnt "
+        "by EM (method 4PL-B only).",
+        _default(Estimator, "signal_model"),
+        choices=SIGNAL_MODELS,
+    ),
+    Option(
+        ("estimator", "level_phones"),
+        "--level-phones",
+        "switch",
+        "Level each phone's C/N0 by its signals that cross no footprint (off: as recorded, as in "
+        "the paper; 4PL-B only)",
+        "Put every phone's C/N0 on one level before the signals are classified, each "
+        "phone's offset learnt from its signals that cross no footprint (phones differ by a few "
+        "dB-Hz; method 4PL-B). --no-level-phones: the C/N0 as recorded, as in the paper.",
+        _default(Estimator, "level_phones"),
+    ),
+    Option(
+        ("rays", "max_range"),
+        "--max-range",
+        "number",
+        "Ray length (m)",
+        "Ray length (m).",
+        _default(Rays, "max_range"),
+        MAX_RANGES,
+    ),
+    Option(
+        ("position_error", "sd"),
+        "--position-sd",
+        "number",
+        "Receiver position error (m per axis; default: the observations', 1 m where empty; "
+        "0: exact)",
+        "How far every receiver position may be off (m per axis; about 1 for points placed "
+        "by hand), overriding the observations' position_sd: the fits model the height errors "
+        "that follow and the ranges widen. 0: positions taken as exact, as in the paper. "
+        "Default: each observation's position_sd (a phone fix's accuracy), 1 m where it is "
+        "empty.",
+        _default(PositionError, "sd"),
+        POSITION_SDS,
+    ),
+    Option(
+        ("position_error", "distance"),
+        "--position-distance",
+        "number",
+        "Position error of a moving receiver lasts for (m)",
+        "Metres a moving receiver (a walker's traced path, a phone's fixes) goes with one "
+        "position error: the next begins once its reported position is this far from where the "
+        "last began (the next stretch of street has other reflections). A receiver standing at "
+        "one point, or a phone lying still, keeps one. Longer than the walk: one per recording.",
+        _default(PositionError, "distance"),
+        POSITION_DISTANCES,
+    ),
+    Option(
+        ("position_error", "window"),
+        "--position-window",
+        "number",
+        "Instead: position error of a moving receiver lasts (s)",
+        "Instead of --position-distance: seconds one position error of a moving receiver "
+        "lasts. A receiver standing at one point (a point placed by hand) shares one error over "
+        "its stay either way.",
+        _default(PositionError, "window"),
+        WINDOWS,
+    ),
+    Option(
+        ("calibration", "prior_sd"),
+        "--calibration-sd",
+        "number",
+        "Self-calibrate receiver offsets with prior (m; 4PL-B only)",
+        "Self-calibrate one position offset per recording with this prior (m per axis; "
+        "about 1 for hand-placed points, 5 for phone fixes; method 4PL-B only). Off by default.",
+        _default(Calibration, "prior_sd"),
+        POSITION_SDS,
+    ),
+    Option(
+        ("calibration", "window"),
+        "--calibration-window",
+        "number",
+        "One calibration offset per (s; default: per recording)",
+        "With --calibration-sd: one offset per this many seconds of a recording (about 30 "
+        "for phone fixes, whose errors drift) instead of one per recording.",
+        _default(Calibration, "window"),
+        WINDOWS,
+    ),
+)
+
+#: Every option, by its QGIS name (``MIN_ELEVATION``).
+OPTIONS: dict[str, Option] = {option.name: option for option in _OPTIONS}
+
+
+def settings_arguments(values: dict[str, Any], names) -> dict[str, dict[str, Any]]:
+    """The settings objects' arguments (``{"rays": {"min_elevation": 10.0}, ...}``) from the
+    ``values`` of the options ``names`` (by QGIS name; a value None is left out)."""
+    arguments: dict[str, dict[str, Any]] = {}
+    for name in names:
+        setting, field = OPTIONS[name].setting
+        arguments.setdefault(setting, {})
+        if values[name] is not None:
+            arguments[setting][field] = values[name]
+    return arguments

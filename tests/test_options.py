@@ -1,0 +1,95 @@
+"""Each option a user chooses is declared once (gnss_citygml.options): the command line's
+options are made from the declarations, whose defaults are the settings objects' and whose
+ranges are those the settings' checks enforce (the QGIS side: qgis_plugin/tests)."""
+
+import click
+import pytest
+
+from gnss_citygml.cli import COMMANDS, cli
+from gnss_citygml.errors import InputError
+from gnss_citygml.options import OPTIONS, Option, settings_arguments
+from gnss_citygml.settings import Calibration, Estimator, PositionError, Rays, ReceiverHeights
+
+SETTINGS = {
+    "rays": Rays,
+    "receiver_heights": ReceiverHeights,
+    "estimator": Estimator,
+    "position_error": PositionError,
+    "calibration": Calibration,
+}
+
+
+def command_options():
+    """(command, click option) for every option of every subcommand."""
+    context = click.Context(cli)
+    for name in COMMANDS:
+        command = cli.get_command(context, name)
+        for param in command.params:
+            if isinstance(param, click.Option):
+                yield name, param
+
+
+def test_every_command_line_option_of_a_setting_is_its_declaration():
+    seen = set()
+    for command, param in command_options():
+        spec = next((s for s in OPTIONS.values() if s.dest == param.name), None)
+        if spec is None:
+            continue
+        seen.add(spec.name)
+        where = f"{command} {spec.flag}"
+        assert param.default == spec.default, where
+        assert param.help == spec.help, where
+        assert spec.flag in param.opts, where
+        if spec.kind == "choice":
+            assert list(param.type.choices) == list(spec.choices), where
+        elif spec.kind == "switch":
+            assert param.is_flag and param.secondary_opts, where
+        else:
+            assert param.type is click.FLOAT, where
+    assert seen == set(OPTIONS)  # every declaration is offered by some command
+
+
+@pytest.mark.parametrize("spec", OPTIONS.values(), ids=list(OPTIONS))
+def test_the_default_is_the_settings_objects(spec):
+    settings, field = spec.setting
+    assert getattr(SETTINGS[settings](), field) == spec.default
+
+
+@pytest.mark.parametrize(
+    "spec", [s for s in OPTIONS.values() if s.kind == "number"], ids=lambda s: s.name
+)
+def test_the_range_is_the_one_the_settings_enforce(spec):
+    settings, field = spec.setting
+    low, high = spec.bounds
+    for outside in (low - 1.0, high + 1.0):
+        with pytest.raises(InputError):
+            make(settings, field, outside)
+    make(settings, field, low if field == "min_elevation" else high)  # an end is in
+
+
+def make(settings, field, value):
+    """The settings object with ``field`` at ``value``, the rest default (a calibration window
+    needs a prior)."""
+    extra = {"prior_sd": 5.0} if (settings, field) == ("calibration", "window") else {}
+    return SETTINGS[settings](**{field: value, **extra})
+
+
+def test_the_elevation_bounds_are_the_masks():
+    Rays(min_elevation=-90.0, max_elevation=90.0)  # the widest band: QGIS allows it too
+    assert OPTIONS["MIN_ELEVATION"].bounds == OPTIONS["MAX_ELEVATION"].bounds == (-90.0, 90.0)
+
+
+def test_settings_arguments_leave_out_what_is_not_given():
+    values = {"POSITION_SD": None, "POSITION_DISTANCE": 50.0, "METHOD": "4PL"}
+    assert settings_arguments(values, list(values)) == {
+        "position_error": {"distance": 50.0},
+        "estimator": {"method": "4PL"},
+    }
+
+
+def test_a_declaration_is_checked():
+    with pytest.raises(ValueError, match="kind"):
+        Option(("rays", "x"), "--x", "text", "X", "X.")
+    with pytest.raises(ValueError, match="choices"):
+        Option(("estimator", "method"), "--method", "choice", "Method", "Method.")
+    assert Option(("rays", "max_range"), "--max-range", "number", "R", "R.").name == "MAX_RANGE"

@@ -22,8 +22,7 @@ import numpy as np
 import pandas as pd
 import shapely
 
-from gnss_citygml.model.classifier import SignalClassifier
-from gnss_citygml.model.estimate import estimate_heights
+from gnss_citygml.model.estimate import heights_and_signal_model
 from gnss_citygml.pipeline import Run, join_heights
 from gnss_citygml.report import write_report
 from gnss_citygml.settings import Estimator
@@ -72,8 +71,7 @@ def synthetic_run(n_buildings: int, seed: int = 0) -> Run:
             "cn0": cn0,
         }
     )
-    heights = estimate_heights(intersections, Estimator())
-    classifier = SignalClassifier(**heights.attrs["signal_classifier"])
+    heights, classifier = heights_and_signal_model(intersections, Estimator())
     joined = join_heights(buildings, heights, "4PL-B", "id")
     return Run(joined, receivers, intersections, buildings, classifier)
 

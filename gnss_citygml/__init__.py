@@ -35,6 +35,7 @@ _LAZY = {
     # the job
     "estimate": "pipeline",
     "estimate_heights": "model.estimate",
+    "heights_and_signal_model": "model.estimate",
     "read_observations": "observations",
     "read_footprints": "footprints",
     "write_cityjson": "export.cityjson",
@@ -85,7 +86,7 @@ if TYPE_CHECKING:  # the same names, for type checkers (tests/test_package.py co
     from .gnss.orbits import load_orbits
     from .model import METHODS
     from .model.classifier import SignalClassifier
-    from .model.estimate import HEIGHTS_COLUMNS, estimate_heights
+    from .model.estimate import HEIGHTS_COLUMNS, estimate_heights, heights_and_signal_model
     from .observations import check_observations, read_observations, write_observations
     from .pipeline import estimate
     from .settings import Acceptance, Calibration, Estimator, PositionError, Rays, ReceiverHeights
@@ -98,6 +99,7 @@ __all__ = [
     # the job
     "estimate",
     "estimate_heights",
+    "heights_and_signal_model",
     "read_observations",
     "read_footprints",
     "write_cityjson",

@@ -27,7 +27,7 @@ from .errors import InputError
 from .files.ids import id_field
 from .files.paths import StrPath, atomic_folder
 from .geodesy import CrsInput, check_bng
-from .model.estimate import estimate_heights, signal_model
+from .model.estimate import heights_and_signal_model
 from .model.fourplb import SignalModel
 from .settings import (
     Calibration,
@@ -390,10 +390,8 @@ def fit_heights(
     ``progress`` is told the model's stage and the output's."""
     say = progress or (lambda stage: None)
     say(STAGES[4])
-    heights = estimate_heights(intersections, estimator, open_sky=open_sky)
+    heights, classifier = heights_and_signal_model(intersections, estimator, open_sky=open_sky)
     say(STAGES[5])
-    fitted = heights.attrs.get("signal_classifier")
-    classifier = None if fitted is None else signal_model(fitted)
     return join_heights(buildings, heights, estimator.method, name), classifier
 
 

@@ -15,7 +15,7 @@ from test_tiled import assert_close_heights, assert_same_heights
 from gnss_citygml.errors import InputError
 from gnss_citygml.footprints import read_footprints
 from gnss_citygml.jobs import estimate_file
-from gnss_citygml.model.estimate import estimate_heights
+from gnss_citygml.model.estimate import estimate_heights, heights_and_signal_model
 from gnss_citygml.observations import read_observations, write_observations
 from gnss_citygml.pipeline import in_mask, intersections, open_sky, receivers, run_partitioned
 from gnss_citygml.settings import Estimator, PositionError, Rays, ReceiverHeights, Tiling
@@ -90,13 +90,13 @@ def test_a_run_from_a_partition_gives_the_single_runs_heights(halves, tmp_path):
     buildings = pd.concat([buildings, far], ignore_index=True)
     rx = receivers(in_mask(both), DEM)
     inter = intersections(rx, buildings)
-    single = estimate_heights(inter, open_sky=open_sky(rx, inter))
+    single, model = heights_and_signal_model(inter, open_sky=open_sky(rx, inter))
     assert "far" not in set(single["id"])
     said = []
-    tiled, _ = partitioned_heights(tmp_path / "p", buildings, progress=said.append)
+    tiled, tiled_model = partitioned_heights(tmp_path / "p", buildings, progress=said.append)
     assert said[0] == "tile plan: 12 tiles of 100 m from 15 partitions"
     assert single["converged"].sum() >= 10
-    assert_same_heights(tiled, single)
+    assert_same_heights((tiled, tiled_model), (single, model))
     # written tile by tile: the same heights, read back whole; the far tile has its building
     out = TileFolder(str(tmp_path / "t"), "4PL-B", "id", 100.0)
     index, _ = partitioned_heights(tmp_path / "p", buildings, output=out)

@@ -7,7 +7,6 @@ Also :func:`fourplb`, 4PL-B (or the one-shot 4PL) on coded arrays: a run of one 
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import asdict
 
 import numpy as np
 import numpy.typing as npt
@@ -16,10 +15,9 @@ import pandas as pd
 from ..errors import InputError, MissingColumnError, listing
 from ..settings import Estimator
 from .baselines import bayes_heights, hinge_heights
-from .classifier import SignalClassifier
 from .engine import run_parts
 from .fourplb import BuildingFits, SignalModel
-from .mixture import Cn0Mixture, Cn0Moments, elevation_units
+from .mixture import Cn0Moments, elevation_units
 from .offsets import levelled, sky_counts
 from .parts import Part
 
@@ -27,10 +25,10 @@ __all__ = [
     "HEIGHTS_COLUMNS",
     "estimate_heights",
     "fourplb",
+    "heights_and_signal_model",
     "intersections_part",
     "phone_offsets",
     "open_sky_moments",
-    "signal_model",
 ]
 
 #: Columns of the heights table, in order (see DESIGN.md; ``status`` says why a building did
@@ -101,8 +99,8 @@ def estimate_heights(
         ``height_paper`` (c + 1.5/b, whichever the rule), ``a``, ``b``, ``c``, ``d``,
         ``n_signals``, ``iterations``, ``converged``,
         ``method`` and ``status``. A building whose estimate is not to be trusted has
-        ``converged = False``, empty heights and the reason in ``status``. For 4PL-B,
-        ``attrs["signal_classifier"]`` holds the final C/N0 classifier.
+        ``converged = False``, empty heights and the reason in ``status``. The final signal
+        model comes with it from :func:`heights_and_signal_model`.
 
     Raises
     ------
@@ -117,13 +115,23 @@ def estimate_heights(
       id  converged                 status
     0  a      False  fewer than 10 signals
     """
+    return heights_and_signal_model(intersections, estimator, open_sky)[0]
+
+
+def heights_and_signal_model(
+    intersections: pd.DataFrame,
+    estimator: Estimator = Estimator(),
+    open_sky: pd.DataFrame | None = None,
+) -> tuple[pd.DataFrame, SignalModel | None]:
+    """:func:`estimate_heights`'s heights table, and the signal model its fits ended with (the
+    4PL methods' C/N0 classifier or mixture; None for the hinge and Bayes baselines)."""
     if not estimator.fourpl:
         ids, columns = _baseline_columns(intersections, estimator)
-        return pd.DataFrame({"id": ids, **columns, "method": estimator.method})[HEIGHTS_COLUMNS]
-    ids, columns, classifier = _fourpl_columns(intersections, estimator, open_sky)
-    out = pd.DataFrame({"id": ids, **columns, "method": estimator.method})[HEIGHTS_COLUMNS]
-    out.attrs["signal_classifier"] = asdict(classifier)
-    return out
+        model = None
+    else:
+        ids, columns, model = _fourpl_columns(intersections, estimator, open_sky)
+    table = pd.DataFrame({"id": ids, **columns, "method": estimator.method})[HEIGHTS_COLUMNS]
+    return table, model
 
 
 def _fourpl_columns(intersections, estimator: Estimator, open_sky):
@@ -288,11 +296,6 @@ def fourplb(
     )
     (fits,), model = run_parts([part], [[0]], estimator, open_sky=open_sky)
     return fits, model
-
-
-def signal_model(fitted: Mapping) -> SignalClassifier | Cn0Mixture:
-    """The final signal model of a heights table, from its ``attrs["signal_classifier"]``."""
-    return Cn0Mixture(**fitted) if "alpha" in fitted else SignalClassifier(**fitted)
 
 
 def open_sky_moments(open_sky: pd.DataFrame | None, estimator: Estimator) -> Cn0Moments | None:

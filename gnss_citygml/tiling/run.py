@@ -18,7 +18,7 @@ import functools
 import operator
 import uuid
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 
 import geopandas as gpd
@@ -283,9 +283,7 @@ def _run_tiles(tiles, casts, buildings, size, estimator, engine, say, output, si
         open_sky=open_sky,
     )
     if output is None:
-        heights = pd.concat(engine.gather(tables), ignore_index=True)
-        heights.attrs["signal_classifier"] = asdict(classifier)
-        return heights, classifier
+        return pd.concat(engine.gather(tables), ignore_index=True), classifier
     made = {tile.name: table for tile, table in zip(tiles, tables, strict=True)}
     groups = pd.Series(np.arange(len(owner))).groupby(owner)
     say(f"writing {groups.ngroups} tiles")

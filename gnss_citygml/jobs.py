@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable, Iterable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -27,6 +28,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "MODEL_SUFFIXES",
+    "Estimated",
     "Progress",
     "convert_file",
     "estimate_file",
@@ -40,6 +42,30 @@ Progress = Callable[[str, float], None]
 
 #: The city model formats, by file suffix: CityJSON 2.0, CityJSONSeq, CityGML 2.0 (twice).
 MODEL_SUFFIXES = (".json", ".jsonl", ".gml", ".xml")
+
+
+@dataclass(frozen=True)
+class Estimated:
+    """What :func:`estimate_file` made: the heights (every footprint with its attributes and
+    the heights columns), or, where each tile's worker wrote its own, the tile index (a row per
+    tile: ``buildings``, ``with_height``, ...; :func:`~gnss_citygml.tiling.output.write_index`)."""
+
+    heights: gpd.GeoDataFrame | None = None
+    tiles: pd.DataFrame | None = None
+
+    @property
+    def buildings(self) -> int:
+        """How many buildings have a row."""
+        if self.heights is not None:
+            return len(self.heights)
+        return 0 if self.tiles is None else int(self.tiles["buildings"].sum())
+
+    @property
+    def with_height(self) -> int:
+        """How many of them have a height."""
+        if self.heights is not None:
+            return int(self.heights["converged"].sum())
+        return 0 if self.tiles is None else int(self.tiles["with_height"].sum())
 
 
 def _silent(what: str, done: float) -> None:
@@ -66,21 +92,21 @@ def estimate_file(
     grid_dir: StrPath | None = None,
     overwrite: bool = False,
     progress: Progress = _silent,
-) -> gpd.GeoDataFrame:
+) -> Estimated:
     """Estimate the height of every footprint; write the layer ``heights`` to ``output`` and
     the report of the run (:mod:`gnss_citygml.report`) into the folder ``report``.
 
     ``output`` is a GeoPackage (other layers of an existing one are kept; the layer gets the
     toolkit's QGIS style as its default), a FlatGeobuf or a GeoParquet file. ``truth`` (a
     simulator's truth table, CSV or Parquet) adds the true heights to the report. Returns the
-    heights: every footprint with its attributes and the heights columns (see
-    :func:`gnss_citygml.pipeline.run` for the rest of the arguments). Both outputs are
+    heights (:class:`Estimated`; see :func:`gnss_citygml.pipeline.run` for the rest of the
+    arguments). Both outputs are
     checked before any work; one of them must be given. ``observations`` may be a partition
     folder (:mod:`gnss_citygml.tiling.partition`), read tile by tile in a run with ``tiling``
     (:func:`gnss_citygml.pipeline.run_partitioned`). In a run with ``tiling``, an ``output``
     without a suffix is a folder that each tile's worker writes its heights into
     (:func:`~gnss_citygml.pipeline.write_tiles`): the heights are not gathered, and the tile
-    index is returned in their place."""
+    index is returned instead."""
     from .footprints import read_footprints
     from .observations import read_observations
     from .pipeline import STAGES, run, run_partitioned, write_tiles
@@ -109,7 +135,7 @@ def estimate_file(
             given, fp, dem, folder, grid_dir=grid_dir, overwrite=overwrite, **settings
         )
         progress("done", 1.0)
-        return index
+        return Estimated(tiles=index)
     if obs is None:
         heights, _ = run_partitioned(observations, fp, dem, **settings)
         result = None
@@ -118,7 +144,7 @@ def estimate_file(
         heights = result.heights
     _write_outputs(heights, result, output, report, true, overwrite, stage)
     progress("done", 1.0)
-    return heights
+    return Estimated(heights=heights)
 
 
 def _write_outputs(heights, result, output, report, true, overwrite, stage) -> None:

@@ -53,8 +53,8 @@ def _estimate(args: dict[str, Any], say: Say) -> dict[str, Any]:
     from .jobs import estimate_file
 
     settings = {name: kind(**args.pop(name, {})) for name, kind in SETTINGS.items()}
-    heights = estimate_file(**args, **settings, progress=_progress(say))
-    return {"buildings": len(heights), "converged": int(heights["converged"].sum())}
+    made = estimate_file(**args, **settings, progress=_progress(say))
+    return {"buildings": made.buildings, "converged": made.with_height}
 
 
 def _convert(args: dict[str, Any], say: Say) -> dict[str, Any]:

@@ -99,19 +99,14 @@ def estimate(output, report, scheduler, workers, tile_size, **options):
     GeoPackage or any polygon layer, OS MasterMap Topography GML, or GeoParquet. The output
     holds each footprint with its estimate; buildings with too little data have empty heights.
     """
-    from ..jobs import is_tile_folder
-
     tiling = Tiling(scheduler=scheduler, workers=workers, size=tile_size)
-    table = _run(output, report, tiling=tiling, **options)
-    if tiling.on and is_tile_folder(output):  # the tile index
-        ok, n = int(table["with_height"].sum()), int(table["buildings"].sum())
-        click.echo(f"{ok} of {n} buildings have a height -> {output} ({len(table)} tiles)")
-    else:
-        ok = int(table["converged"].sum())
-        click.echo(f"{ok} of {len(table)} buildings have a height -> {output}")
+    made = _run(output, report, tiling=tiling, **options)
+    tiles = "" if made.tiles is None else f" ({len(made.tiles)} tiles)"
+    click.echo(f"{made.with_height} of {made.buildings} buildings have a height -> {output}{tiles}")
     if tiling.on:
         from ..tiling.run import failed_tiles
 
+        table = made.heights if made.tiles is None else made.tiles
         for tile, why, n in failed_tiles(table).itertuples(index=False):
             click.echo(
                 f"warning: tile {tile} failed ({why}): {n} buildings without a height", err=True

@@ -33,7 +33,16 @@ from .settings import (
     ReceiverHeights,
 )
 
-__all__ = ["OPTIONS", "Option"]
+__all__ = ["OPTIONS", "SETTINGS", "Option", "settings_arguments", "settings_objects"]
+
+#: The settings classes, by the name of the jobs' argument each is given as.
+SETTINGS = {
+    "rays": Rays,
+    "receiver_heights": ReceiverHeights,
+    "estimator": Estimator,
+    "position_error": PositionError,
+    "calibration": Calibration,
+}
 
 #: The kinds of option: a number, one of some choices, a switch (on or off).
 KINDS = ("number", "choice", "switch")
@@ -247,6 +256,12 @@ _OPTIONS = (
 
 #: Every option, by its QGIS name (``MIN_ELEVATION``).
 OPTIONS: dict[str, Option] = {option.name: option for option in _OPTIONS}
+
+
+def settings_objects(arguments: dict[str, dict[str, Any]]) -> dict[str, Any]:
+    """The settings objects (``{"rays": Rays(...), ...}``) made, and so checked, from their
+    ``arguments`` (:func:`settings_arguments`'s, or the QGIS plugin's)."""
+    return {key: SETTINGS[key](**fields) for key, fields in arguments.items()}
 
 
 def settings_arguments(values: dict[str, Any], names) -> dict[str, dict[str, Any]]:

@@ -30,21 +30,13 @@ from collections.abc import Callable
 from typing import IO, Any
 
 from .errors import GnssCityGMLError, broken_install, escape_controls, internal_error
-from .settings import Calibration, Estimator, PositionError, Rays, ReceiverHeights
+from .options import SETTINGS, settings_objects
 
 __all__ = ["CANCELLED", "JOBS", "main"]
 
 #: The error of a job stopped by SIGINT.
 CANCELLED = "cancelled"
 
-#: The settings objects of ``estimate``, made from the dicts the host sends.
-SETTINGS = {
-    "rays": Rays,
-    "receiver_heights": ReceiverHeights,
-    "estimator": Estimator,
-    "position_error": PositionError,
-    "calibration": Calibration,
-}
 
 Say = Callable[[dict[str, Any]], None]
 
@@ -52,7 +44,7 @@ Say = Callable[[dict[str, Any]], None]
 def _estimate(args: dict[str, Any], say: Say) -> dict[str, Any]:
     from .jobs import estimate_file
 
-    settings = {name: kind(**args.pop(name, {})) for name, kind in SETTINGS.items()}
+    settings = settings_objects({name: args.pop(name, {}) for name in SETTINGS})
     made = estimate_file(**args, **settings, progress=_progress(say))
     return {"buildings": made.buildings, "converged": made.with_height}
 
@@ -86,8 +78,8 @@ def _validate(args: dict[str, Any], say: Say) -> dict[str, Any]:
 def _update(args: dict[str, Any], say: Say) -> dict[str, Any]:
     from .update import update_map
 
-    estimator = Estimator(**args.pop("estimator", {}))
-    result = update_map(**args, estimator=estimator, progress=_progress(say))
+    settings = settings_objects({"estimator": args.pop("estimator", {})})
+    result = update_map(**args, **settings, progress=_progress(say))
     return {
         "lines": result.lines(),
         "written": result.written,

@@ -93,3 +93,15 @@ def test_a_declaration_is_checked():
     with pytest.raises(ValueError, match="choices"):
         Option(("estimator", "method"), "--method", "choice", "Method", "Method.")
     assert Option(("rays", "max_range"), "--max-range", "number", "R", "R.").name == "MAX_RANGE"
+
+
+def test_a_commands_options_become_the_settings_objects():
+    from gnss_citygml.cli.options import chosen_settings
+
+    chosen = {"min_elevation": 15.0, "method": "4PL", "position_sd": None, "quiet": True}
+    settings = chosen_settings(chosen)
+    assert chosen == {"quiet": True}  # what is not a setting stays for the command
+    assert settings["rays"] == Rays(min_elevation=15.0)
+    assert settings["estimator"] == Estimator(method="4PL")
+    assert settings["position_error"] == PositionError()
+    assert set(settings) == {"rays", "estimator", "position_error"}

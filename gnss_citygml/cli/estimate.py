@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from ..settings import Rays, ReceiverHeights, Tiling
+from ..settings import Tiling
 from .options import (
     ANTENNA_HEIGHT,
     DEM_CRS,
@@ -29,6 +29,7 @@ from .options import (
     THRESHOLD,
     TILE_SIZE,
     TRUTH,
+    chosen_settings,
     dem_file,
     option,
     output_dir,
@@ -138,34 +139,21 @@ def _run(
     dem,
     layer,
     id_field,
-    min_elevation,
-    max_elevation,
-    receiver_height,
-    antenna_height,
-    init_threshold,
-    method,
-    height_rule,
-    signal_model,
-    level_phones,
-    max_range,
-    position_sd,
-    position_distance,
-    position_window,
-    calibration_sd,
-    calibration_window,
     truth,
     dem_crs,
     grid_dir,
     overwrite,
     quiet,
     tiling=Tiling(),
+    **chosen,
 ):
-    """Build the settings from the options and run :func:`gnss_citygml.jobs.estimate_file`
-    with a progress bar over its stages."""
+    """Build the settings from the options (``chosen``: those of
+    :data:`gnss_citygml.options.OPTIONS`) and run :func:`gnss_citygml.jobs.estimate_file` with
+    a progress bar over its stages."""
     from ..jobs import estimate_file
     from ..pipeline import STAGES
-    from ..settings import Calibration, Estimator, PositionError
 
+    settings = chosen_settings(chosen)
     steps = len(STAGES) + (report is not None)
     with progress(steps, "stages", quiet) as bar:
 
@@ -182,21 +170,7 @@ def _run(
             truth=truth,
             layer=layer,
             id_field=id_field,
-            rays=Rays(
-                min_elevation=min_elevation, max_elevation=max_elevation, max_range=max_range
-            ),
-            receiver_heights=ReceiverHeights(source=receiver_height, antenna_height=antenna_height),
-            estimator=Estimator(
-                method=method,
-                init_threshold=init_threshold,
-                height_rule=height_rule,
-                signal_model=signal_model,
-                level_phones=level_phones,
-            ),
-            position_error=PositionError(
-                sd=position_sd, window=position_window, distance=position_distance
-            ),
-            calibration=Calibration(prior_sd=calibration_sd, window=calibration_window),
+            **settings,
             tiling=tiling,
             dem_crs=dem_crs,
             grid_dir=grid_dir,

@@ -12,11 +12,11 @@ from __future__ import annotations
 import sys
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import click
 
-from ..options import OPTIONS, Option
+from ..options import OPTIONS, Option, settings_arguments, settings_objects
 from ..settings import DEFAULT_TILE_SIZE
 
 __all__ = [
@@ -45,6 +45,7 @@ __all__ = [
     "TILE_SIZE",
     "TRUTH",
     "TYPED_ATTRIBUTES",
+    "chosen_settings",
     "dem_file",
     "option",
     "output_dir",
@@ -78,6 +79,15 @@ def option(name: str) -> Callable[[FC], FC]:
     return click.option(
         spec.flag, type=kind, default=spec.default, show_default=not spec.optional, help=spec.help
     )
+
+
+def chosen_settings(chosen: dict[str, Any]) -> dict[str, Any]:
+    """The settings objects (``{"rays": Rays(...), "estimator": Estimator(...), ...}``) made
+    from a command's options of :data:`~gnss_citygml.options.OPTIONS`, taken out of
+    ``chosen`` (its keyword arguments); those it has no option of keep their defaults."""
+    names = [name for name, spec in OPTIONS.items() if spec.dest in chosen]
+    values = {name: chosen.pop(OPTIONS[name].dest) for name in names}
+    return settings_objects(settings_arguments(values, names))
 
 
 MIN_ELEVATION = option("MIN_ELEVATION")

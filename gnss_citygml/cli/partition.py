@@ -19,6 +19,7 @@ from .options import (
     QUIET,
     RECEIVER_HEIGHT,
     TILE_SIZE,
+    chosen_settings,
     dem_file,
     output_dir,
     progress,
@@ -47,16 +48,11 @@ def partition(
     output_dir,
     dem,
     tile_size,
-    min_elevation,
-    max_elevation,
-    receiver_height,
-    antenna_height,
-    position_distance,
-    position_window,
     dem_crs,
     grid_dir,
     overwrite,
     quiet,
+    **chosen,
 ):
     """Write observations as Parquet partitioned by tile, for a run in tiles.
 
@@ -66,8 +62,9 @@ def partition(
     then has each tile read only the partitions its rays can come from. A recording must lie
     in one file.
     """
-    from ..settings import PositionError, Rays, ReceiverHeights
     from ..tiling.partition import partition_observations
+
+    settings = chosen_settings(chosen)  # the mask, receiver heights and position groups
 
     with progress(len(observations), "files", quiet) as bar:
 
@@ -79,9 +76,7 @@ def partition(
             observations,
             output_dir,
             dem,
-            rays=Rays(min_elevation=min_elevation, max_elevation=max_elevation),
-            receiver_heights=ReceiverHeights(source=receiver_height, antenna_height=antenna_height),
-            position_error=PositionError(window=position_window, distance=position_distance),
+            **settings,
             tile_size=tile_size,
             grid_dir=grid_dir,
             dem_crs=dem_crs,

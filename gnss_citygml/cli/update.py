@@ -6,7 +6,6 @@ from pathlib import Path
 
 import click
 
-from ..settings import Estimator
 from .options import (
     DEM_CRS,
     GRID_DIR,
@@ -20,6 +19,7 @@ from .options import (
     SIGNAL_MODEL,
     THRESHOLD,
     TRUTH,
+    chosen_settings,
     dem_file,
     progress,
 )
@@ -76,14 +76,10 @@ def update(
     no_backup,
     report,
     truth,
-    init_threshold,
-    method,
-    height_rule,
-    signal_model,
-    level_phones,
     dem_crs,
     grid_dir,
     quiet,
+    **chosen,
 ):
     """Update a GeoPackage MAP's building heights with new GNSS observations, safely.
 
@@ -113,13 +109,7 @@ def update(
             threshold=threshold,
             dry_run=dry_run,
             backup=not no_backup,
-            estimator=Estimator(
-                method=method,
-                init_threshold=init_threshold,
-                height_rule=height_rule,
-                signal_model=signal_model,
-                level_phones=level_phones,
-            ),
+            **chosen_settings(chosen),
             grid_dir=grid_dir,
             dem_crs=dem_crs,
             report=report,

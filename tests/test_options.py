@@ -7,16 +7,8 @@ import pytest
 
 from gnss_citygml.cli import COMMANDS, cli
 from gnss_citygml.errors import InputError
-from gnss_citygml.options import OPTIONS, Option, settings_arguments
-from gnss_citygml.settings import Calibration, Estimator, PositionError, Rays, ReceiverHeights
-
-SETTINGS = {
-    "rays": Rays,
-    "receiver_heights": ReceiverHeights,
-    "estimator": Estimator,
-    "position_error": PositionError,
-    "calibration": Calibration,
-}
+from gnss_citygml.options import OPTIONS, SETTINGS, Option, settings_arguments
+from gnss_citygml.settings import Estimator, PositionError, Rays
 
 
 def command_options():

@@ -32,6 +32,11 @@ the labels of ``--labels`` reach (issue 27, decision 2: at least 80 %).
 With ``--phones each`` every session of a scene is recorded by its own phone: its own C/N0
 offset, tracking threshold and body loss (issue 27, decision 3).
 
+With ``--outside M`` every phone fix inside a footprint is moved out across the nearest wall,
+M metres beyond it, and with ``--outside mean`` to where its reported error puts the true
+position on average, given that a pedestrian is not inside a building (the mean of its
+Gaussian beyond the wall): issue 28, item 1.
+
 With ``--sd-scale K`` the phone fixes' reported errors (``position_sd``) are multiplied by K
 before anything else: what the fits would do if a phone's claim were K times as honest (issue
 28, item 3; the simulator's fixes are 1.1-1.6 times as far off as they claim).
@@ -48,6 +53,7 @@ on the uncalibrated positions).
                                 [--positions reported|common|true]
                                 [--calibrate [--calibration-window 30]] [--phones each]
                                 [--regimes [--regime district ...]] [--sd-scale 1.5]
+                                [--outside 1|mean]
 """
 
 from __future__ import annotations
@@ -57,6 +63,7 @@ from dataclasses import replace
 
 import numpy as np
 import pandas as pd
+import shapely
 from accuracy import (
     LABELS,
     POSITION_ERRORS,
@@ -67,6 +74,7 @@ from accuracy import (
     position_error,
     site_tables,
 )
+from scipy.stats import norm
 
 from gnss_citygml import Estimator, estimate_heights
 from gnss_citygml.calibrate import calibrate_receivers
@@ -256,6 +264,11 @@ def _parser() -> argparse.ArgumentParser:
         help="multiply the phone fixes' reported position errors by this (default 1: as claimed)",
     )
     parser.add_argument(
+        "--outside",
+        help="move the phone fixes inside a footprint out of it: this many metres beyond the "
+        "nearest wall, or 'mean': the mean of the fix's Gaussian beyond it",
+    )
+    parser.add_argument(
         "--no-level-phones",
         action="store_true",
         help="the C/N0 as recorded: no phone levelled by its open sky (the paper's)",
@@ -297,6 +310,9 @@ def main():
             layout += "; each session its own phone"
         for locations in LOCATIONS:
             sim = simulate(scene, locations=locations, seed=k, start=start, physics=physics)
+            if args.outside is not None and locations == "gnss":
+                moved = outside_buildings(sim.observations, sim.buildings, args.outside)
+                sim = replace(sim, observations=moved)
             if args.sd_scale != 1.0:
                 claimed = sim.observations["position_sd"] * args.sd_scale
                 sim = replace(sim, observations=sim.observations.assign(position_sd=claimed))
@@ -340,6 +356,35 @@ def main():
         if args.reference:
             cells += f" | {_reference_cells(err, pd.concat(reached[group]), n_runs)}"
         print(f"| {group} | {cells} |")
+
+
+def outside_buildings(obs: pd.DataFrame, buildings, beyond: str) -> pd.DataFrame:
+    """``obs`` with each fix (``e``, ``n``) inside a footprint moved out across the nearest wall:
+    ``beyond`` metres past it, or (``"mean"``) the mean distance past it of the fix's Gaussian
+    (``position_sd``) given that the true position is outside, ``sd phi(z) / Q(z) - depth``
+    with ``z = depth / sd`` (the wall taken as straight)."""
+    fixes = obs[["e", "n", "position_sd"]].drop_duplicates(["e", "n"])
+    e, n = fixes["e"].to_numpy().copy(), fixes["n"].to_numpy().copy()
+    points = shapely.points(e, n)
+    polygons = buildings.geometry.to_numpy()
+    inside, building = shapely.STRtree(polygons).query(points, predicate="within")
+    if inside.size:
+        wall = shapely.boundary(polygons[building])
+        near = shapely.get_coordinates(shapely.shortest_line(points[inside], wall))[1::2]
+        out = near - np.column_stack([e[inside], n[inside]])
+        depth = np.maximum(np.hypot(out[:, 0], out[:, 1]), 1e-9)
+        if beyond == "mean":
+            sd = fixes["position_sd"].to_numpy()[inside]
+            z = depth / sd
+            past = sd * norm.pdf(z) / np.maximum(norm.sf(z), 1e-300) - depth
+        else:
+            past = np.full(inside.size, float(beyond))
+        moved = near + out / depth[:, None] * past[:, None]
+        e[inside], n[inside] = moved[:, 0], moved[:, 1]
+    where = pd.MultiIndex.from_frame(obs[["e", "n"]])
+    new = pd.DataFrame({"e": e, "n": n}, index=pd.MultiIndex.from_arrays([fixes["e"], fixes["n"]]))
+    new = new.reindex(where)
+    return obs.assign(e=new["e"].to_numpy(), n=new["n"].to_numpy())
 
 
 def _judged(sim, cast, labels, estimator, sky, recast=None) -> pd.DataFrame:

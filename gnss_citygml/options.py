@@ -11,6 +11,7 @@ toolkit's one-line error naming the option (QGIS's spin boxes only stop at the e
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
 
@@ -264,7 +265,7 @@ def settings_objects(arguments: dict[str, dict[str, Any]]) -> dict[str, Any]:
     return {key: SETTINGS[key](**fields) for key, fields in arguments.items()}
 
 
-def settings_arguments(values: dict[str, Any], names) -> dict[str, dict[str, Any]]:
+def settings_arguments(values: dict[str, Any], names: Iterable[str]) -> dict[str, dict[str, Any]]:
     """The settings objects' arguments (``{"rays": {"min_elevation": 10.0}, ...}``) from the
     ``values`` of the options ``names`` (by QGIS name; a value None is left out)."""
     arguments: dict[str, dict[str, Any]] = {}

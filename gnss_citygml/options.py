@@ -56,8 +56,9 @@ class Option:
     ``setting`` is where it goes: the settings object's argument of the job (``rays``,
     ``estimator``, ...) and its field. ``flag`` is the command line's name (``--min-elevation``;
     the QGIS parameter is :attr:`name`, ``MIN_ELEVATION``). ``label`` is QGIS's short
-    description, ``help`` the command line's. ``default`` is the settings object's (None: left
-    out, the option is optional); ``bounds`` the range its check enforces; ``choices`` the
+    description, ``help`` the command line's. Its :attr:`default` is read from the settings
+    class, never declared again (None: the option may be left out); ``bounds`` is the range
+    the settings' check enforces; ``choices`` the
     values of a choice, and ``words`` how QGIS shows them (default: the values themselves).
     """
 
@@ -66,7 +67,6 @@ class Option:
     kind: str
     label: str
     help: str
-    default: Any = None
     bounds: tuple[float, float] | None = None
     choices: tuple[str, ...] = ()
     words: tuple[str, ...] = ()
@@ -88,14 +88,15 @@ class Option:
         return self.name.lower()
 
     @property
+    def default(self) -> Any:
+        """The settings object's default (None: the option may be left out)."""
+        settings, field = self.setting
+        return getattr(SETTINGS[settings], field)
+
+    @property
     def optional(self) -> bool:
         """Whether it may be left out (no default: the settings object's own logic)."""
         return self.default is None
-
-
-def _default(settings: type, field: str) -> Any:
-    """A settings class's default for ``field`` (a frozen dataclass: the class attribute)."""
-    return getattr(settings, field)
 
 
 _OPTIONS = (
@@ -105,7 +106,6 @@ _OPTIONS = (
         "number",
         "Lowest satellite elevation (degrees)",
         "Signals below this elevation (deg) are left out.",
-        _default(Rays, "min_elevation"),
         ELEVATIONS,
     ),
     Option(
@@ -114,7 +114,6 @@ _OPTIONS = (
         "number",
         "Highest satellite elevation (degrees)",
         "Signals above this elevation (deg) are left out.",
-        _default(Rays, "max_elevation"),
         ELEVATIONS,
     ),
     Option(
@@ -123,7 +122,6 @@ _OPTIONS = (
         "choice",
         "Receiver height from",
         "Antenna height from the DEM (+ --antenna-height) or from the observations' h.",
-        _default(ReceiverHeights, "source"),
         choices=RECEIVER_HEIGHTS,
         words=("the DEM + antenna height", "the observations' h (the log)"),
     ),
@@ -133,7 +131,6 @@ _OPTIONS = (
         "number",
         "Antenna height above the ground (m)",
         "Metres.",
-        _default(ReceiverHeights, "antenna_height"),
         ANTENNA_HEIGHTS,
     ),
     Option(
@@ -142,7 +139,6 @@ _OPTIONS = (
         "number",
         "Initial C/N0 threshold (dB-Hz)",
         "C/N0 (dB-Hz) where the initial signal classifier gives 50 %.",
-        _default(Estimator, "init_threshold"),
         CN0S,
     ),
     Option(
@@ -151,7 +147,6 @@ _OPTIONS = (
         "choice",
         "Method",
         "Height estimator: 4PL-B, the paper's one-shot 4PL, or the hinge or Bayes baseline.",
-        _default(Estimator, "method"),
         choices=METHODS,
     ),
     Option(
@@ -161,7 +156,6 @@ _OPTIONS = (
         "Height rule (c: the 4PL's inflection point; paper: c + 1.5/b)",
         "How the height is read off a building's 4PL: its inflection point c, or the paper's "
         "c + 1.5/b (both are in every output: c and height_paper).",
-        _default(Estimator, "height_rule"),
         choices=HEIGHT_RULES,
     ),
     Option(
@@ -173,7 +167,6 @@ _OPTIONS = (
         "How 4PL-B tells open signals from closed ones: the paper's C/N0 threshold trained "
         "on the map's labels, or a mixture of open and closed signals' C/N0 by elevation learnt "
         "by EM (method 4PL-B only).",
-        _default(Estimator, "signal_model"),
         choices=SIGNAL_MODELS,
     ),
     Option(
@@ -185,7 +178,6 @@ _OPTIONS = (
         "Put every phone's C/N0 on one level before the signals are classified, each "
         "phone's offset learnt from its signals that cross no footprint (phones differ by a few "
         "dB-Hz; method 4PL-B). --no-level-phones: the C/N0 as recorded, as in the paper.",
-        _default(Estimator, "level_phones"),
     ),
     Option(
         ("rays", "max_range"),
@@ -193,7 +185,6 @@ _OPTIONS = (
         "number",
         "Ray length (m)",
         "Ray length (m).",
-        _default(Rays, "max_range"),
         MAX_RANGES,
     ),
     Option(
@@ -207,7 +198,6 @@ _OPTIONS = (
         "that follow and the ranges widen. 0: positions taken as exact, as in the paper. "
         "Default: each observation's position_sd (a phone fix's accuracy), 1 m where it is "
         "empty.",
-        _default(PositionError, "sd"),
         POSITION_SDS,
     ),
     Option(
@@ -219,7 +209,6 @@ _OPTIONS = (
         "position error: the next begins once its reported position is this far from where the "
         "last began (the next stretch of street has other reflections). A receiver standing at "
         "one point, or a phone lying still, keeps one. Longer than the walk: one per recording.",
-        _default(PositionError, "distance"),
         POSITION_DISTANCES,
     ),
     Option(
@@ -230,7 +219,6 @@ _OPTIONS = (
         "Instead of --position-distance: seconds one position error of a moving receiver "
         "lasts. A receiver standing at one point (a point placed by hand) shares one error over "
         "its stay either way.",
-        _default(PositionError, "window"),
         WINDOWS,
     ),
     Option(
@@ -240,7 +228,6 @@ _OPTIONS = (
         "Self-calibrate receiver offsets with prior (m; 4PL-B only)",
         "Self-calibrate one position offset per recording with this prior (m per axis; "
         "about 1 for hand-placed points, 5 for phone fixes; method 4PL-B only). Off by default.",
-        _default(Calibration, "prior_sd"),
         POSITION_SDS,
     ),
     Option(
@@ -250,7 +237,6 @@ _OPTIONS = (
         "One calibration offset per (s; default: per recording)",
         "With --calibration-sd: one offset per this many seconds of a recording (about 30 "
         "for phone fixes, whose errors drift) instead of one per recording.",
-        _default(Calibration, "window"),
         WINDOWS,
     ),
 )

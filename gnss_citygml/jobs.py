@@ -167,42 +167,33 @@ def _check_estimate(
     input, a report only where the intersections are gathered. Returns whether
     ``observations`` is a partition folder, the tile folder to write into (None: one file),
     and the truth table, read (None without one)."""
-    from .compare import check_truth
     from .files.paths import check_not_input
-    from .files.tables import check_layer_output, read_table
-    from .report import check_report
+    from .files.tables import check_layer_output
+    from .report import check_report_request
     from .tiling.grid import check_reach
     from .tiling.output import check_tile_folder
     from .tiling.partition import partition_run
 
     if output is None and report is None:
         raise InputError("nothing to write", fix="give an output file or a report folder")
-    if truth is not None and report is None:
-        raise InputError(
-            "a truth table is for the report, and no report was asked for",
-            where=str(truth),
-            fix="give a report folder too (--report DIR), or leave the truth out",
-        )
     if tiling.on and report is not None:
         raise InputError(
             "the report needs every intersection on one machine, and a run on a Dask "
             "scheduler does not gather them",
             fix="leave out --report, or --scheduler",
         )
+    inputs = [observations, footprints, dem, truth]  # never written over (nor into)
+    true = check_report_request(report, truth, overwrite=overwrite, inputs=inputs)
     partitioned = Path(observations).is_dir()
     if partitioned:
         partition_run(observations, tiling)
     elif tiling.on:
         check_reach(tiling.side, rays.max_range)  # (before a cluster starts)
-    inputs = [observations, footprints, dem, truth]  # never written over (nor into)
     folder = output if output is not None and is_tile_folder(output) else None
     if folder is not None:
         check_not_input(check_tile_folder(folder, tiling, overwrite=overwrite), inputs)
     elif output is not None:
         check_layer_output(output, "heights", overwrite=overwrite, inputs=inputs, read_layer=layer)
-    if report is not None:
-        check_report(report, overwrite=overwrite, inputs=inputs)
-    true = None if truth is None else check_truth(read_table(truth), str(truth))
     return partitioned, folder, true
 
 

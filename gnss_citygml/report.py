@@ -178,6 +178,29 @@ def check_report(folder: StrPath, *, overwrite: bool, inputs: Iterable[object] =
     _pyplot()
 
 
+def check_report_request(
+    report: StrPath | None, truth: StrPath | None, *, overwrite: bool, inputs: Iterable[object]
+) -> pd.DataFrame | None:
+    """A job's report request, checked before the work starts: a truth table only with a
+    report folder, the folder writable (:func:`check_report`). Returns the truth table, read
+    and checked (None without one)."""
+    if truth is not None and report is None:
+        raise InputError(
+            "a truth table is for the report, and no report was asked for",
+            where=str(truth),
+            fix="give a report folder too (--report DIR), or leave the truth out",
+        )
+    if report is None:
+        return None
+    check_report(report, overwrite=overwrite, inputs=inputs)
+    if truth is None:
+        return None
+    from .compare import check_truth
+    from .files.tables import read_table
+
+    return check_truth(read_table(truth), str(truth))
+
+
 def write_report(
     run: Run,
     folder: StrPath,

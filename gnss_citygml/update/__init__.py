@@ -259,20 +259,9 @@ def _check_request(path, observations, dem, truth, report, backup, min_signals, 
     inputs = [path, *observations, dem, truth]
     if backup:  # (the map itself is written through a copy: a new layer's columns, not a file)
         check_not_input(_backup_path(path), inputs, what="backup")
-    if truth is not None and report is None:
-        raise InputError(
-            "a truth table is for the report, and no report was asked for",
-            where=str(truth),
-            fix="give a report folder too (--report DIR), or leave the truth out",
-        )
-    true = None
-    if report is not None:
-        from ..compare import check_truth
-        from ..files.tables import read_table
-        from ..report import check_report
+    from ..report import check_report_request
 
-        check_report(report, overwrite=True, inputs=inputs)
-        true = None if truth is None else check_truth(read_table(truth), str(truth))
+    true = check_report_request(report, truth, overwrite=True, inputs=inputs)
     if min_signals < 1:
         raise InputError(f"min_signals must be 1 or more, not {min_signals}", fix="give N >= 1")
     if not (np.isfinite(threshold) and threshold >= 0):

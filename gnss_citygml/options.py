@@ -17,21 +17,23 @@ from typing import Any
 
 from .model import METHODS
 from .settings import (
-    ANTENNA_HEIGHTS,
-    CN0S,
-    ELEVATIONS,
     HEIGHT_RULES,
-    MAX_RANGES,
-    POSITION_DISTANCES,
-    POSITION_SDS,
     RECEIVER_HEIGHTS,
     SIGNAL_MODELS,
-    WINDOWS,
     Calibration,
     Estimator,
     PositionError,
     Rays,
     ReceiverHeights,
+)
+from .settings.checks import (
+    ANTENNA_HEIGHTS,
+    CN0S,
+    ELEVATIONS,
+    MAX_RANGES,
+    POSITION_DISTANCES,
+    POSITION_SDS,
+    WINDOWS,
 )
 
 __all__ = ["OPTIONS", "SETTINGS", "Option", "settings_arguments", "settings_objects"]

@@ -32,7 +32,7 @@ from pyproj import Transformer
 from ..errors import InputError
 from ..observations import satellites
 from ..raycast import footprint_entries
-from ..settings import MAX_RANGES
+from ..settings.checks import MAX_RANGES
 from .constellations import satellite_ecef, sky
 from .scenes import PRESETS, Scene, Session, make_scene
 from .signals import SignalModel, ar1, diffraction_loss, gnss_fix_errors

@@ -21,14 +21,28 @@ module imports nothing heavy: a command can build its settings before loading a 
 
 from __future__ import annotations
 
-import math
-import numbers
 import os
 import re
 from dataclasses import dataclass, field
 
-from .errors import InputError, ModelError
-from .model import METHODS
+from ..errors import InputError, ModelError
+from ..model import METHODS
+from .checks import (
+    ANTENNA_HEIGHTS,
+    CN0S,
+    ELEVATIONS,
+    ITERATIONS,
+    MAX_RANGES,
+    POSITION_SDS,
+    ROUNDS,
+    UNCERTAINTIES,
+    WINDOWS,
+    count,
+    count_within,
+    finite,
+    within,
+)
+from .positions import DEFAULT_POSITION_DISTANCE, DEFAULT_POSITION_SD, PositionError
 
 __all__ = [
     "DEFAULT_POSITION_DISTANCE",
@@ -74,61 +88,6 @@ DEFAULT_TILE_SIZE = 1000.0
 #: few tiles to share among workers).
 TILE_SIZES = (50.0, 100_000.0)
 
-#: Position error (m per axis) of an observation that does not say (its ``position_sd`` empty):
-#: a point placed by hand on a large-scale map, as the paper's receivers were ("an estimated
-#: location error of below 2 metres", taken as two standard deviations).
-DEFAULT_POSITION_SD = 1.0
-#: How far (m) a moving receiver goes with one position error (``PositionError.distance``): a
-#: phone's fix is biased by the reflections of the facades around it, which stay while it
-#: stays in one stretch of street and change when it reaches the next (a London block is
-#: 50-100 m long; measured in docs/issue-28-positions.md).
-DEFAULT_POSITION_DISTANCE = 50.0
-
-
-def _finite(value) -> bool:
-    return isinstance(value, numbers.Real) and math.isfinite(value)
-
-
-def _count(value) -> bool:
-    """A whole number, 1 or more."""
-    return isinstance(value, numbers.Integral) and int(value) >= 1
-
-
-def _positive(value) -> bool:
-    return _finite(value) and value > 0
-
-
-def _within(value, bounds: tuple[float, float], *, above: bool = False) -> bool:
-    """A finite number from ``bounds[0]`` (excluded with ``above``) to ``bounds[1]``."""
-    lo, hi = bounds
-    return _finite(value) and (value > lo if above else value >= lo) and value <= hi
-
-
-#: The physical range of each option with a unit, checked where its object is made (the
-#: command line, the Python API and the QGIS plugin all build the objects, so all refuse alike):
-#: antenna above the ground (m): not below it, and no higher than the tallest buildings;
-ANTENNA_HEIGHTS = (0.0, 500.0)
-#: a ray's horizontal length (m, above 0): a building 10 km away rises less than 2 deg;
-MAX_RANGES = (0.0, 10_000.0)
-#: C/N0 (dB-Hz), as the observations' cn0 (schemas/observations.schema.json); an elevation (deg);
-CN0S, ELEVATIONS = (0.0, 100.0), (-90.0, 90.0)
-#: a position error or a calibration prior (m per axis), as the observations' position_sd;
-POSITION_SDS = (0.0, 1000.0)
-#: a position error's or calibration offset's window (s, above 0): at most a day; its distance
-#: (m, above 0): at most 100 km (longer: a whole recording, leave them out);
-WINDOWS, POSITION_DISTANCES = (0.0, 86_400.0), (0.0, 100_000.0)
-#: a converged estimate's widest height range (m, above 0);
-UNCERTAINTIES = (0.0, 1000.0)
-#: 4PL-B's iterations and the calibration's rounds: each is a full fit of every building.
-ITERATIONS = (1, 1000)
-ROUNDS = (1, 100)
-
-
-def _count_within(value, bounds: tuple[int, int]) -> bool:
-    """A whole number from ``bounds[0]`` to ``bounds[1]``."""
-    return _count(value) and bounds[0] <= int(value) <= bounds[1]
-
-
 #: The port a Dask scheduler listens on when not told otherwise (``dask scheduler --port``).
 SCHEDULER_PORT = 8786
 
@@ -156,7 +115,7 @@ def check_tile_size(size: float) -> None:
     """Refuse a tile size that is not a whole number of metres (tiles are named by their
     south-west corner to the metre) within :data:`TILE_SIZES`."""
     low, high = TILE_SIZES
-    if not (_finite(size) and low <= size <= high and float(size).is_integer()):
+    if not (finite(size) and low <= size <= high and float(size).is_integer()):
         raise InputError(
             f"a tile size must be a whole number of metres from {low:g} to {high:,.0f}, "
             f"not {size!r}",
@@ -168,7 +127,7 @@ def check_elevation_mask(min_elevation: float, max_elevation: float) -> None:
     """Refuse an elevation mask (deg) that is not a band of elevations, -90 <= min < max <= 90
     (the rays' and ``observe``'s)."""
     band = (min_elevation, max_elevation)
-    if not (all(map(_finite, band)) and ELEVATIONS[0] <= band[0] < band[1] <= ELEVATIONS[1]):
+    if not (all(map(finite, band)) and ELEVATIONS[0] <= band[0] < band[1] <= ELEVATIONS[1]):
         raise InputError(
             f"elevation mask {band[0]}..{band[1]} deg is not a band of elevations",
             fix="give --min-elevation and --max-elevation in degrees, -90 <= min < max <= 90, "
@@ -198,7 +157,7 @@ class Rays:
 
     def __post_init__(self):
         check_elevation_mask(self.min_elevation, self.max_elevation)
-        if not _within(self.max_range, MAX_RANGES, above=True):
+        if not within(self.max_range, MAX_RANGES, above=True):
             raise InputError(
                 f"max_range must be a positive number of metres up to {MAX_RANGES[1]:g}, "
                 f"not {self.max_range}",
@@ -228,7 +187,7 @@ class ReceiverHeights:
                 f"unknown receiver height source {self.source!r}",
                 fix="use one of " + ", ".join(RECEIVER_HEIGHTS),
             )
-        if not _within(self.antenna_height, ANTENNA_HEIGHTS):
+        if not within(self.antenna_height, ANTENNA_HEIGHTS):
             raise InputError(
                 f"antenna_height must be a number of metres above the ground, "
                 f"{ANTENNA_HEIGHTS[0]:g} to {ANTENNA_HEIGHTS[1]:g}, not {self.antenna_height}",
@@ -266,21 +225,21 @@ class Acceptance:
     max_uncertainty: float = 10.0
 
     def __post_init__(self):
-        if not (_finite(self.label_tol) and 0.0 <= self.label_tol <= 1.0):
+        if not (finite(self.label_tol) and 0.0 <= self.label_tol <= 1.0):
             raise InputError(
                 f"label_tol must be a fraction from 0 to 1, not {self.label_tol}", fix="e.g. 0.01"
             )
-        if not _count(self.min_signals):
+        if not count(self.min_signals):
             raise InputError(
                 f"min_signals must be a whole number, 1 or more, not {self.min_signals}",
                 fix="e.g. 10",
             )
-        if not (_finite(self.min_separation) and 0.0 <= self.min_separation <= 1.0):
+        if not (finite(self.min_separation) and 0.0 <= self.min_separation <= 1.0):
             raise InputError(
                 f"min_separation must be a probability from 0 to 1, not {self.min_separation}",
                 fix="e.g. 0.3",
             )
-        if not _within(self.max_uncertainty, UNCERTAINTIES, above=True):
+        if not within(self.max_uncertainty, UNCERTAINTIES, above=True):
             raise InputError(
                 f"max_uncertainty must be a positive number of metres up to "
                 f"{UNCERTAINTIES[1]:g}, not {self.max_uncertainty}",
@@ -363,13 +322,13 @@ class Estimator:
                 f"signal model {self.signal_model} needs method 4PL-B, not {self.method}",
                 fix="leave the signal model out, or use method 4PL-B",
             )
-        if not _within(self.init_threshold, CN0S):
+        if not within(self.init_threshold, CN0S):
             raise InputError(
                 f"init_threshold must be a C/N0 in dB-Hz, {CN0S[0]:g} to {CN0S[1]:g}, "
                 f"not {self.init_threshold}",
                 fix="give --init-threshold in dB-Hz, e.g. 30",
             )
-        if not _count_within(self.max_iter, ITERATIONS):
+        if not count_within(self.max_iter, ITERATIONS):
             raise InputError(
                 f"max_iter must be a whole number, {ITERATIONS[0]} to {ITERATIONS[1]}, "
                 f"not {self.max_iter}",
@@ -401,64 +360,6 @@ class Estimator:
 
 
 @dataclass(frozen=True)
-class PositionError:
-    """How far the receiver positions may be off, for the height fits to model.
-
-    By default the errors come from the data: each observation's ``position_sd`` (a phone
-    fix's accuracy, a surveyed point's ``sd``), :data:`DEFAULT_POSITION_SD` where it is empty.
-    The fits then model each signal's resulting height error, and the ranges carry the roof
-    line's position uncertainty (:func:`~gnss_citygml.pipeline.intersections`).
-
-    Parameters
-    ----------
-    sd
-        Metres per axis for every position, overriding the data's, e.g. 1 for points placed by
-        hand on a map. ``0``: the positions are taken as exact, as in the paper (no error is
-        modelled). ``None`` (default): from the data.
-    distance
-        How far (m) a moving receiver (a phone's fixes, a walker's traced path) goes with one
-        error: until its reported position is this far from where the error began
-        (:data:`DEFAULT_POSITION_DISTANCE`). ``None``: its whole recording. A receiver standing
-        at one point, or a phone lying still, keeps one error
-        (:func:`~gnss_citygml.recordings.position_groups`).
-    window
-        Instead of ``distance``: how long (s) one error of a moving receiver lasts, its rows
-        sharing an error within windows of this length (windows of each recording from its own
-        first epoch).
-    """
-
-    sd: float | None = None
-    window: float | None = None
-    distance: float | None = DEFAULT_POSITION_DISTANCE
-
-    def __post_init__(self):
-        if self.sd is not None and not _within(self.sd, POSITION_SDS):
-            raise InputError(
-                f"the position error must be a number of metres, {POSITION_SDS[0]:g} to "
-                f"{POSITION_SDS[1]:g}, not {self.sd}",
-                fix="give --position-sd, e.g. 1 m for points placed by hand (0: exact positions)",
-            )
-        if self.window is not None and not _within(self.window, WINDOWS, above=True):
-            raise InputError(
-                f"the position window must be a positive number of seconds up to "
-                f"{WINDOWS[1]:g} (a day), not {self.window}",
-                fix="give --position-window, e.g. 30 for a walker's traced path, or leave it "
-                "out for the whole recording",
-            )
-        if self.distance is not None and not _within(self.distance, POSITION_DISTANCES, above=True):
-            raise InputError(
-                f"the position error's distance must be a positive number of metres up to "
-                f"{POSITION_DISTANCES[1]:g}, not {self.distance}",
-                fix=f"give --position-distance in metres, e.g. {DEFAULT_POSITION_DISTANCE:g}",
-            )
-
-    @property
-    def exact(self) -> bool:
-        """Whether the positions are taken as exact (``sd=0``): no error is modelled."""
-        return self.sd == 0
-
-
-@dataclass(frozen=True)
 class Calibration:
     """The self-calibration of one position offset per recording, jointly with the heights
     (:func:`~gnss_citygml.calibrate.calibrate_receivers`; 4PL-B only).
@@ -482,7 +383,7 @@ class Calibration:
     rounds: int = 3
 
     def __post_init__(self):
-        if self.prior_sd is not None and not _within(self.prior_sd, POSITION_SDS, above=True):
+        if self.prior_sd is not None and not within(self.prior_sd, POSITION_SDS, above=True):
             raise InputError(
                 f"the calibration prior must be a positive number of metres up to "
                 f"{POSITION_SDS[1]:g}, not {self.prior_sd}",
@@ -493,14 +394,14 @@ class Calibration:
                 "a calibration window without self-calibration",
                 fix="give the calibration prior (--calibration-sd) too, e.g. 5 m for phone fixes",
             )
-        if self.window is not None and not _within(self.window, WINDOWS, above=True):
+        if self.window is not None and not within(self.window, WINDOWS, above=True):
             raise InputError(
                 f"the calibration window must be a positive number of seconds up to "
                 f"{WINDOWS[1]:g} (a day), not {self.window}",
                 fix="give --calibration-window, e.g. 30 for phone fixes, or leave it out for "
                 "one offset per recording",
             )
-        if not _count_within(self.rounds, ROUNDS):
+        if not count_within(self.rounds, ROUNDS):
             raise InputError(
                 f"calibration rounds must be a whole number, {ROUNDS[0]} to {ROUNDS[1]}, "
                 f"not {self.rounds}",
@@ -553,7 +454,7 @@ class Tiling:
     def __post_init__(self):
         if self.scheduler not in (None, "local"):
             scheduler_address(self.scheduler)
-        if self.workers is not None and (self.scheduler != "local" or not _count(self.workers)):
+        if self.workers is not None and (self.scheduler != "local" or not count(self.workers)):
             raise InputError(
                 f"--workers {self.workers} is for --scheduler local, a whole number 1 or more",
                 fix="leave it out: a running scheduler has its own workers",

@@ -1,0 +1,48 @@
+"""The checks every setting's value goes through, and the physical range of each option with a
+unit: one place, so that the command line, the Python API and the QGIS plugin refuse alike."""
+
+from __future__ import annotations
+
+import math
+import numbers
+
+
+def finite(value) -> bool:
+    """A real number, neither infinite nor NaN."""
+    return isinstance(value, numbers.Real) and math.isfinite(value)
+
+
+def count(value) -> bool:
+    """A whole number, 1 or more."""
+    return isinstance(value, numbers.Integral) and int(value) >= 1
+
+
+def within(value, bounds: tuple[float, float], *, above: bool = False) -> bool:
+    """A finite number from ``bounds[0]`` (excluded with ``above``) to ``bounds[1]``."""
+    lo, hi = bounds
+    return finite(value) and (value > lo if above else value >= lo) and value <= hi
+
+
+#: The physical range of each option with a unit, checked where its object is made (the
+#: command line, the Python API and the QGIS plugin all build the objects, so all refuse alike):
+#: antenna above the ground (m): not below it, and no higher than the tallest buildings;
+ANTENNA_HEIGHTS = (0.0, 500.0)
+#: a ray's horizontal length (m, above 0): a building 10 km away rises less than 2 deg;
+MAX_RANGES = (0.0, 10_000.0)
+#: C/N0 (dB-Hz), as the observations' cn0 (schemas/observations.schema.json); an elevation (deg);
+CN0S, ELEVATIONS = (0.0, 100.0), (-90.0, 90.0)
+#: a position error or a calibration prior (m per axis), as the observations' position_sd;
+POSITION_SDS = (0.0, 1000.0)
+#: a position error's or calibration offset's window (s, above 0): at most a day; its distance
+#: (m, above 0): at most 100 km (longer: a whole recording, leave them out);
+WINDOWS, POSITION_DISTANCES = (0.0, 86_400.0), (0.0, 100_000.0)
+#: a converged estimate's widest height range (m, above 0);
+UNCERTAINTIES = (0.0, 1000.0)
+#: 4PL-B's iterations and the calibration's rounds: each is a full fit of every building.
+ITERATIONS = (1, 1000)
+ROUNDS = (1, 100)
+
+
+def count_within(value, bounds: tuple[int, int]) -> bool:
+    """A whole number from ``bounds[0]`` to ``bounds[1]``."""
+    return count(value) and bounds[0] <= int(value) <= bounds[1]

@@ -1,0 +1,77 @@
+"""How far the receiver positions may be off (:class:`PositionError`), for the height fits to
+model, with its defaults."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from ..errors import InputError
+from .checks import POSITION_DISTANCES, POSITION_SDS, WINDOWS, within
+
+#: Position error (m per axis) of an observation that does not say (its ``position_sd`` empty):
+#: a point placed by hand on a large-scale map, as the paper's receivers were ("an estimated
+#: location error of below 2 metres", taken as two standard deviations).
+DEFAULT_POSITION_SD = 1.0
+#: How far (m) a moving receiver goes with one position error (``PositionError.distance``): a
+#: phone's fix is biased by the reflections of the facades around it, which stay while it
+#: stays in one stretch of street and change when it reaches the next (a London block is
+#: 50-100 m long; measured in docs/issue-28-positions.md).
+DEFAULT_POSITION_DISTANCE = 50.0
+
+
+@dataclass(frozen=True)
+class PositionError:
+    """How far the receiver positions may be off, for the height fits to model.
+
+    By default the errors come from the data: each observation's ``position_sd`` (a phone
+    fix's accuracy, a surveyed point's ``sd``), :data:`DEFAULT_POSITION_SD` where it is empty.
+    The fits then model each signal's resulting height error, and the ranges carry the roof
+    line's position uncertainty (:func:`~gnss_citygml.pipeline.intersections`).
+
+    Parameters
+    ----------
+    sd
+        Metres per axis for every position, overriding the data's, e.g. 1 for points placed by
+        hand on a map. ``0``: the positions are taken as exact, as in the paper (no error is
+        modelled). ``None`` (default): from the data.
+    distance
+        How far (m) a moving receiver (a phone's fixes, a walker's traced path) goes with one
+        error: until its reported position is this far from where the error began
+        (:data:`DEFAULT_POSITION_DISTANCE`). ``None``: its whole recording. A receiver standing
+        at one point, or a phone lying still, keeps one error
+        (:func:`~gnss_citygml.recordings.position_groups`).
+    window
+        Instead of ``distance``: how long (s) one error of a moving receiver lasts, its rows
+        sharing an error within windows of this length (windows of each recording from its own
+        first epoch).
+    """
+
+    sd: float | None = None
+    window: float | None = None
+    distance: float | None = DEFAULT_POSITION_DISTANCE
+
+    def __post_init__(self):
+        if self.sd is not None and not within(self.sd, POSITION_SDS):
+            raise InputError(
+                f"the position error must be a number of metres, {POSITION_SDS[0]:g} to "
+                f"{POSITION_SDS[1]:g}, not {self.sd}",
+                fix="give --position-sd, e.g. 1 m for points placed by hand (0: exact positions)",
+            )
+        if self.window is not None and not within(self.window, WINDOWS, above=True):
+            raise InputError(
+                f"the position window must be a positive number of seconds up to "
+                f"{WINDOWS[1]:g} (a day), not {self.window}",
+                fix="give --position-window, e.g. 30 for a walker's traced path, or leave it "
+                "out for the whole recording",
+            )
+        if self.distance is not None and not within(self.distance, POSITION_DISTANCES, above=True):
+            raise InputError(
+                f"the position error's distance must be a positive number of metres up to "
+                f"{POSITION_DISTANCES[1]:g}, not {self.distance}",
+                fix=f"give --position-distance in metres, e.g. {DEFAULT_POSITION_DISTANCE:g}",
+            )
+
+    @property
+    def exact(self) -> bool:
+        """Whether the positions are taken as exact (``sd=0``): no error is modelled."""
+        return self.sd == 0

@@ -41,10 +41,17 @@ With ``--sd-scale K`` the phone fixes' reported errors (``position_sd``) are mul
 before anything else: what the fits would do if a phone's claim were K times as honest (issue
 28, item 3; the simulator's fixes are 1.1-1.6 times as far off as they claim).
 
+With ``--match known`` the phone fixes are shadow-matched (``shadow_matching.py``: one shift
+per ``--match-window`` seconds of each recording) against the scene's true heights before the
+rays are cast: a perfect map, with the signals' C/N0 or (``--match-labels los``) their line of
+sight, the floor of shadow matching (issue 28, item 2).
+
 With ``--calibrate`` the receivers are self-calibrated first (one offset per recording, or per
 ``--calibration-window`` seconds of it, prior sd manual 1 m, phone fixes 5 m: issue 27, item 3),
 for each initial threshold, with the C/N0 classifier (the reference's perfect labels are judged
-on the uncalibrated positions).
+on the uncalibrated positions), ``--calibration-rounds`` rounds; with ``--calibration-matching
+shadows`` by shadow matching (issue 28, item 2; each window's prior its fixes' own
+``position_sd``).
 
     python benchmarks/scenes.py [--scenes 8] [--physics | --regimes]
                                 [--position-errors data|exact|fixed] [--position-window 30]
@@ -53,7 +60,8 @@ on the uncalibrated positions).
                                 [--positions reported|common|true]
                                 [--calibrate [--calibration-window 30]] [--phones each]
                                 [--regimes [--regime district ...]] [--sd-scale 1.5]
-                                [--outside 1|mean]
+                                [--outside 1|mean] [--match known]
+                                [--calibrate --calibration-matching shadows]
 """
 
 from __future__ import annotations
@@ -75,11 +83,12 @@ from accuracy import (
     site_tables,
 )
 from scipy.stats import norm
+from shadow_matching import shadow_matched
 
 from gnss_citygml import Estimator, estimate_heights
 from gnss_citygml.calibrate import calibrate_receivers
 from gnss_citygml.pipeline import intersections, open_sky
-from gnss_citygml.settings import SIGNAL_MODELS, WEIGHTINGS, Calibration
+from gnss_citygml.settings import MATCHINGS, SIGNAL_MODELS, WEIGHTINGS, Calibration
 from gnss_citygml.simulate import EPOCH, LOCATIONS, simulate
 from gnss_citygml.simulate.scenes import city_scene, street_scene
 from gnss_citygml.simulate.signals import SignalModel
@@ -269,12 +278,36 @@ def _parser() -> argparse.ArgumentParser:
         "nearest wall, or 'mean': the mean of the fix's Gaussian beyond it",
     )
     parser.add_argument(
+        "--match",
+        choices=("known",),
+        help="shadow-match the phone fixes (shadow_matching.py) before the rays are cast, "
+        "against the scene's true heights (known: a perfect map, the floor of map matching)",
+    )
+    parser.add_argument(
+        "--match-labels",
+        choices=("cn0", "los"),
+        default="cn0",
+        help="with --match: what a signal says, its C/N0 or (los) the simulator's line of sight",
+    )
+    parser.add_argument(
+        "--match-window", type=float, default=10.0, help="with --match: seconds of one shift"
+    )
+    parser.add_argument(
         "--no-level-phones",
         action="store_true",
         help="the C/N0 as recorded: no phone levelled by its open sky (the paper's)",
     )
     parser.add_argument(
         "--calibrate", action="store_true", help="self-calibrate the receivers' offsets first"
+    )
+    parser.add_argument(
+        "--calibration-matching",
+        choices=MATCHINGS,
+        default="roof lines",
+        help="with --calibrate: how each offset is found (shadows: shadow matching)",
+    )
+    parser.add_argument(
+        "--calibration-rounds", type=int, default=3, help="with --calibrate: rounds"
     )
     parser.add_argument(
         "--calibration-window",
@@ -319,19 +352,24 @@ def main():
             error = position_error(
                 args.position_errors, locations, args.position_window, args.position_distance
             )
-            rays, _, cast = site_tables(sim, positions=args.positions, position_error=error)
-            sky = None if args.no_open_sky else open_sky(rays, cast)
-            recast = None
-            if args.calibrate:
-                calibration = Calibration(
-                    prior_sd=POSITION_SD[locations], window=args.calibration_window
-                )
-                recast = _calibrated(sim, rays, error, calibration, sky is not None)
             estimator = Estimator(
                 weighting=args.weighting,
                 signal_model=args.signal_model,
                 level_phones=not args.no_level_phones and args.labels == "cn0",
             )
+            if args.match is not None and locations == "gnss":
+                sim = _matched(sim, args)
+            rays, _, cast = site_tables(sim, positions=args.positions, position_error=error)
+            sky = None if args.no_open_sky else open_sky(rays, cast)
+            recast = None
+            if args.calibrate:
+                calibration = Calibration(
+                    prior_sd=POSITION_SD[locations],
+                    window=args.calibration_window,
+                    rounds=args.calibration_rounds,
+                    matching=args.calibration_matching,
+                )
+                recast = _calibrated(sim, rays, error, calibration, sky is not None)
             err = _judged(sim, cast, args.labels, estimator, sky, recast)
             n_runs = len(sim.truth) * len(THRESHOLDS)
             group = locations if regime is None else f"{regime}, {locations}"
@@ -385,6 +423,16 @@ def outside_buildings(obs: pd.DataFrame, buildings, beyond: str) -> pd.DataFrame
     new = pd.DataFrame({"e": e, "n": n}, index=pd.MultiIndex.from_arrays([fixes["e"], fixes["n"]]))
     new = new.reindex(where)
     return obs.assign(e=new["e"].to_numpy(), n=new["n"].to_numpy())
+
+
+def _matched(sim, args):
+    """``sim`` with its fixes shadow-matched (:func:`shadow_matching.shadow_matched`) against
+    the scene's true heights (``--match known``)."""
+    heights = sim.truth.set_index("id")["height"].reindex(sim.buildings["id"])
+    matched = shadow_matched(
+        sim.observations, sim.buildings.geometry, heights, args.match_window, args.match_labels
+    )
+    return replace(sim, observations=matched)
 
 
 def _judged(sim, cast, labels, estimator, sky, recast=None) -> pd.DataFrame:

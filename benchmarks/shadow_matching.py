@@ -1,17 +1,20 @@
 """How much of the phones' fix errors can shadow matching take back? (issue 28, a floor)
 
-For each window of a recording, one horizontal shift of its fixes is chosen on a grid of
-candidates within 2.5 reported standard deviations: the one whose rays best explain which
-signals arrive strong (C/N0 at or above 30 dB-Hz) and which do not, against the footprints,
-with a Gaussian prior on the shift and no fix inside a building. With ``--map known`` the
-footprints carry the scene's true heights (a perfect map: the floor of map matching); with
-``--map minimum`` only a minimum building height (what a map without heights says: a ray
-crossing no footprint is open, one entering a wall below that height is blocked).
+For each window of a recording, one horizontal shift of its fixes, by the package's shadow
+matching (:mod:`gnss_citygml.calibrate.shadows`: the posterior mean over a grid of candidates,
+a Gaussian prior of the window's reported error) against footprints with known ``heights``.
+
+What a signal says: with ``labels="los"`` the simulator's line of sight (a perfect classifier:
+the floor of shadow matching itself), with ``"cn0"`` whether it arrives strong (C/N0 at or
+above 30 dB-Hz; reflections do sometimes). With ``--map minimum`` no building has a height (a map
+without heights: :data:`~gnss_citygml.calibrate.shadows.MIN_WALL`).
 
 The walked districts of ``scenes.py --regimes --regime district`` (each person their own
 phone) with phone fixes; per scene the error of the fixes (per axis, RMS) across and along
 the street each person walks, as reported and as matched. Also the floor of one shift per
-window: what the window's mean error leaves.
+window: what the window's mean error leaves. ``scenes.py --match known`` estimates the heights
+from positions matched this way (the floor of shadow matching); ``scenes.py --calibrate
+--calibration-matching shadows`` the package's, against the heights being estimated.
 
     python benchmarks/shadow_matching.py [--scenes 3] [--window 5] [--map known|minimum]
 """
@@ -22,64 +25,50 @@ import argparse
 import time
 
 import numpy as np
-import shapely
-from scenes import district_scene, phones, random_physics
+import pandas as pd
 
-from gnss_citygml.raycast import footprint_entries
+from gnss_citygml.calibrate.shadows import shadow_offsets
 from gnss_citygml.recordings import recording_windows
-from gnss_citygml.simulate import simulate
 
-#: Antenna above the ground (m), C/N0 taken as "arrives strong" (dB-Hz), the minimum building
-#: height of ``--map minimum`` (m), and the chances of a strong signal for an open and a
-#: blocked ray (reflections arrive strong sometimes).
-ANTENNA, STRONG, MIN_HEIGHT = 1.1, 30.0, 5.0
-P_STRONG = {"open": 0.85, "blocked": 0.3}
-GRID = 13  # candidates per axis
+#: C/N0 taken as "arrives strong" (dB-Hz), and the chances of a strong (or, with ``los``, an
+#: in-sight) signal for a ray the map leaves open and for one it blocks (reflections do arrive
+#: strong sometimes).
+STRONG = 30.0
+P_SEEN = {"cn0": (0.85, 0.3), "los": (0.95, 0.05)}
 RANGE = 300.0  # m of ray
 
 
-def shadow_matched(obs, footprints, window, heights=None):
-    """The fixes (``e``, ``n``) moved by one shift per ``window`` seconds of each recording."""
+def shadow_matched(
+    obs: pd.DataFrame, footprints, heights=None, window: float = 10.0, labels: str = "cn0"
+) -> pd.DataFrame:
+    """``obs`` with its fixes (``e``, ``n``) moved by one shift per ``window`` seconds of each
+    recording (:func:`gnss_citygml.calibrate.shadows.shadow_offsets`, each window's prior its
+    median ``position_sd``); ``heights`` (absolute, as ``z``, one per footprint, NaN where
+    unknown) or ``None``."""
+    footprints = np.asarray(footprints)
     unit = recording_windows(obs, window)
-    shift = np.zeros((unit.max() + 1, 2))
-    tree = shapely.STRtree(footprints)
-    for k in range(unit.max() + 1):
-        g = obs[unit == k]
-        sd = float(np.nanmedian(g["position_sd"])) if g["position_sd"].notna().any() else 3.0
-        steps = np.linspace(-min(2.5 * sd, 25.0), min(2.5 * sd, 25.0), GRID)
-        sx, sy = (a.ravel() for a in np.meshgrid(steps, steps))
-        x = (g["e"].to_numpy()[None, :] + sx[:, None]).ravel()
-        y = (g["n"].to_numpy()[None, :] + sy[:, None]).ravel()
-        elevation = np.tile(g["elevation"].to_numpy(), sx.size)
-        ray, part, dist, _ = footprint_entries(
-            x, y, np.tile(g["azimuth"].to_numpy(), sx.size), footprints, RANGE
-        )
-        rise = ANTENNA + dist * np.tan(np.radians(elevation[ray]))
-        tops = np.full(part.size, MIN_HEIGHT) if heights is None else heights[part]
-        blocked = np.zeros(x.size, bool)
-        blocked[ray[tops > rise]] = True
-        known = blocked | ~np.isin(np.arange(x.size), ray) if heights is None else True
-        strong = np.tile(g["cn0"].fillna(0.0).to_numpy() >= STRONG, sx.size)
-        p = np.where(blocked, P_STRONG["blocked"], P_STRONG["open"])
-        loglik = np.where(known, np.log(np.where(strong, p, 1.0 - p)), 0.0)
-        score = loglik.reshape(sx.size, -1).sum(axis=1) - 0.5 * (sx**2 + sy**2) / sd**2
-        fixes = g.drop_duplicates("time_utc")
-        points = shapely.points(
-            (fixes["e"].to_numpy()[None, :] + sx[:, None]).ravel(),
-            (fixes["n"].to_numpy()[None, :] + sy[:, None]).ravel(),
-        )
-        inside = np.zeros(points.size, bool)
-        inside[tree.query(points, predicate="within")[0]] = True
-        score -= 50.0 * inside.reshape(sx.size, -1).mean(axis=1)
-        best = int(np.argmax(score))
-        shift[k] = sx[best], sy[best]
-    return obs["e"] + shift[unit, 0], obs["n"] + shift[unit, 1]
+    n_units = int(unit.max()) + 1
+    sd = obs["position_sd"].groupby(unit).median().reindex(range(n_units)).fillna(3.0)
+    rays = {
+        "e": obs["e"].to_numpy(float),
+        "n": obs["n"].to_numpy(float),
+        "z": obs["z"].to_numpy(float),
+        "bearing": obs["azimuth"].to_numpy(float),
+        "tan_el": np.tan(np.radians(obs["elevation"].to_numpy(float))),
+        "satellite": obs.groupby(["constellation", "svid"]).ngroup().to_numpy(),
+    }
+    seen = (obs["los"] if labels == "los" else obs["cn0"].fillna(0.0) >= STRONG).to_numpy()
+    heights = np.full(len(footprints), np.nan) if heights is None else np.asarray(heights, float)
+    offsets = shadow_offsets(
+        rays, seen, P_SEEN[labels], unit, sd.to_numpy(), footprints, heights, RANGE
+    )
+    return obs.assign(e=obs["e"] + offsets[unit, 0], n=obs["n"] + offsets[unit, 1])
 
 
-def _errors(obs, e, n, window):
+def _errors(obs, matched, window):
     """RMS per axis across and along each walker's street, and the floor of one shift per
     window (the error left once each window's mean is taken away)."""
-    fixes = obs.assign(e=e, n=n).drop_duplicates(["receiver", "time_utc"])
+    fixes = matched.drop_duplicates(["receiver", "time_utc"])
     north_south = fixes["receiver"].str.rsplit("_", n=1).str[1].astype(int) % 2 == 1
     de, dn = fixes["e"] - fixes["e_true"], fixes["n"] - fixes["n_true"]
     across, along = np.where(north_south, de, dn), np.where(north_south, dn, de)
@@ -91,10 +80,15 @@ def _errors(obs, e, n, window):
 
 
 def main():
+    from scenes import district_scene, phones, random_physics
+
+    from gnss_citygml.simulate import simulate
+
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scenes", type=int, default=3)
     parser.add_argument("--window", type=float, default=5.0, help="seconds of one shift")
     parser.add_argument("--map", choices=("known", "minimum"), default="known")
+    parser.add_argument("--labels", choices=tuple(P_SEEN), default="cn0")
     args = parser.parse_args()
     print(
         "| scene | reported: across, along | matched: across, along | floor of one shift "
@@ -107,13 +101,12 @@ def main():
         obs = sim.observations
         heights = None
         if args.map == "known":
-            truth = sim.truth.set_index("id").reindex(sim.buildings["id"])
-            heights = (truth["height"] - truth["ground"]).to_numpy()
+            heights = sim.truth.set_index("id")["height"].reindex(sim.buildings["id"])
         began = time.perf_counter()
-        e, n = shadow_matched(obs, np.asarray(sim.buildings.geometry), args.window, heights)
+        matched = shadow_matched(obs, sim.buildings.geometry, heights, args.window, args.labels)
         seconds = time.perf_counter() - began
-        before = _errors(obs, obs["e"], obs["n"], args.window)
-        after = _errors(obs, e, n, args.window)
+        before = _errors(obs, obs, args.window)
+        after = _errors(obs, matched, args.window)
         print(
             f"| {k} ({layout}) | {before[0]:.2f}, {before[1]:.2f} m | {after[0]:.2f}, "
             f"{after[1]:.2f} m | {before[2]:.2f} m | {seconds:.0f} |",

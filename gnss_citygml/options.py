@@ -18,6 +18,7 @@ from typing import Any
 from .model import METHODS
 from .settings import (
     HEIGHT_RULES,
+    MATCHINGS,
     RECEIVER_HEIGHTS,
     SIGNAL_MODELS,
     Calibration,
@@ -240,6 +241,19 @@ _OPTIONS = (
         "With --calibration-sd: one offset per this many seconds of a recording (about 30 "
         "for phone fixes, whose errors drift) instead of one per recording.",
         WINDOWS,
+    ),
+    Option(
+        ("calibration", "matching"),
+        "--calibration-matching",
+        "choice",
+        "Calibration matching (roof lines: each offset against the fitted roof lines; "
+        "shadows: the rays cast exactly, open sky included)",
+        "With --calibration-sd: how each offset is found: against every converged building's "
+        "fitted roof line ('roof lines'), or by shadow matching (shadows: the rays cast "
+        "exactly from a grid of candidates against the converged roofs, the open sky included; "
+        "each window's prior its fixes' own position_sd where they have one; for phone fixes, "
+        "with --calibration-window 10).",
+        choices=MATCHINGS,
     ),
 )
 

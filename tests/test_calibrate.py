@@ -43,6 +43,19 @@ def test_windows_give_one_offset_per_window(canyon):
     assert (out.groupby(windows)[["offset_e", "offset_n"]].nunique() == 1).all().all()
 
 
+def test_shadows_take_back_an_offset_every_recording_shares(canyon):
+    """Every recording 3 m north (a bias all phones in a street share): the roof lines move
+    with it, the shadows do not. (Towards the near wall, 0.5 m from it, the heights fitted from
+    the shifted positions hold the receivers there: docs/issue-28-positions.md.)"""
+    rx, buildings = canyon
+    moved = rx.assign(n=rx["n"] + 3.0, position_sd=3.0)
+    shadows = Calibration(prior_sd=3.0, matching="shadows", rounds=1)
+    out = calibrate_receivers(moved, buildings, shadows)
+    before, after = _cross_street_error(moved), _cross_street_error(out)
+    assert after.abs().mean() < 0.6 * before.abs().mean()
+    assert (out.groupby("receiver")[["offset_e", "offset_n"]].nunique() == 1).all().all()
+
+
 def test_bad_input(canyon):
     rx, buildings = canyon
     one_metre = Calibration(prior_sd=1.0)
@@ -52,6 +65,11 @@ def test_bad_input(canyon):
         calibrate_receivers(
             rx.drop(columns="time_utc"), buildings, Calibration(prior_sd=1.0, window=60.0)
         )
+    with pytest.raises(MissingColumnError, match="svid"):
+        shadows = Calibration(prior_sd=1.0, matching="shadows")
+        calibrate_receivers(rx.drop(columns="svid"), buildings, shadows)
+    with pytest.raises(InputError, match="calibration matching must be one of"):
+        Calibration(prior_sd=1.0, matching="shadow")
     with pytest.raises(InputError, match="positive"):
         Calibration(prior_sd=0.0)
     with pytest.raises(InputError, match="calibration window without self-calibration"):

@@ -307,6 +307,23 @@ def test_estimate_with_position_errors(grid_args, tmp_path, capsys):
     assert max(width["0"], width["1"]) < width["3"]
 
 
+def test_estimate_with_shadow_matching(grid_args, tmp_path, capsys):
+    simulated_site(tmp_path, grid_args, capsys, interval="60")
+    shadows = ["--calibration-sd", "3", "--calibration-window", "600"]
+    code, _, err = run(
+        [*estimate_args(tmp_path, grid_args), *shadows, "--calibration-matching", "shadow"], capsys
+    )
+    assert code == 2 and "--calibration-matching" in err and "shadows" in err
+    code, out, err = run(
+        [*estimate_args(tmp_path, grid_args), *shadows, "--calibration-matching", "shadows"], capsys
+    )
+    assert code == 0, err
+    heights = gpd.read_file(tmp_path / "heights.gpkg", layer="heights").set_index("id")
+    truth = pd.read_csv(tmp_path / "truth.csv").set_index("id")
+    terrace = "hermitage_terrace"
+    assert abs(heights.loc[terrace, "height"] - truth.loc[terrace, "height"]) < 1.5, out
+
+
 def test_estimate_bad_observation_names_its_line(grid_args, tmp_path, capsys):
     simulated_site(tmp_path, grid_args, capsys, interval="60")
     obs = pd.read_csv(tmp_path / "observations.csv")

@@ -59,6 +59,7 @@ _RUN_OPTIONS = together(
     POSITION_WINDOW,
     option("CALIBRATION_SD"),
     option("CALIBRATION_WINDOW"),
+    option("CALIBRATION_MATCHING"),
     TRUTH,
     DEM_CRS,
     GRID_DIR,

@@ -49,6 +49,7 @@ __all__ = [
     "DEFAULT_POSITION_SD",
     "DEFAULT_TILE_SIZE",
     "HEIGHT_RULES",
+    "MATCHINGS",
     "SIGNAL_MODELS",
     "RECEIVER_HEIGHTS",
     "TILE_SIZES",
@@ -76,6 +77,12 @@ HEIGHT_RULES = ("inflection", "paper")
 #: labels; ``mixture``, C/N0 densities of open and closed signals learnt by EM, anchored by the
 #: rays that cross no footprint (:mod:`gnss_citygml.model.mixture`).
 SIGNAL_MODELS = ("paper", "mixture")
+
+#: How self-calibration finds each recording's (or window's) offset: ``roof lines``, the
+#: labels of its signals against every converged building's fitted 4PL, heights moved to first
+#: order; ``shadows``, the rays cast exactly from a grid of candidates against the converged
+#: roofs, the rays that cross no footprint included (:mod:`gnss_citygml.calibrate.shadows`).
+MATCHINGS = ("roof lines", "shadows")
 
 #: Where receiver heights come from: the DEM plus an antenna height, or the log's own heights.
 RECEIVER_HEIGHTS = ("dem", "log")
@@ -376,11 +383,16 @@ class Calibration:
         :class:`PositionError`).
     rounds
         Rounds of the (heights | offsets) alternation.
+    matching
+        How each offset is found (:data:`MATCHINGS`): ``roof lines`` (default), or ``shadows``,
+        where each window's prior is its fixes' own ``position_sd`` where the data have one
+        (about 10 s windows for phone fixes).
     """
 
     prior_sd: float | None = None
     window: float | None = None
     rounds: int = 3
+    matching: str = "roof lines"
 
     def __post_init__(self):
         if self.prior_sd is not None and not within(self.prior_sd, POSITION_SDS, above=True):
@@ -400,6 +412,12 @@ class Calibration:
                 f"{WINDOWS[1]:g} (a day), not {self.window}",
                 fix="give --calibration-window, e.g. 30 for phone fixes, or leave it out for "
                 "one offset per recording",
+            )
+        if self.matching not in MATCHINGS:
+            raise InputError(
+                f"calibration matching must be one of {', '.join(MATCHINGS)}, "
+                f"not {self.matching!r}",
+                fix="give --calibration-matching 'roof lines' or shadows",
             )
         if not count_within(self.rounds, ROUNDS):
             raise InputError(

@@ -22,6 +22,12 @@ and re-casting the rays exactly from the corrected positions after each round. T
 standard deviation is what the positions are believed to be worth (about 1 m for hand-placed
 points; several metres for phone fixes) and removes the common-mode degeneracy: shifting every
 recording the same way can be absorbed by the heights, so only the prior pins it.
+
+``Calibration(matching="shadows")`` finds each offset in step 2 by shadow matching instead
+(:mod:`.shadows`): the rays cast exactly from a grid of candidates against the converged roofs,
+the rays that cross no footprint included, which a shared offset does not escape. The labels
+are the current signal model's, their error rates counted on the current cast (open sky,
+and rays surely below a converged roof); each window's prior is its fixes' own ``position_sd``.
 """
 
 from __future__ import annotations
@@ -30,13 +36,14 @@ import geopandas as gpd
 import numpy as np
 import pandas as pd
 
-from .errors import InputError, MissingColumnError
-from .model.estimate import fourplb
-from .model.fourpl import logistic4
-from .model.mixture import Cn0Moments, elevation_units
-from .raycast import footprint_entries
-from .recordings import recording_windows
-from .settings import Calibration, Estimator, Rays
+from ..errors import InputError, MissingColumnError
+from ..model.estimate import fourplb
+from ..model.fourpl import logistic4
+from ..model.mixture import Cn0Moments, elevation_units
+from ..raycast import footprint_entries
+from ..recordings import recording_windows
+from ..settings import Calibration, Estimator, Rays
+from .shadows import SEARCH_SDS, shadow_offsets
 
 __all__ = ["calibrate_receivers"]
 
@@ -47,9 +54,8 @@ _REQUIRED = ["receiver", "e", "n", "z", "bearing", "elevation", "cn0"]
 #: likelihood: their first-order height change is not to be trusted over a metre.
 MAX_DISTANCE_GRADIENT = 4.0
 
-#: Half-width of the offset search of one round, in prior standard deviations, and its cap
-#: (m): several rounds, each re-casting exactly, cover larger offsets.
-SEARCH_SDS = 2.5
+#: Cap (m) of the half-width of the offset search of one round (:data:`.shadows.SEARCH_SDS`
+#: prior standard deviations): several rounds, each re-casting exactly, cover larger offsets.
 SEARCH_CAP = 4.0
 
 #: Seconds over which one satellite's signals at one receiver are taken as one piece of
@@ -74,7 +80,8 @@ def calibrate_receivers(
     ----------
     receivers
         Observations with the receiver columns (DESIGN.md): ``receiver``, ``e``, ``n``, ``z``,
-        ``bearing``, ``elevation``, ``cn0`` (and ``time_utc`` with a window).
+        ``bearing``, ``elevation``, ``cn0`` (and ``time_utc`` with a window; ``constellation``
+        and ``svid`` for shadow matching, and each row's ``position_sd`` if it has one).
     buildings
         Table with ``id`` and ``geometry`` (footprints in the receivers' grid).
     calibration
@@ -82,7 +89,8 @@ def calibrate_receivers(
         are believed to be worth; the window (s): one offset per window of each recording (for
         positions whose error drifts, e.g. phone fixes; windows of
         :func:`~gnss_citygml.recordings.recording_windows`) instead of one per recording; the
-        rounds of (heights | offsets) alternation (:class:`~gnss_citygml.settings.Calibration`).
+        rounds of (heights | offsets) alternation; how each offset is found, against the
+        roof lines or by shadow matching (:class:`~gnss_citygml.settings.Calibration`).
     estimator
         The 4PL-B settings (:class:`~gnss_citygml.settings.Estimator`, method 4PL-B).
     rays
@@ -103,6 +111,8 @@ def calibrate_receivers(
     missing = [c for c in _REQUIRED if c not in receivers.columns]
     if calibration.window is not None and "time_utc" not in receivers.columns:
         missing.append("time_utc")
+    if calibration.matching == "shadows":
+        missing += [c for c in ("constellation", "svid") if c not in receivers.columns]
     if missing:
         raise MissingColumnError(missing, where="receivers table", have=list(receivers.columns))
     sd = calibration.prior_sd
@@ -110,6 +120,7 @@ def calibrate_receivers(
     n_units = int(unit.max(initial=-1)) + 1
     temper = min(1.0, _interval(receivers) / CORRELATION_TIME)
     origins = _Rays(receivers, buildings, rays.max_range)
+    sds = _prior_sds(receivers, unit, n_units, sd)
     offsets = np.zeros((n_units, 2))
     best = None
     for _ in range(calibration.rounds):
@@ -120,7 +131,10 @@ def calibrate_receivers(
             offsets = best[1]  # the fits fell apart: keep the last offsets that held them
             break
         best = (n_ok, offsets)
-        step = _offset_step(origins, cast, fits, classifier, unit, n_units, offsets, sd, temper)
+        if calibration.matching == "shadows":
+            step = _shadow_step(origins, cast, fits, classifier, unit, offsets, sds)
+        else:
+            step = _offset_step(origins, cast, fits, classifier, unit, n_units, offsets, sd, temper)
         offsets = offsets + step
         if np.max(np.abs(step), initial=0.0) < 0.01 * sd:
             break
@@ -158,6 +172,60 @@ def _offset_step(origins, cast, fits, classifier, unit, n_units, offsets, sd, te
     )
 
 
+def _shadow_step(origins, cast, fits, classifier, unit, offsets, sds):
+    """Each window's step of offset by shadow matching (:func:`.shadows.shadow_offsets`)
+    against the buildings that converged, labelled by the current classifier; none where the
+    labels' error rates cannot be told (:func:`_label_rates`)."""
+    labels = classifier.label(origins.cn0, elevation_units(origins.elevation))
+    rates = _label_rates(cast, fits, labels)
+    if rates is None:
+        return np.zeros_like(offsets)
+    heights = np.where(fits.converged, fits.c, np.nan)
+    found = shadow_offsets(
+        origins.shadow_rays,
+        labels,
+        rates,
+        unit,
+        sds,
+        origins.footprints,
+        heights,
+        origins.max_range,
+    )
+    return found - offsets
+
+
+#: Rows each of the label's error rates is counted on, at least (fewer: no shadow matching).
+MIN_RATE_ROWS = 30
+
+
+def _label_rates(cast, fits, labels) -> tuple[float, float] | None:
+    """The chances that a signal is labelled open where the map leaves its ray open (it crosses
+    no footprint) and where the map surely blocks it (it enters a converged building more than
+    two transition widths, 2/b, below its roof), from the current cast; None where either has
+    fewer than :data:`MIN_RATE_ROWS` rows or the labels tell the two apart by less than 0.1."""
+    crossing = np.zeros(labels.size, dtype=bool)
+    crossing[cast.ray] = True
+    slope = np.where(fits.converged, fits.b, 1.0)  # a fit that did not converge may have none
+    surely_below = np.where(fits.converged, fits.c - 2.0 / slope, -np.inf)
+    low = cast.height < surely_below[cast.building]
+    blocked = np.zeros(labels.size, dtype=bool)
+    blocked[cast.ray[low]] = True
+    if min((~crossing).sum(), blocked.sum()) < MIN_RATE_ROWS:
+        return None
+    p_open = float(np.clip(labels[~crossing].mean(), 0.5, 0.99))
+    p_blocked = float(np.clip(labels[blocked].mean(), 0.01, 0.5))
+    return (p_open, p_blocked) if p_open - p_blocked >= 0.1 else None
+
+
+def _prior_sds(receivers, unit, n_units, prior_sd) -> np.ndarray:
+    """Per window, its offset's prior standard deviation (m): the median of its rows' own
+    ``position_sd`` (a phone fix's accuracy) where the table has one, else ``prior_sd``."""
+    if "position_sd" not in receivers.columns:
+        return np.full(n_units, float(prior_sd))
+    own = pd.to_numeric(receivers["position_sd"], errors="coerce")
+    return own.groupby(unit).median().reindex(range(n_units)).fillna(prior_sd).to_numpy(float)
+
+
 class _Cast:
     """Intersections of one cast, as arrays (rows sorted by ray, then distance)."""
 
@@ -178,8 +246,25 @@ class _Rays:
         self.tan_el = np.tan(np.radians(self.elevation))
         self.cn0 = receivers["cn0"].to_numpy(dtype=float)
         self.footprints = np.asarray(buildings.geometry, dtype=object)
+        self.satellite = (
+            receivers.groupby(["constellation", "svid"], sort=False).ngroup().to_numpy()
+            if {"constellation", "svid"} <= set(receivers.columns)
+            else None
+        )
         self.n_buildings = len(self.footprints)
         self.max_range = max_range
+
+    @property
+    def shadow_rays(self) -> dict[str, np.ndarray]:
+        """The rows as :func:`.shadows.shadow_offsets` takes them."""
+        return {
+            "e": self.e,
+            "n": self.n,
+            "z": self.z,
+            "bearing": self.bearing,
+            "tan_el": self.tan_el,
+            "satellite": self.satellite,
+        }
 
     def open_sky(self, cast: _Cast, estimator: Estimator) -> Cn0Moments | None:
         """What the rays that ``cast`` finds entering no footprint teach the mixture signal

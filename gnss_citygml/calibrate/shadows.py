@@ -1,0 +1,135 @@
+"""Shadow matching: where each window of a recording can have been, by which of its signals
+arrive and which do not, against the footprints and the heights known so far.
+
+A phone fix pushed across a street by the reflections there is off the same way for every phone
+in that street: the roof lines absorb such a shared offset (:mod:`gnss_citygml.calibrate`'s
+first method cannot see it), but the shadows cannot. A ray that crosses no footprint from where
+the phone really was arrives in sight; one that enters a wall below the building's roof does
+not; from a position a few metres across the street the same rays cross other walls at other
+heights. :func:`shadow_offsets` weighs a grid of candidate shifts of each window by how well
+the rays cast exactly from there explain its signals' labels, with a Gaussian prior on the
+shift, and takes the posterior mean: along a street, where the shadows say nothing, the shift
+stays the prior's (none) instead of wandering to the best of many equal candidates. No
+candidate puts the window inside a building. Measured in docs/issue-28-positions.md.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import shapely
+
+from ..raycast import footprint_entries
+
+__all__ = ["shadow_offsets"]
+
+#: Candidates per axis of a window's grid, and its half-width: this many of the window's prior
+#: standard deviations (as for the roof lines' search), at most :data:`CAP` metres.
+GRID = 11
+SEARCH_SDS = 2.5
+CAP = 25.0
+
+#: Height (m) above the antenna that any building is taken to reach when its own is not known
+#: (not converged, or a map without heights): a one-storey building's eaves (about 4 m) less a
+#: hand-held antenna's height. A ray entering its wall below that is blocked; above, unknown.
+MIN_WALL = 3.0
+
+#: Rays cast at once (memory: about 100 bytes a ray).
+CHUNK = 2_000_000
+
+
+def shadow_offsets(
+    rays: dict[str, np.ndarray],
+    labels: np.ndarray,
+    p_seen: tuple[float, float],
+    unit: np.ndarray,
+    sd: np.ndarray,
+    footprints: np.ndarray,
+    heights: np.ndarray,
+    max_range: float,
+) -> np.ndarray:
+    """Each window's offset (east, north; m): the posterior mean over its candidate grid.
+
+    Parameters
+    ----------
+    rays
+        Per row: ``e``, ``n``, ``z`` (antenna, m), ``bearing`` (deg), ``tan_el`` (tangent of the
+        elevation) and ``satellite`` (an integer per satellite; each counts once per window,
+        its rows' mean log-likelihood: its epochs share their reflections and the map's misfit).
+    labels
+        Per row: whether the signal is labelled open (in sight).
+    p_seen
+        The chances that a signal is labelled open when the map leaves its ray open, and when
+        the map blocks it.
+    unit
+        Per row: its window (``0 .. n - 1``, e.g. of
+        :func:`~gnss_citygml.recordings.recording_windows`).
+    sd
+        Per window: the prior standard deviation of its offset (m per axis).
+    footprints, heights
+        The footprints and their roofs (m, as ``z``; NaN: not known, :data:`MIN_WALL`).
+    max_range
+        The rays' horizontal length (m).
+    """
+    half = np.minimum(SEARCH_SDS * sd, CAP)
+    steps = np.linspace(-1.0, 1.0, GRID)
+    sx, sy = (a.ravel() for a in np.meshgrid(steps, steps))
+    first = np.unique(
+        rays["satellite"] * (int(unit.max(initial=0)) + 1) + unit, return_inverse=True
+    )[1]
+    weight = 1.0 / np.bincount(first)[first]
+    score = _log_likelihoods(
+        rays, labels, p_seen, unit, half, (sx, sy), weight, footprints, heights, max_range
+    )
+    score -= 0.5 * (sx**2 + sy**2)[None, :] * (half / sd)[:, None] ** 2
+    score[_inside(rays, unit, half, (sx, sy), footprints)] = -np.inf
+    score -= score.max(axis=1, keepdims=True)
+    p = np.nan_to_num(np.exp(score))
+    p /= np.maximum(p.sum(axis=1, keepdims=True), 1e-300)
+    return np.column_stack([half * (p @ sx), half * (p @ sy)])
+
+
+def _log_likelihoods(
+    rays, labels, p_seen, unit, half, grid, weight, footprints, heights, max_range
+):
+    """Per window and candidate: the weighted log-likelihood of the window's labels."""
+    sx, sy = grid
+    n_cand = sx.size
+    log_p = np.log([[1.0 - p_seen[0], p_seen[0]], [1.0 - p_seen[1], p_seen[1]]])
+    score = np.zeros(half.size * n_cand)
+    per_chunk = max(1, CHUNK // n_cand)
+    for start in range(0, labels.size, per_chunk):
+        r = np.repeat(np.arange(start, min(start + per_chunk, labels.size)), n_cand)
+        s = np.tile(np.arange(n_cand), r.size // n_cand)
+        ray, part, dist, _ = footprint_entries(
+            rays["e"][r] + half[unit[r]] * sx[s],
+            rays["n"][r] + half[unit[r]] * sy[s],
+            rays["bearing"][r],
+            footprints,
+            max_range,
+        )
+        above = dist * rays["tan_el"][r[ray]]  # the ray's height above the antenna at the wall
+        top = heights[part] - rays["z"][r[ray]]
+        unknown = np.isnan(top)
+        low = above < MIN_WALL
+        blocked = np.bincount(ray, (top > above) | (unknown & low), minlength=r.size) > 0
+        silent = ~blocked & (np.bincount(ray, unknown & ~low, minlength=r.size) > 0)
+        ll = np.where(silent, 0.0, log_p[blocked.astype(int), labels[r].astype(int)])
+        score += np.bincount(unit[r] * n_cand + s, ll * weight[r], minlength=score.size)
+    return score.reshape(half.size, n_cand)
+
+
+def _inside(rays, unit, half, grid, footprints) -> np.ndarray:
+    """Per window and candidate: whether the window's mean position, moved there, is inside a
+    footprint (a pedestrian is not)."""
+    sx, sy = grid
+    n_units = half.size
+    count = np.bincount(unit, minlength=n_units)
+    mean_e = np.bincount(unit, rays["e"], minlength=n_units) / np.maximum(count, 1)
+    mean_n = np.bincount(unit, rays["n"], minlength=n_units) / np.maximum(count, 1)
+    points = shapely.points(
+        (mean_e[:, None] + half[:, None] * sx).ravel(),
+        (mean_n[:, None] + half[:, None] * sy).ravel(),
+    )
+    inside = np.zeros(points.size, bool)
+    inside[shapely.STRtree(footprints).query(points, predicate="within")[0]] = True
+    return inside.reshape(n_units, sx.size)

@@ -70,6 +70,8 @@ def test_bad_input(canyon):
         calibrate_receivers(rx.drop(columns="svid"), buildings, shadows)
     with pytest.raises(InputError, match="calibration matching must be one of"):
         Calibration(prior_sd=1.0, matching="shadow")
+    with pytest.raises(InputError, match="'shadows' without self-calibration"):
+        Calibration(matching="shadows")
     with pytest.raises(InputError, match="positive"):
         Calibration(prior_sd=0.0)
     with pytest.raises(InputError, match="calibration window without self-calibration"):

@@ -314,6 +314,10 @@ def test_estimate_with_shadow_matching(grid_args, tmp_path, capsys):
         [*estimate_args(tmp_path, grid_args), *shadows, "--calibration-matching", "shadow"], capsys
     )
     assert code == 2 and "--calibration-matching" in err and "shadows" in err
+    code, _, err = run(
+        [*estimate_args(tmp_path, grid_args), "--calibration-matching", "shadows"], capsys
+    )
+    assert code == 2 and "--calibration-sd" in err and err.count("\n") == 1
     code, out, err = run(
         [*estimate_args(tmp_path, grid_args), *shadows, "--calibration-matching", "shadows"], capsys
     )

@@ -413,6 +413,11 @@ class Calibration:
                 fix="give --calibration-window, e.g. 30 for phone fixes, or leave it out for "
                 "one offset per recording",
             )
+        if self.matching != "roof lines" and self.prior_sd is None:
+            raise InputError(
+                f"calibration matching {self.matching!r} without self-calibration",
+                fix="give the calibration prior (--calibration-sd) too, e.g. 5 m for phone fixes",
+            )
         if self.matching not in MATCHINGS:
             raise InputError(
                 f"calibration matching must be one of {', '.join(MATCHINGS)}, "

@@ -56,6 +56,17 @@ def test_shadows_take_back_an_offset_every_recording_shares(canyon):
     assert (out.groupby("receiver")[["offset_e", "offset_n"]].nunique() == 1).all().all()
 
 
+def test_shadows_take_the_prior_where_a_position_claims_no_error(canyon):
+    """A ``position_sd`` of 0 (or none) is no prior of 0 m: the calibration's is taken."""
+    rx, buildings = canyon
+    moved = rx.assign(n=rx["n"] + 3.0)
+    shadows = Calibration(prior_sd=3.0, matching="shadows", rounds=1, window=1800.0)
+    claimed_none = calibrate_receivers(moved.assign(position_sd=0.0), buildings, shadows)
+    unsaid = calibrate_receivers(moved.drop(columns="position_sd"), buildings, shadows)
+    np.testing.assert_array_equal(claimed_none["offset_n"], unsaid["offset_n"])
+    assert np.isfinite(unsaid["offset_n"]).all() and unsaid["offset_n"].abs().max() > 0.5
+
+
 def test_bad_input(canyon):
     rx, buildings = canyon
     one_metre = Calibration(prior_sd=1.0)

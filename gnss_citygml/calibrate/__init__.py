@@ -120,7 +120,7 @@ def calibrate_receivers(
     n_units = int(unit.max(initial=-1)) + 1
     temper = min(1.0, _interval(receivers) / CORRELATION_TIME)
     origins = _Rays(receivers, buildings, rays.max_range)
-    sds = _prior_sds(receivers, unit, n_units, sd)
+    shadows = _shadow_priors(receivers, calibration, unit, n_units)
     offsets = np.zeros((n_units, 2))
     best = None
     for _ in range(calibration.rounds):
@@ -131,8 +131,8 @@ def calibrate_receivers(
             offsets = best[1]  # the fits fell apart: keep the last offsets that held them
             break
         best = (n_ok, offsets)
-        if calibration.matching == "shadows":
-            step = _shadow_step(origins, cast, fits, classifier, unit, offsets, sds)
+        if shadows is not None:
+            step = _shadow_step(origins, cast, fits, classifier, unit, offsets, *shadows)
         else:
             step = _offset_step(origins, cast, fits, classifier, unit, n_units, offsets, sd, temper)
         offsets = offsets + step
@@ -172,7 +172,7 @@ def _offset_step(origins, cast, fits, classifier, unit, n_units, offsets, sd, te
     )
 
 
-def _shadow_step(origins, cast, fits, classifier, unit, offsets, sds):
+def _shadow_step(origins, cast, fits, classifier, unit, offsets, satellite, sds):
     """Each window's step of offset by shadow matching (:func:`.shadows.shadow_offsets`)
     against the buildings that converged, labelled by the current classifier; none where the
     labels' error rates cannot be told (:func:`_label_rates`)."""
@@ -182,7 +182,7 @@ def _shadow_step(origins, cast, fits, classifier, unit, offsets, sds):
         return np.zeros_like(offsets)
     heights = np.where(fits.converged, fits.c, np.nan)
     found = shadow_offsets(
-        origins.shadow_rays,
+        origins.shadow_rays(satellite),
         labels,
         rates,
         unit,
@@ -217,13 +217,20 @@ def _label_rates(cast, fits, labels) -> tuple[float, float] | None:
     return (p_open, p_blocked) if p_open - p_blocked >= 0.1 else None
 
 
-def _prior_sds(receivers, unit, n_units, prior_sd) -> np.ndarray:
-    """Per window, its offset's prior standard deviation (m): the median of its rows' own
-    ``position_sd`` (a phone fix's accuracy) where the table has one, else ``prior_sd``."""
-    if "position_sd" not in receivers.columns:
-        return np.full(n_units, float(prior_sd))
-    own = pd.to_numeric(receivers["position_sd"], errors="coerce")
-    return own.groupby(unit).median().reindex(range(n_units)).fillna(prior_sd).to_numpy(float)
+def _shadow_priors(receivers, calibration, unit, n_units):
+    """For shadow matching (None for the roof lines): each row's satellite (one vote a window
+    each) and each window's prior standard deviation (m), the median of its rows' own
+    ``position_sd`` (a phone fix's accuracy) where they have a positive one, else the
+    calibration's prior."""
+    if calibration.matching != "shadows":
+        return None
+    satellite = receivers.groupby(["constellation", "svid"], sort=False).ngroup().to_numpy()
+    sds = np.full(n_units, float(calibration.prior_sd))
+    if "position_sd" in receivers.columns:
+        own = pd.to_numeric(receivers["position_sd"], errors="coerce")
+        own = own.where(own > 0).groupby(unit).median().reindex(range(n_units))
+        sds = own.fillna(calibration.prior_sd).to_numpy(float)
+    return satellite, sds
 
 
 class _Cast:
@@ -246,24 +253,18 @@ class _Rays:
         self.tan_el = np.tan(np.radians(self.elevation))
         self.cn0 = receivers["cn0"].to_numpy(dtype=float)
         self.footprints = np.asarray(buildings.geometry, dtype=object)
-        self.satellite = (
-            receivers.groupby(["constellation", "svid"], sort=False).ngroup().to_numpy()
-            if {"constellation", "svid"} <= set(receivers.columns)
-            else None
-        )
         self.n_buildings = len(self.footprints)
         self.max_range = max_range
 
-    @property
-    def shadow_rays(self) -> dict[str, np.ndarray]:
-        """The rows as :func:`.shadows.shadow_offsets` takes them."""
+    def shadow_rays(self, satellite: np.ndarray) -> dict[str, np.ndarray]:
+        """The rows as :func:`.shadows.shadow_offsets` takes them, with their ``satellite``."""
         return {
             "e": self.e,
             "n": self.n,
             "z": self.z,
             "bearing": self.bearing,
             "tan_el": self.tan_el,
-            "satellite": self.satellite,
+            "satellite": satellite,
         }
 
     def open_sky(self, cast: _Cast, estimator: Estimator) -> Cn0Moments | None:

@@ -73,10 +73,10 @@ def shadow_offsets(
     half = np.minimum(SEARCH_SDS * sd, CAP)
     steps = np.linspace(-1.0, 1.0, GRID)
     sx, sy = (a.ravel() for a in np.meshgrid(steps, steps))
-    first = np.unique(
+    vote = np.unique(  # one satellite in one window
         rays["satellite"] * (int(unit.max(initial=0)) + 1) + unit, return_inverse=True
     )[1]
-    weight = 1.0 / np.bincount(first)[first]
+    weight = 1.0 / np.bincount(vote)[vote]
     score = _log_likelihoods(
         rays, labels, p_seen, unit, half, (sx, sy), weight, footprints, heights, max_range
     )

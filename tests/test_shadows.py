@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 import shapely
 
-from gnss_citygml.calibrate.shadows import shadow_offsets
+from gnss_citygml.calibrate import shadows
+from gnss_citygml.calibrate.shadows import _spread, shadow_offsets
 from gnss_citygml.raycast import footprint_entries
 
 #: Two rows of a street running east to west, 16 m wide, and their roofs (m; the antenna at 1).
@@ -14,26 +15,29 @@ ROOFS = np.array([21.0, 16.0])
 SD = 3.0
 
 
-def _rays(true_n: float, reported_n: float, n_epochs: int = 10):
-    """A phone standing at (0, ``true_n``) and reporting (0, ``reported_n``): 168 satellites over
-    the whole sky each epoch, and which of them the map leaves in sight."""
+def _rays(true_n: float, reported_n: float, n_epochs: int = 10, speed: float = 0.0):
+    """A phone at (0, ``true_n``), walking east at ``speed`` (m an epoch), and reporting
+    ``reported_n``: 168 satellites over the whole sky each epoch, and which of them the map
+    leaves in sight."""
     azimuth, elevation = (
-        a.ravel() for a in np.meshgrid(np.arange(0.0, 360.0, 15.0), np.arange(10.0, 80.0, 10.0))
+        np.tile(a.ravel(), n_epochs)
+        for a in np.meshgrid(np.arange(0.0, 360.0, 15.0), np.arange(10.0, 80.0, 10.0))
     )
+    east = np.repeat(speed * np.arange(n_epochs), azimuth.size // n_epochs)
     ray, part, dist, _ = footprint_entries(
-        np.zeros(azimuth.size), np.full(azimuth.size, true_n), azimuth, ROWS, 300.0
+        east, np.full(azimuth.size, true_n), azimuth, ROWS, 300.0
     )
     rise = 1.0 + dist * np.tan(np.radians(elevation[ray]))
     seen = np.bincount(ray, ROOFS[part] > rise, minlength=azimuth.size) == 0
     rays = {
-        "e": np.zeros(azimuth.size * n_epochs),
-        "n": np.full(azimuth.size * n_epochs, reported_n),
-        "z": np.ones(azimuth.size * n_epochs),
-        "bearing": np.tile(azimuth, n_epochs),
-        "tan_el": np.tile(np.tan(np.radians(elevation)), n_epochs),
-        "satellite": np.tile(np.arange(azimuth.size), n_epochs),
+        "e": east,
+        "n": np.full(azimuth.size, reported_n),
+        "z": np.ones(azimuth.size),
+        "bearing": azimuth,
+        "tan_el": np.tan(np.radians(elevation)),
+        "satellite": np.tile(np.arange(azimuth.size // n_epochs), n_epochs),
     }
-    return rays, np.tile(seen, n_epochs)
+    return rays, seen
 
 
 def _offsets(rays, seen, heights, p_seen=(0.95, 0.05)):
@@ -54,6 +58,23 @@ def test_a_fix_pushed_across_the_street_comes_back(true_n, push, p_seen):
 def test_every_sky_is_explained_where_the_fix_is_right():
     rays, seen = _rays(-3.0, -3.0)
     assert np.hypot(*_offsets(rays, seen, ROOFS)) < 1.0
+
+
+def test_each_satellite_is_cast_from_a_few_of_its_epochs_evenly_spread():
+    vote = np.r_[np.zeros(10, int), np.ones(2, int), np.full(11, 2), np.full(3, 3)]
+    rows = _spread(np.random.default_rng(0).permutation(vote), 3)
+    kept = np.bincount(np.random.default_rng(0).permutation(vote)[rows])
+    assert kept.tolist() == [3, 2, 3, 3]
+    order = _spread(vote, 3)
+    assert order[:3].tolist() == [0, 4, 7]  # of 10 rows: the first of each third
+
+
+def test_a_few_epochs_of_a_walker_say_what_all_of_them_say(monkeypatch):
+    rays, seen = _rays(-3.0, 1.0, speed=1.4)  # 10 epochs, 14 m walked
+    few = _offsets(rays, seen, ROOFS)
+    monkeypatch.setattr(shadows, "EPOCHS", 10)
+    assert np.hypot(*(few - _offsets(rays, seen, ROOFS))) < 0.5
+    assert abs(1.0 + few[1] + 3.0) < 1.6
 
 
 def test_a_map_without_heights_keeps_the_window_out_of_the_buildings():

@@ -315,6 +315,13 @@ def _parser() -> argparse.ArgumentParser:
         default=None,
         help="with --calibrate: one offset per this many seconds (default: per recording)",
     )
+    parser.add_argument(
+        "--prior-heights",
+        type=float,
+        metavar="SD",
+        help="with --calibration-matching shadows: each building's height given with the map, "
+        "its true height plus a normal error of this standard deviation (m), which it claims",
+    )
     return parser
 
 
@@ -369,6 +376,8 @@ def main():
                     rounds=args.calibration_rounds,
                     matching=args.calibration_matching,
                 )
+                if args.prior_heights is not None:
+                    sim = _with_priors(sim, args.prior_heights, k)
                 recast = _calibrated(sim, rays, error, calibration, sky is not None)
             err = _judged(sim, cast, args.labels, estimator, sky, recast)
             n_runs = len(sim.truth) * len(THRESHOLDS)
@@ -461,6 +470,15 @@ def _calibrated(sim, rays, error, calibration, with_sky):
         return cast, (open_sky(fixed, cast) if with_sky else None)
 
     return recast
+
+
+def _with_priors(sim, sd: float, k: int):
+    """``sim`` whose buildings carry a ``prior_height``, the truth's with a normal error of
+    ``sd`` (m; scene ``k``'s draw), and its ``prior_height_sd``, ``sd``."""
+    truth = sim.truth.set_index("id")["height"].reindex(sim.buildings["id"]).to_numpy()
+    error = np.random.default_rng(7000 + k).normal(0.0, sd, truth.size)
+    buildings = sim.buildings.assign(prior_height=truth + error, prior_height_sd=sd)
+    return replace(sim, buildings=buildings)
 
 
 def _cells(err: pd.DataFrame, n_runs: int) -> str:

@@ -120,7 +120,7 @@ def calibrate_receivers(
     n_units = int(unit.max(initial=-1)) + 1
     temper = min(1.0, _interval(receivers) / CORRELATION_TIME)
     origins = _Rays(receivers, buildings, rays.max_range)
-    shadows = _shadow_priors(receivers, calibration, unit, n_units)
+    shadows = _shadow_priors(receivers, buildings, calibration, unit, n_units)
     offsets = np.zeros((n_units, 2))
     best = None
     for _ in range(calibration.rounds):
@@ -172,15 +172,18 @@ def _offset_step(origins, cast, fits, classifier, unit, n_units, offsets, sd, te
     )
 
 
-def _shadow_step(origins, cast, fits, classifier, unit, offsets, satellite, sds):
+def _shadow_step(origins, cast, fits, classifier, unit, offsets, satellite, sds, prior):
     """Each window's step of offset by shadow matching (:func:`.shadows.shadow_offsets`)
-    against the buildings that converged, labelled by the current classifier; none where the
-    labels' error rates cannot be told (:func:`_label_rates`)."""
+    against the roofs given with the map (``prior``: heights and their standard deviations,
+    NaN where none) and, for the others, the buildings that converged, labelled by the current
+    classifier; none where the labels' error rates cannot be told (:func:`_label_rates`)."""
     labels = classifier.label(origins.cn0, elevation_units(origins.elevation))
-    rates = _label_rates(cast, fits, labels)
+    given = np.isfinite(prior[0])
+    heights = np.where(given, prior[0], np.where(fits.converged, fits.c, np.nan))
+    height_sd = np.where(given, prior[1], 0.0)
+    rates = _label_rates(cast, fits, labels, heights - 2.0 * height_sd)
     if rates is None:
         return np.zeros_like(offsets)
-    heights = np.where(fits.converged, fits.c, np.nan)
     found = shadow_offsets(
         origins.shadow_rays(satellite),
         labels,
@@ -190,6 +193,7 @@ def _shadow_step(origins, cast, fits, classifier, unit, offsets, satellite, sds)
         origins.footprints,
         heights,
         origins.max_range,
+        height_sd,
     )
     return found - offsets
 
@@ -198,15 +202,17 @@ def _shadow_step(origins, cast, fits, classifier, unit, offsets, satellite, sds)
 MIN_RATE_ROWS = 30
 
 
-def _label_rates(cast, fits, labels) -> tuple[float, float] | None:
+def _label_rates(cast, fits, labels, below) -> tuple[float, float] | None:
     """The chances that a signal is labelled open where the map leaves its ray open (it crosses
     no footprint) and where the map surely blocks it (it enters a converged building more than
-    two transition widths, 2/b, below its roof), from the current cast; None where either has
-    fewer than :data:`MIN_RATE_ROWS` rows or the labels tell the two apart by less than 0.1."""
+    two transition widths, 2/b, below its roof, or one whose roof is given above ``below``),
+    from the current cast; None where either has fewer than :data:`MIN_RATE_ROWS` rows or the
+    labels tell the two apart by less than 0.1."""
     crossing = np.zeros(labels.size, dtype=bool)
     crossing[cast.ray] = True
     slope = np.where(fits.converged, fits.b, 1.0)  # a fit that did not converge may have none
     surely_below = np.where(fits.converged, fits.c - 2.0 / slope, -np.inf)
+    surely_below = np.fmax(surely_below, below)
     low = cast.height < surely_below[cast.building]
     blocked = np.zeros(labels.size, dtype=bool)
     blocked[cast.ray[low]] = True
@@ -217,11 +223,11 @@ def _label_rates(cast, fits, labels) -> tuple[float, float] | None:
     return (p_open, p_blocked) if p_open - p_blocked >= 0.1 else None
 
 
-def _shadow_priors(receivers, calibration, unit, n_units):
+def _shadow_priors(receivers, buildings, calibration, unit, n_units):
     """For shadow matching (None for the roof lines): each row's satellite (one vote a window
-    each) and each window's prior standard deviation (m), the median of its rows' own
+    each), each window's prior standard deviation (m), the median of its rows' own
     ``position_sd`` (a phone fix's accuracy) where they have a positive one, else the
-    calibration's prior."""
+    calibration's prior, and the roofs given with the map (:func:`_given_roofs`)."""
     if calibration.matching != "shadows":
         return None
     satellite = receivers.groupby(["constellation", "svid"], sort=False).ngroup().to_numpy()
@@ -230,7 +236,30 @@ def _shadow_priors(receivers, calibration, unit, n_units):
         own = pd.to_numeric(receivers["position_sd"], errors="coerce")
         own = own.where(own > 0).groupby(unit).median().reindex(range(n_units))
         sds = own.fillna(calibration.prior_sd).to_numpy(float)
-    return satellite, sds
+    return satellite, sds, _given_roofs(buildings)
+
+
+def _given_roofs(buildings) -> tuple[np.ndarray, np.ndarray]:
+    """Each building's roof given with the map (``prior_height``, m as the receivers' ``z``)
+    and its standard deviation (``prior_height_sd``, m; required with it: a prior, never the
+    truth), NaN where none is given."""
+    n = len(buildings)
+    if "prior_height" not in buildings.columns:
+        return np.full(n, np.nan), np.full(n, np.nan)
+    height = pd.to_numeric(buildings["prior_height"], errors="coerce").to_numpy(float)
+    sd = np.full(n, np.nan)
+    if "prior_height_sd" in buildings.columns:
+        sd = pd.to_numeric(buildings["prior_height_sd"], errors="coerce").to_numpy(float)
+    bad = np.isfinite(height) & ~(sd >= 0)
+    if bad.any():
+        names = buildings["id"] if "id" in buildings.columns else pd.Series(range(n))
+        raise InputError(
+            f"{int(bad.sum())} buildings have a prior height without a standard deviation "
+            f"of 0 m or more (e.g. {', '.join(map(str, names.to_numpy()[bad][:5]))})",
+            fix="give each prior height its uncertainty (prior_height_sd, m), e.g. 1 m for "
+            "heights from an aerial survey",
+        )
+    return height, sd
 
 
 class _Cast:

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 import shapely
+from scipy.special import ndtr
 
 from ..raycast import footprint_entries
 
@@ -52,6 +53,7 @@ def shadow_offsets(
     footprints: np.ndarray,
     heights: np.ndarray,
     max_range: float,
+    height_sd: np.ndarray | None = None,
 ) -> np.ndarray:
     """Each window's offset (east, north; m): the posterior mean over its candidate grid.
 
@@ -75,6 +77,10 @@ def shadow_offsets(
         The footprints and their roofs (m, as ``z``; NaN: not known, :data:`MIN_WALL`).
     max_range
         The rays' horizontal length (m).
+    height_sd
+        Per footprint: the standard deviation of its roof (m; a height given with the map, a
+        prior), or 0 (default): the roof is where ``heights`` says. A ray entering the wall
+        at ``h`` is blocked with the chance that the roof is above ``h``.
     """
     half = np.minimum(SEARCH_SDS * sd, CAP)
     steps = np.linspace(-1.0, 1.0, GRID)
@@ -85,17 +91,9 @@ def shadow_offsets(
     cast = _spread(vote, EPOCHS)
     weight = 1.0 / np.bincount(vote[cast])[vote[cast]]
     some = {name: values[cast] for name, values in rays.items()}
+    roofs = (heights, np.zeros_like(heights) if height_sd is None else height_sd)
     score = _log_likelihoods(
-        some,
-        labels[cast],
-        p_seen,
-        unit[cast],
-        half,
-        (sx, sy),
-        weight,
-        footprints,
-        heights,
-        max_range,
+        some, labels[cast], p_seen, unit[cast], half, (sx, sy), weight, footprints, roofs, max_range
     )
     score -= 0.5 * (sx**2 + sy**2)[None, :] * (half / sd)[:, None] ** 2
     score[_inside(rays, unit, half, (sx, sy), footprints)] = -np.inf
@@ -117,13 +115,14 @@ def _spread(vote: np.ndarray, most: int) -> np.ndarray:
     return np.sort(order[keep])
 
 
-def _log_likelihoods(
-    rays, labels, p_seen, unit, half, grid, weight, footprints, heights, max_range
-):
-    """Per window and candidate: the weighted log-likelihood of the window's labels."""
+def _log_likelihoods(rays, labels, p_seen, unit, half, grid, weight, footprints, roofs, max_range):
+    """Per window and candidate: the weighted log-likelihood of the window's labels. A ray is
+    open with the chance that no roof it enters is above it; one entering a building of unknown
+    height above :data:`MIN_WALL` says only how surely the others block it."""
     sx, sy = grid
     n_cand = sx.size
-    log_p = np.log([[1.0 - p_seen[0], p_seen[0]], [1.0 - p_seen[1], p_seen[1]]])
+    seen = np.where(labels, p_seen[1] / p_seen[0], (1.0 - p_seen[1]) / (1.0 - p_seen[0]))
+    base = np.where(labels, np.log(p_seen[0]), np.log1p(-p_seen[0]))
     score = np.zeros(half.size * n_cand)
     per_chunk = max(1, CHUNK // n_cand)
     for start in range(0, labels.size, per_chunk):
@@ -137,14 +136,29 @@ def _log_likelihoods(
             max_range,
         )
         above = dist * rays["tan_el"][r[ray]]  # the ray's height above the antenna at the wall
-        top = heights[part] - rays["z"][r[ray]]
+        top = roofs[0][part] - rays["z"][r[ray]]
         unknown = np.isnan(top)
-        low = above < MIN_WALL
-        blocked = np.bincount(ray, (top > above) | (unknown & low), minlength=r.size) > 0
-        silent = ~blocked & (np.bincount(ray, unknown & ~low, minlength=r.size) > 0)
-        ll = np.where(silent, 0.0, log_p[blocked.astype(int), labels[r].astype(int)])
+        high = unknown & (above >= MIN_WALL)
+        block = np.where(unknown, ~high, _above(top - above, roofs[1][part]))
+        clear = np.exp(
+            np.bincount(ray, np.log1p(-np.minimum(block, 1.0 - 1e-12)), minlength=r.size)
+        )
+        silent = np.bincount(ray, high, minlength=r.size) > 0
+        # p(label) = clear p(label | open) + (1 - clear) p(label | blocked); where a building of
+        # unknown height may block it too, its open part is no evidence (1)
+        ll = np.log(
+            np.where(silent, clear, clear * np.exp(base[r]))
+            + (1.0 - clear) * np.exp(base[r]) * seen[r]
+        )
         score += np.bincount(unit[r] * n_cand + s, ll * weight[r], minlength=score.size)
     return score.reshape(half.size, n_cand)
+
+
+def _above(margin: np.ndarray, sd: np.ndarray) -> np.ndarray:
+    """The chance that a roof ``margin`` metres (its estimate) above a ray is above it, with
+    the roof's standard deviation ``sd`` (0: sure)."""
+    sure = sd <= 0
+    return np.where(sure, margin > 0, ndtr(margin / np.where(sure, 1.0, sd)))
 
 
 def _inside(rays, unit, half, grid, footprints) -> np.ndarray:

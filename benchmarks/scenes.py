@@ -375,10 +375,13 @@ def main():
                     window=args.calibration_window,
                     rounds=args.calibration_rounds,
                     matching=args.calibration_matching,
+                    heights=None if args.prior_heights is None else "prior",
+                    heights_sd=args.prior_heights or 2.0,
                 )
+                buildings = sim.buildings
                 if args.prior_heights is not None:
-                    sim = _with_priors(sim, args.prior_heights, k)
-                recast = _calibrated(sim, rays, error, calibration, sky is not None)
+                    buildings = _with_priors(sim, args.prior_heights, k)
+                recast = _calibrated(sim, buildings, rays, error, calibration, sky is not None)
             err = _judged(sim, cast, args.labels, estimator, sky, recast)
             n_runs = len(sim.truth) * len(THRESHOLDS)
             group = locations if regime is None else f"{regime}, {locations}"
@@ -460,12 +463,12 @@ def _judged(sim, cast, labels, estimator, sky, recast=None) -> pd.DataFrame:
     return pd.concat(judged)
 
 
-def _calibrated(sim, rays, error, calibration, with_sky):
+def _calibrated(sim, buildings, rays, error, calibration, with_sky):
     """For :func:`_judged`: the intersections (and open sky) of the rays cast from the positions
-    self-calibrated with an estimator."""
+    self-calibrated with an estimator (against ``buildings``, with any heights they give)."""
 
     def recast(estimator):
-        fixed = calibrate_receivers(rays, sim.buildings, calibration, estimator=estimator)
+        fixed = calibrate_receivers(rays, buildings, calibration, estimator=estimator)
         cast = intersections(fixed, sim.buildings, position_error=error)
         return cast, (open_sky(fixed, cast) if with_sky else None)
 
@@ -473,12 +476,12 @@ def _calibrated(sim, rays, error, calibration, with_sky):
 
 
 def _with_priors(sim, sd: float, k: int):
-    """``sim`` whose buildings carry a ``prior_height``, the truth's with a normal error of
-    ``sd`` (m; scene ``k``'s draw), and its ``prior_height_sd``, ``sd``."""
-    truth = sim.truth.set_index("id")["height"].reindex(sim.buildings["id"]).to_numpy()
-    error = np.random.default_rng(7000 + k).normal(0.0, sd, truth.size)
-    buildings = sim.buildings.assign(prior_height=truth + error, prior_height_sd=sd)
-    return replace(sim, buildings=buildings)
+    """``sim``'s buildings with their ``ground`` and a height above it given with the map
+    (``prior``): the truth's with a normal error of ``sd`` (m; scene ``k``'s draw)."""
+    truth = sim.truth.set_index("id").reindex(sim.buildings["id"])
+    error = np.random.default_rng(7000 + k).normal(0.0, sd, len(truth))
+    prior = (truth["height"] - truth["ground"]).to_numpy() + error
+    return sim.buildings.assign(ground=truth["ground"].to_numpy(), prior=prior)
 
 
 def _cells(err: pd.DataFrame, n_runs: int) -> str:

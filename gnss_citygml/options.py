@@ -34,6 +34,7 @@ from .settings.checks import (
     MAX_RANGES,
     POSITION_DISTANCES,
     POSITION_SDS,
+    UNCERTAINTIES,
     WINDOWS,
 )
 
@@ -48,8 +49,9 @@ SETTINGS = {
     "calibration": Calibration,
 }
 
-#: The kinds of option: a number, one of some choices, a switch (on or off).
-KINDS = ("number", "choice", "switch")
+#: The kinds of option: a number, one of some choices, a switch (on or off), a field of the
+#: footprints (its name; in QGIS chosen from the footprints layer's numeric fields).
+KINDS = ("number", "choice", "switch", "field")
 
 
 @dataclass(frozen=True)
@@ -254,6 +256,26 @@ _OPTIONS = (
         "each window's prior its fixes' own position_sd where they have one; for phone fixes, "
         "with --calibration-window 10).",
         choices=MATCHINGS,
+    ),
+    Option(
+        ("calibration", "heights"),
+        "--calibration-heights",
+        "field",
+        "Footprints' field of roof heights above the ground, to place the phones by "
+        "(shadow matching)",
+        "With --calibration-matching shadows: the footprints' field of roof heights above the "
+        "ground given with the map (e.g. OS's relh2, a previous run's relative_height), "
+        "matched against where it is a positive number instead of the roofs being estimated, "
+        "which share the phones' bias in a street. It places the phones only; the heights "
+        "are the signals' own.",
+    ),
+    Option(
+        ("calibration", "heights_sd"),
+        "--calibration-heights-sd",
+        "number",
+        "Uncertainty of the map's roof heights (m)",
+        "With --calibration-heights: the standard deviation of those heights (m).",
+        UNCERTAINTIES,
     ),
 )
 

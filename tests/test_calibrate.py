@@ -67,6 +67,44 @@ def test_shadows_take_the_prior_where_a_position_claims_no_error(canyon):
     assert np.isfinite(unsaid["offset_n"]).all() and unsaid["offset_n"].abs().max() > 0.5
 
 
+@pytest.mark.parametrize("push", [3.0, -3.0])
+@pytest.mark.parametrize("sd", [0.5, 2.0])
+def test_roofs_given_with_the_map_take_back_a_bias_every_recording_shares(canyon, push, sd):
+    """Every recording 3 m across the street, towards the near wall too (where the roofs fitted
+    from the shifted positions hold the receivers there): against the map's heights, with
+    their error (drawn with the standard deviation they claim), the bias is taken back."""
+    rx, buildings = canyon
+    truth, ground = _truth(buildings)
+    error = np.random.default_rng(1).normal(0.0, sd, ground.size)
+    buildings = buildings.assign(ground=ground, relh=truth - ground + error, other=truth - ground)
+    moved = rx.assign(n=rx["n"] + push, position_sd=3.0)
+    shadows = Calibration(prior_sd=3.0, matching="shadows", rounds=1, heights="relh", heights_sd=sd)
+    out = calibrate_receivers(moved, buildings, shadows)
+    before, after = _cross_street_error(moved), _cross_street_error(out)
+    assert after.abs().mean() < 0.2 * before.abs().mean()
+
+
+def test_a_map_height_of_zero_or_none_is_no_roof(canyon):
+    """Where the map's field is empty, 0 or not a number, the building's roof is the one being
+    estimated, as without the field."""
+    rx, buildings = canyon
+    moved = rx.assign(n=rx["n"] + 3.0, position_sd=3.0)
+    _, ground = _truth(buildings)
+    empty = buildings.assign(ground=ground, relh=[0.0, None, "n/a", -2.0])
+    with_field = Calibration(prior_sd=3.0, matching="shadows", rounds=1, heights="relh")
+    without = Calibration(prior_sd=3.0, matching="shadows", rounds=1)
+    np.testing.assert_array_equal(
+        calibrate_receivers(moved, empty, with_field)["n"],
+        calibrate_receivers(moved, buildings, without)["n"],
+    )
+
+
+def _truth(buildings):
+    truth = simulate("goodchild", locations="manual", seed=1, interval=5.0).truth
+    truth = truth.set_index("id").reindex(buildings["id"])
+    return truth["height"].to_numpy(), truth["ground"].to_numpy()
+
+
 def test_bad_input(canyon):
     rx, buildings = canyon
     one_metre = Calibration(prior_sd=1.0)
@@ -79,6 +117,15 @@ def test_bad_input(canyon):
     with pytest.raises(MissingColumnError, match="svid"):
         shadows = Calibration(prior_sd=1.0, matching="shadows")
         calibrate_receivers(rx.drop(columns="svid"), buildings, shadows)
+    heights = Calibration(prior_sd=1.0, matching="shadows", heights="relh2")
+    with pytest.raises(MissingColumnError, match="'relh2'.*footprints.*id, geometry"):
+        calibrate_receivers(rx, buildings, heights)
+    with pytest.raises(InputError, match="map heights .* without shadow matching"):
+        Calibration(prior_sd=1.0, heights="relh2")
+    with pytest.raises(InputError, match="must name a footprint field"):
+        Calibration(prior_sd=1.0, matching="shadows", heights="")
+    with pytest.raises(InputError, match="standard deviation must be a positive"):
+        Calibration(prior_sd=1.0, matching="shadows", heights="relh2", heights_sd=0.0)
     with pytest.raises(InputError, match="calibration matching must be one of"):
         Calibration(prior_sd=1.0, matching="shadow")
     with pytest.raises(InputError, match="'shadows' without self-calibration"):

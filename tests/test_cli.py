@@ -326,6 +326,21 @@ def test_estimate_with_shadow_matching(grid_args, tmp_path, capsys):
     truth = pd.read_csv(tmp_path / "truth.csv").set_index("id")
     terrace = "hermitage_terrace"
     assert abs(heights.loc[terrace, "height"] - truth.loc[terrace, "height"]) < 1.5, out
+    # the map's own roof heights (a field above the ground, 0 where it has none) place them
+    footprints = gpd.read_file(tmp_path / "footprints.gpkg")
+    above = footprints["id"].map(truth["height"] - truth["ground"])
+    footprints.assign(relh=above.where(footprints["id"] != terrace, 0.0)).to_file(
+        tmp_path / "mapped.gpkg"
+    )
+    mapped = estimate_args(tmp_path, grid_args, output="mapped_h.gpkg")
+    mapped[2] = str(tmp_path / "mapped.gpkg")
+    code, _, err = run([*mapped, *shadows, "--calibration-heights", "relh2"], capsys)
+    assert code == 2 and "'relh2'" in err and "relh" in err and err.count("\n") == 1
+    given = ["--calibration-matching", "shadows", "--calibration-heights", "relh"]
+    code, out, err = run([*mapped, *shadows, *given, "--calibration-heights-sd", "1"], capsys)
+    assert code == 0, err
+    heights = gpd.read_file(tmp_path / "mapped_h.gpkg", layer="heights").set_index("id")
+    assert abs(heights.loc[terrace, "height"] - truth.loc[terrace, "height"]) < 1.5, out
 
 
 def test_estimate_bad_observation_names_its_line(grid_args, tmp_path, capsys):

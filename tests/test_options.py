@@ -36,6 +36,8 @@ def test_every_command_line_option_of_a_setting_is_its_declaration():
             assert list(param.type.choices) == list(spec.choices), where
         elif spec.kind == "switch":
             assert param.is_flag and param.secondary_opts, where
+        elif spec.kind == "field":
+            assert param.type is click.STRING, where
         else:
             assert param.type is click.FLOAT, where
     assert seen == set(OPTIONS)  # every declaration is offered by some command

@@ -40,9 +40,10 @@ def _rays(true_n: float, reported_n: float, n_epochs: int = 10, speed: float = 0
     return rays, seen
 
 
-def _offsets(rays, seen, heights, p_seen=(0.95, 0.05)):
+def _offsets(rays, seen, heights, p_seen=(0.95, 0.05), height_sd=None):
     unit = np.zeros(seen.size, dtype=np.intp)
-    return shadow_offsets(rays, seen, p_seen, unit, np.array([SD]), ROWS, heights, 300.0)[0]
+    sd = np.array([SD])
+    return shadow_offsets(rays, seen, p_seen, unit, sd, ROWS, heights, 300.0, height_sd)[0]
 
 
 @pytest.mark.parametrize("true_n", [-5.0, -2.0, 3.0])
@@ -58,6 +59,22 @@ def test_a_fix_pushed_across_the_street_comes_back(true_n, push, p_seen):
 def test_every_sky_is_explained_where_the_fix_is_right():
     rays, seen = _rays(-3.0, -3.0)
     assert np.hypot(*_offsets(rays, seen, ROOFS)) < 1.0
+
+
+def test_roofs_fitted_from_a_biased_fix_hold_it_and_the_maps_roofs_take_it_back():
+    """Every phone of a street 4 m north: the roofs fitted from there are the true ones scaled
+    by the distances to the walls, which explain the shadows from the biased fix as well as the
+    true roofs do from the truth (a roof line absorbs a shift across the street). Roofs given
+    with the map, 1 m off either way and saying so, take the bias back."""
+    true_n, reported_n = -3.0, 1.0
+    rays, seen = _rays(true_n, reported_n)
+    scale = np.array([(8.0 - reported_n) / (8.0 - true_n), (8.0 + reported_n) / (8.0 + true_n)])
+    fitted = 1.0 + (ROOFS - 1.0) * scale
+    assert abs(_offsets(rays, seen, fitted, (0.85, 0.3))[1]) < 0.5
+    for error in (1.0, -1.0):
+        given = ROOFS + np.array([error, -error])
+        north = _offsets(rays, seen, given, (0.85, 0.3), np.full(2, 1.0))[1]
+        assert abs(reported_n + north - true_n) < 1.6
 
 
 def test_each_satellite_is_cast_from_a_few_of_its_epochs_evenly_spread():

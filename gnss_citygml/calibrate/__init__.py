@@ -236,30 +236,24 @@ def _shadow_priors(receivers, buildings, calibration, unit, n_units):
         own = pd.to_numeric(receivers["position_sd"], errors="coerce")
         own = own.where(own > 0).groupby(unit).median().reindex(range(n_units))
         sds = own.fillna(calibration.prior_sd).to_numpy(float)
-    return satellite, sds, _given_roofs(buildings)
+    return satellite, sds, _given_roofs(buildings, calibration)
 
 
-def _given_roofs(buildings) -> tuple[np.ndarray, np.ndarray]:
-    """Each building's roof given with the map (``prior_height``, m as the receivers' ``z``)
-    and its standard deviation (``prior_height_sd``, m; required with it: a prior, never the
-    truth), NaN where none is given."""
+def _given_roofs(buildings, calibration) -> tuple[np.ndarray, np.ndarray]:
+    """Each building's roof given with the map (m, as the receivers' ``z``: its ``ground``
+    plus the calibration's field of heights, where that is a positive number) and its
+    standard deviation, NaN where none is given."""
     n = len(buildings)
-    if "prior_height" not in buildings.columns:
+    field = calibration.heights
+    if field is None:
         return np.full(n, np.nan), np.full(n, np.nan)
-    height = pd.to_numeric(buildings["prior_height"], errors="coerce").to_numpy(float)
-    sd = np.full(n, np.nan)
-    if "prior_height_sd" in buildings.columns:
-        sd = pd.to_numeric(buildings["prior_height_sd"], errors="coerce").to_numpy(float)
-    bad = np.isfinite(height) & ~(sd >= 0)
-    if bad.any():
-        names = buildings["id"] if "id" in buildings.columns else pd.Series(range(n))
-        raise InputError(
-            f"{int(bad.sum())} buildings have a prior height without a standard deviation "
-            f"of 0 m or more (e.g. {', '.join(map(str, names.to_numpy()[bad][:5]))})",
-            fix="give each prior height its uncertainty (prior_height_sd, m), e.g. 1 m for "
-            "heights from an aerial survey",
-        )
-    return height, sd
+    missing = [c for c in (field, "ground") if c not in buildings.columns]
+    if missing:
+        raise MissingColumnError(missing, where="footprints", have=list(buildings.columns))
+    above = pd.to_numeric(buildings[field], errors="coerce").to_numpy(float, copy=True)
+    above[~(above > 0)] = np.nan  # none given (a map's 0 or empty)
+    ground = pd.to_numeric(buildings["ground"], errors="coerce").to_numpy(float)
+    return ground + above, np.full(n, calibration.heights_sd)
 
 
 class _Cast:

@@ -138,8 +138,9 @@ def _log_likelihoods(rays, labels, p_seen, unit, half, grid, weight, footprints,
         above = dist * rays["tan_el"][r[ray]]  # the ray's height above the antenna at the wall
         top = roofs[0][part] - rays["z"][r[ray]]
         unknown = np.isnan(top)
-        high = unknown & (above >= MIN_WALL)
-        block = np.where(unknown, ~high, _above(top - above, roofs[1][part]))
+        low = above < MIN_WALL  # every building reaches this high
+        high = unknown & ~low
+        block = np.where(unknown | low, low, _above(top - above, roofs[1][part]))
         clear = np.exp(
             np.bincount(ray, np.log1p(-np.minimum(block, 1.0 - 1e-12)), minlength=r.size)
         )

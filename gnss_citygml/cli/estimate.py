@@ -60,6 +60,8 @@ _RUN_OPTIONS = together(
     option("CALIBRATION_SD"),
     option("CALIBRATION_WINDOW"),
     option("CALIBRATION_MATCHING"),
+    option("CALIBRATION_HEIGHTS"),
+    option("CALIBRATION_HEIGHTS_SD"),
     TRUTH,
     DEM_CRS,
     GRID_DIR,

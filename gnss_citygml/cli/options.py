@@ -75,7 +75,7 @@ def option(name: str) -> Callable[[FC], FC]:
     if spec.kind == "switch":
         flags = f"{spec.flag}/--no-{spec.flag.removeprefix('--')}"
         return click.option(flags, default=spec.default, show_default=True, help=spec.help)
-    kind = click.Choice(list(spec.choices)) if spec.kind == "choice" else float
+    kind = {"choice": click.Choice(list(spec.choices)), "field": str}.get(spec.kind, float)
     return click.option(
         spec.flag, type=kind, default=spec.default, show_default=not spec.optional, help=spec.help
     )

@@ -387,12 +387,23 @@ class Calibration:
         How each offset is found (:data:`MATCHINGS`): ``roof lines`` (default), or ``shadows``,
         where each window's prior is its fixes' own ``position_sd`` where the data have one
         (about 10 s windows for phone fixes).
+    heights
+        With shadow matching: the footprints' field of roof heights above the ground given
+        with the map (e.g. OS's ``relh2``, or a previous run's ``relative_height``), matched
+        against where it has a positive number instead of the roofs being estimated, which
+        inherit the bias the phones in a street share. A prior for the positions only: the
+        heights are the signals' own.
+    heights_sd
+        The standard deviation (m) of those heights: what they are worth as the roofs the
+        signals meet (default 2 m: a map's roof heights, a building's roof span included).
     """
 
     prior_sd: float | None = None
     window: float | None = None
     rounds: int = 3
     matching: str = "roof lines"
+    heights: str | None = None
+    heights_sd: float = 2.0
 
     def __post_init__(self):
         if self.prior_sd is not None and not within(self.prior_sd, POSITION_SDS, above=True):
@@ -424,11 +435,30 @@ class Calibration:
                 f"not {self.matching!r}",
                 fix="give --calibration-matching 'roof lines' or shadows",
             )
+        self._check_heights()
         if not count_within(self.rounds, ROUNDS):
             raise InputError(
                 f"calibration rounds must be a whole number, {ROUNDS[0]} to {ROUNDS[1]}, "
                 f"not {self.rounds}",
                 fix="e.g. 3",
+            )
+
+    def _check_heights(self) -> None:
+        if self.heights is not None and self.matching != "shadows":
+            raise InputError(
+                f"map heights for the calibration ({self.heights!r}) without shadow matching",
+                fix="give --calibration-matching shadows too, or leave out --calibration-heights",
+            )
+        if self.heights is not None and not (isinstance(self.heights, str) and self.heights):
+            raise InputError(
+                f"the calibration's map heights must name a footprint field, not {self.heights!r}",
+                fix="give --calibration-heights FIELD, e.g. relh2",
+            )
+        if not within(self.heights_sd, UNCERTAINTIES, above=True):
+            raise InputError(
+                f"the calibration's map heights' standard deviation must be a positive number of "
+                f"metres up to {UNCERTAINTIES[1]:g}, not {self.heights_sd}",
+                fix="give --calibration-heights-sd, e.g. 2",
             )
 
     @property

@@ -15,6 +15,7 @@ from qgis.core import (
     QgsProcessingParameterBoolean,
     QgsProcessingParameterDefinition,
     QgsProcessingParameterEnum,
+    QgsProcessingParameterField,
     QgsProcessingParameterFile,
     QgsProcessingParameterNumber,
 )
@@ -174,6 +175,8 @@ class Algorithm(QgsProcessingAlgorithm):
                 values[name] = self.parameterAsBoolean(parameters, name, context)
             elif spec.kind == "choice":
                 values[name] = self.chosen(parameters, name, spec.choices, context)
+            elif spec.kind == "field":
+                values[name] = self.optional_text(parameters, name, context)
             elif spec.optional:
                 values[name] = self.optional_number(parameters, name, context)
             else:
@@ -211,6 +214,14 @@ def option(name):
             spec.label,
             options=list(spec.words or spec.choices),
             defaultValue=spec.choices.index(spec.default),
+        )
+    if spec.kind == "field":
+        return QgsProcessingParameterField(
+            name,
+            spec.label,
+            parentLayerParameterName="FOOTPRINTS",
+            type=QgsProcessingParameterField.Numeric,
+            optional=True,
         )
     low, high = spec.bounds
     return QgsProcessingParameterNumber(

@@ -92,6 +92,9 @@ def test_qgis_and_the_command_line_cannot_disagree(plugin, name):
             assert parameter.options() == list(spec.words or spec.choices)
         elif spec.kind == "switch":
             assert parameter.defaultValue() is spec.default
+        elif spec.kind == "field":
+            assert parameter.parentLayerParameterName() == "FOOTPRINTS"
+            assert parameter.flags() & parameter.FlagOptional
         else:
             assert parameter.defaultValue() == spec.default
             assert (parameter.minimum(), parameter.maximum()) == spec.bounds

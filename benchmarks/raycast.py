@@ -8,8 +8,14 @@ second and the peak memory (RSS) of that process.
 
     python benchmarks/raycast.py [--signals 1000000] [--blocks 100] [--grid-dir DIR]
                                  [--signal-model paper|mixture] [--no-level-phones]
+                                 [--locations gnss [--calibrate shadows]]
 
-Targets (issue 4): cast + fit <= 60 s on a 2-core machine, peak memory <= 2 GB.
+With ``--locations gnss`` the walkers' positions are their phones' fixes; ``--calibrate
+shadows`` self-calibrates them first by shadow matching (10 s windows, one round, each
+window's prior its fixes' own error) and times it.
+
+Targets (issue 4): cast + fit <= 60 s on a 2-core machine, peak memory <= 2 GB; (issue 28)
+with shadow matching, within 3 times the run without it, peak memory <= 3 GB.
 """
 
 from __future__ import annotations
@@ -29,7 +35,7 @@ OUT = Path(__file__).parent / "out"
 SIGNALS_PER_WALKER = 9000
 
 
-def prepare(folder: Path, signals: int, blocks: int, grid_dir) -> None:
+def prepare(folder: Path, signals: int, blocks: int, grid_dir, locations: str) -> None:
     from gnss_citygml.simulate import simulate
     from gnss_citygml.simulate.files import write_site
     from gnss_citygml.simulate.scenes import city_scene
@@ -37,7 +43,7 @@ def prepare(folder: Path, signals: int, blocks: int, grid_dir) -> None:
     walkers = max(1, round(signals / SIGNALS_PER_WALKER))
     scene = city_scene(np.random.default_rng(0), blocks, blocks, walkers=walkers, walk_length=300.0)
     start = time.perf_counter()
-    sim = simulate(scene, seed=0, interval=1.0)
+    sim = simulate(scene, seed=0, interval=1.0, locations=locations)
     write_site(sim, folder, grid_dir=grid_dir)
     print(
         f"simulated {len(sim.observations):,} signals, {len(scene.buildings):,} buildings, "
@@ -45,12 +51,13 @@ def prepare(folder: Path, signals: int, blocks: int, grid_dir) -> None:
     )
 
 
-def run(folder: Path, grid_dir, signal_model: str, level_phones: bool) -> None:
+def run(folder: Path, grid_dir, signal_model: str, level_phones: bool, calibrate) -> None:
+    from gnss_citygml.calibrate import calibrate_receivers
     from gnss_citygml.footprints import read_footprints
     from gnss_citygml.model.estimate import estimate_heights
     from gnss_citygml.observations import read_observations
     from gnss_citygml.pipeline import intersections, open_sky, receivers
-    from gnss_citygml.settings import Estimator
+    from gnss_citygml.settings import Calibration, Estimator
     from gnss_citygml.terrain import building_ground
 
     times = {}
@@ -66,8 +73,18 @@ def run(folder: Path, grid_dir, signal_model: str, level_phones: bool) -> None:
     dem = str(folder / "dem.tif")
     rx = timed("receivers (geodesy + DEM)", receivers, obs, dem, grid_dir=grid_dir)
     fp = timed("ground under buildings", building_ground, fp, dem)
-    inter = timed("cast", intersections, rx, fp)
     estimator = Estimator(signal_model=signal_model, level_phones=level_phones)
+    if calibrate is not None:
+        calibration = Calibration(prior_sd=5.0, window=10.0, rounds=1, matching=calibrate)
+        rx = timed(
+            f"calibrate ({calibrate})",
+            calibrate_receivers,
+            rx,
+            fp,
+            calibration,
+            estimator=estimator,
+        )
+    inter = timed("cast", intersections, rx, fp)
     heights = timed(
         "fit (4PL-B)",
         lambda: estimate_heights(inter, estimator, open_sky=open_sky(rx, inter)),
@@ -75,10 +92,11 @@ def run(folder: Path, grid_dir, signal_model: str, level_phones: bool) -> None:
     peak_gb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024**2
     for name, seconds in times.items():
         print(f"  {name:28s} {seconds:7.2f} s")
-    cast_fit = times["cast"] + times["fit (4PL-B)"]
+    cast_fit = times["cast"] + times["fit (4PL-B)"] + times.get(f"calibrate ({calibrate})", 0.0)
     print(
         f"{len(obs):,} signals x {len(fp):,} buildings: {len(inter):,} intersections, "
-        f"{int(heights['converged'].sum()):,} heights; cast + fit {cast_fit:.1f} s "
+        f"{int(heights['converged'].sum()):,} heights; "
+        f"{'calibrate + ' if calibrate else ''}cast + fit {cast_fit:.1f} s "
         f"({len(obs) / cast_fit:,.0f} signals/s), all stages {sum(times.values()):.1f} s, "
         f"peak memory {peak_gb:.2f} GB"
     )
@@ -93,16 +111,21 @@ def main():
     parser.add_argument(
         "--no-level-phones", action="store_true", help="the C/N0 as recorded (before issue 28)"
     )
+    parser.add_argument("--locations", choices=("manual", "gnss"), default="manual")
+    parser.add_argument("--calibrate", choices=("shadows", "roof lines"))
     parser.add_argument("--run", type=Path, help=argparse.SUPPRESS)  # the measured process
     args = parser.parse_args()
     if args.run:
-        run(args.run, args.grid_dir, args.signal_model, not args.no_level_phones)
+        run(args.run, args.grid_dir, args.signal_model, not args.no_level_phones, args.calibrate)
         return
     folder = OUT / f"city_{args.blocks}x{args.blocks}_{args.signals}"
+    if args.locations != "manual":
+        folder = folder.with_name(f"{folder.name}_{args.locations}")
     if not (folder / "dem.tif").exists():
-        prepare(folder, args.signals, args.blocks, args.grid_dir)
+        prepare(folder, args.signals, args.blocks, args.grid_dir, args.locations)
     command = [sys.executable, __file__, "--run", str(folder), "--grid-dir", str(args.grid_dir)]
     command += ["--signal-model", args.signal_model]
+    command += ["--calibrate", args.calibrate] if args.calibrate else []
     command += ["--no-level-phones"] if args.no_level_phones else []
     subprocess.run(command, check=True)
 

@@ -31,6 +31,7 @@ def footprint_entries(
     max_range: float = 500.0,
     *,
     gradient: bool = False,
+    shifts: npt.ArrayLike | None = None,
 ) -> tuple[np.ndarray, ...]:
     """The distance along each ray to each footprint it enters within ``max_range``.
 
@@ -46,6 +47,11 @@ def footprint_entries(
         Horizontal length of the rays (m).
     gradient
         Also return how each distance changes with the ray's origin.
+    shifts
+        Optional moves (m, in the grid) of the origins, ``(k, 2)`` for every ray or
+        ``(n, k, 2)`` for each: each ray is cast from each of its moved origins, ray ``i`` from
+        move ``j`` numbered ``i * k + j`` (one pruning query a ray for all its moves: shadow
+        matching's candidate positions).
 
     Returns
     -------
@@ -67,6 +73,9 @@ def footprint_entries(
     y = np.asarray(y, dtype=float)
     rad = np.radians(np.asarray(bearing, dtype=float))
     dx, dy = np.sin(rad), np.cos(rad)
+    moves = np.zeros((1, 1, 2)) if shifts is None else np.asarray(shifts, dtype=float)
+    moves = moves[None] if moves.ndim == 2 else moves
+    k = moves.shape[1]
     footprints = np.asarray(footprints, dtype=object)
     empty: tuple[np.ndarray, ...] = (
         np.array([], dtype=np.intp),
@@ -76,37 +85,56 @@ def footprint_entries(
     )
     if gradient:
         empty = (*empty, np.zeros((0, 2)))
-    if x.size == 0 or footprints.size == 0:
+    if x.size == 0 or footprints.size == 0 or k == 0:
         return empty
     tree = shapely.STRtree(footprints)
     boxes = shapely.bounds(footprints)
     edges = _edges(footprints)
     batches = []
-    for lo in range(0, x.size, _RAYS):
-        rays = slice(lo, lo + _RAYS)
+    step = max(1, _RAYS // k)
+    for lo in range(0, x.size, step):
+        rays = slice(lo, lo + step)
+        some = moves[rays] if len(moves) > 1 else moves
+        pairs = _pairs(x[rays], y[rays], dx[rays], dy[rays], tree, max_range, some)
         ray, fp, *rest = _entries(
-            x[rays],
-            y[rays],
-            dx[rays],
-            dy[rays],
+            (x[rays, None] + some[:, :, 0]).ravel(),
+            (y[rays, None] + some[:, :, 1]).ravel(),
+            np.repeat(dx[rays], k),
+            np.repeat(dy[rays], k),
+            pairs,
             footprints,
-            tree,
             boxes,
             edges,
             max_range,
             gradient,
         )
-        batches.append((ray + lo, fp, *rest))
+        batches.append((ray + lo * k, fp, *rest))
     out = tuple(np.concatenate(column) for column in zip(*batches, strict=True))
     return out if gradient else out[:4]
 
 
-def _entries(x, y, dx, dy, footprints, tree, boxes, edges, max_range, gradient=False):
-    """:func:`footprint_entries` for one batch of rays."""
-    ends = np.column_stack([x + dx * max_range, y + dy * max_range])
-    segments = np.stack([np.column_stack([x, y]), ends], axis=1)
-    # Bounding-box candidates (fast), then an exact ray x bounding-box test in numpy.
-    ray_idx, fp_idx = tree.query(shapely.linestrings(segments))
+def _pairs(x, y, dx, dy, tree, max_range, moves):
+    """The (ray, footprint) pairs whose bounding boxes overlap (the tree's query, by envelope),
+    each ray's box that of its segment from every moved origin; rays numbered
+    ``ray * len(moves) + move``."""
+    ex, ey = x + dx * max_range, y + dy * max_range
+    low, high = moves.min(axis=1), moves.max(axis=1)  # (rays or 1, 2)
+    corners = np.stack(  # the box's diagonal: a line has the box as its envelope
+        [
+            np.column_stack([np.minimum(x, ex) + low[:, 0], np.minimum(y, ey) + low[:, 1]]),
+            np.column_stack([np.maximum(x, ex) + high[:, 0], np.maximum(y, ey) + high[:, 1]]),
+        ],
+        axis=1,
+    )
+    ray, fp = tree.query(shapely.linestrings(corners))
+    k = moves.shape[1]
+    return (ray[:, None] * k + np.arange(k)).ravel(), np.repeat(fp, k)
+
+
+def _entries(x, y, dx, dy, pairs, footprints, boxes, edges, max_range, gradient=False):
+    """:func:`footprint_entries` for one batch of rays and their candidate ``pairs``: an exact
+    ray x bounding-box test in numpy, then the distance to each entry wall."""
+    ray_idx, fp_idx = pairs
     near = _crosses_box(x[ray_idx], y[ray_idx], dx[ray_idx], dy[ray_idx], boxes[fp_idx])
     ray_idx, fp_idx = ray_idx[near], fp_idx[near]
     inside = shapely.intersects_xy(footprints[fp_idx], x[ray_idx], y[ray_idx])  # or on an edge

@@ -88,3 +88,26 @@ def test_distance_gradient_matches_finite_differences(bearing):
 def test_gradient_of_no_entries_has_two_columns():
     *_, grad = footprint_entries([0.0], [0.0], [270.0], [SQUARE], gradient=True)
     assert grad.shape == (0, 2)
+
+
+@pytest.mark.parametrize("per_ray", [False, True])
+def test_rays_cast_from_moved_origins_are_those_cast_from_each(per_ray):
+    """``shifts``: every ray cast from each of its moved origins, in one pruning query a ray,
+    gives what casting from each moved origin does (ray i from move j numbered i * k + j)."""
+    rng = np.random.default_rng(3)
+    corners = rng.uniform(-80, 80, (25, 2))
+    footprints = shapely.box(*corners.T, *(corners + rng.uniform(4, 20, (25, 2))).T)
+    x, y, bearing = rng.uniform(-60, 60, 40), rng.uniform(-60, 60, 40), rng.uniform(0, 360, 40)
+    moves = rng.uniform(-12, 12, (40, 6, 2) if per_ray else (6, 2))
+    got = footprint_entries(x, y, bearing, footprints, 120.0, shifts=moves)
+    each = moves if per_ray else np.broadcast_to(moves, (40, 6, 2))
+    ray, fp, dist, cos = footprint_entries(
+        (x[:, None] + each[:, :, 0]).ravel(),
+        (y[:, None] + each[:, :, 1]).ravel(),
+        np.repeat(bearing, 6),
+        footprints,
+        120.0,
+    )
+    assert ray.size > 100
+    for one, other in zip(got, (ray, fp, dist, cos), strict=True):
+        np.testing.assert_array_equal(one, other)

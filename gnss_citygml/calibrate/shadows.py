@@ -125,15 +125,17 @@ def _log_likelihoods(rays, labels, p_seen, unit, half, grid, weight, footprints,
     base = np.where(labels, np.log(p_seen[0]), np.log1p(-p_seen[0]))
     score = np.zeros(half.size * n_cand)
     per_chunk = max(1, CHUNK // n_cand)
+    moves = np.column_stack([sx, sy])
     for start in range(0, labels.size, per_chunk):
-        r = np.repeat(np.arange(start, min(start + per_chunk, labels.size)), n_cand)
-        s = np.tile(np.arange(n_cand), r.size // n_cand)
-        ray, part, dist, _ = footprint_entries(
-            rays["e"][r] + half[unit[r]] * sx[s],
-            rays["n"][r] + half[unit[r]] * sy[s],
-            rays["bearing"][r],
+        rows = np.arange(start, min(start + per_chunk, labels.size))
+        r, s = np.repeat(rows, n_cand), np.tile(np.arange(n_cand), rows.size)
+        ray, part, dist, _ = footprint_entries(  # ray: r's and s's index
+            rays["e"][rows],
+            rays["n"][rows],
+            rays["bearing"][rows],
             footprints,
             max_range,
+            shifts=half[unit[rows], None, None] * moves,
         )
         above = dist * rays["tan_el"][r[ray]]  # the ray's height above the antenna at the wall
         top = roofs[0][part] - rays["z"][r[ray]]

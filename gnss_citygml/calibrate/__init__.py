@@ -181,7 +181,7 @@ def _shadow_step(origins, cast, fits, classifier, unit, offsets, satellite, sds,
     given = np.isfinite(prior[0])
     heights = np.where(given, prior[0], np.where(fits.converged, fits.c, np.nan))
     height_sd = np.where(given, prior[1], 0.0)
-    rates = _label_rates(cast, fits, labels, heights - 2.0 * height_sd)
+    rates = _label_rates(cast, fits, labels, np.where(given, prior[0] - 2.0 * prior[1], -np.inf))
     if rates is None:
         return np.zeros_like(offsets)
     found = shadow_offsets(

@@ -27,7 +27,7 @@ import time
 import numpy as np
 import pandas as pd
 
-from gnss_citygml.calibrate.shadows import shadow_offsets
+from gnss_citygml.calibrate.shadows import label_chances, shadow_offsets
 from gnss_citygml.recordings import recording_windows
 
 #: C/N0 taken as "arrives strong" (dB-Hz), and the chances of a strong (or, with ``los``, an
@@ -60,7 +60,7 @@ def shadow_matched(
     seen = (obs["los"] if labels == "los" else obs["cn0"].fillna(0.0) >= STRONG).to_numpy()
     heights = np.full(len(footprints), np.nan) if heights is None else np.asarray(heights, float)
     offsets = shadow_offsets(
-        rays, seen, P_SEEN[labels], unit, sd.to_numpy(), footprints, heights, RANGE
+        rays, label_chances(seen, P_SEEN[labels]), unit, sd.to_numpy(), footprints, heights, RANGE
     )
     return obs.assign(e=obs["e"] + offsets[unit, 0], n=obs["n"] + offsets[unit, 1])
 

@@ -6,7 +6,7 @@ import pytest
 import shapely
 
 from gnss_citygml.calibrate import shadows
-from gnss_citygml.calibrate.shadows import _spread, shadow_offsets
+from gnss_citygml.calibrate.shadows import _spread, label_chances, shadow_offsets
 from gnss_citygml.raycast import footprint_entries
 
 #: Two rows of a street running east to west, 16 m wide, and their roofs (m; the antenna at 1).
@@ -43,7 +43,8 @@ def _rays(true_n: float, reported_n: float, n_epochs: int = 10, speed: float = 0
 def _offsets(rays, seen, heights, p_seen=(0.95, 0.05), height_sd=None):
     unit = np.zeros(seen.size, dtype=np.intp)
     sd = np.array([SD])
-    return shadow_offsets(rays, seen, p_seen, unit, sd, ROWS, heights, 300.0, height_sd)[0]
+    chances = label_chances(seen, p_seen)
+    return shadow_offsets(rays, chances, unit, sd, ROWS, heights, 300.0, height_sd)[0]
 
 
 @pytest.mark.parametrize("true_n", [-5.0, -2.0, 3.0])

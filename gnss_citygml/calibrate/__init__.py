@@ -43,7 +43,7 @@ from ..model.mixture import Cn0Moments, elevation_units
 from ..raycast import footprint_entries
 from ..recordings import recording_windows
 from ..settings import Calibration, Estimator, Rays
-from .shadows import SEARCH_SDS, shadow_offsets
+from .shadows import SEARCH_SDS, label_chances, shadow_offsets
 
 __all__ = ["calibrate_receivers"]
 
@@ -186,8 +186,7 @@ def _shadow_step(origins, cast, fits, classifier, unit, offsets, satellite, sds,
         return np.zeros_like(offsets)
     found = shadow_offsets(
         origins.shadow_rays(satellite),
-        labels,
-        rates,
+        label_chances(labels, rates),
         unit,
         sds,
         origins.footprints,

@@ -21,13 +21,18 @@ from scipy.special import ndtr
 
 from ..raycast import footprint_entries
 
-__all__ = ["shadow_offsets"]
+__all__ = ["label_chances", "shadow_offsets"]
 
 #: Candidates per axis of a window's grid, and its half-width: this many of the window's prior
 #: standard deviations (as for the roof lines' search), at most :data:`CAP` metres.
 GRID = 11
 SEARCH_SDS = 2.5
 CAP = 25.0
+
+#: The candidates of a window's grid, in its half-widths (east, north).
+_SX, _SY = (
+    a.ravel() for a in np.meshgrid(np.linspace(-1.0, 1.0, GRID), np.linspace(-1.0, 1.0, GRID))
+)
 
 #: Height (m) above the antenna that any building is taken to reach when its own is not known
 #: (not converged, or a map without heights): a one-storey building's eaves (about 4 m) less a
@@ -46,8 +51,7 @@ EPOCHS = 3
 
 def shadow_offsets(
     rays: dict[str, np.ndarray],
-    labels: np.ndarray,
-    p_seen: tuple[float, float],
+    chances: tuple[np.ndarray, np.ndarray],
     unit: np.ndarray,
     sd: np.ndarray,
     footprints: np.ndarray,
@@ -63,11 +67,9 @@ def shadow_offsets(
         Per row: ``e``, ``n``, ``z`` (antenna, m), ``bearing`` (deg), ``tan_el`` (tangent of the
         elevation) and ``satellite`` (an integer per satellite; each counts once per window,
         its rows' mean log-likelihood: its epochs share their reflections and the map's misfit).
-    labels
-        Per row: whether the signal is labelled open (in sight).
-    p_seen
-        The chances that a signal is labelled open when the map leaves its ray open, and when
-        the map blocks it.
+    chances
+        Per row: the chance of what its signal shows (its label, its C/N0) if its ray is open,
+        and if it is blocked (e.g. :func:`label_chances`).
     unit
         Per row: its window (``0 .. n - 1``, e.g. of
         :func:`~gnss_citygml.recordings.recording_windows`).
@@ -82,9 +84,6 @@ def shadow_offsets(
         prior), or 0 (default): the roof is where ``heights`` says. A ray entering the wall
         at ``h`` is blocked with the chance that the roof is above ``h``.
     """
-    half = np.minimum(SEARCH_SDS * sd, CAP)
-    steps = np.linspace(-1.0, 1.0, GRID)
-    sx, sy = (a.ravel() for a in np.meshgrid(steps, steps))
     vote = np.unique(  # one satellite in one window
         rays["satellite"] * (int(unit.max(initial=0)) + 1) + unit, return_inverse=True
     )[1]
@@ -92,15 +91,21 @@ def shadow_offsets(
     weight = 1.0 / np.bincount(vote[cast])[vote[cast]]
     some = {name: values[cast] for name, values in rays.items()}
     roofs = (heights, np.zeros_like(heights) if height_sd is None else height_sd)
-    score = _log_likelihoods(
-        some, labels[cast], p_seen, unit[cast], half, (sx, sy), weight, footprints, roofs, max_range
-    )
-    score -= 0.5 * (sx**2 + sy**2)[None, :] * (half / sd)[:, None] ** 2
-    score[_inside(rays, unit, half, (sx, sy), footprints)] = -np.inf
+    evidence = (some, (chances[0][cast], chances[1][cast]), unit[cast], weight, footprints, roofs)
+    p, half = _posterior(evidence, sd, max_range, rays, unit)
+    return np.column_stack([half * (p @ _SX), half * (p @ _SY)])
+
+
+def _posterior(evidence, sd, max_range, rays, unit):
+    """Per window and candidate (rows, columns), the posterior chance that the window was
+    moved by it, and each window's half-width of its grid (m)."""
+    half = np.minimum(SEARCH_SDS * sd, CAP)
+    score = _log_likelihoods(*evidence, half, max_range)
+    score -= 0.5 * (_SX**2 + _SY**2)[None, :] * (half / sd)[:, None] ** 2
+    score[_inside(rays, unit, half, evidence[4])] = -np.inf
     score -= score.max(axis=1, keepdims=True)
     p = np.nan_to_num(np.exp(score))
-    p /= np.maximum(p.sum(axis=1, keepdims=True), 1e-300)
-    return np.column_stack([half * (p @ sx), half * (p @ sy)])
+    return p / np.maximum(p.sum(axis=1, keepdims=True), 1e-300), half
 
 
 def _spread(vote: np.ndarray, most: int) -> np.ndarray:
@@ -115,19 +120,25 @@ def _spread(vote: np.ndarray, most: int) -> np.ndarray:
     return np.sort(order[keep])
 
 
-def _log_likelihoods(rays, labels, p_seen, unit, half, grid, weight, footprints, roofs, max_range):
-    """Per window and candidate: the weighted log-likelihood of the window's labels. A ray is
+def label_chances(labels: np.ndarray, p_seen: tuple[float, float]) -> tuple[np.ndarray, ...]:
+    """Per row, the chance of its label if its ray is open and if it is blocked, given the
+    chances ``p_seen`` that a signal is labelled open when its ray is open, and when blocked."""
+    labels = np.asarray(labels, dtype=bool)
+    return tuple(np.where(labels, p, 1.0 - p) for p in p_seen)
+
+
+def _log_likelihoods(rays, chances, unit, weight, footprints, roofs, half, max_range):
+    """Per window and candidate: the weighted log-likelihood of the window's signals. A ray is
     open with the chance that no roof it enters is above it; one entering a building of unknown
     height above :data:`MIN_WALL` says only how surely the others block it."""
-    sx, sy = grid
-    n_cand = sx.size
-    seen = np.where(labels, p_seen[1] / p_seen[0], (1.0 - p_seen[1]) / (1.0 - p_seen[0]))
-    base = np.where(labels, np.log(p_seen[0]), np.log1p(-p_seen[0]))
+    n_cand = _SX.size
+    seen = chances[1] / chances[0]
+    base = np.log(chances[0])
     score = np.zeros(half.size * n_cand)
     per_chunk = max(1, CHUNK // n_cand)
-    moves = np.column_stack([sx, sy])
-    for start in range(0, labels.size, per_chunk):
-        rows = np.arange(start, min(start + per_chunk, labels.size))
+    moves = np.column_stack([_SX, _SY])
+    for start in range(0, seen.size, per_chunk):
+        rows = np.arange(start, min(start + per_chunk, seen.size))
         r, s = np.repeat(rows, n_cand), np.tile(np.arange(n_cand), rows.size)
         ray, part, dist, _ = footprint_entries(  # ray: r's and s's index
             rays["e"][rows],
@@ -164,18 +175,17 @@ def _above(margin: np.ndarray, sd: np.ndarray) -> np.ndarray:
     return np.where(sure, margin > 0, ndtr(margin / np.where(sure, 1.0, sd)))
 
 
-def _inside(rays, unit, half, grid, footprints) -> np.ndarray:
+def _inside(rays, unit, half, footprints) -> np.ndarray:
     """Per window and candidate: whether the window's mean position, moved there, is inside a
     footprint (a pedestrian is not)."""
-    sx, sy = grid
     n_units = half.size
     count = np.bincount(unit, minlength=n_units)
     mean_e = np.bincount(unit, rays["e"], minlength=n_units) / np.maximum(count, 1)
     mean_n = np.bincount(unit, rays["n"], minlength=n_units) / np.maximum(count, 1)
     points = shapely.points(
-        (mean_e[:, None] + half[:, None] * sx).ravel(),
-        (mean_n[:, None] + half[:, None] * sy).ravel(),
+        (mean_e[:, None] + half[:, None] * _SX).ravel(),
+        (mean_n[:, None] + half[:, None] * _SY).ravel(),
     )
     inside = np.zeros(points.size, bool)
     inside[shapely.STRtree(footprints).query(points, predicate="within")[0]] = True
-    return inside.reshape(n_units, sx.size)
+    return inside.reshape(n_units, _SX.size)

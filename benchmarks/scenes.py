@@ -51,7 +51,8 @@ With ``--calibrate`` the receivers are self-calibrated first (one offset per rec
 for each initial threshold, with the C/N0 classifier (the reference's perfect labels are judged
 on the uncalibrated positions), ``--calibration-rounds`` rounds; with ``--calibration-matching
 shadows`` by shadow matching (issue 28, item 2; each window's prior its fixes' own
-``position_sd``).
+``position_sd``), with ``--prior-heights SD`` against each building's height given with the
+map (the truth's with a normal error of SD m, which it claims).
 
     python benchmarks/scenes.py [--scenes 8] [--physics | --regimes]
                                 [--position-errors data|exact|fixed] [--position-window 30]

@@ -91,21 +91,23 @@ def shadow_offsets(
     weight = 1.0 / np.bincount(vote[cast])[vote[cast]]
     some = {name: values[cast] for name, values in rays.items()}
     roofs = (heights, np.zeros_like(heights) if height_sd is None else height_sd)
-    evidence = (some, (chances[0][cast], chances[1][cast]), unit[cast], weight, footprints, roofs)
-    p, half = _posterior(evidence, sd, max_range, rays, unit)
-    return np.column_stack([half * (p @ _SX), half * (p @ _SY)])
-
-
-def _posterior(evidence, sd, max_range, rays, unit):
-    """Per window and candidate (rows, columns), the posterior chance that the window was
-    moved by it, and each window's half-width of its grid (m)."""
     half = np.minimum(SEARCH_SDS * sd, CAP)
-    score = _log_likelihoods(*evidence, half, max_range)
+    score = _log_likelihoods(
+        some,
+        (chances[0][cast], chances[1][cast]),
+        unit[cast],
+        weight,
+        footprints,
+        roofs,
+        half,
+        max_range,
+    )
     score -= 0.5 * (_SX**2 + _SY**2)[None, :] * (half / sd)[:, None] ** 2
-    score[_inside(rays, unit, half, evidence[4])] = -np.inf
+    score[_inside(rays, unit, half, footprints)] = -np.inf
     score -= score.max(axis=1, keepdims=True)
     p = np.nan_to_num(np.exp(score))
-    return p / np.maximum(p.sum(axis=1, keepdims=True), 1e-300), half
+    p /= np.maximum(p.sum(axis=1, keepdims=True), 1e-300)
+    return np.column_stack([half * (p @ _SX), half * (p @ _SY)])
 
 
 def _spread(vote: np.ndarray, most: int) -> np.ndarray:
@@ -120,11 +122,13 @@ def _spread(vote: np.ndarray, most: int) -> np.ndarray:
     return np.sort(order[keep])
 
 
-def label_chances(labels: np.ndarray, p_seen: tuple[float, float]) -> tuple[np.ndarray, ...]:
+def label_chances(labels: np.ndarray, p_seen: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
     """Per row, the chance of its label if its ray is open and if it is blocked, given the
     chances ``p_seen`` that a signal is labelled open when its ray is open, and when blocked."""
     labels = np.asarray(labels, dtype=bool)
-    return tuple(np.where(labels, p, 1.0 - p) for p in p_seen)
+    return np.where(labels, p_seen[0], 1.0 - p_seen[0]), np.where(
+        labels, p_seen[1], 1.0 - p_seen[1]
+    )
 
 
 def _log_likelihoods(rays, chances, unit, weight, footprints, roofs, half, max_range):

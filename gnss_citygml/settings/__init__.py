@@ -40,6 +40,7 @@ from .checks import (
     count,
     count_within,
     finite,
+    positive,
     within,
 )
 from .positions import DEFAULT_POSITION_DISTANCE, DEFAULT_POSITION_SD, PositionError
@@ -164,12 +165,13 @@ class Rays:
 
     def __post_init__(self):
         check_elevation_mask(self.min_elevation, self.max_elevation)
-        if not within(self.max_range, MAX_RANGES, above=True):
-            raise InputError(
-                f"max_range must be a positive number of metres up to {MAX_RANGES[1]:g}, "
-                f"not {self.max_range}",
-                fix="give --max-range in metres, e.g. 500",
-            )
+        positive(
+            self.max_range,
+            MAX_RANGES,
+            "max_range",
+            "metres",
+            "give --max-range in metres, e.g. 500",
+        )
 
 
 @dataclass(frozen=True)
@@ -246,12 +248,13 @@ class Acceptance:
                 f"min_separation must be a probability from 0 to 1, not {self.min_separation}",
                 fix="e.g. 0.3",
             )
-        if not within(self.max_uncertainty, UNCERTAINTIES, above=True):
-            raise InputError(
-                f"max_uncertainty must be a positive number of metres up to "
-                f"{UNCERTAINTIES[1]:g}, not {self.max_uncertainty}",
-                fix="e.g. 10 (CityGML's LOD1 accuracy class: within 5 m)",
-            )
+        positive(
+            self.max_uncertainty,
+            UNCERTAINTIES,
+            "max_uncertainty",
+            "metres",
+            "e.g. 10 (CityGML's LOD1 accuracy class: within 5 m)",
+        )
 
 
 @dataclass(frozen=True)
@@ -406,23 +409,27 @@ class Calibration:
     heights_sd: float = 2.0
 
     def __post_init__(self):
-        if self.prior_sd is not None and not within(self.prior_sd, POSITION_SDS, above=True):
-            raise InputError(
-                f"the calibration prior must be a positive number of metres up to "
-                f"{POSITION_SDS[1]:g}, not {self.prior_sd}",
-                fix="give --calibration-sd, e.g. 1 m for hand-placed points, 5 m for phone fixes",
+        if self.prior_sd is not None:
+            positive(
+                self.prior_sd,
+                POSITION_SDS,
+                "the calibration prior",
+                "metres",
+                "give --calibration-sd, e.g. 1 m for hand-placed points, 5 m for phone fixes",
             )
         if self.window is not None and self.prior_sd is None:
             raise InputError(
                 "a calibration window without self-calibration",
                 fix="give the calibration prior (--calibration-sd) too, e.g. 5 m for phone fixes",
             )
-        if self.window is not None and not within(self.window, WINDOWS, above=True):
-            raise InputError(
-                f"the calibration window must be a positive number of seconds up to "
-                f"{WINDOWS[1]:g} (a day), not {self.window}",
-                fix="give --calibration-window, e.g. 30 for phone fixes, or leave it out for "
-                "one offset per recording",
+        if self.window is not None:
+            positive(
+                self.window,
+                WINDOWS,
+                "the calibration window",
+                "seconds",
+                "give --calibration-window, e.g. 30 for phone fixes, or leave it out for one "
+                "offset per recording",
             )
         if self.matching != "roof lines" and self.prior_sd is None:
             raise InputError(
@@ -454,12 +461,13 @@ class Calibration:
                 f"the calibration's map heights must name a footprint field, not {self.heights!r}",
                 fix="give --calibration-heights FIELD, e.g. relh2",
             )
-        if not within(self.heights_sd, UNCERTAINTIES, above=True):
-            raise InputError(
-                f"the calibration's map heights' standard deviation must be a positive number of "
-                f"metres up to {UNCERTAINTIES[1]:g}, not {self.heights_sd}",
-                fix="give --calibration-heights-sd, e.g. 2",
-            )
+        positive(
+            self.heights_sd,
+            UNCERTAINTIES,
+            "the calibration's map heights' standard deviation",
+            "metres",
+            "give --calibration-heights-sd, e.g. 2",
+        )
 
     @property
     def on(self) -> bool:

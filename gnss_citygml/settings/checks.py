@@ -6,6 +6,8 @@ from __future__ import annotations
 import math
 import numbers
 
+from ..errors import InputError
+
 
 def finite(value) -> bool:
     """A real number, neither infinite nor NaN."""
@@ -41,6 +43,16 @@ UNCERTAINTIES = (0.0, 1000.0)
 #: 4PL-B's iterations and the calibration's rounds: each is a full fit of every building.
 ITERATIONS = (1, 1000)
 ROUNDS = (1, 100)
+
+
+def positive(value, bounds: tuple[float, float], what: str, unit: str, fix: str) -> None:
+    """Refuse ``value`` (``what``, in ``unit``) unless it is a positive number up to
+    ``bounds[1]``: one message for every such range, e.g. "max_range must be a positive number
+    of metres up to 10000, not -1"."""
+    if not within(value, bounds, above=True):
+        raise InputError(
+            f"{what} must be a positive number of {unit} up to {bounds[1]:g}, not {value}", fix=fix
+        )
 
 
 def count_within(value, bounds: tuple[int, int]) -> bool:

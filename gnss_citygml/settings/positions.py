@@ -6,7 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from ..errors import InputError
-from .checks import POSITION_DISTANCES, POSITION_SDS, WINDOWS, within
+from .checks import POSITION_DISTANCES, POSITION_SDS, WINDOWS, positive, within
 
 #: Position error (m per axis) of an observation that does not say (its ``position_sd`` empty):
 #: a point placed by hand on a large-scale map, as the paper's receivers were ("an estimated
@@ -57,18 +57,22 @@ class PositionError:
                 f"{POSITION_SDS[1]:g}, not {self.sd}",
                 fix="give --position-sd, e.g. 1 m for points placed by hand (0: exact positions)",
             )
-        if self.window is not None and not within(self.window, WINDOWS, above=True):
-            raise InputError(
-                f"the position window must be a positive number of seconds up to "
-                f"{WINDOWS[1]:g} (a day), not {self.window}",
-                fix="give --position-window, e.g. 30 for a walker's traced path, or leave it "
-                "out for the whole recording",
+        if self.window is not None:
+            positive(
+                self.window,
+                WINDOWS,
+                "the position window",
+                "seconds",
+                "give --position-window, e.g. 30 for a walker's traced path, or leave it out for "
+                "the whole recording",
             )
-        if self.distance is not None and not within(self.distance, POSITION_DISTANCES, above=True):
-            raise InputError(
-                f"the position error's distance must be a positive number of metres up to "
-                f"{POSITION_DISTANCES[1]:g}, not {self.distance}",
-                fix=f"give --position-distance in metres, e.g. {DEFAULT_POSITION_DISTANCE:g}",
+        if self.distance is not None:
+            positive(
+                self.distance,
+                POSITION_DISTANCES,
+                "the position error's distance",
+                "metres",
+                f"give --position-distance in metres, e.g. {DEFAULT_POSITION_DISTANCE:g}",
             )
 
     @property

@@ -77,19 +77,10 @@ def footprint_entries(
     moves = moves[None] if moves.ndim == 2 else moves
     k = moves.shape[1]
     footprints = np.asarray(footprints, dtype=object)
-    empty: tuple[np.ndarray, ...] = (
-        np.array([], dtype=np.intp),
-        np.array([], dtype=np.intp),
-        np.array([]),
-        np.array([]),
-    )
-    if gradient:
-        empty = (*empty, np.zeros((0, 2)))
     if x.size == 0 or footprints.size == 0 or k == 0:
-        return empty
+        return _nothing(gradient)
     tree = shapely.STRtree(footprints)
-    boxes = shapely.bounds(footprints)
-    edges = _edges(footprints)
+    geometry = (footprints, shapely.bounds(footprints), _edges(footprints))
     batches = []
     step = max(1, _RAYS // k)
     for lo in range(0, x.size, step):
@@ -102,15 +93,19 @@ def footprint_entries(
             np.repeat(dx[rays], k),
             np.repeat(dy[rays], k),
             pairs,
-            footprints,
-            boxes,
-            edges,
+            *geometry,
             max_range,
             gradient,
         )
         batches.append((ray + lo * k, fp, *rest))
     out = tuple(np.concatenate(column) for column in zip(*batches, strict=True))
     return out if gradient else out[:4]
+
+
+def _nothing(gradient: bool) -> tuple[np.ndarray, ...]:
+    """:func:`footprint_entries`' answer where no ray enters anything."""
+    none = (np.array([], dtype=np.intp), np.array([], dtype=np.intp), np.array([]), np.array([]))
+    return (*none, np.zeros((0, 2))) if gradient else none
 
 
 def _pairs(x, y, dx, dy, tree, max_range, moves):

@@ -128,6 +128,9 @@ def main(stdin: IO[str] = sys.stdin, stdout: IO[str] = sys.stdout) -> int:
     goes to standard error, so that every line of ``stdout`` is one JSON object)."""
     answers = stdout
     sys.stdout = sys.stderr
+    # the host's Cancel, even where the host ignores SIGINT (a process started in the
+    # background, or by a desktop that ignores it, passes that on and Python then keeps it)
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     if hasattr(signal, "SIGBREAK"):  # Windows: the host's CTRL_BREAK stops the job as Ctrl-C
         signal.signal(signal.SIGBREAK, signal.default_int_handler)
 

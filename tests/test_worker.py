@@ -16,13 +16,17 @@ from test_cli import run
 CITY = Path(__file__).resolve().parents[1] / "examples" / "city"
 
 
-def child(request: dict) -> subprocess.Popen:
+def child(request: dict, ignoring_sigint: bool = False) -> subprocess.Popen:
+    """The worker running ``request``; started as by a host that ignores SIGINT (a process run
+    in the background by a shell) with ``ignoring_sigint``."""
+    ignore = (lambda: signal.signal(signal.SIGINT, signal.SIG_IGN)) if ignoring_sigint else None
     process = subprocess.Popen(
         [sys.executable, "-m", "gnss_citygml.worker"],
         stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
+        preexec_fn=ignore,
     )
     assert process.stdin is not None
     process.stdin.write(json.dumps(request))
@@ -109,8 +113,9 @@ def test_settings_are_checked_as_the_settings_objects_check_them(tmp_path):
     assert "magic" in error and "4PL-B" in error
 
 
-def test_sigint_cancels_and_leaves_nothing(tmp_path):
-    process = child(estimate(tmp_path / "w.gpkg"))
+@pytest.mark.parametrize("ignoring_sigint", [False, True])
+def test_sigint_cancels_and_leaves_nothing(tmp_path, ignoring_sigint):
+    process = child(estimate(tmp_path / "w.gpkg"), ignoring_sigint)
     assert process.stdout is not None
     first = json.loads(process.stdout.readline())
     assert first == {"progress": ["observations", 0.0]}

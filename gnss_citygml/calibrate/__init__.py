@@ -28,6 +28,10 @@ recording the same way can be absorbed by the heights, so only the prior pins it
 the rays that cross no footprint included, which a shared offset does not escape. The labels
 are the current signal model's, their error rates counted on the current cast (open sky,
 and rays surely below a converged roof); each window's prior is its fixes' own ``position_sd``.
+Roofs fitted from fixes that all share a shift explain the shadows from there as the true ones
+do from the truth (the shift scales every ray's way to a wall), so with
+``Calibration(heights=FIELD)`` the map's own roof heights, with their uncertainty, are matched
+against instead wherever the map has one: they place the phones, the signals give the heights.
 """
 
 from __future__ import annotations
@@ -83,7 +87,8 @@ def calibrate_receivers(
         ``bearing``, ``elevation``, ``cn0`` (and ``time_utc`` with a window; ``constellation``
         and ``svid`` for shadow matching, and each row's ``position_sd`` if it has one).
     buildings
-        Table with ``id`` and ``geometry`` (footprints in the receivers' grid).
+        Table with ``id`` and ``geometry`` (footprints in the receivers' grid), and with the
+        calibration's ``heights`` field (m above the ground) their ``ground`` (m, as ``z``).
     calibration
         The prior standard deviation (m per axis) of a recording's offset: what the positions
         are believed to be worth; the window (s): one offset per window of each recording (for

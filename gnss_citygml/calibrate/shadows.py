@@ -10,7 +10,9 @@ heights. :func:`shadow_offsets` weighs a grid of candidate shifts of each window
 the rays cast exactly from there explain its signals' labels, with a Gaussian prior on the
 shift, and takes the posterior mean: along a street, where the shadows say nothing, the shift
 stays the prior's (none) instead of wandering to the best of many equal candidates. No
-candidate puts the window inside a building. Measured in docs/issue-28-positions.md.
+candidate puts the window inside a building. A roof given with the map carries its
+uncertainty: a ray blocked with the chance that the roof is above it. Measured in
+docs/issue-28-positions.md.
 """
 
 from __future__ import annotations

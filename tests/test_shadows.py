@@ -7,6 +7,7 @@ import shapely
 
 from gnss_citygml.calibrate import shadows
 from gnss_citygml.calibrate.shadows import _spread, label_chances, shadow_offsets
+from gnss_citygml.errors import InputError
 from gnss_citygml.raycast import footprint_entries
 
 #: Two rows of a street running east to west, 16 m wide, and their roofs (m; the antenna at 1).
@@ -99,3 +100,11 @@ def test_a_map_without_heights_keeps_the_window_out_of_the_buildings():
     rays, seen = _rays(-5.0, 10.0)  # reported 2 m inside the north row
     east, north = _offsets(rays, seen, np.full(2, np.nan))
     assert -8.0 < 10.0 + north < 8.0 and abs(east) < 1.0
+
+
+def test_chances_of_nothing_either_way_are_refused():
+    """A chance of 0 would rule out every candidate one ray contradicts: no window would move,
+    silently."""
+    rays, seen = _rays(-3.0, 1.0)
+    with pytest.raises(InputError, match="above 0"):
+        _offsets(rays, seen, ROOFS, (1.0, 0.0))

@@ -21,6 +21,7 @@ import numpy as np
 import shapely
 from scipy.special import ndtr
 
+from ..errors import InputError
 from ..raycast import footprint_entries
 
 __all__ = ["label_chances", "shadow_offsets"]
@@ -86,6 +87,12 @@ def shadow_offsets(
         prior), or 0 (default): the roof is where ``heights`` says. A ray entering the wall
         at ``h`` is blocked with the chance that the roof is above ``h``.
     """
+    if not all(np.all((c > 0.0) & (c <= 1.0)) for c in chances):
+        raise InputError(
+            "shadow matching's chances must be above 0 and at most 1",
+            fix="give every signal some chance either way (e.g. labels right 95 % of the time): "
+            "a chance of 0 rules out every candidate that one ray of a grazed wall contradicts",
+        )
     vote = np.unique(  # one satellite in one window
         rays["satellite"] * (int(unit.max(initial=0)) + 1) + unit, return_inverse=True
     )[1]
@@ -138,13 +145,12 @@ def _log_likelihoods(rays, chances, unit, weight, footprints, roofs, half, max_r
     open with the chance that no roof it enters is above it; one entering a building of unknown
     height above :data:`MIN_WALL` says only how surely the others block it."""
     n_cand = _SX.size
-    seen = chances[1] / chances[0]
-    base = np.log(chances[0])
+    if_open, if_blocked = chances
     score = np.zeros(half.size * n_cand)
     per_chunk = max(1, CHUNK // n_cand)
     moves = np.column_stack([_SX, _SY])
-    for start in range(0, seen.size, per_chunk):
-        rows = np.arange(start, min(start + per_chunk, seen.size))
+    for start in range(0, if_open.size, per_chunk):
+        rows = np.arange(start, min(start + per_chunk, if_open.size))
         r, s = np.repeat(rows, n_cand), np.tile(np.arange(n_cand), rows.size)
         ray, part, dist, _ = footprint_entries(  # ray: r's and s's index
             rays["e"][rows],
@@ -166,10 +172,7 @@ def _log_likelihoods(rays, chances, unit, weight, footprints, roofs, half, max_r
         silent = np.bincount(ray, high, minlength=r.size) > 0
         # p(label) = clear p(label | open) + (1 - clear) p(label | blocked); where a building of
         # unknown height may block it too, its open part is no evidence (1)
-        ll = np.log(
-            np.where(silent, clear, clear * np.exp(base[r]))
-            + (1.0 - clear) * np.exp(base[r]) * seen[r]
-        )
+        ll = np.log(np.where(silent, clear, clear * if_open[r]) + (1.0 - clear) * if_blocked[r])
         score += np.bincount(unit[r] * n_cand + s, ll * weight[r], minlength=score.size)
     return score.reshape(half.size, n_cand)
 

@@ -22,7 +22,7 @@ from typing import Any
 import geopandas as gpd
 import pandas as pd
 
-from .calibrate import calibrate_receivers
+from .calibrate import calibrate_receivers, check_map_heights
 from .errors import InputError
 from .files.ids import id_field
 from .files.paths import StrPath, atomic_folder
@@ -169,11 +169,13 @@ def run(
     Raises
     ------
     InputError
-        Self-calibration asked for with a method other than 4PL-B, and footprints that are
-        not a GeoDataFrame in EPSG:27700 (both before any work), and any stage's error.
+        Self-calibration asked for with a method other than 4PL-B, footprints that are not a
+        GeoDataFrame in EPSG:27700 or lack the calibration's field of map heights (all before
+        any work), and any stage's error.
     """
     calibration.check_method(estimator)
     tiling.check(estimator, calibration)
+    check_map_heights(footprints, calibration)
     say = progress or (lambda stage: None)
     rx, buildings = _prepared(
         observations, footprints, dem, rays, receiver_heights, grid_dir, dem_crs, say

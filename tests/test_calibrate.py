@@ -1,9 +1,11 @@
 """Self-calibration of receiver offsets on a simulated street canyon."""
 
+import warnings
+
 import numpy as np
 import pytest
 
-from gnss_citygml.calibrate import calibrate_receivers
+from gnss_citygml.calibrate import calibrate_receivers, check_map_heights
 from gnss_citygml.errors import InputError, MissingColumnError
 from gnss_citygml.recordings import recording_windows
 from gnss_citygml.settings import Calibration, Estimator
@@ -93,10 +95,32 @@ def test_a_map_height_of_zero_or_none_is_no_roof(canyon):
     empty = buildings.assign(ground=ground, relh=[0.0, None, "n/a", -2.0])
     with_field = Calibration(prior_sd=3.0, matching="shadows", rounds=1, heights="relh")
     without = Calibration(prior_sd=3.0, matching="shadows", rounds=1)
+    with pytest.warns(UserWarning, match="no building has a positive height"):
+        matched = calibrate_receivers(moved, empty, with_field)
     np.testing.assert_array_equal(
-        calibrate_receivers(moved, empty, with_field)["n"],
+        matched["n"],
         calibrate_receivers(moved, buildings, without)["n"],
     )
+
+
+def test_a_map_heights_field_with_no_height_is_refused(canyon):
+    """A field of names, or one all empty, would leave the matching without the map's heights,
+    silently: refused, naming the field and what it holds; one of numbers none of which is a
+    height (all 0 or less) is said."""
+    rx, buildings = canyon
+    _, ground = _truth(buildings)
+    shadows = Calibration(prior_sd=3.0, matching="shadows", rounds=1, heights="relh")
+    for values, said in (([f"block {k}" for k in range(4)], "block 0"), ([None] * 4, "empty")):
+        named = buildings.assign(ground=ground, relh=values)
+        with pytest.raises(InputError, match=f"'relh' holds no height.*{said}"):
+            check_map_heights(named, shadows)
+        with pytest.raises(InputError, match="holds no height"):
+            calibrate_receivers(rx.assign(position_sd=3.0), named, shadows)
+    with pytest.warns(UserWarning, match="no building has a positive height in .* 'relh'"):
+        check_map_heights(buildings.assign(relh=[0.0, None, -2.0, "n/a"]), shadows)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        check_map_heights(buildings.assign(relh=[0.0, None, 12.0, "n/a"]), shadows)
 
 
 def _truth(buildings):

@@ -334,8 +334,12 @@ def test_estimate_with_shadow_matching(grid_args, tmp_path, capsys):
     )
     mapped = estimate_args(tmp_path, grid_args, output="mapped_h.gpkg")
     mapped[2] = str(tmp_path / "mapped.gpkg")
-    code, _, err = run([*mapped, *shadows, "--calibration-heights", "relh2"], capsys)
+    matching = [*shadows, "--calibration-matching", "shadows"]
+    code, _, err = run([*mapped, *matching, "--calibration-heights", "relh2"], capsys)
     assert code == 2 and "'relh2'" in err and "relh" in err and err.count("\n") == 1
+    assert "missing column" in err  # the field, not the matching (that is given)
+    code, _, err = run([*mapped, *matching, "--calibration-heights", "id"], capsys)
+    assert code == 2 and "'id' holds no height" in err and err.count("\n") == 1
     given = ["--calibration-matching", "shadows", "--calibration-heights", "relh"]
     code, out, err = run([*mapped, *shadows, *given, "--calibration-heights-sd", "1"], capsys)
     assert code == 0, err

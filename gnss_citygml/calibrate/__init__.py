@@ -36,6 +36,8 @@ against instead wherever the map has one: they place the phones, the signals giv
 
 from __future__ import annotations
 
+import warnings
+
 import geopandas as gpd
 import numpy as np
 import pandas as pd
@@ -49,7 +51,7 @@ from ..recordings import recording_windows
 from ..settings import Calibration, Estimator, Rays
 from .shadows import SEARCH_SDS, label_chances, shadow_offsets
 
-__all__ = ["calibrate_receivers"]
+__all__ = ["calibrate_receivers", "check_map_heights"]
 
 _REQUIRED = ["receiver", "e", "n", "z", "bearing", "elevation", "cn0"]
 
@@ -243,6 +245,35 @@ def _shadow_priors(receivers, buildings, calibration, unit, n_units):
     return satellite, sds, _given_roofs(buildings, calibration)
 
 
+def check_map_heights(footprints: pd.DataFrame, calibration: Calibration) -> None:
+    """Refuse, before any work, a field of the map's roof heights (``calibration.heights``)
+    that the footprints lack or that holds no number (a field of names, or all empty), and warn
+    where none of its numbers is a height (all 0 or less): the matching would go on without
+    the map's heights, silently."""
+    field = calibration.heights
+    if field is None:
+        return
+    if field not in footprints.columns:
+        raise MissingColumnError([field], where="footprints", have=list(footprints.columns))
+    heights = _heights_above_ground(footprints, field)
+    if np.isnan(heights).all():
+        seen = footprints[field].dropna().astype(str).unique()[:3]
+        raise InputError(
+            f"the footprints' field {field!r} holds no height (e.g. "
+            f"{', '.join(seen) if len(seen) else 'only empty values'})",
+            where="footprints",
+            fix="give --calibration-heights a numeric field of roof heights above the ground "
+            "in metres, e.g. relh2",
+        )
+    if not (heights > 0).any():
+        warnings.warn(
+            f"no building has a positive height in the footprints' field {field!r}: the phones "
+            "are matched against the roofs being estimated alone",
+            UserWarning,
+            stacklevel=2,
+        )
+
+
 def _given_roofs(buildings, calibration) -> tuple[np.ndarray, np.ndarray]:
     """Each building's roof given with the map (m, as the receivers' ``z``: its ``ground``
     plus the calibration's field of heights, where that is a positive number) and its
@@ -251,13 +282,18 @@ def _given_roofs(buildings, calibration) -> tuple[np.ndarray, np.ndarray]:
     field = calibration.heights
     if field is None:
         return np.full(n, np.nan), np.full(n, np.nan)
-    missing = [c for c in (field, "ground") if c not in buildings.columns]
-    if missing:
-        raise MissingColumnError(missing, where="footprints", have=list(buildings.columns))
-    above = pd.to_numeric(buildings[field], errors="coerce").to_numpy(float, copy=True)
+    check_map_heights(buildings, calibration)
+    if "ground" not in buildings.columns:
+        raise MissingColumnError(["ground"], where="footprints", have=list(buildings.columns))
+    above = _heights_above_ground(buildings, field)
     above[~(above > 0)] = np.nan  # none given (a map's 0 or empty)
     ground = pd.to_numeric(buildings["ground"], errors="coerce").to_numpy(float)
     return ground + above, np.full(n, calibration.heights_sd)
+
+
+def _heights_above_ground(footprints, field) -> np.ndarray:
+    """The field's values as numbers (NaN where not one)."""
+    return pd.to_numeric(footprints[field], errors="coerce").to_numpy(float, copy=True)
 
 
 class _Cast:

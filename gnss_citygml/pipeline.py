@@ -169,9 +169,8 @@ def run(
     Raises
     ------
     InputError
-        Self-calibration asked for with a method other than 4PL-B, footprints that are not a
-        GeoDataFrame in EPSG:27700 or lack the calibration's field of map heights (all before
-        any work), and any stage's error.
+        Self-calibration with a method other than 4PL-B, footprints not in EPSG:27700 or
+        without its map heights' field (all before any work), and any stage's error.
     """
     calibration.check_method(estimator)
     tiling.check(estimator, calibration)

@@ -125,9 +125,8 @@ def run(
     Parameters
     ----------
     observations
-        The observations table (DESIGN.md), e.g. from
-        :func:`~gnss_citygml.observations.read_observations` or
-        :func:`~gnss_citygml.gnss.observe.observe`.
+        The observations table (DESIGN.md), e.g. from :func:`~gnss_citygml.gnss.observe.observe`
+        or :func:`~gnss_citygml.observations.read_observations`.
     footprints
         The buildings table (``id``, ``geometry`` in EPSG:27700), e.g. from
         :func:`~gnss_citygml.footprints.read_footprints`.

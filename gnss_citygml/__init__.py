@@ -13,8 +13,9 @@ loading numpy, pandas, scipy, GDAL or PROJ.
   GeoDataFrame as an LOD1 city model, validated before it is renamed into place;
 - :func:`validate_file` checks a CityGML or CityJSON file;
 - :class:`Rays`, :class:`ReceiverHeights`, :class:`Estimator` (with :class:`Acceptance`),
-  :class:`PositionError` and :class:`Calibration` are the options of :func:`estimate` and
-  :func:`estimate_heights`, with their defaults (:mod:`gnss_citygml.settings`).
+  :class:`PositionError`, :class:`Calibration` and :class:`Tiling` are the options of
+  :func:`estimate` (one :class:`RunSettings`, or each by name) and :func:`estimate_heights`,
+  with their defaults (:mod:`gnss_citygml.settings`).
 
 >>> import gnss_citygml
 >>> gnss_citygml.METHODS
@@ -64,6 +65,8 @@ _LAZY = {
     "Acceptance": "settings",
     "PositionError": "settings",
     "Calibration": "settings",
+    "Tiling": "settings",
+    "RunSettings": "settings",
     # the errors of the geodesy
     "GridError": "geodesy.grids",
     "OutsideExtentError": "geodesy",
@@ -89,7 +92,16 @@ if TYPE_CHECKING:  # the same names, for type checkers (tests/test_package.py co
     from .model.estimate import HEIGHTS_COLUMNS, estimate_heights, heights_and_signal_model
     from .observations import check_observations, read_observations, write_observations
     from .pipeline import estimate
-    from .settings import Acceptance, Calibration, Estimator, PositionError, Rays, ReceiverHeights
+    from .settings import (
+        Acceptance,
+        Calibration,
+        Estimator,
+        PositionError,
+        Rays,
+        ReceiverHeights,
+        RunSettings,
+        Tiling,
+    )
     from .terrain import building_ground, sample_ground
     from .validate import validate_file
 
@@ -128,6 +140,8 @@ __all__ = [
     "Acceptance",
     "PositionError",
     "Calibration",
+    "Tiling",
+    "RunSettings",
     # the errors
     "GnssCityGMLError",
     "InputError",

@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 
 from .errors import InputError
 from .files.paths import StrPath
-from .settings import Calibration, Estimator, PositionError, Rays, ReceiverHeights, Tiling
+from .settings import RunSettings
 
 if TYPE_CHECKING:
     import geopandas as gpd
@@ -82,16 +82,10 @@ def estimate_file(
     truth: StrPath | None = None,
     layer: str | None = None,
     id_field: str | None = None,
-    rays: Rays = Rays(),
-    receiver_heights: ReceiverHeights = ReceiverHeights(),
-    estimator: Estimator = Estimator(),
-    position_error: PositionError = PositionError(),
-    calibration: Calibration = Calibration(),
-    tiling: Tiling = Tiling(),
-    dem_crs: str | None = None,
-    grid_dir: StrPath | None = None,
+    settings: RunSettings | None = None,
     overwrite: bool = False,
     progress: Progress = _silent,
+    **changes: Any,
 ) -> Estimated:
     """Estimate the height of every footprint; write the layer ``heights`` to ``output`` and
     the report of the run (:mod:`gnss_citygml.report`) into the folder ``report``.
@@ -99,8 +93,8 @@ def estimate_file(
     ``output`` is a GeoPackage (other layers of an existing one are kept; the layer gets the
     toolkit's QGIS style as its default), a FlatGeobuf or a GeoParquet file. ``truth`` (a
     simulator's truth table, CSV or Parquet) adds the true heights to the report. Returns the
-    heights (:class:`Estimated`; see :func:`gnss_citygml.pipeline.run` for the rest of the
-    arguments). Both outputs are
+    heights (:class:`Estimated`; see :func:`gnss_citygml.pipeline.run` for the ``settings``
+    and their ``changes``). Both outputs are
     checked before any work; one of them must be given. ``observations`` may be a partition
     folder (:mod:`gnss_citygml.tiling.partition`), read tile by tile in a run with ``tiling``
     (:func:`gnss_citygml.pipeline.run_partitioned`). In a run with ``tiling``, an ``output``
@@ -111,36 +105,24 @@ def estimate_file(
     from .observations import read_observations
     from .pipeline import STAGES, run, run_partitioned, write_tiles
 
-    calibration.check_method(estimator)  # as the pipeline does, but before any file is read
-    tiling.check(estimator, calibration)
+    settings = RunSettings.of(settings, **changes)  # checked before any file is read
     partitioned, folder, true = _check_estimate(
-        observations, footprints, dem, output, report, truth, layer, rays, tiling, overwrite
+        observations, footprints, dem, output, report, truth, layer, settings, overwrite
     )
     steps = [*STAGES, "report"] if report is not None else list(STAGES)
     stage = _stage_progress(steps, progress)
-    settings: dict[str, Any] = {
-        "rays": rays,
-        "receiver_heights": receiver_heights,
-        "estimator": estimator,
-        "position_error": position_error,
-        "tiling": tiling,
-        "dem_crs": dem_crs,
-        "progress": stage,
-    }
     obs = None if partitioned else read_observations(observations)  # a partition: per tile
-    fp = read_footprints(footprints, layer=layer, id_field=id_field, grid_dir=grid_dir)
+    fp = read_footprints(footprints, layer=layer, id_field=id_field, grid_dir=settings.grid_dir)
     if folder is not None:  # each tile's heights are written by its worker
         given = observations if obs is None else obs
-        index = write_tiles(
-            given, fp, dem, folder, grid_dir=grid_dir, overwrite=overwrite, **settings
-        )
+        index = write_tiles(given, fp, dem, folder, settings, overwrite=overwrite, progress=stage)
         progress("done", 1.0)
         return Estimated(tiles=index)
     if obs is None:
-        heights, _ = run_partitioned(observations, fp, dem, **settings)
+        heights, _ = run_partitioned(observations, fp, dem, settings, progress=stage)
         result = None
     else:
-        result = run(obs, fp, dem, calibration=calibration, grid_dir=grid_dir, **settings)
+        result = run(obs, fp, dem, settings, progress=stage)
         heights = result.heights
     _write_outputs(heights, result, output, report, true, overwrite, stage)
     progress("done", 1.0)
@@ -161,7 +143,7 @@ def _write_outputs(heights, result, output, report, true, overwrite, stage) -> N
 
 
 def _check_estimate(
-    observations, footprints, dem, output, report, truth, layer, rays, tiling, overwrite
+    observations, footprints, dem, output, report, truth, layer, settings, overwrite
 ) -> tuple[bool, StrPath | None, pd.DataFrame | None]:
     """:func:`estimate_file`'s checks of its files, before any work: the outputs never over an
     input, a report only where the intersections are gathered. Returns whether
@@ -174,6 +156,7 @@ def _check_estimate(
     from .tiling.output import check_tile_folder
     from .tiling.partition import partition_run
 
+    tiling = settings.tiling
     if output is None and report is None:
         raise InputError("nothing to write", fix="give an output file or a report folder")
     if tiling.on and report is not None:
@@ -188,7 +171,7 @@ def _check_estimate(
     if partitioned:
         partition_run(observations, tiling)
     elif tiling.on:
-        check_reach(tiling.side, rays.max_range)  # (before a cluster starts)
+        check_reach(tiling.side, settings.rays.max_range)  # (before a cluster starts)
     folder = output if output is not None and is_tile_folder(output) else None
     if folder is not None:
         check_not_input(check_tile_folder(folder, tiling, overwrite=overwrite), inputs)

@@ -26,17 +26,10 @@ from .calibrate import calibrate_receivers, check_map_heights
 from .errors import InputError
 from .files.ids import id_field
 from .files.paths import StrPath, atomic_folder
-from .geodesy import CrsInput, check_bng
+from .geodesy import check_bng
 from .model.estimate import heights_and_signal_model
 from .model.fourplb import SignalModel
-from .settings import (
-    Calibration,
-    Estimator,
-    PositionError,
-    Rays,
-    ReceiverHeights,
-    Tiling,
-)
+from .settings import Estimator, RunSettings, Tiling
 from .stages import EARTH_RADIUS as EARTH_RADIUS
 from .stages import MIN_INCIDENCE as MIN_INCIDENCE
 from .stages import REFRACTION as REFRACTION
@@ -98,27 +91,22 @@ def estimate(
     observations: pd.DataFrame,
     footprints: gpd.GeoDataFrame,
     dem: Dem | None = None,
+    settings: RunSettings | None = None,
     **options: Any,
 ) -> gpd.GeoDataFrame:
     """Building heights from observations, footprints and a DEM: the ``heights`` of
     :func:`run`, which documents the arguments."""
-    return run(observations, footprints, dem, **options).heights
+    return run(observations, footprints, dem, settings, **options).heights
 
 
 def run(
     observations: pd.DataFrame,
     footprints: gpd.GeoDataFrame,
     dem: Dem | None = None,
+    settings: RunSettings | None = None,
     *,
-    rays: Rays = Rays(),
-    receiver_heights: ReceiverHeights = ReceiverHeights(),
-    estimator: Estimator = Estimator(),
-    position_error: PositionError = PositionError(),
-    calibration: Calibration = Calibration(),
-    tiling: Tiling = Tiling(),
-    grid_dir: StrPath | None = None,
-    dem_crs: CrsInput | None = None,
     progress: Callable[[str], None] | None = None,
+    **changes: Any,
 ) -> Run:
     """Building heights from observations, footprints and a DEM, with the evidence.
 
@@ -133,8 +121,9 @@ def run(
     dem
         A DEM rasterio opens, in EPSG:27700 (a path or an open dataset): each building's
         ``ground`` and, with receiver heights from the DEM, the receivers' heights.
-    rays, receiver_heights, estimator, position_error, calibration, tiling
-        The run's settings (:mod:`gnss_citygml.settings`): the elevation mask and the rays'
+    settings, changes
+        The run's settings (:class:`~gnss_citygml.settings.RunSettings`; its parts by name in
+        ``changes``, e.g. ``estimator=Estimator(method="4PL")``): the elevation mask and the rays'
         range (:func:`intersections`); where the antenna's height comes from
         (:func:`receivers`); the height estimator
         (:func:`~gnss_citygml.model.estimate.estimate_heights`); how far the receiver
@@ -145,11 +134,8 @@ def run(
         heights (:func:`~gnss_citygml.calibrate.calibrate_receivers`; 4PL-B only); and with
         ``Tiling(scheduler=...)``, the rays cast and 4PL-B run in tiles on a Dask cluster
         (:func:`~gnss_citygml.tiling.run.tiled_heights`: the same heights, no machine holding
-        every intersection, ``Run.intersections`` None; 4PL-B or 4PL, no self-calibration).
-    grid_dir
-        Folder of the OSTN15/OSGM15 grids (see :mod:`gnss_citygml.geodesy`).
-    dem_crs
-        CRS of a DEM that has none (e.g. ``"EPSG:27700"`` for an OS Terrain ASCII grid).
+        every intersection, ``Run.intersections`` None; 4PL-B or 4PL, no self-calibration);
+        the grids' folder and a DEM's CRS.
     progress
         Optional callable told the name of each stage (:data:`STAGES`) as it starts, and in
         a run in tiles what the tiles are doing within it (the plan, each iteration, a tile
@@ -171,43 +157,41 @@ def run(
         Self-calibration with a method other than 4PL-B, footprints not in EPSG:27700 or
         without its map heights' field (all before any work), and any stage's error.
     """
-    calibration.check_method(estimator)
-    tiling.check(estimator, calibration)
-    check_map_heights(footprints, calibration)
+    settings = RunSettings.of(settings, **changes)
+    check_map_heights(footprints, settings.calibration)
     say = progress or (lambda stage: None)
-    rx, buildings = _prepared(
-        observations, footprints, dem, rays, receiver_heights, grid_dir, dem_crs, say
-    )
-    if tiling.on:
-        return _in_tiles(rx, buildings, footprints, rays, estimator, position_error, tiling, say)
-    if calibration.on:
-        rx = calibrate_receivers(rx, buildings, calibration, estimator=estimator, rays=rays)
-    return _in_one_process(
-        rx, buildings, id_field(footprints), rays, estimator, position_error, say
-    )
+    rx, buildings = _prepared(observations, footprints, dem, settings, say)
+    if settings.tiling.on:
+        return _in_tiles(rx, buildings, footprints, settings, say)
+    if settings.calibration.on:
+        rx = calibrate_receivers(
+            rx, buildings, settings.calibration, estimator=settings.estimator, rays=settings.rays
+        )
+    return _in_one_process(rx, buildings, id_field(footprints), settings, say)
 
 
-def _in_tiles(rx, buildings, footprints, rays, estimator, position_error, tiling, say) -> Run:
+def _in_tiles(rx, buildings, footprints, settings, say) -> Run:
     """The rest of :func:`run` on a Dask cluster: the rays cast and 4PL-B run in tiles."""
-    in_tiles = _in_memory(rx, buildings, rays, estimator, position_error, tiling.side, say)
+    in_tiles = _in_memory(rx, buildings, settings, settings.tiling.side, say)
     heights, classifier = _on_cluster(
-        in_tiles, buildings, estimator, tiling, tiling.side, footprints, say
+        in_tiles, buildings, settings, settings.tiling.side, footprints, say
     )
     return Run(heights, rx, None, buildings, classifier)
 
 
-def _in_one_process(rx, buildings, name, rays, estimator, position_error, say) -> Run:
+def _in_one_process(rx, buildings, name, settings, say) -> Run:
     """The rest of :func:`run` in this process: the rays cast, the heights fitted (their id
     column called ``name``)."""
-    inter = intersections(rx, buildings, rays=rays, position_error=position_error)
+    inter = intersections(rx, buildings, rays=settings.rays, position_error=settings.position_error)
     heights, classifier = fit_heights(
-        inter, buildings, estimator, name, say, open_sky=open_sky(rx, inter)
+        inter, buildings, settings.estimator, name, say, open_sky=open_sky(rx, inter)
     )
     return Run(heights, rx, inter, buildings, classifier)
 
 
-def _prepared(observations, footprints, dem, rays, receiver_heights, grid_dir, dem_crs, say):
+def _prepared(observations, footprints, dem, settings, say):
     """The stages before the rays: the receivers table and the buildings with their ground."""
+    rays = settings.rays
     check_bng(footprints, "footprints")
     say(STAGES[0])
     obs = in_mask(observations, rays)
@@ -218,10 +202,16 @@ def _prepared(observations, footprints, dem, rays, receiver_heights, grid_dir, d
             fix="check the elevation mask",
         )
     say(STAGES[1])
-    rx = receivers(obs, dem, heights=receiver_heights, grid_dir=grid_dir, dem_crs=dem_crs)
+    rx = receivers(
+        obs,
+        dem,
+        heights=settings.receiver_heights,
+        grid_dir=settings.grid_dir,
+        dem_crs=settings.dem_crs,
+    )
     _check_near(rx, footprints, rays.max_range)
     say(STAGES[2])
-    buildings = _grounded(footprints, dem, dem_crs)
+    buildings = _grounded(footprints, dem, settings.dem_crs)
     say(STAGES[3])
     return rx, buildings
 
@@ -235,15 +225,15 @@ def _grounded(footprints, dem, dem_crs):
     return footprints
 
 
-def _in_memory(rx, buildings, rays, estimator, position_error, size, say):
+def _in_memory(rx, buildings, settings, size, say):
     """The run in tiles of receivers in memory, given an engine (and an output folder)."""
     return functools.partial(
         tiled_heights,
         rx,
         buildings,
-        estimator=estimator,
-        rays=rays,
-        position_error=position_error,
+        estimator=settings.estimator,
+        rays=settings.rays,
+        position_error=settings.position_error,
         tile_size=size,
         progress=say,
     )
@@ -253,58 +243,50 @@ def run_partitioned(
     folder: StrPath,
     footprints: gpd.GeoDataFrame,
     dem: Dem | None = None,
+    settings: RunSettings | None = None,
     *,
-    rays: Rays = Rays(),
-    receiver_heights: ReceiverHeights = ReceiverHeights(),
-    estimator: Estimator = Estimator(),
-    position_error: PositionError = PositionError(),
-    tiling: Tiling = Tiling("local"),
-    dem_crs: CrsInput | None = None,
     progress: Callable[[str], None] | None = None,
+    **changes: Any,
 ) -> tuple[gpd.GeoDataFrame, SignalModel]:
     """As :func:`run`, from observations partitioned by tile
-    (:func:`~gnss_citygml.tiling.partition.partition_observations`) on a Dask cluster (``tiling``;
-    its tile size is the partition's): the heights, joined onto the footprints, and the
-    final signal classifier. Each tile reads its own partitions
-    (:func:`~gnss_citygml.tiling.run.partitioned_heights`). The settings the partition applied
-    (elevation mask, receiver heights, position-error window) must be the run's."""
+    (:func:`~gnss_citygml.tiling.partition.partition_observations`) on a Dask cluster (the
+    settings' ``tiling``; without settings, a local one; its tile size is the partition's):
+    the heights, joined onto the footprints, and the final signal classifier. Each tile reads
+    its own partitions (:func:`~gnss_citygml.tiling.run.partitioned_heights`). The settings the
+    partition applied (elevation mask, receiver heights, position-error window) must be the
+    run's."""
+    settings = _in_tiles_settings(settings, changes)
     say = progress or (lambda stage: None)
-    in_tiles, buildings, size = _partitioned(
-        folder,
-        footprints,
-        dem,
-        rays,
-        receiver_heights,
-        estimator,
-        position_error,
-        tiling,
-        dem_crs,
-        say,
-    )
-    return _on_cluster(in_tiles, buildings, estimator, tiling, size, footprints, say)
+    in_tiles, buildings, size = _partitioned(folder, footprints, dem, settings, say)
+    return _on_cluster(in_tiles, buildings, settings, size, footprints, say)
 
 
-def _partitioned(
-    folder, footprints, dem, rays, receiver_heights, estimator, position_error, tiling, dem_crs, say
-):
+def _in_tiles_settings(settings: RunSettings | None, changes: dict[str, Any]) -> RunSettings:
+    """The settings of a run in tiles (:func:`RunSettings.of`): on a local cluster when the
+    caller gives no settings nor a ``tiling``."""
+    if settings is None and "tiling" not in changes:
+        changes = {**changes, "tiling": Tiling("local")}
+    return RunSettings.of(settings, **changes)
+
+
+def _partitioned(folder, footprints, dem, settings, say):
     """The stages before the rays of a partition's run in tiles: the run in tiles (given an
     engine and an output folder), the buildings with their ground and the tile size."""
-    index = partition_run(folder, tiling)
-    tiling.check(estimator, Calibration())
+    index = partition_run(folder, settings.tiling)
     check_bng(footprints, "footprints")
     say(STAGES[0])
-    check_partition(index, rays, position_error, receiver_heights)
+    check_partition(index, settings.rays, settings.position_error, settings.receiver_heights)
     say(STAGES[1])  # the partition holds the receivers
     say(STAGES[2])
-    buildings = _grounded(footprints, dem, dem_crs)
+    buildings = _grounded(footprints, dem, settings.dem_crs)
     say(STAGES[3])
     in_tiles = functools.partial(
         partitioned_heights,
         folder,
         buildings,
-        estimator=estimator,
-        rays=rays,
-        position_error=position_error,
+        estimator=settings.estimator,
+        rays=settings.rays,
+        position_error=settings.position_error,
         progress=say,
     )
     return in_tiles, buildings, float(index["tile_size"])
@@ -315,16 +297,11 @@ def write_tiles(
     footprints: gpd.GeoDataFrame,
     dem: Dem | None,
     output: StrPath,
+    settings: RunSettings | None = None,
     *,
-    rays: Rays = Rays(),
-    receiver_heights: ReceiverHeights = ReceiverHeights(),
-    estimator: Estimator = Estimator(),
-    position_error: PositionError = PositionError(),
-    tiling: Tiling = Tiling("local"),
-    grid_dir: StrPath | None = None,
-    dem_crs: CrsInput | None = None,
     overwrite: bool = False,
     progress: Callable[[str], None] | None = None,
+    **changes: Any,
 ) -> gpd.GeoDataFrame:
     """As :func:`run` in tiles (or :func:`run_partitioned`, when ``observations`` is a
     partition folder), with each tile's heights written into the folder ``output`` by the
@@ -332,37 +309,31 @@ def write_tiles(
     Returns the tile index (also ``output/tiles.gpkg``). The folder appears whole or not at
     all; an existing one is replaced only with ``overwrite`` (checked before any work), and
     only if it is a folder of tiles (:func:`~gnss_citygml.tiling.output.check_tile_folder`)."""
-    check_tile_folder(output, tiling, overwrite=overwrite)
+    settings = _in_tiles_settings(settings, changes)
+    check_tile_folder(output, settings.tiling, overwrite=overwrite)
     say = progress or (lambda stage: None)
     if isinstance(observations, pd.DataFrame):
-        tiling.check(estimator, Calibration())
-        rx, buildings = _prepared(
-            observations, footprints, dem, rays, receiver_heights, grid_dir, dem_crs, say
-        )
-        size = tiling.side
-        in_tiles = _in_memory(rx, buildings, rays, estimator, position_error, size, say)
+        rx, buildings = _prepared(observations, footprints, dem, settings, say)
+        size = settings.tiling.side
+        in_tiles = _in_memory(rx, buildings, settings, size, say)
     else:
-        settings = (rays, receiver_heights, estimator, position_error, tiling, dem_crs, say)
-        in_tiles, buildings, size = _partitioned(observations, footprints, dem, *settings)
-    index, _ = _on_cluster(
-        in_tiles, buildings, estimator, tiling, size, footprints, say, output, overwrite
-    )
+        in_tiles, buildings, size = _partitioned(observations, footprints, dem, settings, say)
+    index, _ = _on_cluster(in_tiles, buildings, settings, size, footprints, say, output, overwrite)
     return index
 
 
-def _on_cluster(
-    in_tiles, buildings, estimator, tiling, size, footprints, say, output=None, overwrite=False
-):
-    """``in_tiles(engine=...)`` on the cluster ``tiling`` names, joined onto the buildings,
-    with each building's ``tile`` (of ``size`` metres; the tile index of the output: a
-    failed tile's buildings, or one tile's, are a filter away). With ``output``, the tiles
-    write their heights into that folder instead, and the tile index is returned."""
+def _on_cluster(in_tiles, buildings, settings, size, footprints, say, output=None, overwrite=False):
+    """``in_tiles(engine=...)`` on the cluster the settings' ``tiling`` names, joined onto the
+    buildings, with each building's ``tile`` (of ``size`` metres; the tile index of the
+    output: a failed tile's buildings, or one tile's, are a filter away). With ``output``, the
+    tiles write their heights into that folder instead, and the tile index is returned."""
     from .tiling.cluster import connect  # the [dask] extra: only when asked for
 
-    with connect(tiling) as engine:
+    method = settings.estimator.method
+    with connect(settings.tiling) as engine:
         if output is not None:
             with atomic_folder(output, overwrite=overwrite, mark=INDEX) as work:
-                folder = TileFolder(str(work), estimator.method, id_field(footprints), size)
+                folder = TileFolder(str(work), method, id_field(footprints), size)
                 index, classifier = in_tiles(engine=engine, output=folder)
                 say(STAGES[4])
                 say(STAGES[5])
@@ -371,7 +342,7 @@ def _on_cluster(
         table, classifier = in_tiles(engine=engine)
     say(STAGES[4])
     say(STAGES[5])
-    heights = join_heights(buildings, table, estimator.method, id_field(footprints))
+    heights = join_heights(buildings, table, method, id_field(footprints))
     heights.insert(len(heights.columns) - 1, "tile", building_tiles(buildings, size))
     return heights, classifier
 

@@ -26,11 +26,12 @@ import json
 import signal
 import sys
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from typing import IO, Any
 
 from .errors import GnssCityGMLError, broken_install, escape_controls, internal_error
 from .options import SETTINGS, settings_objects
+from .settings import RunSettings
 
 __all__ = ["CANCELLED", "JOBS", "main"]
 
@@ -41,11 +42,19 @@ CANCELLED = "cancelled"
 Say = Callable[[dict[str, Any]], None]
 
 
+def _run_settings(args: dict[str, Any], parts: Iterable[str]) -> RunSettings:
+    """The run's settings, taken out of a job's ``args``: the ``parts``' arguments (as
+    :func:`~gnss_citygml.options.settings_arguments` makes them), the grids and the DEM's CRS."""
+    made = settings_objects({name: args.pop(name, {}) for name in parts})
+    places = {name: args.pop(name) for name in ("grid_dir", "dem_crs") if name in args}
+    return RunSettings.of(**made, **places)
+
+
 def _estimate(args: dict[str, Any], say: Say) -> dict[str, Any]:
     from .jobs import estimate_file
 
-    settings = settings_objects({name: args.pop(name, {}) for name in SETTINGS})
-    made = estimate_file(**args, **settings, progress=_progress(say))
+    settings = _run_settings(args, SETTINGS)
+    made = estimate_file(**args, settings=settings, progress=_progress(say))
     return {"buildings": made.buildings, "converged": made.with_height}
 
 
@@ -78,8 +87,8 @@ def _validate(args: dict[str, Any], say: Say) -> dict[str, Any]:
 def _update(args: dict[str, Any], say: Say) -> dict[str, Any]:
     from .update import update_map
 
-    settings = settings_objects({"estimator": args.pop("estimator", {})})
-    result = update_map(**args, **settings, progress=_progress(say))
+    settings = _run_settings(args, ("estimator",))
+    result = update_map(**args, settings=settings, progress=_progress(say))
     return {
         "lines": result.lines(),
         "written": result.written,

@@ -19,6 +19,7 @@ from gnss_citygml.settings import (
     PositionError,
     Rays,
     ReceiverHeights,
+    RunSettings,
 )
 from gnss_citygml.simulate import simulate, wgs84_to_local
 from gnss_citygml.simulate.files import write_site
@@ -55,6 +56,25 @@ def test_heights_from_files(site):
     # never a guess: a building without a converged fit has no height
     bad = out[~out["converged"]]
     assert bad["height"].isna().all() and (bad["status"] != "ok").all()
+
+
+def test_the_run_settings_as_one_object_or_by_their_parts_give_the_same_heights(site):
+    """``run(..., settings)`` and ``run(..., estimator=...)`` are one run: the parts named
+    replace those of the settings (or of the defaults)."""
+    _, paths, grids = site
+    inputs = (
+        read_observations(paths["observations"]),
+        read_footprints(paths["footprints"]),
+        str(paths["dem"]),
+    )
+    four = Estimator(method="4PL")
+    settings = RunSettings(estimator=four, grid_dir=grids)
+    whole = estimate(*inputs, settings)
+    by_parts = estimate(*inputs, estimator=four, grid_dir=grids)
+    changed = estimate(*inputs, RunSettings(grid_dir=grids), estimator=four)
+    assert (whole["method"] == "4PL").all() and whole["converged"].any()
+    pd.testing.assert_frame_equal(whole, by_parts)
+    pd.testing.assert_frame_equal(whole, changed)
 
 
 def test_pipeline_intersections_match_the_simulators(site):

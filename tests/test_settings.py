@@ -10,6 +10,7 @@ from gnss_citygml.settings import (
     PositionError,
     Rays,
     ReceiverHeights,
+    RunSettings,
     Tiling,
 )
 
@@ -122,3 +123,24 @@ def test_calibration_only_with_4plb():
             Calibration(prior_sd=5.0).check_method(Estimator(method=method))
     Calibration(prior_sd=5.0).check_method(Estimator())
     Calibration().check_method(Estimator(method="hinge"))  # no calibration asked for
+
+
+def test_run_settings_are_checked_together_when_made():
+    """The rules between the parts (:meth:`RunSettings.check`) hold for every way a run's
+    settings are made: at once, or by replacing a part of checked ones."""
+    assert RunSettings() == RunSettings.of() == RunSettings.of(None)
+    assert RunSettings.of(estimator=Estimator(method="4PL")).estimator.method == "4PL"
+    local = Tiling("local")
+    with pytest.raises(InputError, match="self-calibration needs method 4PL-B, not 4PL"):
+        RunSettings(calibration=Calibration(prior_sd=5.0), estimator=Estimator(method="4PL"))
+    with pytest.raises(InputError, match="runs 4PL-B or 4PL, not hinge"):
+        RunSettings.of(RunSettings(tiling=local), estimator=Estimator(method="hinge"))
+    with pytest.raises(InputError, match="self-calibration is not available in a run on a Dask"):
+        RunSettings.of(RunSettings(calibration=Calibration(prior_sd=5.0)), tiling=local)
+    RunSettings(tiling=local, estimator=Estimator(method="4PL"))
+    RunSettings(estimator=Estimator(method="hinge"))  # no tiles, no calibration: any method
+
+
+def test_an_unknown_part_of_the_run_settings_is_named():
+    with pytest.raises(TypeError, match="unknown run settings: estimater, grid"):
+        RunSettings.of(estimater=Estimator(), grid="x", rays=Rays())

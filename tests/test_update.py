@@ -24,7 +24,7 @@ from gnss_citygml.errors import InputError
 from gnss_citygml.files.paths import stale_parts
 from gnss_citygml.footprints import read_footprints
 from gnss_citygml.pipeline import run as run_pipeline
-from gnss_citygml.settings import Estimator
+from gnss_citygml.settings import Calibration, Estimator, PositionError, RunSettings, Tiling
 from gnss_citygml.update import COLUMNS, EVIDENCE, update_map
 
 CITY = Path(__file__).resolve().parents[1] / "examples" / "city"
@@ -354,6 +354,25 @@ def test_a_truth_table_without_a_report_is_refused(city_map, halves, grid_dir):
     with pytest.raises(InputError, match="no report was asked for"):
         update_map(city_map, [halves[0]], DEM, layer="buildings", grid_dir=grid_dir,
                    truth=CITY / "truth.csv")  # fmt: skip
+    assert digest(city_map) == original
+
+
+@pytest.mark.parametrize(
+    ("part", "named"),
+    [
+        ({"calibration": Calibration(prior_sd=5.0)}, "self-calibration"),
+        ({"tiling": Tiling("local")}, "a run on a Dask scheduler"),
+        ({"position_error": PositionError(sd=3.0)}, "a position error"),
+    ],
+)
+def test_run_settings_an_update_has_no_use_for_are_refused(city_map, halves, part, named):
+    """An update casts with each observation's own position error in one process: settings
+    it would ignore are refused (the map untouched), whether given whole or by part."""
+    original = digest(city_map)
+    with pytest.raises(InputError, match=f"an update does not take {named}"):
+        update_map(city_map, [halves[0]], DEM, **part)
+    with pytest.raises(InputError, match=f"an update does not take {named}"):
+        update_map(city_map, [halves[0]], DEM, settings=RunSettings(**part))
     assert digest(city_map) == original
 
 

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from ..settings import Tiling
+from ..settings import RunSettings, Tiling
 from .options import (
     ANTENNA_HEIGHT,
     DEM_CRS,
@@ -156,7 +156,9 @@ def _run(
     from ..jobs import estimate_file
     from ..pipeline import STAGES
 
-    settings = chosen_settings(chosen)
+    settings = RunSettings.of(
+        **chosen_settings(chosen), tiling=tiling, dem_crs=dem_crs, grid_dir=grid_dir
+    )
     steps = len(STAGES) + (report is not None)
     with progress(steps, "stages", quiet) as bar:
 
@@ -173,10 +175,7 @@ def _run(
             truth=truth,
             layer=layer,
             id_field=id_field,
-            **settings,
-            tiling=tiling,
-            dem_crs=dem_crs,
-            grid_dir=grid_dir,
+            settings=settings,
             overwrite=overwrite,
             progress=stage,
         )

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import click
 
+from ..settings import RunSettings
 from .options import (
     ANTENNA_HEIGHT,
     DEM_CRS,
@@ -64,7 +65,8 @@ def partition(
     """
     from ..tiling.partition import partition_observations
 
-    settings = chosen_settings(chosen)  # the mask, receiver heights and position groups
+    # the mask, receiver heights and position groups
+    settings = RunSettings.of(**chosen_settings(chosen), grid_dir=grid_dir, dem_crs=dem_crs)
 
     with progress(len(observations), "files", quiet) as bar:
 
@@ -76,10 +78,8 @@ def partition(
             observations,
             output_dir,
             dem,
-            **settings,
+            settings,
             tile_size=tile_size,
-            grid_dir=grid_dir,
-            dem_crs=dem_crs,
             overwrite=overwrite,
             progress=next_file,
         )

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import click
 
+from ..settings import RunSettings
 from .options import (
     DEM_CRS,
     GRID_DIR,
@@ -109,9 +110,7 @@ def update(
             threshold=threshold,
             dry_run=dry_run,
             backup=not no_backup,
-            **chosen_settings(chosen),
-            grid_dir=grid_dir,
-            dem_crs=dem_crs,
+            settings=RunSettings.of(**chosen_settings(chosen), grid_dir=grid_dir, dem_crs=dem_crs),
             report=report,
             truth=truth,
             progress=told,

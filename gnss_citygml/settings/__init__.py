@@ -2,8 +2,8 @@
 
 Options that travel together are one object, so that a new option is one field here instead of
 a keyword passed through every function on its way to the stage that uses it. The command line,
-the Python API and the QGIS plugin build these objects; :func:`gnss_citygml.pipeline.estimate`
-takes them:
+the Python API and the QGIS plugin build these objects; :func:`gnss_citygml.pipeline.run` and
+the other entry points take them, bundled as one :class:`RunSettings`:
 
 - :class:`Rays`: which signals are cast (the elevation mask) and how (range, Earth's curvature);
 - :class:`ReceiverHeights`: where the antenna's height comes from;
@@ -11,7 +11,8 @@ takes them:
   :class:`Acceptance`, what a 4PL-B estimate must satisfy to count as converged;
 - :class:`PositionError`: how far the receiver positions may be off, for the fits to model;
 - :class:`Calibration`: the self-calibration of the receivers' offsets;
-- :class:`Tiling`: a run cut into tiles on a Dask cluster.
+- :class:`Tiling`: a run cut into tiles on a Dask cluster;
+- :class:`RunSettings`: all of them for one run, with the rules between them.
 
 Each object checks its own values when it is made (one-line
 :class:`~gnss_citygml.errors.InputError`, or :class:`~gnss_citygml.errors.ModelError` for a
@@ -22,8 +23,7 @@ module imports nothing heavy: a command can build its settings before loading a 
 from __future__ import annotations
 
 import os
-import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields, replace
 
 from ..errors import InputError, ModelError
 from ..model import METHODS
@@ -44,6 +44,15 @@ from .checks import (
     within,
 )
 from .positions import DEFAULT_POSITION_DISTANCE, DEFAULT_POSITION_SD, PositionError
+from .tiling import (
+    DEFAULT_TILE_SIZE,
+    SCHEDULER_PORT,
+    TILE_SIZES,
+    WORKERS_PER_CORE,
+    Tiling,
+    check_tile_size,
+    scheduler_address,
+)
 
 __all__ = [
     "DEFAULT_POSITION_DISTANCE",
@@ -61,7 +70,10 @@ __all__ = [
     "PositionError",
     "ReceiverHeights",
     "Rays",
+    "RunSettings",
+    "SCHEDULER_PORT",
     "Tiling",
+    "WORKERS_PER_CORE",
     "check_elevation_mask",
     "check_tile_size",
     "scheduler_address",
@@ -87,48 +99,6 @@ MATCHINGS = ("roof lines", "shadows")
 
 #: Where receiver heights come from: the DEM plus an antenna height, or the log's own heights.
 RECEIVER_HEIGHTS = ("dem", "log")
-
-#: Side of a tile of a run in tiles (m): the OS 1 km square.
-DEFAULT_TILE_SIZE = 1000.0
-#: The tile sizes a run takes (m): from a few buildings' width (a tile's work is its rays'
-#: reach around it: smaller tiles only repeat it; see also
-#: :func:`gnss_citygml.tiling.grid.check_reach`) to the OS 100 km square (a larger one has too
-#: few tiles to share among workers).
-TILE_SIZES = (50.0, 100_000.0)
-
-#: The port a Dask scheduler listens on when not told otherwise (``dask scheduler --port``).
-SCHEDULER_PORT = 8786
-
-#: A Dask scheduler's address: ``tcp://`` (or ``tls://``), a host name or address (IPv6 in
-#: brackets), and a port (default :data:`SCHEDULER_PORT`).
-_SCHEDULER = re.compile(r"(tcp|tls)://(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9._-]+)(?::([0-9]{1,5}))?")
-
-
-def scheduler_address(scheduler: str | None) -> tuple[str, str, int]:
-    """The protocol, host and port of a Dask scheduler's address (``tcp://host:port``), or a
-    one-line error naming it: Dask's own parsing lets ``tcp://`` or ``tcp://host:notaport``
-    through to an internal error when connecting."""
-    match = _SCHEDULER.fullmatch(scheduler) if isinstance(scheduler, str) else None
-    port = int(match.group(3) or SCHEDULER_PORT) if match else 0
-    if match is None or not 1 <= port <= 65535:
-        raise InputError(
-            f"unknown scheduler {scheduler!r}",
-            fix="give --scheduler local, or the address of a running Dask scheduler, "
-            "tcp://HOST:PORT, as `dask scheduler` prints it (e.g. tcp://192.168.1.5:8786)",
-        )
-    return match.group(1), match.group(2).strip("[]"), port
-
-
-def check_tile_size(size: float) -> None:
-    """Refuse a tile size that is not a whole number of metres (tiles are named by their
-    south-west corner to the metre) within :data:`TILE_SIZES`."""
-    low, high = TILE_SIZES
-    if not (finite(size) and low <= size <= high and float(size).is_integer()):
-        raise InputError(
-            f"a tile size must be a whole number of metres from {low:g} to {high:,.0f}, "
-            f"not {size!r}",
-            fix="give --tile-size in metres, e.g. 1000",
-        )
 
 
 def check_elevation_mask(min_elevation: float, max_elevation: float) -> None:
@@ -485,77 +455,63 @@ class Calibration:
             )
 
 
-#: A local cluster's worker processes per core, at most: each holds a tile's rows and its own
-#: Python; more processes than that only share the cores and multiply the memory.
-WORKERS_PER_CORE = 4
-
-
 @dataclass(frozen=True)
-class Tiling:
-    """A run cut into square tiles of British National Grid on a Dask cluster
-    (:mod:`gnss_citygml.tiling.run`, the ``[dask]`` extra), with the single process's heights.
+class RunSettings:
+    """Every setting of one run, as one object that each entry point takes
+    (:func:`gnss_citygml.pipeline.run`, :func:`gnss_citygml.jobs.estimate_file`, ...) and
+    hands down whole: a new option is a field of one of its parts, not a keyword passed
+    through every function on its way to the stage that uses it.
+
+    Made, it is checked: each part checks its own values, and :meth:`check` the rules between
+    them, so a run never starts with settings it would refuse half-way.
 
     Parameters
     ----------
-    scheduler
-        ``None`` (default): one process, no tiles. ``"local"``: a Dask ``LocalCluster`` on
-        this machine. ``"tcp://host:port"``: a running Dask scheduler and its workers.
-    workers
-        With ``"local"``: how many worker processes (default: one per core).
-    size
-        Side of a tile (m, whole metres, :data:`TILE_SIZES`). ``None`` (default):
-        :data:`DEFAULT_TILE_SIZE`, the OS 1 km square (tiles are named by OS grid reference,
-        ``TQ2982``), or a partition's own.
+    rays, receiver_heights, estimator, position_error, calibration, tiling
+        The stages' settings (this module's classes).
+    grid_dir
+        Folder of the OSTN15/OSGM15 grids (:mod:`gnss_citygml.geodesy`; None: the search
+        path).
+    dem_crs
+        CRS of a DEM that has none (e.g. ``"EPSG:27700"`` for an OS Terrain ASCII grid).
     """
 
-    scheduler: str | None = None
-    workers: int | None = None
-    size: float | None = None
+    rays: Rays = Rays()
+    receiver_heights: ReceiverHeights = ReceiverHeights()
+    estimator: Estimator = Estimator()
+    position_error: PositionError = PositionError()
+    calibration: Calibration = Calibration()
+    tiling: Tiling = Tiling()
+    grid_dir: str | os.PathLike[str] | None = None
+    dem_crs: object = None
 
     def __post_init__(self):
-        if self.scheduler not in (None, "local"):
-            scheduler_address(self.scheduler)
-        if self.workers is not None and (self.scheduler != "local" or not count(self.workers)):
-            raise InputError(
-                f"--workers {self.workers} is for --scheduler local, a whole number 1 or more",
-                fix="leave it out: a running scheduler has its own workers",
-            )
-        most = WORKERS_PER_CORE * (os.cpu_count() or 1)
-        if self.workers is not None and int(self.workers) > most:
-            raise InputError(
-                f"--workers {self.workers}: a local cluster runs at most {WORKERS_PER_CORE} "
-                f"worker processes per core, {most} on this machine",
-                fix="give fewer (leave it out for one per core), or a scheduler of several "
-                "machines (--scheduler tcp://host:port)",
-            )
-        if self.size is not None:
-            check_tile_size(self.size)
-        if self.scheduler is None and self.size is not None:
-            raise InputError(
-                "a tile size is for a run on a Dask scheduler",
-                fix="give --scheduler local (or tcp://host:port) too, or leave out --tile-size",
-            )
+        self.check()
 
-    @property
-    def on(self) -> bool:
-        """Whether the run is cut into tiles on a Dask cluster."""
-        return self.scheduler is not None
-
-    @property
-    def side(self) -> float:
-        """The tile size of a run from observations in memory (a partition has its own)."""
-        return DEFAULT_TILE_SIZE if self.size is None else float(self.size)
-
-    def check(self, estimator: Estimator, calibration: Calibration) -> None:
-        """Refuse what a run in tiles cannot do: a method other than 4PL-B or 4PL (the
-        baselines have no parts), and self-calibration (its offsets move rays across tiles)."""
-        if self.on and not estimator.fourpl:
+    def check(self) -> None:
+        """Refuse settings that do not go together: self-calibration with a method other than
+        4PL-B (:meth:`Calibration.check_method`); in a run in tiles, a method other than 4PL-B
+        or 4PL (the baselines have no parts) and self-calibration (its offsets move rays
+        across tiles)."""
+        self.calibration.check_method(self.estimator)
+        if self.tiling.on and not self.estimator.fourpl:
             raise InputError(
-                f"a run on a Dask scheduler runs 4PL-B or 4PL, not {estimator.method}",
+                f"a run on a Dask scheduler runs 4PL-B or 4PL, not {self.estimator.method}",
                 fix="use --method 4PL-B, or leave out --scheduler",
             )
-        if self.on and calibration.on:
+        if self.tiling.on and self.calibration.on:
             raise InputError(
                 "self-calibration is not available in a run on a Dask scheduler",
                 fix="leave out --calibration-sd, or --scheduler",
             )
+
+    @classmethod
+    def of(cls, settings: RunSettings | None = None, **changes: object) -> RunSettings:
+        """``settings`` (default: the defaults) with the parts named in ``changes`` replaced,
+        checked: what an entry point makes of its ``settings`` and keyword arguments
+        (``run(..., estimator=Estimator(method="4PL"))``)."""
+        base = cls() if settings is None else settings
+        unknown = sorted(set(changes) - {f.name for f in fields(cls)})
+        if unknown:
+            raise TypeError(f"unknown run settings: {', '.join(unknown)}")
+        return replace(base, **changes) if changes else base

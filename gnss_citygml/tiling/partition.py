@@ -40,13 +40,13 @@ import pandas as pd
 
 from ..errors import InputError, listing, user_text
 from ..files.paths import StrPath, atomic_folder, check_not_input
-from ..geodesy import CrsInput
 from ..observations import read_observations, repeated_signals
 from ..settings import (
     DEFAULT_TILE_SIZE,
     PositionError,
     Rays,
     ReceiverHeights,
+    RunSettings,
     Tiling,
     check_tile_size,
 )
@@ -83,15 +83,12 @@ def partition_observations(
     observations: Sequence[StrPath],
     folder: StrPath,
     dem: Dem | None = None,
+    settings: RunSettings | None = None,
     *,
-    rays: Rays = Rays(),
-    receiver_heights: ReceiverHeights = ReceiverHeights(),
-    position_error: PositionError = PositionError(),
     tile_size: float | None = None,
-    grid_dir: StrPath | None = None,
-    dem_crs: CrsInput | None = None,
     overwrite: bool = False,
     progress: Callable[[str], None] | None = None,
+    **changes: Any,
 ) -> dict[str, Any]:
     """Write the ``observations`` files' receivers into ``folder``, partitioned by tile of
     ``tile_size`` metres (default :data:`~gnss_citygml.settings.DEFAULT_TILE_SIZE`); returns
@@ -99,9 +96,19 @@ def partition_observations(
 
     The folder appears whole or not at all: it is written beside, under another name, and
     renamed into place at the end (replacing an old one only with ``overwrite``).
-    ``position_error``'s window or distance decides the position-error groups here; the run in
-    tiles must use the same (it checks). ``progress`` is told each file's name as it starts.
+    The ``settings`` (:class:`~gnss_citygml.settings.RunSettings`, and their parts by name in
+    ``changes``) the partition applies are the elevation mask, the receiver heights (with the
+    grids and the DEM's CRS) and the position error's window or distance, which decides the
+    position-error groups here: the run in tiles must use the same (it checks). ``progress`` is
+    told each file's name as it starts.
     """
+    settings = RunSettings.of(settings, **changes)
+    rays, receiver_heights, position_error = (
+        settings.rays,
+        settings.receiver_heights,
+        settings.position_error,
+    )
+    grid_dir, dem_crs = settings.grid_dir, settings.dem_crs
     tile_size = DEFAULT_TILE_SIZE if tile_size is None else tile_size
     check_tile_size(tile_size)
     check_not_input(folder, [*observations, dem])  # (it is replaced whole)

@@ -36,7 +36,7 @@ import sqlite3
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
@@ -44,7 +44,7 @@ import pandas as pd
 from ..errors import InputError
 from ..files.geopackage import check_geopackage, check_no_triggers, check_table_layer, refused
 from ..files.paths import StrPath, atomic_path, check_not_input, input_file
-from ..settings import Estimator, Rays, ReceiverHeights
+from ..settings import PositionError, RunSettings
 from .evidence import (
     CAST,
     EVIDENCE,
@@ -134,14 +134,11 @@ def update_map(
     threshold: float = 0.5,
     dry_run: bool = False,
     backup: bool = True,
-    rays: Rays = Rays(),
-    receiver_heights: ReceiverHeights = ReceiverHeights(),
-    estimator: Estimator = Estimator(),
-    grid_dir: StrPath | None = None,
-    dem_crs: str | None = None,
+    settings: RunSettings | None = None,
     report: StrPath | None = None,
     truth: StrPath | None = None,
     progress: Callable[[str, float], None] | None = None,
+    **changes: Any,
 ) -> UpdateResult:
     """Update the estimate columns of ``layer`` of the GeoPackage ``path`` with new
     ``observations`` (observations tables, CSV or Parquet); see the module's notes.
@@ -150,9 +147,16 @@ def update_map(
     ``threshold`` (m) is the height change above which it is listed in the change report.
     ``report`` is a folder for the report of the fit over all the evidence
     (:mod:`gnss_citygml.report`; ``truth``, a simulator's truth table, adds the true heights).
+    ``settings`` (and their parts by name in ``changes``) are a run's
+    (:class:`~gnss_citygml.settings.RunSettings`): its rays, receiver heights, estimator, grids
+    and DEM CRS; each observation's own position error, in one process, without
+    self-calibration.
     """
     from ..pipeline import fit_heights
 
+    settings = _update_settings(RunSettings.of(settings, **changes))
+    rays, receiver_heights, estimator = settings.rays, settings.receiver_heights, settings.estimator
+    grid_dir, dem_crs = settings.grid_dir, settings.dem_crs
     say = progress or (lambda what, done: None)
     path = _check_map(path)
     check_no_triggers(path)
@@ -164,8 +168,8 @@ def update_map(
     # the phones' levels and the mixture learn from every signal cast (the open sky)
     sky_needed = estimator.levels_phones or estimator.signal_model == "mixture"
     before = read_evidence(path, name, with_signals=report is not None or sky_needed)
-    settings = cast_settings(rays, receiver_heights)
-    check_cast_with(path, before, settings)
+    cast_with = cast_settings(rays, receiver_heights)
+    check_cast_with(path, before, cast_with)
     check_receiver_heights(before.cast, dem, receiver_heights, dem_crs)
     cast = _cast_new(
         observations, before.cast, buildings, dem, rays, receiver_heights, grid_dir, dem_crs, say
@@ -190,10 +194,26 @@ def update_map(
         return result
     say("writing", 0.75)
     changed = values[table["changed"].to_numpy()]
-    result.backup = _write_map(path, read_at, here, cast, changed, settings, backup)
+    result.backup = _write_map(path, read_at, here, cast, changed, cast_with, backup)
     result.written = True
     say("done", 1.0)
     return result
+
+
+def _update_settings(settings: RunSettings) -> RunSettings:
+    """Refuse the settings an update has no use for, rather than ignore them."""
+    for unused, what, fix in (
+        (settings.calibration.on, "self-calibration", "--calibration-sd"),
+        (settings.tiling.on, "a run on a Dask scheduler", "--scheduler"),
+        (settings.position_error != PositionError(), "a position error", "--position-sd"),
+    ):
+        if unused:
+            raise InputError(
+                f"an update does not take {what}: it casts each observation with its own "
+                "position error, in one process",
+                fix=f"leave out {fix} (estimate the map again to use it)",
+            )
+    return settings
 
 
 @dataclass(frozen=True)

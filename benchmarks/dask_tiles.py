@@ -147,7 +147,7 @@ def main() -> None:
         size = float(np.ceil(side / per_side))
         engine = Timed()
         t = time.perf_counter()
-        table, _ = tiled_heights(rx, buildings, tile_size=size, engine=engine)
+        table = tiled_heights(rx, buildings, tile_size=size, engine=engine).table
         wall = time.perf_counter() - t
         n = _tiles(buildings, size)
         steps = engine.seconds
@@ -156,7 +156,7 @@ def main() -> None:
         for workers in (1, 2):
             with connect(Tiling("local", workers=workers, size=size)) as dask:
                 t = time.perf_counter()
-                on_dask, _ = tiled_heights(rx, buildings, tile_size=size, engine=dask)
+                on_dask = tiled_heights(rx, buildings, tile_size=size, engine=dask).table
                 walls.append(time.perf_counter() - t)
                 if workers == 2 and per_side == 1:
                     rate = _task_rate(dask)

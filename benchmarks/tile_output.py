@@ -49,7 +49,7 @@ def main() -> None:
         size = float(np.ceil(side / per_side))
         with tempfile.TemporaryDirectory() as tmp, connect(Tiling("local", 2, size)) as dask:
             t = time.perf_counter()
-            table, _ = tiled_heights(rx, buildings, tile_size=size, engine=dask)
+            table = tiled_heights(rx, buildings, tile_size=size, engine=dask).table
             heights = join_heights(buildings, table, "4PL-B", "id")
             write_layer(heights, Path(tmp) / "heights.parquet", "heights")
             gathered = time.perf_counter() - t
@@ -58,7 +58,7 @@ def main() -> None:
             folder.mkdir()
             t = time.perf_counter()
             out = TileFolder(str(folder), "4PL-B", "id", size)
-            index, _ = tiled_heights(rx, buildings, tile_size=size, engine=dask, output=out)
+            index = tiled_heights(rx, buildings, tile_size=size, engine=dask, output=out).table
             write_index(index, folder)
             written = time.perf_counter() - t
             files = [p for p in folder.rglob("*") if p.is_file()]

@@ -119,7 +119,7 @@ def estimate_file(
         progress("done", 1.0)
         return Estimated(tiles=index)
     if obs is None:
-        heights, _ = run_partitioned(observations, fp, dem, settings, progress=stage)
+        heights = run_partitioned(observations, fp, dem, settings, progress=stage).table
         result = None
     else:
         result = run(obs, fp, dem, settings, progress=stage)

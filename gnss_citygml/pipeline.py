@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import geopandas as gpd
@@ -46,7 +46,7 @@ from .terrain import Dem, building_ground
 from .tiling.grid import building_tiles
 from .tiling.output import INDEX, TileFolder, check_tile_folder, write_index
 from .tiling.partition import check_partition, partition_run
-from .tiling.run import partitioned_heights, tiled_heights
+from .tiling.run import TileRun, partitioned_heights, tiled_heights
 
 __all__ = [
     "STAGES",
@@ -85,6 +85,9 @@ class Run:
     buildings: gpd.GeoDataFrame
     #: The final C/N0 signal classifier of 4PL-B or 4PL (None for the baselines).
     classifier: SignalModel | None
+    #: A run in tiles' tiles whose cast failed (:attr:`~gnss_citygml.tiling.run.TileRun.failed`;
+    #: their buildings' ``failed`` column says why); None for a run in one process.
+    failed_tiles: pd.DataFrame | None = None
 
 
 def estimate(
@@ -173,10 +176,8 @@ def run(
 def _in_tiles(rx, buildings, footprints, settings, say) -> Run:
     """The rest of :func:`run` on a Dask cluster: the rays cast and 4PL-B run in tiles."""
     in_tiles = _in_memory(rx, buildings, settings, settings.tiling.side, say)
-    heights, classifier = _on_cluster(
-        in_tiles, buildings, settings, settings.tiling.side, footprints, say
-    )
-    return Run(heights, rx, None, buildings, classifier)
+    done = _on_cluster(in_tiles, buildings, settings, settings.tiling.side, footprints, say)
+    return Run(done.table, rx, None, buildings, done.classifier, done.failed)
 
 
 def _in_one_process(rx, buildings, name, settings, say) -> Run:
@@ -247,11 +248,12 @@ def run_partitioned(
     *,
     progress: Callable[[str], None] | None = None,
     **changes: Any,
-) -> tuple[gpd.GeoDataFrame, SignalModel]:
+) -> TileRun:
     """As :func:`run`, from observations partitioned by tile
     (:func:`~gnss_citygml.tiling.partition.partition_observations`) on a Dask cluster (the
     settings' ``tiling``; without settings, a local one; its tile size is the partition's):
-    the heights, joined onto the footprints, and the final signal classifier. Each tile reads
+    the heights, joined onto the footprints, with the final signal classifier and the failed
+    tiles (:class:`~gnss_citygml.tiling.run.TileRun`). Each tile reads
     its own partitions (:func:`~gnss_citygml.tiling.run.partitioned_heights`). The settings the
     partition applied (elevation mask, receiver heights, position-error window) must be the
     run's."""
@@ -318,15 +320,17 @@ def write_tiles(
         in_tiles = _in_memory(rx, buildings, settings, size, say)
     else:
         in_tiles, buildings, size = _partitioned(observations, footprints, dem, settings, say)
-    index, _ = _on_cluster(in_tiles, buildings, settings, size, footprints, say, output, overwrite)
-    return index
+    done = _on_cluster(in_tiles, buildings, settings, size, footprints, say, output, overwrite)
+    return done.table
 
 
 def _on_cluster(in_tiles, buildings, settings, size, footprints, say, output=None, overwrite=False):
-    """``in_tiles(engine=...)`` on the cluster the settings' ``tiling`` names, joined onto the
-    buildings, with each building's ``tile`` (of ``size`` metres; the tile index of the
-    output: a failed tile's buildings, or one tile's, are a filter away). With ``output``, the
-    tiles write their heights into that folder instead, and the tile index is returned."""
+    """``in_tiles(engine=...)`` on the cluster the settings' ``tiling`` names
+    (:class:`~gnss_citygml.tiling.run.TileRun`), its heights joined onto the buildings with
+    each building's ``tile`` (of ``size`` metres; the tile index of the output) and that
+    tile's failure, ``failed`` (empty if none): a failed tile's buildings, or one tile's, are a
+    filter away. With ``output``, the tiles write their heights into that folder instead, and
+    the table is the tile index."""
     from .tiling.cluster import connect  # the [dask] extra: only when asked for
 
     method = settings.estimator.method
@@ -334,17 +338,21 @@ def _on_cluster(in_tiles, buildings, settings, size, footprints, say, output=Non
         if output is not None:
             with atomic_folder(output, overwrite=overwrite, mark=INDEX) as work:
                 folder = TileFolder(str(work), method, id_field(footprints), size)
-                index, classifier = in_tiles(engine=engine, output=folder)
+                done = in_tiles(engine=engine, output=folder)
                 say(STAGES[4])
                 say(STAGES[5])
-                write_index(index, work)
-            return index, classifier
-        table, classifier = in_tiles(engine=engine)
+                write_index(done.table, work)
+            return done
+        done = in_tiles(engine=engine)
     say(STAGES[4])
     say(STAGES[5])
-    heights = join_heights(buildings, table, method, id_field(footprints))
-    heights.insert(len(heights.columns) - 1, "tile", building_tiles(buildings, size))
-    return heights, classifier
+    heights = join_heights(buildings, done.table, method, id_field(footprints))
+    tiles = building_tiles(buildings, size)
+    why = done.failed.set_index("tile")["reason"]
+    heights.insert(len(heights.columns) - 1, "tile", tiles)
+    failed = pd.Series(tiles).map(why).fillna("").astype(object).to_numpy()
+    heights.insert(len(heights.columns) - 1, "failed", failed)
+    return replace(done, table=heights)
 
 
 def fit_heights(

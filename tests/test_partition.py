@@ -72,7 +72,7 @@ def test_a_run_from_a_partition_holds_for_the_mixture_signal_model(halves, tmp_p
     estimator = Estimator(signal_model="mixture")
     single = estimate_heights(inter, estimator, open_sky=open_sky(rx, inter))
     assert single["converged"].sum() >= 10
-    tiled, _ = partitioned_heights(tmp_path / "p", buildings, estimator=estimator)
+    tiled = partitioned_heights(tmp_path / "p", buildings, estimator=estimator).table
     assert_close_heights(tiled, single)
 
 
@@ -93,13 +93,13 @@ def test_a_run_from_a_partition_gives_the_single_runs_heights(halves, tmp_path):
     single, model = heights_and_signal_model(inter, open_sky=open_sky(rx, inter))
     assert "far" not in set(single["id"])
     said = []
-    tiled, tiled_model = partitioned_heights(tmp_path / "p", buildings, progress=said.append)
+    done = partitioned_heights(tmp_path / "p", buildings, progress=said.append)
     assert said[0] == "tile plan: 12 tiles of 100 m from 15 partitions"
     assert single["converged"].sum() >= 10
-    assert_same_heights((tiled, tiled_model), (single, model))
+    assert_same_heights(done, (single, model))
     # written tile by tile: the same heights, read back whole; the far tile has its building
     out = TileFolder(str(tmp_path / "t"), "4PL-B", "id", 100.0)
-    index, _ = partitioned_heights(tmp_path / "p", buildings, output=out)
+    index = partitioned_heights(tmp_path / "p", buildings, output=out).table
     written = gpd.read_parquet(tmp_path / "t" / "heights")
     assert sorted(written["id"]) == sorted(buildings["id"])
     assert written.crs == buildings.crs
@@ -306,9 +306,9 @@ def test_a_partition_with_its_own_receiver_heights_is_read_with_them(halves, tmp
     heights = ReceiverHeights(antenna_height=1.5)
     partition_observations(halves, tmp_path / "p", DEM, receiver_heights=heights, tile_size=100.0)
     footprints = read_footprints(CITY / "footprints.gpkg")
-    kept, _ = run_partitioned(
+    kept = run_partitioned(
         tmp_path / "p", footprints, DEM, receiver_heights=heights, tiling=Tiling("local", 1)
-    )
+    ).table
     assert kept["converged"].sum() >= 10
     with pytest.raises(InputError, match="took the receivers' heights"):
         run_partitioned(tmp_path / "p", footprints, DEM, tiling=Tiling("local", 1))

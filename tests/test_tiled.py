@@ -76,8 +76,9 @@ def assert_same_heights(tiled_run, single_run):
     """Same buildings, converged set, statuses and iterations; the heights and the classifier
     bit for bit (the issue asks 1 mm; a tile sums each building's rows as the whole run does,
     and anything less than the same bits can turn into metres where the likelihood is flat).
-    Each run is its heights and its signal model."""
-    (tiled, tiled_model), (single, single_model) = tiled_run, single_run
+    The tiled run is a :class:`TileRun`, the single its heights and its signal model."""
+    tiled, tiled_model = tiled_run.table, tiled_run.classifier
+    single, single_model = single_run
     a, b = (t.set_index("id").sort_index() for t in (single, tiled))
     assert a.index.tolist() == b.index.tolist()
     assert (a["converged"] == b["converged"]).all()
@@ -128,7 +129,8 @@ def test_tiles_hold_for_the_mixture_signal_model(scene, size):
     estimator = Estimator(signal_model="mixture")
     single, fitted = one_run(rx, buildings, estimator)
     assert single["converged"].sum() >= 5
-    tiled, model = tiled_heights(rx, buildings, estimator=estimator, tile_size=size)
+    done = tiled_heights(rx, buildings, estimator=estimator, tile_size=size)
+    tiled, model = done.table, done.classifier
     assert_close_heights(tiled, single)
     np.testing.assert_allclose(np.ravel(list(asdict(model).values())),
                                np.ravel(list(asdict(fitted).values())), rtol=1e-6)  # fmt: skip
@@ -142,7 +144,7 @@ def test_a_tile_without_signals_takes_part_and_reports_its_buildings(scene):
     far = far.set_geometry([box(ORIGIN[0] + 3000, ORIGIN[1], ORIGIN[0] + 3020, ORIGIN[1] + 20)])
     both = pd.concat([buildings, far], ignore_index=True)
     tiled = tiled_heights(rx, both, tile_size=100.0)
-    assert "far" not in set(tiled[0]["id"])
+    assert "far" not in set(tiled.table["id"])
     assert_same_heights(tiled, one_run(rx, both))
 
 
@@ -199,9 +201,8 @@ def test_a_tile_that_fails_twice_is_reported_by_name_and_the_others_go_on(scene,
     signal_, tile = next((s, t) for s, (k, t) in one.iterrows() if k == 1)
     broken = rx.assign(position_sd=np.where(rx.index == signal_, -1.0, rx["position_sd"]))
     said = []
-    tiled, _ = tiled_heights(
-        broken, buildings, tile_size=100.0, engine=engine, progress=said.append
-    )
+    done = tiled_heights(broken, buildings, tile_size=100.0, engine=engine, progress=said.append)
+    tiled = done.table
     failed = [t for t in said if " failed: " in t]
     assert len(failed) == 1 and failed[0].startswith(f"tile {tile} failed: InputError: ")
     assert "height_sd must be a finite number" in failed[0]
@@ -209,14 +210,19 @@ def test_a_tile_that_fails_twice_is_reported_by_name_and_the_others_go_on(scene,
     assert set(tiled.loc[lost, "id"]) == set(owner.index[owner == tile])
     assert not tiled.loc[lost, "converged"].any()
     assert tiled.loc[~lost, "converged"].sum() >= 3
-    summary = failed_tiles(tiled)  # what the command's warning says
+    summary = done.failed  # what the command's warning says
     assert summary["tile"].tolist() == [tile] and summary["buildings"].tolist() == [lost.sum()]
     assert summary["reason"][0].startswith("InputError: height_sd must be a finite number")
+    # the heights joined onto the footprints name each building's tile and its failure
+    tiled_buildings = tiled.assign(tile=tiled["id"].map(owner), failed="")
+    tiled_buildings.loc[lost, "failed"] = summary["reason"][0]
+    pd.testing.assert_frame_equal(failed_tiles(tiled_buildings), summary)
     # written tile by tile: the failed tile is in the index, its file says why
     out = TileFolder(str(tmp_path / "t"), "4PL-B", "id", 100.0)
     flat = buildings.assign(ground=0.0)  # the simulator's ground
-    index, _ = tiled_heights(broken, flat, tile_size=100.0, engine=engine, output=out)
-    pd.testing.assert_frame_equal(failed_tiles(index), summary)
+    written_run = tiled_heights(broken, flat, tile_size=100.0, engine=engine, output=out)
+    pd.testing.assert_frame_equal(written_run.failed, summary)
+    pd.testing.assert_frame_equal(failed_tiles(written_run.table), summary)
     written = gpd.read_parquet(tmp_path / "t" / "heights" / f"tile={tile}")
     assert written["status"].str.startswith(f"tile {tile} failed: InputError: ").all()
     assert set(written["id"]) == set(owner.index[owner == tile])

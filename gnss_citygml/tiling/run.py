@@ -48,7 +48,9 @@ from .partition import (
 )
 
 __all__ = [
+    "FAILED_COLUMNS",
     "FailedTile",
+    "TileRun",
     "failed_tiles",
     "no_heights",
     "partition_part",
@@ -70,15 +72,16 @@ def tiled_heights(
     engine: Engine | None = None,
     progress: Callable[[str], None] | None = None,
     output: TileFolder | None = None,
-) -> tuple[pd.DataFrame, SignalModel]:
+) -> TileRun:
     """The heights table of :func:`~gnss_citygml.model.estimate.estimate_heights` on
     :func:`~gnss_citygml.pipeline.intersections` of ``receivers`` (the pipeline's receivers
     table, :func:`~gnss_citygml.pipeline.receivers`) and ``buildings``, computed in tiles of
-    ``tile_size`` metres, and the final signal classifier. The intersections are never
-    gathered: each tile casts its own (on ``engine``'s workers). ``progress`` is told what is
-    being done ("tile plan: 16 tiles", "iteration 3"). With ``output``, each tile's worker
-    writes its heights there (:mod:`gnss_citygml.tiling.output`), nobody gathers them, and the
-    table returned is the tile index instead.
+    ``tile_size`` metres, with the final signal classifier and the failed tiles
+    (:class:`TileRun`). The intersections are never gathered: each tile casts its own (on
+    ``engine``'s workers). ``progress`` is told what is being done ("tile plan: 16 tiles",
+    "iteration 3"). With ``output``, each tile's worker writes its heights there
+    (:mod:`gnss_citygml.tiling.output`), nobody gathers them, and the table returned is the
+    tile index instead.
     """
     say = progress or (lambda text: None)
     check_reach(tile_size, rays.max_range)  # before the recordings are named
@@ -116,7 +119,7 @@ def partitioned_heights(
     engine: Engine | None = None,
     progress: Callable[[str], None] | None = None,
     output: TileFolder | None = None,
-) -> tuple[pd.DataFrame, SignalModel]:
+) -> TileRun:
     """As :func:`tiled_heights`, from a partition folder
     (:func:`~gnss_citygml.tiling.partition.partition_observations`, whose tiles it uses): each tile
     reads the partitions within ``rays.max_range`` of its buildings itself (on the engine's
@@ -257,7 +260,7 @@ def _run_tiles(tiles, casts, buildings, size, estimator, engine, say, output, si
     for k, why in engine.failures(parts).items():
         say(f"tile {tiles[k].name} failed: {why}")
         parts[k] = FailedTile(tiles[k].name, ids[tiles[k].buildings], why)
-        failed[tiles[k].name] = why
+        failed[tiles[k].name] = (why, tiles[k].buildings.size)
     open_sky = None
     if failed:
         say(
@@ -282,8 +285,12 @@ def _run_tiles(tiles, casts, buildings, size, estimator, engine, say, output, si
         names=names,
         open_sky=open_sky,
     )
+    lost = pd.DataFrame(
+        [(name, why, n) for name, (why, n) in sorted(failed.items())],
+        columns=list(FAILED_COLUMNS),
+    ).astype({"buildings": np.int64})
     if output is None:
-        return pd.concat(engine.gather(tables), ignore_index=True), classifier
+        return TileRun(pd.concat(engine.gather(tables), ignore_index=True), classifier, lost)
     made = {tile.name: table for tile, table in zip(tiles, tables, strict=True)}
     groups = pd.Series(np.arange(len(owner))).groupby(owner)
     say(f"writing {groups.ngroups} tiles")
@@ -293,12 +300,12 @@ def _run_tiles(tiles, casts, buildings, size, estimator, engine, say, output, si
             made.get(str(name), no_heights(ids[:0], estimator.method, "")),
             buildings.iloc[own.to_numpy()],
             str(name),
-            failed.get(str(name), ""),
+            failed.get(str(name), ("", 0))[0],
             key=f"write-{name}-{run}",
         )
         for name, own in groups
     ]
-    return tile_index_frame(engine.gather(rows), size), classifier
+    return TileRun(tile_index_frame(engine.gather(rows), size), classifier, lost)
 
 
 def partition_part(
@@ -417,21 +424,36 @@ class FailedTile:
 #: The heights table's columns that are not floats (or are set apart).
 _NOT_FLOAT = ("id", "n_signals", "iterations", "converged", "method", "status")
 
-#: The status of a failed tile's buildings, and how it is read back (:func:`failed_tiles`).
+#: The status of a failed tile's buildings.
 _FAILED = "tile {} failed: {}"
-_FAILED_RE = r"^tile (?P<tile>\S+) failed: (?P<reason>.*)$"
+
+#: The columns of :attr:`TileRun.failed` (and of :func:`failed_tiles`).
+FAILED_COLUMNS = ("tile", "reason", "buildings")
 
 
-def failed_tiles(heights: pd.DataFrame) -> pd.DataFrame:
-    """The tiles of a run whose cast failed (:class:`FailedTile`), from its heights or its
-    tile index (:mod:`gnss_citygml.tiling.output`): one row per tile with ``tile``, ``reason``
-    and ``buildings`` (how many have no height for it)."""
-    if "failed" in heights.columns:  # a tile index
-        failed = heights.loc[heights["failed"] != "", ["tile", "failed", "buildings"]]
-        return failed.rename(columns={"failed": "reason"}).reset_index(drop=True)
-    status = heights["status"].astype(str)
-    failed = status[status.str.startswith("tile ")].str.extract(_FAILED_RE).dropna()
-    return failed.groupby(["tile", "reason"], sort=True).size().rename("buildings").reset_index()
+@dataclass(frozen=True)
+class TileRun:
+    """What a run in tiles gives back (:func:`tiled_heights`, :func:`partitioned_heights`)."""
+
+    #: The heights table (:data:`~gnss_citygml.model.estimate.HEIGHTS_COLUMNS`); with an
+    #: output folder, the tile index instead (:func:`~gnss_citygml.tiling.output.write_index`).
+    table: pd.DataFrame
+    #: The final signal classifier.
+    classifier: SignalModel
+    #: One row per tile whose cast failed (twice, on a cluster): ``tile``, ``reason`` and
+    #: ``buildings``, how many it owns (they have no height: their status says why).
+    failed: pd.DataFrame
+
+
+def failed_tiles(table: pd.DataFrame) -> pd.DataFrame:
+    """The tiles of a run whose cast failed, as :attr:`TileRun.failed`, from what the run
+    wrote: its heights (a row per building, with its ``tile`` and that tile's failure,
+    ``failed``, empty if none) or its tile index (a row per tile, with its ``buildings``)."""
+    bad = table[table["failed"].astype(str) != ""]
+    if "buildings" not in table.columns:  # the heights: count each tile's buildings
+        bad = bad.groupby(["tile", "failed"], sort=True).size().rename("buildings").reset_index()
+    out = bad.rename(columns={"failed": "reason"})[list(FAILED_COLUMNS)]
+    return out.sort_values("tile").reset_index(drop=True).astype({"buildings": np.int64})
 
 
 def _neighbours(tiles: list[Tile], owner: np.ndarray) -> list[list[int]]:

@@ -14,7 +14,7 @@ import functools
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 from .errors import InputError
 from .files.paths import StrPath
@@ -119,7 +119,8 @@ def estimate_file(
         progress("done", 1.0)
         return Estimated(tiles=index)
     if obs is None:
-        heights = run_partitioned(observations, fp, dem, settings, progress=stage).table
+        done = run_partitioned(observations, fp, dem, settings, progress=stage)
+        heights = cast("gpd.GeoDataFrame", done.table)  # joined onto the footprints
         result = None
     else:
         result = run(obs, fp, dem, settings, progress=stage)

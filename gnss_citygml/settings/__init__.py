@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass, field, fields, replace
+from typing import Any
 
 from ..errors import InputError, ModelError
 from ..model import METHODS
@@ -473,7 +474,8 @@ class RunSettings:
         Folder of the OSTN15/OSGM15 grids (:mod:`gnss_citygml.geodesy`; None: the search
         path).
     dem_crs
-        CRS of a DEM that has none (e.g. ``"EPSG:27700"`` for an OS Terrain ASCII grid).
+        CRS of a DEM that has none (e.g. ``"EPSG:27700"`` for an OS Terrain ASCII grid;
+        anything pyproj reads).
     """
 
     rays: Rays = Rays()
@@ -483,7 +485,7 @@ class RunSettings:
     calibration: Calibration = Calibration()
     tiling: Tiling = Tiling()
     grid_dir: str | os.PathLike[str] | None = None
-    dem_crs: object = None
+    dem_crs: Any = None
 
     def __post_init__(self):
         self.check()
@@ -506,7 +508,7 @@ class RunSettings:
             )
 
     @classmethod
-    def of(cls, settings: RunSettings | None = None, **changes: object) -> RunSettings:
+    def of(cls, settings: RunSettings | None = None, **changes: Any) -> RunSettings:
         """``settings`` (default: the defaults) with the parts named in ``changes`` replaced,
         checked: what an entry point makes of its ``settings`` and keyword arguments
         (``run(..., estimator=Estimator(method="4PL"))``)."""

@@ -1,7 +1,9 @@
 """The ground: heights from a DEM under building footprints and at receivers.
 
 Terrain comes from any raster rasterio reads (an OS Terrain 5 GeoTIFF, an OS Terrain 50 ESRI
-ASCII grid, also inside a zip as ``zip://tiles.zip!/NG33.asc``): :func:`building_ground` adds
+ASCII grid, also inside a zip as ``zip://tiles.zip!/NG33.asc``, a GDAL VRT), or a folder of
+such tiles of one grid, read as their mosaic only where it is needed
+(:mod:`gnss_citygml.files.mosaic`): :func:`building_ground` adds
 the ``ground`` height under each footprint (the *buildings* table of DESIGN.md, from
 :func:`gnss_citygml.footprints.read_footprints`) and :func:`sample_ground` interpolates the
 ground at receiver positions. The DEM is read in windows of at most about ``_BLOCK`` x
@@ -28,6 +30,7 @@ from __future__ import annotations
 import contextlib
 import os
 from collections.abc import Iterator, Sequence
+from pathlib import Path
 from typing import TypeAlias
 
 import geopandas as gpd
@@ -42,6 +45,7 @@ from rasterio.io import DatasetReader
 from rasterio.windows import Window
 
 from .errors import InputError, MissingColumnError, first_line, listing, user_text
+from .files.mosaic import MOSAIC_FOLDER, TileGrid, mosaic_vrt, raster_tiles
 from .files.paths import StrPath
 from .footprints import check_polygonal
 from .geodesy import CrsInput, check_bng, is_bng
@@ -54,8 +58,8 @@ __all__ = [
     "sample_ground",
 ]
 
-#: A DEM: a raster path rasterio opens (also ``"zip://tiles.zip!/NG33.asc"``, as a str) or an
-#: open dataset.
+#: A DEM: a raster path rasterio opens (also ``"zip://tiles.zip!/NG33.asc"``, as a str), a
+#: folder of its tiles, or an open dataset.
 Dem: TypeAlias = StrPath | DatasetReader
 #: The ground statistics :func:`building_ground` offers.
 STATISTICS = ("median", "min", "mean")
@@ -98,36 +102,71 @@ class DemCoverageError(InputError):
 
 
 @contextlib.contextmanager
-def _open_dem(dem, assume_crs, band: int) -> Iterator[DatasetReader]:
-    """An open DEM (the caller's own, or opened and closed here), checked to be in BNG."""
+def _open_dem(dem, assume_crs, band: int) -> Iterator[tuple[DatasetReader, int]]:
+    """An open DEM (the caller's own, or opened and closed here), checked to be in BNG, and
+    the band to read from it. A folder of tiles is opened as their mosaic (one band), each
+    tile checked first as a DEM file is (:func:`_mosaic`)."""
     if isinstance(dem, DatasetReader):
         _check_dem(dem, assume_crs, band)
-        yield dem
+        yield dem, band
         return
     name = os.fspath(dem)
+    folder = os.path.isdir(name)
     try:
-        dataset = rasterio.open(name)
+        dataset = rasterio.open(_mosaic(Path(name), assume_crs, band) if folder else name)
     except rasterio.errors.RasterioIOError as exc:
         raise InputError(
             f"cannot open the DEM: {first_line(exc)}",
             where=name,
-            fix="give a raster GDAL reads (GeoTIFF, ESRI ASCII grid; zip://tiles.zip!/NG33.asc)",
+            fix="give a raster GDAL reads (GeoTIFF, ESRI ASCII grid; zip://tiles.zip!/NG33.asc)"
+            ", or a folder of its tiles",
         ) from None
     with dataset:
-        _check_dem(dataset, assume_crs, band)
-        yield dataset
+        _check_dem(dataset, assume_crs, 1 if folder else band)
+        yield dataset, 1 if folder else band
+
+
+def _mosaic(folder: Path, assume_crs, band: int) -> str:
+    """The VRT of a folder of DEM tiles (:mod:`gnss_citygml.files.mosaic`), each tile checked
+    as a DEM file is (CRS, units, band) from its header."""
+    grids = []
+    for path in raster_tiles(folder):
+        with _open_dem(path, assume_crs, band) as (ds, _):
+            crs = None if ds.crs is None else ds.crs.to_wkt()
+            grids.append(
+                TileGrid(
+                    str(path),
+                    ds.transform,
+                    ds.width,
+                    ds.height,
+                    ds.dtypes[band - 1],
+                    ds.nodatavals[band - 1],
+                    ds.scales[band - 1],
+                    ds.offsets[band - 1],
+                    ds.units[band - 1] or "",
+                    crs,
+                )
+            )
+    return mosaic_vrt(grids, str(folder), band)
+
+
+def _where(ds: DatasetReader) -> str:
+    """The DEM's name for a message: its file, or the folder of a mosaic of tiles."""
+    return ds.tags().get(MOSAIC_FOLDER, ds.name)
 
 
 def _check_dem(ds: DatasetReader, assume_crs, band: int) -> None:
     if not 1 <= band <= ds.count:
         raise InputError(
-            f"the DEM has no band {band}", where=ds.name, fix=f"choose a band from 1 to {ds.count}"
+            f"the DEM has no band {band}",
+            where=_where(ds),
+            fix=f"choose a band from 1 to {ds.count}",
         )
     crs = ds.crs if ds.crs is not None else assume_crs
     if crs is None:
         raise InputError(
             "the DEM has no CRS",
-            where=ds.name,
+            where=_where(ds),
             fix="if it is in British National Grid (as OS Terrain ASCII grids are),"
             " say so with assume_crs='EPSG:27700' (--dem-crs EPSG:27700)",
         )
@@ -135,12 +174,12 @@ def _check_dem(ds: DatasetReader, assume_crs, band: int) -> None:
         bng = is_bng(crs.to_wkt() if hasattr(crs, "to_wkt") else crs)
     except CRSError as exc:
         raise InputError(
-            f"unknown DEM CRS {crs!r} ({exc})", where=ds.name, fix="give an EPSG code"
+            f"unknown DEM CRS {crs!r} ({exc})", where=_where(ds), fix="give an EPSG code"
         ) from None
     if not bng:
         raise InputError(
             "the DEM is not in EPSG:27700 (British National Grid)",
-            where=ds.name,
+            where=_where(ds),
             fix="reproject it with the OSTN15 grid, keeping ODN heights: gdalwarp -t_srs "
             "EPSG:27700 dem.tif dem_bng.tif with the grids installed (gnss-citygml grids "
             "--fetch; without them PROJ silently takes a 2 m Helmert transformation)",
@@ -148,7 +187,7 @@ def _check_dem(ds: DatasetReader, assume_crs, band: int) -> None:
     if ds.transform.b or ds.transform.d:
         raise InputError(
             "the DEM grid is rotated",
-            where=ds.name,
+            where=_where(ds),
             fix="resample it north up, e.g. gdalwarp dem.tif dem_north_up.tif",
         )
     _to_metres(ds, band)
@@ -164,7 +203,7 @@ def _to_metres(ds: DatasetReader, band: int) -> tuple[float, float]:
     if band_unit is None:
         raise InputError(
             f"the DEM's heights are in '{user_text(name)}', not a unit of length read here",
-            where=ds.name,
+            where=_where(ds),
             fix="give heights in metres (or ft, US survey foot, cm, mm); if they are metres,"
             " say so: gdal_edit.py -units m DEM",
         )
@@ -175,7 +214,7 @@ def _to_metres(ds: DatasetReader, band: int) -> tuple[float, float]:
         if "newlyn" not in datum.lower():
             raise InputError(
                 f"the DEM's heights are {user_text(vertical.name)}, not ODN (Newlyn) heights",
-                where=ds.name,
+                where=_where(ds),
                 fix="give ODN heights (EPSG:5701), e.g. convert them with the OSGM15 grid",
             )
         axis = vertical.axis_info[0]
@@ -183,7 +222,7 @@ def _to_metres(ds: DatasetReader, band: int) -> tuple[float, float]:
             raise InputError(
                 f"the DEM's band says its heights are in '{user_text(name)}' but its CRS"
                 f" says {axis.unit_name!r}",
-                where=ds.name,
+                where=_where(ds),
                 fix="set the right one: gdal_edit.py -units UNIT DEM, or -a_srs EPSG:7405",
             )
         metres = axis.unit_conversion_factor
@@ -192,7 +231,7 @@ def _to_metres(ds: DatasetReader, band: int) -> tuple[float, float]:
     if not (np.isfinite(scale) and np.isfinite(offset) and scale != 0):
         raise InputError(
             f"the DEM's band has scale {scale} and offset {offset}",
-            where=ds.name,
+            where=_where(ds),
             fix="set a finite, non-zero scale: gdal_edit.py -scale 1 -offset 0 DEM",
         )
     return scale * metres, offset * metres
@@ -325,20 +364,20 @@ def sample_ground(
     labels = np.arange(e.size) if labels is None else np.asarray(labels)
     if e.size == 0:
         return np.array([])
-    with _open_dem(dem, assume_crs, band) as ds:
+    with _open_dem(dem, assume_crs, band) as (ds, band):
         heights, off, nodata = _bilinear(ds, band, e, n)
         if off.any():
             raise DemCoverageError(
                 "point(s) off the DEM",
                 labels[off].tolist(),
-                where=ds.name,
+                where=_where(ds),
                 fix="use a DEM that covers every receiver position, or drop those observations",
             )
         if nodata.any():
             raise DemCoverageError(
                 "point(s) over nodata cells of the DEM",
                 labels[nodata].tolist(),
-                where=ds.name,
+                where=_where(ds),
                 fix="fill the DEM's gaps (e.g. gdal_fillnodata) or drop those observations",
             )
     return heights
@@ -416,7 +455,7 @@ def building_ground(
     geoms = buildings.geometry.to_numpy()
     ids = buildings["id"].astype(str).to_numpy()
     check_polygonal(geoms, ids, "buildings")
-    with _open_dem(dem, assume_crs, band) as ds:
+    with _open_dem(dem, assume_crs, band) as (ds, band):
         out["ground"] = _grounds(ds, band, geoms, ids, statistic)
     return out
 
@@ -429,7 +468,7 @@ def _grounds(ds, band: int, geoms: np.ndarray, ids: np.ndarray, statistic: str) 
         raise DemCoverageError(
             "building(s) not wholly on the DEM",
             ids[off].tolist(),
-            where=ds.name,
+            where=_where(ds),
             fix="use a DEM that covers every footprint, or drop those footprints",
         )
     ground, over_nodata, fallback = _ground_under(
@@ -445,7 +484,7 @@ def _grounds(ds, band: int, geoms: np.ndarray, ids: np.ndarray, statistic: str) 
         raise DemCoverageError(
             "building(s) over nodata cells of the DEM",
             ids[nodata].tolist(),
-            where=ds.name,
+            where=_where(ds),
             fix="fill the DEM's gaps (e.g. gdal_fillnodata) or drop those footprints",
         )
     ground[fallback] = heights

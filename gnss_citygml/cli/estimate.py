@@ -11,6 +11,7 @@ from ..settings import RunSettings, Tiling
 from .options import (
     ANTENNA_HEIGHT,
     DEM_CRS,
+    DEM_HELP,
     GRID_DIR,
     HEIGHT_RULE,
     ID_FIELD,
@@ -41,7 +42,7 @@ from .options import (
 _RUN_OPTIONS = together(
     click.argument("observations", type=click.Path(path_type=Path)),
     click.argument("footprints", type=click.Path(path_type=Path)),
-    dem_file("DEM raster in EPSG:27700 (GeoTIFF, ASCII grid, zip://...!/tile.asc).", required=True),
+    dem_file(DEM_HELP, required=True),
     LAYER,
     ID_FIELD,
     MIN_ELEVATION,

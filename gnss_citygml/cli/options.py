@@ -22,6 +22,7 @@ from ..settings import DEFAULT_TILE_SIZE
 __all__ = [
     "ANTENNA_HEIGHT",
     "DEM_CRS",
+    "DEM_HELP",
     "GRID_DIR",
     "ID_FIELD",
     "LAYER",
@@ -162,6 +163,13 @@ def together(*options: Callable[[FC], FC]) -> Callable[[FC], FC]:
         return func
 
     return apply
+
+
+#: What ``--dem`` takes, for the commands that need the ground.
+DEM_HELP = (
+    "DEM in EPSG:27700: a raster (GeoTIFF, ASCII grid, zip://...!/tile.asc, VRT) or a folder "
+    "of its tiles of one grid (as OS Terrain 5 ships), read only where needed."
+)
 
 
 def dem_file(help_text: str, required: bool = False) -> Callable[[FC], FC]:

@@ -9,6 +9,7 @@ import click
 from ..settings import RunSettings
 from .options import (
     DEM_CRS,
+    DEM_HELP,
     GRID_DIR,
     HEIGHT_RULE,
     ID_FIELD,
@@ -36,7 +37,7 @@ from .options import (
     type=click.Path(dir_okay=False, path_type=Path),
     help="An observations table (CSV or Parquet); give it once per file.",
 )
-@dem_file("DEM raster in EPSG:27700 (GeoTIFF, ASCII grid, zip://...!/tile.asc).", required=True)
+@dem_file(DEM_HELP, required=True)
 @LAYER
 @ID_FIELD
 @click.option(

@@ -31,40 +31,28 @@ Rules
 
 from __future__ import annotations
 
-import contextlib
-import json
-import os
-import tempfile
 import warnings
-import xml.parsers.expat
-import zlib
 from collections.abc import Iterator
-from pathlib import Path
 
 import geopandas as gpd
 import numpy as np
 import pandas as pd
-import pyogrio
 import shapely
 from pandas.api.types import is_list_like
 
-from .errors import InputError, MissingColumnError, first_line, listing, user_text
+from .errors import InputError, MissingColumnError, listing, user_text
 from .files.ids import id_text, missing_ids, with_id_field
-from .files.paths import StrPath, gunzipped, input_file
-from .files.tables import check_text
+from .files.paths import StrPath
+from .files.sources import Source
 from .geodesy import CrsError, OutsideExtentError, is_bng, to_bng
 
-__all__ = ["check_polygonal", "read_footprints"]
+__all__ = ["BATCH", "check_polygonal", "footprint_batches", "read_footprints"]
 
 _BNG = "EPSG:27700"
 _ID_FIELDS = ("toid", "id", "fid")
-_MASTERMAP_NAMESPACES = (
-    b"ordnancesurvey.co.uk/xml/namespaces/osgb",
-    b"namespaces.os.uk/mastermap/topography",
-)
-#: What makes GDAL read an XML file (starting with "<", after a UTF-8 byte order mark) with
-#: its GML driver, which writes a .gfs sidecar unless told not to (ogrgmldatasource.cpp).
-_GML_MARKERS = (b"opengis.net/gml", b"<csw:GetRecordsResponse")
+
+#: Features read at once by :func:`footprint_batches`.
+BATCH = 65_536
 
 
 def read_footprints(
@@ -113,265 +101,51 @@ def read_footprints(
     GridError
         Footprints in another CRS and the grids are missing.
     """
-    where = os.fspath(path)
-    local = not (where.startswith("/vsi") or "://" in where)
-    if local and not Path(where).is_dir():  # a folder may hold a Shapefile or a FileGDB
-        input_file(where, "footprint file")
-    kind = _sniff_gml(Path(where)) if local else None
-    if kind:  # GDAL reads no feature at all from a GML file that is not well-formed
-        _check_xml(Path(where))
-    options = {"WRITE_GFS": "NO"} if kind else {}
-    if local and _is_geoparquet(Path(where)):
-        if layer is not None:
-            raise InputError(
-                f"GeoParquet has no layers to choose (--layer {layer})",
-                where=where,
-                fix="leave out --layer",
-            )
-        frame = _read_geoparquet(Path(where))
-    else:
-        with _nothing_written_beside(where):
-            if layer is None:
-                layer = "TopographicArea" if kind == "mastermap" else _polygon_layer(where, kind)
-            where = f"{where}, layer {layer}" if layer is not None else where
-            frame = _read_layer(path, layer, where, options)
-    if kind == "mastermap" and "descriptiveGroup" in frame.columns:
+    source = Source.of(path, layer)
+    return _prepared(source.read(), source, id_field, grid_dir, first=True)
+
+
+def footprint_batches(
+    path: StrPath,
+    *,
+    layer: str | None = None,
+    id_field: str | None = None,
+    grid_dir: StrPath | None = None,
+    size: int = BATCH,
+) -> Iterator[gpd.GeoDataFrame]:
+    """:func:`read_footprints` in batches of at most ``size`` features, never the whole source
+    in memory (a national map): each batch is the buildings table of its features, by the same
+    rules. Ids are unique within a batch; across batches the caller checks them (e.g.
+    :func:`gnss_citygml.tiling.buildings.partition_buildings`). An empty source is an error, a
+    batch left empty (MasterMap features that are not buildings) is skipped."""
+    source = Source.of(path, layer)
+    any_building = False
+    for frame in source.batches(size):
+        if source.kind == "mastermap" and "descriptiveGroup" in frame.columns:
+            frame = frame[_has_building_group(frame["descriptiveGroup"])]
+        if frame.empty:
+            continue
+        any_building = True
+        yield _prepared(frame, source, id_field, grid_dir, first=False)
+    if not any_building:
+        yield _prepared(source.empty(), source, id_field, grid_dir, first=True)
+
+
+def _prepared(frame, source: Source, id_field, grid_dir, *, first: bool) -> gpd.GeoDataFrame:
+    """The buildings table of the features ``frame`` of ``source`` (see :func:`read_footprints`;
+    ``first``: the features are all there is, MasterMap's not yet filtered)."""
+    where = source.named
+    if first and source.kind == "mastermap" and "descriptiveGroup" in frame.columns:
         frame = frame[_has_building_group(frame["descriptiveGroup"])]
-        if id_field is None:
-            id_field = next((c for c in ("fid", "gml_id") if c in frame.columns), None)
+    if source.kind == "mastermap" and id_field is None:
+        id_field = next((c for c in ("fid", "gml_id") if c in frame.columns), None)
     if frame.empty:
-        what = "no building features" if kind == "mastermap" else "the layer has no features"
+        what = "no building features" if source.kind == "mastermap" else "the layer has no features"
         raise InputError(what, where=where, fix="give a layer with building footprints")
     frame, field = _with_ids(frame, id_field, where)
     check_polygonal(frame.geometry.to_numpy(), frame["id"].to_numpy(), where)
     frame = _repaired(_to_bng(frame, where, grid_dir), where)
-    return with_id_field(frame, _output_name(field, kind == "mastermap"))
-
-
-def _sniff_gml(path: Path) -> str | None:
-    """``"mastermap"``, ``"gml"`` or None from the first 64 kB of a (possibly gzipped) file.
-
-    A file is GML when GDAL would read it with its GML driver, also when the file is damaged
-    (a mistyped namespace): the reader must then pass ``WRITE_GFS=NO``."""
-    if not path.is_file():
-        return None
-    with open(path, "rb") as raw:
-        head = raw.read(65536)
-    if head[:2] == b"\x1f\x8b":
-        with _gunzipped(path) as unzipped:
-            head = unzipped.read(65536)
-    head = head.removeprefix(b"\xef\xbb\xbf")
-    if not head.startswith(b"<") or not any(marker in head for marker in _GML_MARKERS):
-        return None
-    return "mastermap" if any(ns in head for ns in _MASTERMAP_NAMESPACES) else "gml"
-
-
-@contextlib.contextmanager
-def _gunzipped(path: Path) -> Iterator:
-    """A gzipped file opened for reading as a capped stream (:func:`~gnss_citygml.files.paths.
-    gunzipped`: a decompression bomb is an InputError); a damaged one (while read too) is an
-    InputError."""
-    try:
-        with gunzipped(path, "footprint file") as unzipped:
-            yield unzipped
-    except (OSError, EOFError, zlib.error) as exc:  # BadGzipFile is an OSError
-        raise InputError(
-            f"cannot read the footprints: a damaged gzip file ({exc})",
-            where=str(path),
-            fix="download or compress it again (gzip -t checks it)",
-        ) from None
-
-
-def _check_xml(path: Path) -> None:
-    """An :class:`InputError` naming the line where a (gzipped) GML file stops being
-    well-formed XML (a cut download, a bad hand edit): GDAL would read no feature from it and
-    say nothing. Expat expands no external entity and caps entity expansion."""
-    parser = xml.parsers.expat.ParserCreate()
-    with open(path, "rb") as raw:
-        gzipped = raw.read(2) == b"\x1f\x8b"
-    try:
-        with _gunzipped(path) if gzipped else open(path, "rb") as stream:
-            parser.ParseFile(stream)
-    except xml.parsers.expat.ExpatError as exc:
-        raise InputError(
-            f"the GML file is not well-formed XML: {xml.parsers.expat.errors.messages[exc.code]}",
-            where=f"{path}, line {exc.lineno}, column {exc.offset + 1}",
-            fix="download or export it again; a file cut short ends before its last element",
-        ) from None
-    except (LookupError, ValueError) as exc:  # an unknown or multi-byte declared encoding
-        raise InputError(
-            f"the GML file declares an encoding that cannot be read ({exc})",
-            where=str(path),
-            fix="save it as UTF-8, as OS MasterMap is delivered",
-        ) from None
-
-
-@contextlib.contextmanager
-def _nothing_written_beside(path: str) -> Iterator:
-    """Reading must not write beside the input. GDAL's VFK driver (Czech cadastre; it claims
-    any file starting with ``&H``) puts an SQLite database beside the file it opens: point it
-    at a temporary folder instead (found by fuzzing). GML's ``.gfs`` is kept off by
-    ``WRITE_GFS=NO``."""
-    previous = pyogrio.get_gdal_config_option("OGR_VFK_DB_NAME")
-    with tempfile.TemporaryDirectory(prefix="gnss-citygml-vfk-") as folder:
-        pyogrio.set_gdal_config_options({"OGR_VFK_DB_NAME": os.path.join(folder, "vfk.db")})
-        try:
-            yield
-        finally:
-            pyogrio.set_gdal_config_options({"OGR_VFK_DB_NAME": previous})
-
-
-def _polygon_layer(path: str, kind: str | None) -> str | None:
-    """The source's only polygon layer (None: let GDAL take the first layer of a GML file)."""
-    if kind:  # listing a GML file's layers would write a .gfs sidecar beside it
-        return None
-    try:
-        layers = pyogrio.list_layers(path)
-    except pyogrio.errors.DataSourceError as exc:
-        raise _unreadable(exc, path) from None
-    if len(layers) == 1:
-        return str(layers[0][0])
-    polygonal = [str(name) for name, geom in layers if geom == "Unknown" or "Polygon" in str(geom)]
-    if len(polygonal) == 1:
-        return polygonal[0]
-    names = ", ".join(str(name) for name, _ in layers)
-    raise InputError(
-        f"the source has several layers ({names})", where=path, fix="choose one with --layer"
-    )
-
-
-def _unreadable(exc: Exception, where: str) -> InputError:
-    return InputError(
-        f"cannot read the footprints: {first_line(exc)}",
-        where=where,
-        fix="give a polygon layer GDAL reads (GeoPackage, Shapefile, GeoJSON, MasterMap GML)",
-    )
-
-
-def _read_layer(path, layer: str | None, where: str, options: dict) -> gpd.GeoDataFrame:
-    """The layer (None: the first), or an :class:`InputError` for an unreadable source, a
-    source without layers or a geometry GEOS cannot build (e.g. an unclosed ring)."""
-    try:
-        return pyogrio.read_dataframe(
-            path, layer=0 if layer is None else layer, force_2d=True, fid_as_index=True, **options
-        )
-    except (
-        pyogrio.errors.DataSourceError,
-        pyogrio.errors.DataLayerError,
-        shapely.errors.GEOSException,
-    ) as exc:
-        raise _unreadable(exc, where) from None
-
-
-def _is_geoparquet(path: Path) -> bool:
-    """A GeoParquet file, or a folder of them (in the hive layout: a run's heights written per
-    tile, :mod:`gnss_citygml.tiling.output`, or one tile's folder): GeoPandas reads them, GDAL
-    only with Arrow."""
-    if path.is_dir():
-        return next(path.rglob("*.parquet"), None) is not None
-    return path.suffix.lower() == ".parquet"
-
-
-def _read_geoparquet(path: Path) -> gpd.GeoDataFrame:
-    """A GeoParquet file or hive folder, its partition keys (``tile``) as text; an
-    :class:`InputError` if it cannot be read as GeoParquet (:func:`_check_geoparquet` first:
-    GeoPandas's own errors on a metadata it does not expect are not one line)."""
-    _check_geoparquet(path)
-    try:
-        frame = gpd.read_parquet(path)
-    except (OSError, ValueError, TypeError, shapely.errors.GEOSException) as exc:
-        # pyarrow's errors are these too; GEOS's: WKB it cannot parse
-        raise InputError(
-            f"cannot read the footprints as GeoParquet ({first_line(exc)})",
-            where=str(path),
-            fix="give a GeoParquet file (with its geometry metadata), or a GeoPackage",
-        ) from None
-    check_text(frame, str(path))
-    for column in frame.columns:
-        if isinstance(frame[column].dtype, pd.CategoricalDtype):
-            frame[column] = frame[column].astype(str)
-    return frame
-
-
-#: The geometry encodings of GeoParquet 1.1 (WKB, and GeoArrow's native ones) and the Arrow
-#: types that hold them: binary, or lists (of lists ...) of structs of coordinates.
-_ENCODINGS = {
-    "WKB": ("binary", "large_binary"),
-    **{
-        kind: ("list", "large_list", "struct")
-        for kind in ("point", "linestring", "polygon", "multipoint", "multilinestring")
-    },
-    "multipolygon": ("list", "large_list"),
-}
-
-
-def _check_geoparquet(path: Path) -> None:
-    """Refuse, in one line, a file (or any file of a folder) that GeoPandas cannot read as
-    GeoParquet: not Parquet, no ``geo`` metadata (plain Parquet), metadata that is not the
-    standard's, or a geometry whose encoding is not one of :data:`_ENCODINGS` (WKT is not
-    GeoParquet) or not what its column holds. Reads the files' footers only."""
-    import pyarrow as pa
-    import pyarrow.parquet as pq
-    import pyproj
-
-    fix = "write it as GeoParquet (geopandas' to_parquet, or ogr2ogr with Arrow), or a GeoPackage"
-    files = [path]
-    if path.is_dir():  # as pyarrow reads a folder: not the hidden files (._x, .x.part-...)
-        files = sorted(
-            f
-            for f in path.rglob("*.parquet")
-            if not any(p.startswith((".", "_")) for p in f.relative_to(path).parts)
-        )
-    for file in files:
-        try:
-            schema = pq.read_schema(file)
-        except (OSError, pa.ArrowException) as exc:
-            raise InputError(
-                f"cannot read the footprints as GeoParquet: not a Parquet file ({first_line(exc)})",
-                where=str(file),
-                fix="give a GeoParquet file, or a GeoPackage",
-            ) from None
-        try:
-            geo = json.loads((schema.metadata or {})[b"geo"])
-        except (KeyError, ValueError):
-            raise InputError(
-                "the footprints' Parquet has no GeoParquet metadata ('geo'): which column is "
-                "the geometry, in which CRS, is not said",
-                where=str(file),
-                fix=fix,
-            ) from None
-        columns = geo.get("columns") if isinstance(geo, dict) else None
-        primary = geo.get("primary_column") if isinstance(geo, dict) else None
-        if not (isinstance(columns, dict) and primary in columns and primary in schema.names):
-            raise InputError(
-                "the footprints' GeoParquet metadata ('geo') names no geometry column of the "
-                f"file (primary_column {primary!r}, columns {listing(schema.names)})",
-                where=str(file),
-                fix=fix,
-            )
-        for name, spec in columns.items():
-            if name not in schema.names:
-                continue
-            encoding = spec.get("encoding") if isinstance(spec, dict) else None
-            kind = str(schema.field(name).type).split("<")[0]
-            if encoding not in _ENCODINGS or kind not in _ENCODINGS[encoding]:
-                raise InputError(
-                    f"the footprints' geometry column {name!r} is encoded as {encoding!r} "
-                    f"and holds {kind}: GeoParquet reads WKB (binary) or GeoArrow's native "
-                    f"encodings ({listing(list(_ENCODINGS)[1:])}), and WKT is not GeoParquet",
-                    where=str(file),
-                    fix=fix,
-                )
-            try:
-                if spec.get("crs") is not None:
-                    pyproj.CRS.from_user_input(spec["crs"])
-            except pyproj.exceptions.CRSError as exc:
-                raise InputError(
-                    f"the footprints' geometry column {name!r} has a CRS that is not one "
-                    f"({first_line(exc)})",
-                    where=str(file),
-                    fix="write the file again with its CRS (e.g. EPSG:27700)",
-                ) from None
+    return with_id_field(frame, _output_name(field, source.kind == "mastermap"))
 
 
 def _has_building_group(groups: pd.Series) -> np.ndarray:

@@ -74,8 +74,8 @@ def _silent(what: str, done: float) -> None:
 
 def estimate_file(
     observations: StrPath,
-    footprints: StrPath,
-    dem: StrPath,
+    footprints: StrPath | None,
+    dem: StrPath | None,
     output: StrPath | None = None,
     *,
     report: StrPath | None = None,
@@ -97,22 +97,27 @@ def estimate_file(
     and their ``changes``). Both outputs are
     checked before any work; one of them must be given. ``observations`` may be a partition
     folder (:mod:`gnss_citygml.tiling.partition`), read tile by tile in a run with ``tiling``
-    (:func:`gnss_citygml.pipeline.run_partitioned`). In a run with ``tiling``, an ``output``
+    (:func:`gnss_citygml.pipeline.run_partitioned`); one written with its footprints needs
+    neither ``footprints`` nor ``dem`` (None). In a run with ``tiling``, an ``output``
     without a suffix is a folder that each tile's worker writes its heights into
     (:func:`~gnss_citygml.pipeline.write_tiles`): the heights are not gathered, and the tile
     index is returned instead."""
     from .footprints import read_footprints
     from .observations import read_observations
     from .pipeline import STAGES, run, run_partitioned, write_tiles
+    from .tiling.partition import partition_footprints
 
     settings = RunSettings.of(settings, **changes)  # checked before any file is read
-    partitioned, folder, true = _check_estimate(
+    index, folder, true = _check_estimate(
         observations, footprints, dem, output, report, truth, layer, settings, overwrite
     )
     steps = [*STAGES, "report"] if report is not None else list(STAGES)
     stage = _stage_progress(steps, progress)
-    obs = None if partitioned else read_observations(observations)  # a partition: per tile
-    fp = read_footprints(footprints, layer=layer, id_field=id_field, grid_dir=settings.grid_dir)
+    obs = None if index is not None else read_observations(observations)  # a partition: per tile
+    if footprints is None:  # the partition's own (checked)
+        fp = partition_footprints(observations, cast(dict, index))
+    else:
+        fp = read_footprints(footprints, layer=layer, id_field=id_field, grid_dir=settings.grid_dir)
     if folder is not None:  # each tile's heights are written by its worker
         given = observations if obs is None else obs
         index = write_tiles(given, fp, dem, folder, settings, overwrite=overwrite, progress=stage)
@@ -145,11 +150,12 @@ def _write_outputs(heights, result, output, report, true, overwrite, stage) -> N
 
 def _check_estimate(
     observations, footprints, dem, output, report, truth, layer, settings, overwrite
-) -> tuple[bool, StrPath | None, pd.DataFrame | None]:
+) -> tuple[dict[str, Any] | None, StrPath | None, pd.DataFrame | None]:
     """:func:`estimate_file`'s checks of its files, before any work: the outputs never over an
-    input, a report only where the intersections are gathered. Returns whether
-    ``observations`` is a partition folder, the tile folder to write into (None: one file),
-    and the truth table, read (None without one)."""
+    input, a report only where the intersections are gathered, footprints and a DEM unless a
+    partition holds the buildings. Returns the index of the partition ``observations`` is
+    (None: a file), the tile folder to write into (None: one file), and the truth table, read
+    (None without one)."""
     from .files.paths import check_not_input
     from .files.tables import check_layer_output
     from .report import check_report_request
@@ -168,17 +174,31 @@ def _check_estimate(
         )
     inputs = [observations, footprints, dem, truth]  # never written over (nor into)
     true = check_report_request(report, truth, overwrite=overwrite, inputs=inputs)
-    partitioned = Path(observations).is_dir()
-    if partitioned:
-        partition_run(observations, tiling)
-    elif tiling.on:
+    index = partition_run(observations, tiling) if Path(observations).is_dir() else None
+    if index is None and tiling.on:
         check_reach(tiling.side, settings.rays.max_range)  # (before a cluster starts)
+    _check_buildings_given(footprints, dem, index)
     folder = output if output is not None and is_tile_folder(output) else None
     if folder is not None:
         check_not_input(check_tile_folder(folder, tiling, overwrite=overwrite), inputs)
     elif output is not None:
         check_layer_output(output, "heights", overwrite=overwrite, inputs=inputs, read_layer=layer)
-    return partitioned, folder, true
+    return index, folder, true
+
+
+def _check_buildings_given(footprints, dem, index: dict[str, Any] | None) -> None:
+    """Refuse a run without footprints, or without a DEM, unless its partition holds the
+    buildings with their ground (and the receivers with their heights)."""
+    from .tiling.buildings import BUILDINGS
+
+    held = index is not None and BUILDINGS in index
+    if footprints is None and not held:
+        raise InputError(
+            "no footprints",
+            fix="give the FOOTPRINTS file, or a partition written with --footprints",
+        )
+    if dem is None and index is None:
+        raise InputError("no DEM", fix="give --dem (a raster or a folder of its tiles)")
 
 
 def _stage_progress(steps: list[str], progress: Progress) -> Callable[[str], None]:

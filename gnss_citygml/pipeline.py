@@ -350,7 +350,7 @@ def _on_cluster(in_tiles, buildings, settings, size, footprints, say, output=Non
     tiles = building_tiles(buildings, size)
     why = done.failed.set_index("tile")["reason"]
     heights.insert(len(heights.columns) - 1, "tile", tiles)
-    failed = pd.Series(tiles).map(why).fillna("").astype(object).to_numpy()
+    failed = pd.Series(tiles).map(why).astype(object).fillna("").to_numpy()
     heights.insert(len(heights.columns) - 1, "failed", failed)
     return replace(done, table=heights)
 

@@ -20,6 +20,7 @@ from gnss_citygml.observations import read_observations, write_observations
 from gnss_citygml.pipeline import in_mask, intersections, open_sky, receivers, run_partitioned
 from gnss_citygml.settings import Estimator, PositionError, Rays, ReceiverHeights, Tiling
 from gnss_citygml.terrain import building_ground
+from gnss_citygml.tiling.buildings import Footprints
 from gnss_citygml.tiling.grid import building_tiles
 from gnss_citygml.tiling.output import TileFolder
 from gnss_citygml.tiling.partition import INDEX, check_partition, partition_observations, read_index
@@ -523,3 +524,109 @@ def test_a_partition_whose_tiles_are_too_small_for_the_runs_rays_is_refused(
 
     with pytest.raises(InputError, match="tiles of 100 m are too small for rays of 2000 m"):
         partitioned_heights(written, city_buildings, rays=Rays(max_range=2000.0))
+
+
+@pytest.fixture(scope="module")
+def with_buildings(halves, tmp_path_factory):
+    """A partition written with the city's footprints and DEM (copies, deleted after), read
+    4 footprints at a time: it is all a run needs."""
+    folder = tmp_path_factory.mktemp("with-buildings")
+    footprints, dem = folder / "footprints.gpkg", folder / "dem.tif"
+    shutil.copy(CITY / "footprints.gpkg", footprints)
+    shutil.copy(DEM, dem)
+    said = []
+    index = partition_observations(
+        halves, folder / "p", dem, tile_size=100.0,
+        footprints=Footprints(footprints, batch=4), progress=said.append,
+    )  # fmt: skip
+    footprints.unlink(), dem.unlink()
+    return folder / "p", index, said
+
+
+def test_a_partition_with_its_footprints_holds_each_building_with_its_ground(with_buildings):
+    folder, index, said = with_buildings
+    whole = building_ground(read_footprints(CITY / "footprints.gpkg"), DEM)
+    entry = index["buildings"]
+    assert read_index(folder) == index
+    assert entry["rows"] == len(whole) and entry["id_field"] == "id"
+    assert "footprints.gpkg: buildings 1-4" in said and len(said) == 2 + -(-len(whole) // 4)
+    hive = gpd.read_parquet(folder / "buildings")
+    assert len(hive) == len(whole) and not (folder / "_ids").exists()
+    tiles = pd.Series(building_tiles(whole, 100.0), index=whole["id"])
+    assert (hive["tile"].astype(str).to_numpy() == tiles[hive["id"]].to_numpy()).all()
+    mine = hive.set_index("id").loc[whole["id"]]
+    np.testing.assert_array_equal(mine["ground"], whole["ground"])
+    assert mine.geometry.geom_equals(whole.set_index("id").geometry).all()
+
+
+def test_a_run_from_the_partition_alone_gives_the_single_runs_heights(with_buildings, tmp_path):
+    """The footprint file and the DEM are gone: the heights are the single run's (same
+    converged set, within 1 mm)."""
+    folder, _, _ = with_buildings
+    made = estimate_file(folder, None, None, tmp_path / "h.gpkg", tiling=Tiling("local", 1))
+    single = estimate_file(
+        CITY / "observations.parquet", CITY / "footprints.gpkg", DEM, tmp_path / "s.gpkg"
+    )
+    a = made.heights.set_index("id").sort_index()
+    b = single.heights.set_index("id").sort_index()
+    assert a.index.tolist() == b.index.tolist() and b["converged"].sum() >= 10
+    assert (a["converged"] == b["converged"]).all() and (a["status"] == b["status"]).all()
+    for column in ("height", "height_lower", "height_upper", "ground"):
+        np.testing.assert_allclose(a[column], b[column], atol=1e-3, err_msg=column)
+
+
+def test_a_building_id_in_two_batches_is_named_with_both_tiles(halves, tmp_path):
+    footprints = read_footprints(CITY / "footprints.gpkg")
+    footprints.loc[len(footprints) - 1, "id"] = footprints["id"].iloc[0]  # far apart
+    path = tmp_path / "twice.gpkg"
+    footprints.to_file(path, layer="buildings")
+    tiles = building_tiles(footprints, 100.0)
+    with pytest.raises(InputError, match="1 building id.* held by two footprints, e.g. ") as bad:
+        partition_observations(halves, tmp_path / "p", DEM, tile_size=100.0,
+                               footprints=Footprints(path, batch=7))  # fmt: skip
+    assert f"in tiles {tiles[0]} and {tiles[-1]}" in str(bad.value) and bad.value.where == str(path)
+    assert not (tmp_path / "p").exists()
+
+
+def test_a_partitions_buildings_are_checked_before_a_run_reads_them(with_buildings, tmp_path):
+    folder, index, _ = with_buildings
+    copy = tmp_path / "p"
+    shutil.copytree(folder, copy)
+    tile = next(iter(index["buildings"]["tiles"]))
+    part = next((copy / "buildings" / f"tile={tile}").iterdir())
+    frame = gpd.read_parquet(part)
+    frame.assign(ground=frame["ground"] + 10.0).to_parquet(part)  # another ground
+    shutil.copy(part, part.with_name("part-99999.parquet"))
+    with pytest.raises(InputError, match="part-99999.parquet is not in partition") as bad:
+        estimate_file(copy, None, None, tmp_path / "h.gpkg", tiling=Tiling("local", 1))
+    assert f"buildings/tile={tile}" in bad.value.where
+    part.with_name("part-99999.parquet").unlink()
+    with pytest.raises(InputError, match="(SHA-256 differs|bytes, not the)"):
+        estimate_file(copy, None, None, tmp_path / "h.gpkg", tiling=Tiling("local", 1))
+
+
+def test_without_footprints_or_a_dem_the_run_says_what_to_give(halves, tmp_path, capsys):
+    partition_observations(halves, tmp_path / "p", DEM, tile_size=100.0)
+    tiled = ["--scheduler", "local", "--workers", "1"]
+    code, _, err = run(["estimate", str(tmp_path / "p"), "-o", str(tmp_path / "h.gpkg"), *tiled],
+                       capsys)  # fmt: skip
+    assert code == 2 and "no footprints" in err and "--footprints" in err, err
+    code, _, err = run(["estimate", str(halves[0]), str(CITY / "footprints.gpkg"),
+                        "-o", str(tmp_path / "h.gpkg")], capsys)  # fmt: skip
+    assert code == 2 and "no DEM" in err and "--dem" in err, err
+
+
+def test_the_partition_command_with_footprints_then_estimate_with_nothing_else(
+    halves, tmp_path, capsys
+):
+    args = ["partition", *map(str, halves), "-o", str(tmp_path / "p"), "--dem", str(DEM),
+            "--tile-size", "100", "--footprints", str(CITY / "footprints.gpkg"),
+            "--quiet"]  # fmt: skip
+    code, out, err = run(args, capsys)
+    assert code == 0, err
+    assert " signals in " in out and " buildings in " in out
+    code, out, err = run(["estimate", str(tmp_path / "p"), "-o", str(tmp_path / "h.gpkg"),
+                          "--scheduler", "local", "--workers", "1", "--quiet"], capsys)  # fmt: skip
+    assert code == 0, err
+    heights = gpd.read_file(tmp_path / "h.gpkg", layer="heights")
+    assert heights["converged"].sum() >= 10 and heights["ground"].notna().all()

@@ -41,8 +41,8 @@ from .options import (
 #: The options of the run, which ``estimate`` and ``report`` share.
 _RUN_OPTIONS = together(
     click.argument("observations", type=click.Path(path_type=Path)),
-    click.argument("footprints", type=click.Path(path_type=Path)),
-    dem_file(DEM_HELP, required=True),
+    click.argument("footprints", type=click.Path(path_type=Path), required=False),
+    dem_file(DEM_HELP + " Not needed with a partition written with --footprints."),
     LAYER,
     ID_FIELD,
     MIN_ELEVATION,
@@ -101,8 +101,9 @@ def estimate(output, report, scheduler, workers, tile_size, **options):
 
     OBSERVATIONS is the observations table (CSV or Parquet: time_utc, receiver, lat, lon, h,
     constellation, svid, azimuth, elevation, cn0 with empty = blocked). FOOTPRINTS is a
-    GeoPackage or any polygon layer, OS MasterMap Topography GML, or GeoParquet. The output
-    holds each footprint with its estimate; buildings with too little data have empty heights.
+    GeoPackage or any polygon layer, OS MasterMap Topography GML, or GeoParquet; leave it (and
+    --dem) out when OBSERVATIONS is a partition written with --footprints. The output holds
+    each footprint with its estimate; buildings with too little data have empty heights.
     """
     tiling = Tiling(scheduler=scheduler, workers=workers, size=tile_size)
     made = _run(output, report, tiling=tiling, **options)

@@ -12,6 +12,8 @@ from .options import (
     ANTENNA_HEIGHT,
     DEM_CRS,
     GRID_DIR,
+    ID_FIELD,
+    LAYER,
     MAX_ELEVATION,
     MIN_ELEVATION,
     OVERWRITE,
@@ -32,7 +34,19 @@ from .options import (
     "observations", nargs=-1, required=True, type=click.Path(dir_okay=False, path_type=Path)
 )
 @output_dir("The partition folder (partition.json, receivers/tile=NAME/part-K.parquet).")
-@dem_file("DEM raster in EPSG:27700, for the receivers' heights (--receiver-height dem).")
+@dem_file(
+    "DEM in EPSG:27700 (a raster or a folder of its tiles), for the receivers' heights "
+    "(--receiver-height dem) and the ground under the --footprints."
+)
+@click.option(
+    "--footprints",
+    type=click.Path(path_type=Path),
+    help="Also partition these footprints (any layer GDAL reads, MasterMap GML, GeoParquet), "
+    "read in batches, each building with its ground from --dem: the run then needs neither "
+    "the footprints nor the DEM.",
+)
+@LAYER
+@ID_FIELD
 @TILE_SIZE
 @MIN_ELEVATION
 @MAX_ELEVATION
@@ -48,6 +62,9 @@ def partition(
     observations,
     output_dir,
     dem,
+    footprints,
+    layer,
+    id_field,
     tile_size,
     dem_crs,
     grid_dir,
@@ -61,8 +78,10 @@ def partition(
     and its receivers put in British National Grid + ODN with grid bearings; the rows go under
     the tile that holds their receiver. `estimate OUTPUT_DIR FOOTPRINTS --dem DEM --scheduler ...`
     then has each tile read only the partitions its rays can come from. A recording must lie
-    in one file.
+    in one file. With --footprints the buildings are partitioned too (buildings/tile=NAME/),
+    and `estimate OUTPUT_DIR --scheduler ...` needs nothing else.
     """
+    from ..tiling.buildings import Footprints
     from ..tiling.partition import partition_observations
 
     # the mask, receiver heights and position groups
@@ -70,9 +89,9 @@ def partition(
 
     with progress(len(observations), "files", quiet) as bar:
 
-        def next_file(name):
+        def next_file(name):  # an observation file, or a batch of the footprints
             bar.set_description(Path(name).name)
-            bar.update(1)
+            bar.update(0 if ": buildings " in name else 1)
 
         index = partition_observations(
             observations,
@@ -80,8 +99,11 @@ def partition(
             dem,
             settings,
             tile_size=tile_size,
+            footprints=None if footprints is None else Footprints(footprints, layer, id_field),
             overwrite=overwrite,
             progress=next_file,
         )
     tiles, size = len(index["tiles"]), index["tile_size"]
-    click.echo(f"{index['signals']} signals in {tiles} tiles of {size:g} m -> {output_dir}")
+    built = index.get("buildings")
+    also = "" if built is None else f" and {built['rows']} buildings in {len(built['tiles'])} tiles"
+    click.echo(f"{index['signals']} signals in {tiles} tiles of {size:g} m{also} -> {output_dir}")

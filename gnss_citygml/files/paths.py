@@ -12,6 +12,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import gzip
+import hashlib
 import io
 import os
 import re
@@ -31,6 +32,7 @@ __all__ = [
     "check_output",
     "check_new_folder",
     "check_output_folder",
+    "file_digest",
     "gunzipped",
     "check_not_input",
     "input_file",
@@ -109,6 +111,17 @@ class _Capped(io.RawIOBase):
                 fix="if it is genuine, decompress it yourself (gzip -dk FILE) and give that",
             )
         return n
+
+
+def file_digest(path: StrPath) -> tuple[int, str]:
+    """The size and SHA-256 (hex) of a file, read in blocks."""
+    digest = hashlib.sha256()
+    size = 0
+    with open(path, "rb") as file:
+        while block := file.read(1 << 20):
+            digest.update(block)
+            size += len(block)
+    return size, digest.hexdigest()
 
 
 def same_file(a: object, b: object) -> bool:

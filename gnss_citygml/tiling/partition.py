@@ -25,7 +25,6 @@ before any tile is cast (:func:`check_digests`: each file is read once more, whe
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import re
@@ -35,11 +34,12 @@ from numbers import Real
 from pathlib import Path
 from typing import Any
 
+import geopandas as gpd
 import numpy as np
 import pandas as pd
 
 from ..errors import InputError, listing, user_text
-from ..files.paths import StrPath, atomic_folder, check_not_input
+from ..files.paths import StrPath, atomic_folder, check_not_input, file_digest
 from ..observations import read_observations, repeated_signals
 from ..settings import (
     DEFAULT_TILE_SIZE,
@@ -52,6 +52,7 @@ from ..settings import (
 )
 from ..stages import in_mask, receivers, recordings
 from ..terrain import Dem
+from .buildings import BUILDINGS, Footprints, partition_buildings, read_buildings
 from .grid import check_reach, check_tile_count, tile_index, tile_names
 
 __all__ = [
@@ -59,6 +60,7 @@ __all__ = [
     "RECEIVERS",
     "check_digests",
     "check_partition",
+    "partition_footprints",
     "partition_observations",
     "partition_run",
     "read_index",
@@ -86,13 +88,15 @@ def partition_observations(
     settings: RunSettings | None = None,
     *,
     tile_size: float | None = None,
+    footprints: Footprints | None = None,
     overwrite: bool = False,
     progress: Callable[[str], None] | None = None,
     **changes: Any,
 ) -> dict[str, Any]:
     """Write the ``observations`` files' receivers into ``folder``, partitioned by tile of
-    ``tile_size`` metres (default :data:`~gnss_citygml.settings.DEFAULT_TILE_SIZE`); returns
-    the index (also ``folder/partition.json``).
+    ``tile_size`` metres (default :data:`~gnss_citygml.settings.DEFAULT_TILE_SIZE`), and the
+    ``footprints``, if given, with their ground (:mod:`gnss_citygml.tiling.buildings`): a run
+    then needs nothing but the folder. Returns the index (also ``folder/partition.json``).
 
     The folder appears whole or not at all: it is written beside, under another name, and
     renamed into place at the end (replacing an old one only with ``overwrite``).
@@ -103,65 +107,79 @@ def partition_observations(
     told each file's name as it starts.
     """
     settings = RunSettings.of(settings, **changes)
-    rays, receiver_heights, position_error = (
-        settings.rays,
-        settings.receiver_heights,
-        settings.position_error,
-    )
-    grid_dir, dem_crs = settings.grid_dir, settings.dem_crs
     tile_size = DEFAULT_TILE_SIZE if tile_size is None else tile_size
     check_tile_size(tile_size)
-    check_not_input(folder, [*observations, dem])  # (it is replaced whole)
+    given = [] if footprints is None else [footprints.path]
+    check_not_input(folder, [*observations, dem, *given])  # (it is replaced whole)
     say = progress or (lambda text: None)
     tiles: dict[str, dict[str, Any]] = {}
     signals = 0
     with atomic_folder(folder, overwrite=overwrite, mark=INDEX) as work:
         for k, path in enumerate(observations):
             say(str(path))
-            obs = in_mask(read_observations(path), rays)
-            rx = receivers(obs, dem, heights=receiver_heights, grid_dir=grid_dir, dem_crs=dem_crs)
-            rx.insert(0, "signal", signals + np.arange(len(rx), dtype=np.int64))
-            signals += len(rx)
-            if not position_error.exact:
-                rx["recording"] = np.asarray(recordings(rx, position_error), dtype=object)
-            ix, iy = tile_index(rx["e"], rx["n"], tile_size)
-            new = np.unique(np.stack([ix, iy]), axis=1)  # counted before a folder is made
-            check_tile_count(new.shape[1], tile_size)
-            had = {(spec["ix"], spec["iy"]) for spec in tiles.values()}
-            check_tile_count(len(had | set(map(tuple, new.T.tolist()))), tile_size)
-            names = tile_names(ix, iy, tile_size) if len(rx) else np.empty(0, dtype=object)
-            for name, rows in rx.groupby(names, sort=True):
-                part = work / RECEIVERS / f"tile={name}"
-                part.mkdir(parents=True, exist_ok=True)
-                file = part / f"part-{k:05d}.parquet"
-                rows.to_parquet(file, index=False)
-                entry = tiles.setdefault(
-                    str(name),
-                    {"ix": int(ix[rows.index[0]]), "iy": int(iy[rows.index[0]]), "rows": 0},
-                )
-                entry["rows"] += len(rows)
-                size, digest = _digest(file)
-                entry.setdefault("files", {})[file.name] = {
-                    "rows": len(rows),
-                    "bytes": size,
-                    "sha256": digest,
-                }
+            signals += _write_receivers(work, k, path, dem, settings, tile_size, tiles, signals)
         _refuse_repeats(work, tiles, observations)
         index = {
             "format": "gnss-citygml partition",
             "version": VERSION,
             "crs": "EPSG:27700",
             "tile_size": float(tile_size),
-            "rays": {"min_elevation": rays.min_elevation, "max_elevation": rays.max_elevation},
-            "receiver_heights": asdict(receiver_heights),
-            "position_window": position_error.window,
-            "position_distance": position_error.distance,
+            "rays": {
+                "min_elevation": settings.rays.min_elevation,
+                "max_elevation": settings.rays.max_elevation,
+            },
+            "receiver_heights": asdict(settings.receiver_heights),
+            "position_window": settings.position_error.window,
+            "position_distance": settings.position_error.distance,
             "observations": [str(p) for p in observations],
             "signals": signals,
             "tiles": dict(sorted(tiles.items())),
         }
+        if footprints is not None:
+            index[BUILDINGS] = partition_buildings(
+                footprints, work, dem, tile_size, settings.grid_dir, settings.dem_crs, say
+            )
         (work / INDEX).write_text(json.dumps(index, indent=1))
     return index
+
+
+def _write_receivers(work, k, path, dem, settings, tile_size, tiles, signals) -> int:
+    """The receivers of the observation file ``path`` (the ``k``-th), numbered from
+    ``signals``, written under their tiles (recorded in ``tiles``); returns how many."""
+    obs = in_mask(read_observations(path), settings.rays)
+    rx = receivers(
+        obs,
+        dem,
+        heights=settings.receiver_heights,
+        grid_dir=settings.grid_dir,
+        dem_crs=settings.dem_crs,
+    )
+    rx.insert(0, "signal", signals + np.arange(len(rx), dtype=np.int64))
+    if not settings.position_error.exact:
+        rx["recording"] = np.asarray(recordings(rx, settings.position_error), dtype=object)
+    ix, iy = tile_index(rx["e"], rx["n"], tile_size)
+    new = np.unique(np.stack([ix, iy]), axis=1)  # counted before a folder is made
+    check_tile_count(new.shape[1], tile_size)
+    had = {(spec["ix"], spec["iy"]) for spec in tiles.values()}
+    check_tile_count(len(had | set(map(tuple, new.T.tolist()))), tile_size)
+    names = tile_names(ix, iy, tile_size) if len(rx) else np.empty(0, dtype=object)
+    for name, rows in rx.groupby(names, sort=True):
+        part = work / RECEIVERS / f"tile={name}"
+        part.mkdir(parents=True, exist_ok=True)
+        file = part / f"part-{k:05d}.parquet"
+        rows.to_parquet(file, index=False)
+        entry = tiles.setdefault(
+            str(name),
+            {"ix": int(ix[rows.index[0]]), "iy": int(iy[rows.index[0]]), "rows": 0},
+        )
+        entry["rows"] += len(rows)
+        size, digest = file_digest(file)
+        entry.setdefault("files", {})[file.name] = {
+            "rows": len(rows),
+            "bytes": size,
+            "sha256": digest,
+        }
+    return len(rx)
 
 
 def _refuse_repeats(work: Path, tiles: dict[str, dict[str, Any]], observations) -> None:
@@ -259,54 +277,94 @@ def _index_problem(index: dict[str, Any]) -> str | None:
         check_tile_size(index["tile_size"])
     except InputError as exc:
         return exc.what
+    problem, total = _tiles_problem(index["tiles"], index["tile_size"], "tile")
+    if problem:
+        return problem
+    if index["signals"] != total:
+        return f"{index['signals']} signals, its tiles hold {total}"
+    return _buildings_problem(index)
+
+
+def _buildings_problem(index: dict[str, Any]) -> str | None:
+    """What is wrong with an index's buildings (:mod:`gnss_citygml.tiling.buildings`), or None
+    (also when it has none)."""
+    if BUILDINGS not in index:
+        return None
+    entry = index[BUILDINGS]
+    kinds = {"id_field": str, "rows": int, "tiles": dict}
+    if not isinstance(entry, dict) or not all(
+        isinstance(entry.get(k), t) for k, t in kinds.items()
+    ):
+        return f"{BUILDINGS!r} is {entry!r}"
+    problem, total = _tiles_problem(entry["tiles"], index["tile_size"], "buildings' tile")
+    if problem:
+        return problem
+    return None if entry["rows"] == total else f"{entry['rows']} buildings, its tiles hold {total}"
+
+
+def _tiles_problem(tiles: dict[str, Any], size: float, what: str) -> tuple[str | None, int]:
+    """What is wrong with the tiles of an index (their files, rows and places), or None; and
+    the rows they hold."""
     total = 0
-    for name, spec in index["tiles"].items():
+    for name, spec in tiles.items():
         for key in ("ix", "iy", "rows", "files"):
             if not isinstance(spec, dict) or key not in spec:
-                return f"no {key!r} in tile {name}"
+                return f"no {key!r} in {what} {name}", total
         files = spec["files"]
         if not (isinstance(files, dict) and files and all(map(_PART.fullmatch, files))):
-            return f"tile {name}'s files are {listing(files)}"
+            return f"{what} {name}'s files are {listing(files)}", total
         for file, entry in files.items():
             kinds = {"rows": int, "bytes": int, "sha256": str}
             if not isinstance(entry, dict) or not all(
                 isinstance(entry.get(k), t) for k, t in kinds.items()
             ):
-                return f"tile {name}'s {file} is {entry!r}"
+                return f"{what} {name}'s {file} is {entry!r}", total
         rows = sum(entry["rows"] for entry in files.values())
         if spec["rows"] != rows:
-            return f"tile {name} has {spec['rows']!r} rows, its files {rows}"
+            return f"{what} {name} has {spec['rows']!r} rows, its files {rows}", total
         total += rows
         if not all(isinstance(spec[k], int) for k in ("ix", "iy")):
-            return f"tile {name} is at {spec['ix']!r}, {spec['iy']!r}"
+            return f"{what} {name} is at {spec['ix']!r}, {spec['iy']!r}", total
         try:
-            at = tile_names([spec["ix"]], [spec["iy"]], index["tile_size"])[0]
+            at = tile_names([spec["ix"]], [spec["iy"]], size)[0]
         except InputError as exc:
-            return exc.what
+            return exc.what, total
         if at != name:
-            return f"tile {name} is at the place of tile {at}"
-    if index["signals"] != total:
-        return f"{index['signals']} signals, its tiles hold {total}"
-    return None
+            return f"{what} {name} is at the place of tile {at}", total
+    return None, total
 
 
 def _check_files(folder: Path, index: dict[str, Any]) -> None:
-    """Refuse a partition folder whose files are not its index's: a file or tile folder the
-    index does not list (a sync tool's copy, a tile taken out of the index), one it lists
-    that is missing, or one of another size."""
-    top = folder / RECEIVERS
-    listed = {f"tile={name}": spec["files"] for name, spec in index["tiles"].items()}
+    """Refuse a partition folder whose files are not its index's (:func:`_check_listed`), its
+    receivers' and its buildings'; a folder of buildings the index does not have."""
+    _check_listed(folder / RECEIVERS, index["tiles"])
+    if BUILDINGS in index:
+        _check_listed(folder / BUILDINGS, index[BUILDINGS]["tiles"])
+    elif (folder / BUILDINGS).exists():
+        raise InputError(
+            f"damaged partition: {BUILDINGS}/ is not in {INDEX}",
+            where=str(folder / BUILDINGS),
+            fix=f"remove it if it is a stray copy, or {_AGAIN}",
+        )
+
+
+def _check_listed(top: Path, tiles: dict[str, Any]) -> None:
+    """Refuse a folder of tiles (``top``) whose files are not its index's ``tiles``: a file or
+    tile folder the index does not list (a sync tool's copy, a tile taken out of the index),
+    one it lists that is missing, or one of another size."""
+    what = top.name
+    listed = {f"tile={name}": spec["files"] for name, spec in tiles.items()}
     found = _entries(top)
     for entry in sorted(found.keys() - listed.keys()):
         raise InputError(
-            f"damaged partition: {RECEIVERS}/{entry} is not in {INDEX}",
+            f"damaged partition: {what}/{entry} is not in {INDEX}",
             where=str(top / entry),
             fix=f"remove it if it is a stray copy, or {_AGAIN}",
         )
     for tile, files in listed.items():
         if tile not in found:
             raise InputError(
-                f"damaged partition: {RECEIVERS}/{tile} of {INDEX} is missing",
+                f"damaged partition: {what}/{tile} of {INDEX} is missing",
                 where=str(top / tile),
                 fix=_AGAIN,
             )
@@ -348,17 +406,6 @@ def _entries(folder: Path) -> dict[str, int]:
         ) from None
 
 
-def _digest(path: StrPath) -> tuple[int, str]:
-    """The size and SHA-256 (hex) of a file, read in blocks."""
-    digest = hashlib.sha256()
-    size = 0
-    with open(path, "rb") as file:
-        while block := file.read(1 << 20):
-            digest.update(block)
-            size += len(block)
-    return size, digest.hexdigest()
-
-
 def check_digests(files: Sequence[tuple[StrPath, str]]) -> list[str]:
     """The ``files`` (path, SHA-256 of the index) whose content is not the file the partition
     wrote, each as ``path``: run on the workers, where the files are, before a run reads them
@@ -366,7 +413,7 @@ def check_digests(files: Sequence[tuple[StrPath, str]]) -> list[str]:
     bad = []
     for path, expected in files:
         try:
-            digest = _digest(path)[1]
+            digest = file_digest(path)[1]
         except OSError as exc:
             digest = f"unreadable ({exc.strerror})"
         if digest != expected:
@@ -454,6 +501,27 @@ def tile_files(folder: StrPath, index: dict[str, Any]) -> dict[str, list[Path]]:
         name: [top / f"tile={name}" / file for file in sorted(spec["files"])]
         for name, spec in index["tiles"].items()
     }
+
+
+def partition_footprints(folder: StrPath, index: dict[str, Any]) -> gpd.GeoDataFrame:
+    """The buildings a partition holds (written with footprints), with their ``ground`` and
+    the footprints' id name, each file first checked against the index's SHA-256 (as the
+    workers check the receivers'); an :class:`InputError` if it holds none."""
+    if BUILDINGS not in index:
+        raise InputError(
+            "the partition holds no footprints",
+            where=str(folder),
+            fix="give the footprints too (estimate FOLDER FOOTPRINTS), or partition again "
+            "with --footprints",
+        )
+    top = Path(folder) / BUILDINGS
+    files = [
+        (top / f"tile={name}" / file, entry["sha256"])
+        for name, spec in index[BUILDINGS]["tiles"].items()
+        for file, entry in spec["files"].items()
+    ]
+    refuse_changed(check_digests(files))
+    return read_buildings(folder, index[BUILDINGS])
 
 
 def read_receivers(files: Sequence[StrPath]) -> pd.DataFrame:

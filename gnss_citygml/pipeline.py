@@ -41,6 +41,7 @@ from .stages import (
     position_sds,
     receivers,
     recordings,
+    run_receivers,
 )
 from .terrain import Dem, building_ground
 from .tiling.grid import building_tiles
@@ -203,13 +204,7 @@ def _prepared(observations, footprints, dem, settings, say):
             fix="check the elevation mask",
         )
     say(STAGES[1])
-    rx = receivers(
-        obs,
-        dem,
-        heights=settings.receiver_heights,
-        grid_dir=settings.grid_dir,
-        dem_crs=settings.dem_crs,
-    )
+    rx = run_receivers(obs, dem, settings)
     _check_near(rx, footprints, rays.max_range)
     say(STAGES[2])
     buildings = _grounded(footprints, dem, settings.dem_crs)

@@ -23,7 +23,7 @@ from .model.estimate import HEIGHTS_COLUMNS
 from .observations import check_observations, satellites
 from .raycast import footprint_entries
 from .recordings import position_groups
-from .settings import DEFAULT_POSITION_SD, PositionError, Rays, ReceiverHeights
+from .settings import DEFAULT_POSITION_SD, PositionError, Rays, ReceiverHeights, RunSettings
 from .terrain import Dem, sample_ground
 
 __all__ = [
@@ -36,6 +36,7 @@ __all__ = [
     "open_sky",
     "position_sds",
     "receivers",
+    "run_receivers",
     "recordings",
 ]
 
@@ -56,6 +57,20 @@ def in_mask(observations: pd.DataFrame, rays: Rays = Rays()) -> pd.DataFrame:
     obs = check_observations(observations)
     obs = obs[obs["elevation"].between(rays.min_elevation, rays.max_elevation)]
     return obs.reset_index(drop=True)
+
+
+def run_receivers(
+    observations: pd.DataFrame, dem: Dem | None, settings: RunSettings
+) -> pd.DataFrame:
+    """:func:`receivers` as a run with ``settings`` finds them: its receiver heights, grids
+    and DEM CRS."""
+    return receivers(
+        observations,
+        dem,
+        heights=settings.receiver_heights,
+        grid_dir=settings.grid_dir,
+        dem_crs=settings.dem_crs,
+    )
 
 
 def receivers(

@@ -208,6 +208,15 @@ def _unreadable(exc: Exception, where: str) -> InputError:
     )
 
 
+#: What reading a source may raise for a source it cannot read: unreadable, no such layer, or a
+#: geometry GEOS cannot build (an unclosed ring).
+_GDAL_ERRORS = (
+    pyogrio.errors.DataSourceError,
+    pyogrio.errors.DataLayerError,
+    shapely.errors.GEOSException,
+)
+
+
 def _read_layer(path, layer: str | None, where: str, options: dict) -> gpd.GeoDataFrame:
     """The layer (None: the first), or an :class:`InputError` for an unreadable source, a
     source without layers or a geometry GEOS cannot build (e.g. an unclosed ring)."""
@@ -215,11 +224,7 @@ def _read_layer(path, layer: str | None, where: str, options: dict) -> gpd.GeoDa
         return pyogrio.read_dataframe(
             path, layer=0 if layer is None else layer, force_2d=True, fid_as_index=True, **options
         )
-    except (
-        pyogrio.errors.DataSourceError,
-        pyogrio.errors.DataLayerError,
-        shapely.errors.GEOSException,
-    ) as exc:
+    except _GDAL_ERRORS as exc:
         raise _unreadable(exc, where) from None
 
 
@@ -241,11 +246,7 @@ def _layer_batches(path, layer, where: str, options: dict, size: int) -> Iterato
                 fids = table.pop(meta["fid_column"]).to_numpy()
                 geoms = shapely.force_2d(shapely.from_wkb(table.pop(geometry).to_numpy()))
                 yield gpd.GeoDataFrame(table.set_axis(fids), geometry=geoms, crs=meta["crs"])
-    except (
-        pyogrio.errors.DataSourceError,
-        pyogrio.errors.DataLayerError,
-        shapely.errors.GEOSException,
-    ) as exc:
+    except _GDAL_ERRORS as exc:
         raise _unreadable(exc, where) from None
 
 

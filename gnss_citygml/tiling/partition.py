@@ -50,7 +50,7 @@ from ..settings import (
     Tiling,
     check_tile_size,
 )
-from ..stages import in_mask, receivers, recordings
+from ..stages import in_mask, recordings, run_receivers
 from ..terrain import Dem
 from .buildings import BUILDINGS, Footprints, partition_buildings, read_buildings
 from .grid import check_reach, check_tile_count, tile_index, tile_names
@@ -146,14 +146,7 @@ def partition_observations(
 def _write_receivers(work, k, path, dem, settings, tile_size, tiles, signals) -> int:
     """The receivers of the observation file ``path`` (the ``k``-th), numbered from
     ``signals``, written under their tiles (recorded in ``tiles``); returns how many."""
-    obs = in_mask(read_observations(path), settings.rays)
-    rx = receivers(
-        obs,
-        dem,
-        heights=settings.receiver_heights,
-        grid_dir=settings.grid_dir,
-        dem_crs=settings.dem_crs,
-    )
+    rx = run_receivers(in_mask(read_observations(path), settings.rays), dem, settings)
     rx.insert(0, "signal", signals + np.arange(len(rx), dtype=np.int64))
     if not settings.position_error.exact:
         rx["recording"] = np.asarray(recordings(rx, settings.position_error), dtype=object)

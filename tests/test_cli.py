@@ -24,8 +24,13 @@ def run(args, capsys):
 def test_an_option_means_the_same_in_every_command():
     """An option that several commands take is declared once (cli/options.py): same type,
     default and help everywhere. Only what a file is for may be said per command, whether the
-    DEM must be given, and whether the output may be '-' (standard output)."""
-    per_command = {"dem": ("help", "required"), "output": ("help", "type"), "output_dir": ("help",)}
+    DEM or the footprints must be given, and whether the output may be '-' (standard output)."""
+    per_command = {
+        "dem": ("help", "required"),
+        "footprints": ("help", "required"),
+        "output": ("help", "type"),
+        "output_dir": ("help",),
+    }
     ctx = click.Context(cli)
     declared = {}
     for name in cli.list_commands(ctx):

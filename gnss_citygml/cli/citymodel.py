@@ -34,6 +34,7 @@ from .options import (
     STDOUT,
     TYPED_ATTRIBUTES,
     dem_file,
+    footprints_file,
     progress,
     together,
 )
@@ -194,11 +195,8 @@ def convert(
 
 @click.command()
 @click.argument("heights", type=click.Path(path_type=Path))
-@click.option(
-    "--footprints",
-    required=True,
-    type=click.Path(path_type=Path),
-    help="The footprints the heights were estimated for (GeoPackage, MasterMap GML).",
+@footprints_file(
+    "The footprints the heights were estimated for (GeoPackage, MasterMap GML).", required=True
 )
 @LAYER
 @ID_FIELD

@@ -48,6 +48,7 @@ __all__ = [
     "TYPED_ATTRIBUTES",
     "chosen_settings",
     "dem_file",
+    "footprints_file",
     "option",
     "output_dir",
     "output_file",
@@ -175,6 +176,14 @@ DEM_HELP = (
 def dem_file(help_text: str, required: bool = False) -> Callable[[FC], FC]:
     """The ``--dem`` option: a raster GDAL reads, for what ``help_text`` says."""
     return click.option("--dem", type=click.Path(path_type=str), required=required, help=help_text)
+
+
+def footprints_file(help_text: str, required: bool = False) -> Callable[[FC], FC]:
+    """The ``--footprints`` option: a footprint source (any layer GDAL reads, MasterMap GML,
+    GeoParquet), for what ``help_text`` says."""
+    return click.option(
+        "--footprints", type=click.Path(path_type=Path), required=required, help=help_text
+    )
 
 
 def output_dir(help_text: str) -> Callable[[FC], FC]:

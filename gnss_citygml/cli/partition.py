@@ -24,6 +24,7 @@ from .options import (
     TILE_SIZE,
     chosen_settings,
     dem_file,
+    footprints_file,
     output_dir,
     progress,
 )
@@ -38,12 +39,10 @@ from .options import (
     "DEM in EPSG:27700 (a raster or a folder of its tiles), for the receivers' heights "
     "(--receiver-height dem) and the ground under the --footprints."
 )
-@click.option(
-    "--footprints",
-    type=click.Path(path_type=Path),
-    help="Also partition these footprints (any layer GDAL reads, MasterMap GML, GeoParquet), "
-    "read in batches, each building with its ground from --dem: the run then needs neither "
-    "the footprints nor the DEM.",
+@footprints_file(
+    "Also partition these footprints (any layer GDAL reads, MasterMap GML, GeoParquet), read "
+    "in batches, each building with its ground from --dem: the run then needs neither the "
+    "footprints nor the DEM."
 )
 @LAYER
 @ID_FIELD

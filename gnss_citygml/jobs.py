@@ -232,10 +232,14 @@ def read_buildings(
     grid_dir: StrPath | None = None,
 ) -> gpd.GeoDataFrame:
     """The footprints in EPSG:27700 (through the OSTN15/OSGM15 grids in ``grid_dir`` when in
-    another CRS), with their ground from the DEM when one is given."""
+    another CRS), with their ground from the DEM when one is given. A folder of heights a run
+    in tiles wrote (:mod:`gnss_citygml.tiling.output`) is read whole, every tile's."""
     from .footprints import read_footprints
     from .terrain import building_ground
+    from .tiling.output import HEIGHTS, INDEX
 
+    if (Path(path) / INDEX).is_file() and (Path(path) / HEIGHTS).is_dir():
+        path = Path(path) / HEIGHTS  # (its tile index beside them is no footprint layer)
     frame = read_footprints(path, layer=layer, id_field=id_field, grid_dir=grid_dir)
     return frame if dem is None else building_ground(frame, dem, assume_crs=dem_crs)
 

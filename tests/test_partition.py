@@ -180,6 +180,11 @@ def test_the_commands_partition_and_estimate_from_it_on_a_local_cluster(
     code, out, err = run(["convert", str(tmp_path / "tiles" / "heights"), "-o", str(city)], capsys)
     assert code == 0, err
     assert out.strip().startswith(f"{a['converged'].sum()} buildings, ") and "valid" in out
+    whole = tmp_path / "whole.city.jsonl"  # the folder itself, as it was written
+    code, out, err = run(["convert", str(tmp_path / "tiles"), "-o", str(whole)], capsys)
+    assert code == 0, err
+    assert out.strip().startswith(f"{a['converged'].sum()} buildings, ") and "valid" in out
+    assert sorted(whole.read_text().splitlines()[1:]) == sorted(city.read_text().splitlines()[1:])
     first = index.sort_values("tile").iloc[0]
     one = tmp_path / "tiles" / first["location"]
     code, out, err = run(

@@ -593,6 +593,17 @@ def test_a_building_id_in_two_batches_is_named_with_both_tiles(halves, tmp_path)
     assert not (tmp_path / "p").exists()
 
 
+def test_footprints_with_a_tile_column_are_refused(halves, tmp_path):
+    """A previous run's heights have a ``tile`` column: the partition's folders are named by
+    it, so it would be read back as another tile's name."""
+    footprints = read_footprints(CITY / "footprints.gpkg").assign(tile="TQ3181")
+    footprints.to_file(tmp_path / "with-tile.gpkg", layer="buildings")
+    with pytest.raises(InputError, match="a column 'tile', the name of the partition's folders"):
+        partition_observations(halves, tmp_path / "p", DEM, tile_size=100.0,
+                               footprints=Footprints(tmp_path / "with-tile.gpkg"))  # fmt: skip
+    assert not (tmp_path / "p").exists()
+
+
 def test_a_partitions_buildings_are_checked_before_a_run_reads_them(with_buildings, tmp_path):
     folder, index, _ = with_buildings
     copy = tmp_path / "p"

@@ -77,6 +77,12 @@ def partition_buildings(
     )
     for k, batch in enumerate(batches):
         say(f"{Path(footprints.path).name}: buildings {rows + 1}-{rows + len(batch)}")
+        if "tile" in batch.columns:  # pyarrow would read it back as the folders' key
+            raise InputError(
+                "the footprints have a column 'tile', the name of the partition's folders",
+                where=str(footprints.path),
+                fix="rename or drop that column (a run in tiles names each building's tile again)",
+            )
         name = id_field(batch)
         if dem is not None:
             batch = building_ground(batch, dem, assume_crs=dem_crs)

@@ -105,7 +105,6 @@ def estimate_file(
     from .footprints import read_footprints
     from .observations import read_observations
     from .pipeline import STAGES, run, run_partitioned, write_tiles
-    from .tiling.partition import partition_footprints
 
     settings = RunSettings.of(settings, **changes)  # checked before any file is read
     index, folder, true = _check_estimate(
@@ -114,9 +113,8 @@ def estimate_file(
     steps = [*STAGES, "report"] if report is not None else list(STAGES)
     stage = _stage_progress(steps, progress)
     obs = None if index is not None else read_observations(observations)  # a partition: per tile
-    if footprints is None:  # the partition's own (checked)
-        fp = partition_footprints(observations, cast(dict, index))
-    else:
+    fp = None  # without footprints, the partition's own: read by each tile's worker, or here
+    if footprints is not None:
         fp = read_footprints(footprints, layer=layer, id_field=id_field, grid_dir=settings.grid_dir)
     if folder is not None:  # each tile's heights are written by its worker
         given = observations if obs is None else obs
@@ -127,8 +125,8 @@ def estimate_file(
         done = run_partitioned(observations, fp, dem, settings, progress=stage)
         heights = cast("gpd.GeoDataFrame", done.table)  # joined onto the footprints
         result = None
-    else:
-        result = run(obs, fp, dem, settings, progress=stage)
+    else:  # (footprints given: _check_estimate refuses a file of observations without)
+        result = run(obs, cast("gpd.GeoDataFrame", fp), dem, settings, progress=stage)
         heights = result.heights
     _write_outputs(heights, result, output, report, true, overwrite, stage)
     progress("done", 1.0)

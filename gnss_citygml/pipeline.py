@@ -44,10 +44,12 @@ from .stages import (
     run_receivers,
 )
 from .terrain import Dem, building_ground
+from .tiling.buildings import BUILDINGS
+from .tiling.from_partition import partitioned_heights
 from .tiling.grid import building_tiles
 from .tiling.output import INDEX, TileFolder, check_tile_folder, write_index
-from .tiling.partition import check_partition, partition_run
-from .tiling.run import TileRun, partitioned_heights, tiled_heights
+from .tiling.partition import check_partition, partition_footprints, partition_run
+from .tiling.run import TileRun, tiled_heights
 
 __all__ = [
     "STAGES",
@@ -177,7 +179,8 @@ def run(
 def _in_tiles(rx, buildings, footprints, settings, say) -> Run:
     """The rest of :func:`run` on a Dask cluster: the rays cast and 4PL-B run in tiles."""
     in_tiles = _in_memory(rx, buildings, settings, settings.tiling.side, say)
-    done = _on_cluster(in_tiles, buildings, settings, settings.tiling.side, footprints, say)
+    size = settings.tiling.side
+    done = _on_cluster(in_tiles, buildings, settings, size, id_field(footprints), say)
     return Run(done.table, rx, None, buildings, done.classifier, done.failed)
 
 
@@ -237,7 +240,7 @@ def _in_memory(rx, buildings, settings, size, say):
 
 def run_partitioned(
     folder: StrPath,
-    footprints: gpd.GeoDataFrame,
+    footprints: gpd.GeoDataFrame | None,
     dem: Dem | None = None,
     settings: RunSettings | None = None,
     *,
@@ -249,13 +252,14 @@ def run_partitioned(
     settings' ``tiling``; without settings, a local one; its tile size is the partition's):
     the heights, joined onto the footprints, with the final signal classifier and the failed
     tiles (:class:`~gnss_citygml.tiling.run.TileRun`). Each tile reads
-    its own partitions (:func:`~gnss_citygml.tiling.run.partitioned_heights`). The settings the
-    partition applied (elevation mask, receiver heights, position-error window) must be the
-    run's."""
+    its own partitions (:func:`~gnss_citygml.tiling.from_partition.partitioned_heights`). The
+    settings the partition applied (elevation mask, receiver heights, position-error window)
+    must be the run's. ``footprints`` None: the partition's own (written with them), read
+    back here to join the heights onto."""
     settings = _in_tiles_settings(settings, changes)
     say = progress or (lambda stage: None)
-    in_tiles, buildings, size = _partitioned(folder, footprints, dem, settings, say)
-    return _on_cluster(in_tiles, buildings, settings, size, footprints, say)
+    in_tiles, buildings, size, name = _partitioned(folder, footprints, dem, settings, say)
+    return _on_cluster(in_tiles, buildings, settings, size, name, say)
 
 
 def _in_tiles_settings(settings: RunSettings | None, changes: dict[str, Any]) -> RunSettings:
@@ -266,16 +270,25 @@ def _in_tiles_settings(settings: RunSettings | None, changes: dict[str, Any]) ->
     return RunSettings.of(settings, **changes)
 
 
-def _partitioned(folder, footprints, dem, settings, say):
+def _partitioned(folder, footprints, dem, settings, say, *, held=False):
     """The stages before the rays of a partition's run in tiles: the run in tiles (given an
-    engine and an output folder), the buildings with their ground and the tile size."""
+    engine and an output folder), the buildings with their ground, the tile size and the
+    ids' name. Without ``footprints``, the partition's: read back here, or with ``held`` (the
+    heights written per tile, never joined here) left where they are, each tile's worker
+    reading its own (the buildings returned are None)."""
     index = partition_run(folder, settings.tiling)
-    check_bng(footprints, "footprints")
+    if footprints is None and not held:
+        footprints = partition_footprints(folder, index)
+    if footprints is not None:
+        check_bng(footprints, "footprints")
     say(STAGES[0])
     check_partition(index, settings.rays, settings.position_error, settings.receiver_heights)
     say(STAGES[1])  # the partition holds the receivers
     say(STAGES[2])
-    buildings = _grounded(footprints, dem, settings.dem_crs)
+    if footprints is None:
+        buildings, name = None, _held_ids(folder, index)
+    else:
+        buildings, name = _grounded(footprints, dem, settings.dem_crs), id_field(footprints)
     say(STAGES[3])
     in_tiles = functools.partial(
         partitioned_heights,
@@ -286,12 +299,19 @@ def _partitioned(folder, footprints, dem, settings, say):
         position_error=settings.position_error,
         progress=say,
     )
-    return in_tiles, buildings, float(index["tile_size"])
+    return in_tiles, buildings, float(index["tile_size"]), name
+
+
+def _held_ids(folder: StrPath, index: dict[str, Any]) -> str:
+    """The name of the ids of the buildings a partition holds, or an error if it holds none."""
+    if BUILDINGS not in index:
+        partition_footprints(folder, index)  # (says so, and what to give)
+    return str(index[BUILDINGS]["id_field"])
 
 
 def write_tiles(
     observations: pd.DataFrame | StrPath,
-    footprints: gpd.GeoDataFrame,
+    footprints: gpd.GeoDataFrame | None,
     dem: Dem | None,
     output: StrPath,
     settings: RunSettings | None = None,
@@ -305,21 +325,27 @@ def write_tiles(
     worker that fitted it (:mod:`gnss_citygml.tiling.output`), never gathered on one machine.
     Returns the tile index (also ``output/tiles.gpkg``). The folder appears whole or not at
     all; an existing one is replaced only with ``overwrite`` (checked before any work), and
-    only if it is a folder of tiles (:func:`~gnss_citygml.tiling.output.check_tile_folder`)."""
+    only if it is a folder of tiles (:func:`~gnss_citygml.tiling.output.check_tile_folder`).
+    ``footprints`` None: the partition's own, each tile's worker reading its tile's and its
+    halo's, so that this machine holds the plan only."""
     settings = _in_tiles_settings(settings, changes)
     check_tile_folder(output, settings.tiling, overwrite=overwrite)
     say = progress or (lambda stage: None)
     if isinstance(observations, pd.DataFrame):
+        if footprints is None:
+            raise InputError("no footprints", fix="give the footprints the observations saw")
         rx, buildings = _prepared(observations, footprints, dem, settings, say)
-        size = settings.tiling.side
+        size, name = settings.tiling.side, id_field(footprints)
         in_tiles = _in_memory(rx, buildings, settings, size, say)
     else:
-        in_tiles, buildings, size = _partitioned(observations, footprints, dem, settings, say)
-    done = _on_cluster(in_tiles, buildings, settings, size, footprints, say, output, overwrite)
+        in_tiles, buildings, size, name = _partitioned(
+            observations, footprints, dem, settings, say, held=True
+        )
+    done = _on_cluster(in_tiles, buildings, settings, size, name, say, output, overwrite)
     return done.table
 
 
-def _on_cluster(in_tiles, buildings, settings, size, footprints, say, output=None, overwrite=False):
+def _on_cluster(in_tiles, buildings, settings, size, name, say, output=None, overwrite=False):
     """``in_tiles(engine=...)`` on the cluster the settings' ``tiling`` names
     (:class:`~gnss_citygml.tiling.run.TileRun`), its heights joined onto the buildings with
     each building's ``tile`` (of ``size`` metres; the tile index of the output) and that
@@ -332,7 +358,7 @@ def _on_cluster(in_tiles, buildings, settings, size, footprints, say, output=Non
     with connect(settings.tiling) as engine:
         if output is not None:
             with atomic_folder(output, overwrite=overwrite, mark=INDEX) as work:
-                folder = TileFolder(str(work), method, id_field(footprints), size)
+                folder = TileFolder(str(work), method, name, size)
                 done = in_tiles(engine=engine, output=folder)
                 say(STAGES[4])
                 say(STAGES[5])
@@ -341,7 +367,7 @@ def _on_cluster(in_tiles, buildings, settings, size, footprints, say, output=Non
         done = in_tiles(engine=engine)
     say(STAGES[4])
     say(STAGES[5])
-    heights = join_heights(buildings, done.table, method, id_field(footprints))
+    heights = join_heights(buildings, done.table, method, name)
     tiles = building_tiles(buildings, size)
     why = done.failed.set_index("tile")["reason"]
     heights.insert(len(heights.columns) - 1, "tile", tiles)

@@ -21,10 +21,10 @@ from gnss_citygml.pipeline import in_mask, intersections, open_sky, receivers, r
 from gnss_citygml.settings import Estimator, PositionError, Rays, ReceiverHeights, Tiling
 from gnss_citygml.terrain import building_ground
 from gnss_citygml.tiling.buildings import Footprints
+from gnss_citygml.tiling.from_partition import partitioned_heights
 from gnss_citygml.tiling.grid import building_tiles
 from gnss_citygml.tiling.output import TileFolder
 from gnss_citygml.tiling.partition import INDEX, check_partition, partition_observations, read_index
-from gnss_citygml.tiling.run import partitioned_heights
 
 DEM = CITY / "dem.tif"
 
@@ -578,6 +578,31 @@ def test_a_run_from_the_partition_alone_gives_the_single_runs_heights(with_build
     assert (a["converged"] == b["converged"]).all() and (a["status"] == b["status"]).all()
     for column in ("height", "height_lower", "height_upper", "ground"):
         np.testing.assert_allclose(a[column], b[column], atol=1e-3, err_msg=column)
+
+
+def test_heights_written_per_tile_from_the_partition_alone(with_buildings, tmp_path, monkeypatch):
+    """Written tile by tile, the client holds the plan only: each worker reads its tile's
+    buildings and its halo's from the partition (reading them all here would fail), and the
+    heights are the single run's, each tile's file with its footprints' attributes."""
+    import gnss_citygml.tiling.partition as partition
+
+    def everything(*args):
+        raise AssertionError("the client read every building")
+
+    monkeypatch.setattr(partition, "read_buildings", everything)
+    folder, index, _ = with_buildings
+    made = estimate_file(folder, None, None, tmp_path / "tiles", tiling=Tiling("local", 1))
+    single = estimate_file(
+        CITY / "observations.parquet", CITY / "footprints.gpkg", DEM, tmp_path / "s.gpkg"
+    )
+    assert made.tiles["buildings"].sum() == index["buildings"]["rows"]
+    a = gpd.read_parquet(tmp_path / "tiles" / "heights").set_index("id").sort_index()
+    b = single.heights.set_index("id").sort_index()
+    assert a.index.tolist() == b.index.tolist() and b["converged"].sum() >= 10
+    assert (a["converged"] == b["converged"]).all() and (a["status"] == b["status"]).all()
+    for column in ("height", "height_lower", "height_upper", "ground", "relative_height"):
+        np.testing.assert_allclose(a[column], b[column], atol=1e-3, err_msg=column)
+    assert set(b.columns) - {"geometry"} <= set(a.columns)  # the footprints' attributes too
 
 
 def test_a_building_id_in_two_batches_is_named_with_both_tiles(halves, tmp_path):

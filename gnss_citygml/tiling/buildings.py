@@ -34,7 +34,15 @@ from ..footprints import BATCH, footprint_batches, read_footprints
 from ..terrain import Dem, building_ground
 from .grid import check_tile_count, tile_index, tile_names
 
-__all__ = ["BUILDINGS", "Footprints", "partition_buildings", "read_buildings"]
+__all__ = [
+    "BUILDINGS",
+    "Footprints",
+    "building_files",
+    "partition_buildings",
+    "read_building_files",
+    "read_building_ids",
+    "read_buildings",
+]
 
 #: The folder of the buildings' partitions, in the partition's folder.
 BUILDINGS = "buildings"
@@ -111,6 +119,9 @@ def _write_part(work: Path, tile: str, part: pd.DataFrame, k: int, tiles, at) ->
         tile, {"ix": int(at[0][first]), "iy": int(at[1][first]), "rows": 0, "files": {}}
     )
     entry["rows"] += len(part)
+    x0, y0, x1, y1 = part.geometry.total_bounds.tolist()  # the tile's extent: its plan
+    was = entry.get("bounds", [x0, y0, x1, y1])
+    entry["bounds"] = [min(was[0], x0), min(was[1], y0), max(was[2], x1), max(was[3], y1)]
     size, digest = file_digest(file)
     entry["files"][file.name] = {"rows": len(part), "bytes": size, "sha256": digest}
 
@@ -155,6 +166,28 @@ class _Ids:
                     )
         finally:
             shutil.rmtree(self.folder, ignore_errors=True)
+
+
+def building_files(folder: StrPath, index: dict[str, Any]) -> dict[str, list[Path]]:
+    """The GeoParquet files of each tile of the buildings a partition holds, in file order."""
+    top = Path(folder) / BUILDINGS
+    return {
+        name: [top / f"tile={name}" / file for file in sorted(spec["files"])]
+        for name, spec in index[BUILDINGS]["tiles"].items()
+    }
+
+
+def read_building_files(files: list[Path], columns: list[str] | None = None) -> gpd.GeoDataFrame:
+    """The buildings of some of a partition's files, in file order (their ``columns``, the
+    geometry among them)."""
+    frames = [gpd.read_parquet(f, columns=columns) for f in files]
+    return gpd.GeoDataFrame(pd.concat(frames, ignore_index=True), crs=frames[0].crs)
+
+
+def read_building_ids(files: list[Path]) -> np.ndarray:
+    """The ids of the buildings of some of a partition's files, in file order."""
+    ids = [pd.read_parquet(f, columns=["id"])["id"] for f in files]
+    return pd.concat(ids, ignore_index=True).to_numpy(dtype=object)
 
 
 def read_buildings(folder: StrPath, entry: dict[str, Any]) -> gpd.GeoDataFrame:

@@ -33,6 +33,7 @@ from ..files.paths import StrPath, check_new_folder
 from ..files.tables import write_layer
 from ..settings import Tiling
 from ..stages import join_heights
+from .buildings import read_building_files
 from .grid import tile_index
 
 __all__ = [
@@ -77,12 +78,15 @@ class TileFolder:
     size: float
 
     def write(
-        self, table: pd.DataFrame, buildings: gpd.GeoDataFrame, name: str, failed: str
+        self, table: pd.DataFrame, buildings: gpd.GeoDataFrame | list[Path], name: str, failed: str
     ) -> dict[str, Any]:
         """Write tile ``name``'s heights (its rows of the heights table, ``table``) joined onto
-        its own ``buildings``; return its row of the index. ``failed`` is why its cast failed
-        (empty if it did not). Run again (Dask's retry, or a dead worker's task recomputed),
-        it replaces its file with the same one."""
+        its own ``buildings`` (or the partition's files that hold them, read here, by the
+        worker); return its row of the index. ``failed`` is why its cast failed (empty if it
+        did not). Run again (Dask's retry, or a dead worker's task recomputed), it replaces its
+        file with the same one."""
+        if isinstance(buildings, list):
+            buildings = read_building_files(buildings)
         heights = join_heights(buildings, table, self.method, self.id_name)
         location = Path(HEIGHTS) / f"tile={name}" / "part-0.parquet"
         target = Path(self.path) / location

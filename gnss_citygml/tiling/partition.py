@@ -50,6 +50,7 @@ from ..settings import (
     Tiling,
     check_tile_size,
 )
+from ..settings.checks import finite
 from ..stages import in_mask, recordings, run_receivers
 from ..terrain import Dem
 from .buildings import BUILDINGS, Footprints, partition_buildings, read_buildings
@@ -292,6 +293,10 @@ def _buildings_problem(index: dict[str, Any]) -> str | None:
     problem, total = _tiles_problem(entry["tiles"], index["tile_size"], "buildings' tile")
     if problem:
         return problem
+    for name, spec in entry["tiles"].items():
+        bounds = spec.get("bounds")
+        if not (isinstance(bounds, list) and len(bounds) == 4 and all(map(finite, bounds))):
+            return f"buildings' tile {name} has bounds {bounds!r}"
     return None if entry["rows"] == total else f"{entry['rows']} buildings, its tiles hold {total}"
 
 

@@ -8,8 +8,7 @@ its neighbours. Run in one process (the default engine) or on a Dask cluster
 (:mod:`gnss_citygml.tiling.cluster`), the heights are those of :func:`~gnss_citygml.pipeline.run`
 on the same receivers, bit for bit (tested): each building is summed the same way in a tile
 as in the whole run. :func:`tiled_heights` takes the receivers in memory;
-:func:`partitioned_heights` has each tile read its own from a partition folder
-(:mod:`gnss_citygml.tiling.partition`).
+:mod:`gnss_citygml.tiling.from_partition` has each tile read its own from a partition folder.
 """
 
 from __future__ import annotations
@@ -19,15 +18,13 @@ import operator
 import uuid
 from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
+from typing import Any
 
 import geopandas as gpd
 import numpy as np
 import pandas as pd
-import shapely
 
 from ..errors import InputError
-from ..files.paths import StrPath
 from ..model.engine import Engine, InProcess, run_parts
 from ..model.estimate import HEIGHTS_COLUMNS, intersections_part
 from ..model.fourplb import SignalModel
@@ -36,16 +33,8 @@ from ..model.offsets import SkyCounts, levelled, sky_counts
 from ..model.parts import Part, Shared, Tally
 from ..settings import DEFAULT_TILE_SIZE, Estimator, PositionError, Rays
 from ..stages import intersections, recordings
-from .grid import Tile, building_tiles, check_reach, plan_tiles, receiver_tiles
+from .grid import Tile, building_tiles, check_reach, plan_tiles
 from .output import TileFolder, tile_index_frame
-from .partition import (
-    check_digests,
-    check_partition,
-    read_index,
-    read_receivers,
-    refuse_changed,
-    tile_files,
-)
 
 __all__ = [
     "FAILED_COLUMNS",
@@ -53,8 +42,11 @@ __all__ = [
     "TileRun",
     "failed_tiles",
     "no_heights",
-    "partition_part",
-    "partitioned_heights",
+    "Signals",
+    "TilePlan",
+    "held_plan",
+    "run_tiles",
+    "signal_moments",
     "tile_heights",
     "tile_part",
     "tiled_heights",
@@ -103,80 +95,11 @@ def tiled_heights(
         )
         for tile in tiles
     ]
-    signals = _Signals(
+    signals = Signals(
         lambda: sky_counts(rx), lambda offsets: signal_moments(rx, offsets), estimator
     )
-    return _run_tiles(tiles, casts, buildings, tile_size, estimator, engine, say, output, signals)
-
-
-def partitioned_heights(
-    folder: StrPath,
-    buildings: gpd.GeoDataFrame,
-    *,
-    estimator: Estimator = Estimator(),
-    rays: Rays = Rays(),
-    position_error: PositionError = PositionError(),
-    engine: Engine | None = None,
-    progress: Callable[[str], None] | None = None,
-    output: TileFolder | None = None,
-) -> TileRun:
-    """As :func:`tiled_heights`, from a partition folder
-    (:func:`~gnss_citygml.tiling.partition.partition_observations`, whose tiles it uses): each tile
-    reads the partitions within ``rays.max_range`` of its buildings itself (on the engine's
-    workers), and keeps the rows whose rays can enter them. Its halo is every building within
-    twice the reach of its buildings' extent: more than the rays need, which adds only
-    crossings the single run has too. The partition's elevation mask and position-error
-    window must be the run's (:func:`~gnss_citygml.tiling.partition.check_partition`). The
-    partition's files are checked against its index first: their listing and sizes here, their
-    SHA-256 on the engine's workers (one task per partition tile), before any tile reads them."""
-    say = progress or (lambda text: None)
-    index = read_index(folder)
-    check_partition(index, rays, position_error)
-    size, reach = float(index["tile_size"]), rays.max_range
-    squares = pd.DataFrame.from_dict(index["tiles"], orient="index")
-    parts = tile_files(folder, index)
-    engine = engine or InProcess()
-    checks = [
-        engine.submit(
-            check_digests,
-            [(f, index["tiles"][name]["files"][f.name]["sha256"]) for f in files],
-            key=f"sha256-{name}-{uuid.uuid4().hex[:8]}",
-        )
-        for name, files in parts.items()
-    ]
-    refuse_changed([f for bad in engine.gather(checks) for f in bad])
-
-    def summed(func, *args):  # each signal is in one partition file
-        sums = [
-            engine.submit(func, files, *args, key=f"signals-{name}-{uuid.uuid4().hex[:8]}")
-            for name, files in parts.items()
-        ]
-        return functools.reduce(operator.add, engine.gather(sums))
-
-    signals = _Signals(
-        lambda: summed(file_counts), lambda offsets: summed(file_moments, offsets), estimator
-    )
-    x0, y0 = squares["ix"].to_numpy() * size, squares["iy"].to_numpy() * size
-    geometry = buildings.geometry.to_numpy()
-    tree = shapely.STRtree(geometry)
-    bounds = shapely.bounds(geometry)
-    names = building_tiles(buildings, size)
-    tiles, casts = [], []
-    for key, own in pd.Series(np.arange(len(names))).groupby(names):
-        own = own.to_numpy()
-        lo = bounds[own, :2].min(axis=0) - reach
-        hi = bounds[own, 2:].max(axis=0) + reach
-        near = (x0 <= hi[0]) & (x0 + size >= lo[0]) & (y0 <= hi[1]) & (y0 + size >= lo[1])
-        if not near.any():
-            continue  # no ray can enter its buildings: they have no signal, as in one run
-        halo = np.sort(tree.query(shapely.box(*(lo - reach), *(hi + reach))))
-        halo = halo[names[halo] != key]
-        files = [f for name in squares.index[near] for f in parts[name]]
-        tiles.append(Tile(str(key), own, halo, np.empty(0, dtype=np.int64)))
-        cast = buildings.iloc[np.concatenate([own, halo])]
-        casts.append((partition_part, files, cast, own.size, size, estimator, rays, position_error))
-    say(f"tile plan: {len(tiles)} tiles of {size:g} m from {len(squares)} partitions")
-    return _run_tiles(tiles, casts, buildings, size, estimator, engine, say, output, signals)
+    plan = held_plan(tiles, buildings, tile_size)
+    return run_tiles(plan, casts, tile_size, estimator, engine, say, output, signals)
 
 
 def signal_moments(receivers: pd.DataFrame, offsets: pd.Series | None = None) -> Cn0Moments:
@@ -188,19 +111,8 @@ def signal_moments(receivers: pd.DataFrame, offsets: pd.Series | None = None) ->
     return Cn0Moments.of(receivers["cn0"].to_numpy(dtype=float), e, 1.0)
 
 
-def file_moments(files: list[Path], offsets: pd.Series | None = None) -> Cn0Moments:
-    """:func:`signal_moments` of the receivers in partition ``files``."""
-    return signal_moments(read_receivers(files), offsets)
-
-
-def file_counts(files: list[Path]) -> SkyCounts:
-    """The receivers in partition ``files`` counted by phone, elevation and C/N0
-    (:func:`~gnss_citygml.model.offsets.sky_counts`)."""
-    return sky_counts(read_receivers(files))
-
-
 @dataclass(frozen=True)
-class _Signals:
+class Signals:
     """All the run's signals, where a run in tiles needs them: counted by phone (``counts``),
     to level the phones (``Estimator.level_phones``), and summed for the mixture signal model
     (``moments``, given the phones' offsets or None). Less those that the tiles find crossing
@@ -237,30 +149,61 @@ class _Signals:
         return functools.reduce(operator.sub, engine.gather(crossing), self.moments(offsets))
 
 
-def _run_tiles(tiles, casts, buildings, size, estimator, engine, say, output, signals):
-    """4PL-B over the tiles, each made by its cast (a function and its arguments): the
-    heights table, or with ``output`` the tile index of the tiles written there. ``signals``:
-    all the run's signals (:class:`_Signals`), whose open sky levels the phones and teaches
-    the mixture signal model."""
-    if not tiles:
+@dataclass(frozen=True)
+class TilePlan:
+    """What a run in tiles knows of its buildings, whether it holds them (:func:`held_plan`)
+    or only the partition's index does: the tiles that take part (``names``, in the order of
+    their casts), the tiles each needs the fits of (``neighbours``: positions in ``names``),
+    a tile's own buildings' ids (``own_ids(k)``: a failed tile's, for its rows), and every
+    tile that owns a footprint with its own buildings (``every_tile()``: ``(name, own)``,
+    ``own`` as :meth:`~gnss_citygml.tiling.output.TileFolder.write` takes them), for the
+    output written per tile."""
+
+    names: list[str]
+    neighbours: list[list[int]]
+    own_ids: Callable[[int], np.ndarray]
+    every_tile: Callable[[], list[tuple[str, Any]]]
+
+
+def held_plan(tiles: list[Tile], buildings: gpd.GeoDataFrame, size: float) -> TilePlan:
+    """The plan of ``tiles`` (positions in ``buildings``) of buildings held in memory."""
+    owner = building_tiles(buildings, size)
+    ids = buildings["id"].astype(str).to_numpy()
+
+    def every_tile():
+        groups = pd.Series(np.arange(len(owner))).groupby(owner)
+        return [(str(name), buildings.iloc[own.to_numpy()]) for name, own in groups]
+
+    return TilePlan(
+        [tile.name for tile in tiles],
+        _neighbours(tiles, owner),
+        lambda k: ids[tiles[k].buildings],
+        every_tile,
+    )
+
+
+def run_tiles(plan: TilePlan, casts, size, estimator, engine, say, output, signals) -> TileRun:
+    """4PL-B over the tiles of ``plan``, each made by its cast (a function and its
+    arguments): the heights table, or with ``output`` the tile index of the tiles written
+    there. ``signals``: all the run's signals (:class:`Signals`), whose open sky levels the
+    phones and teaches the mixture signal model."""
+    if not plan.names:
         raise InputError(
             "no building has a receiver within the rays' reach",
             fix="give footprints that cover where the observations were made",
         )
     engine = engine or InProcess()
-    owner = building_tiles(buildings, size)
-    neighbours = _neighbours(tiles, owner)
     run = uuid.uuid4().hex[:8]  # the steps' names are this run's alone on a shared cluster
-    names = [f"{tile.name}-{run}" for tile in tiles]
+    names = [f"{tile}-{run}" for tile in plan.names]
     parts = [
         engine.submit(*cast, key=f"cast-{name}") for cast, name in zip(casts, names, strict=True)
     ]
-    ids = buildings["id"].astype(str).to_numpy()
     failed = {}
     for k, why in engine.failures(parts).items():
-        say(f"tile {tiles[k].name} failed: {why}")
-        parts[k] = FailedTile(tiles[k].name, ids[tiles[k].buildings], why)
-        failed[tiles[k].name] = (why, tiles[k].buildings.size)
+        say(f"tile {plan.names[k]} failed: {why}")
+        own = plan.own_ids(k)
+        parts[k] = FailedTile(plan.names[k], own, why)
+        failed[plan.names[k]] = (why, own.size)
     open_sky = None
     if failed:
         say(
@@ -277,7 +220,7 @@ def _run_tiles(tiles, casts, buildings, size, estimator, engine, say, output, si
         open_sky = signals.open_sky(parts, engine, names, offsets)
     tables, classifier = run_parts(
         parts,
-        neighbours,
+        plan.neighbours,
         estimator,
         engine,
         progress=lambda k: say(f"iteration {k}"),
@@ -291,42 +234,22 @@ def _run_tiles(tiles, casts, buildings, size, estimator, engine, say, output, si
     ).astype({"buildings": np.int64})
     if output is None:
         return TileRun(pd.concat(engine.gather(tables), ignore_index=True), classifier, lost)
-    made = {tile.name: table for tile, table in zip(tiles, tables, strict=True)}
-    groups = pd.Series(np.arange(len(owner))).groupby(owner)
-    say(f"writing {groups.ngroups} tiles")
+    made = dict(zip(plan.names, tables, strict=True))
+    every = plan.every_tile()
+    say(f"writing {len(every)} tiles")
+    none = no_heights(np.empty(0, dtype=object), estimator.method, "")
     rows = [
         engine.submit(
             output.write,
-            made.get(str(name), no_heights(ids[:0], estimator.method, "")),
-            buildings.iloc[own.to_numpy()],
-            str(name),
-            failed.get(str(name), ("", 0))[0],
+            made.get(name, none),
+            own,
+            name,
+            failed.get(name, ("", 0))[0],
             key=f"write-{name}-{run}",
         )
-        for name, own in groups
+        for name, own in every
     ]
     return TileRun(tile_index_frame(engine.gather(rows), size), classifier, lost)
-
-
-def partition_part(
-    files: list[Path],
-    buildings: gpd.GeoDataFrame,
-    n_own: int,
-    size: float,
-    estimator: Estimator,
-    rays: Rays,
-    position_error: PositionError,
-) -> Part:
-    """One tile's part from partition files: their rows whose rays can enter the tile's own
-    buildings (the first ``n_own`` of ``buildings``;
-    :func:`~gnss_citygml.tiling.grid.receiver_tiles`), numbered by their ``signal``, cast as
-    :func:`tile_part` does."""
-    rx = read_receivers(files)
-    own = buildings.iloc[:n_own]
-    e, n, bearing = (rx[c].to_numpy(dtype=float) for c in ("e", "n", "bearing"))
-    rows = np.unique(receiver_tiles(e, n, own, rays.max_range, size, bearing)["row"])
-    rx = rx.iloc[rows].set_index("signal")
-    return tile_part(rx, buildings, n_own, estimator, rays, position_error)
 
 
 def tile_part(

@@ -12,12 +12,11 @@ nothing), and prints the time and the process's peak memory (RSS) over its basel
 from __future__ import annotations
 
 import argparse
-import resource
 import subprocess
 import sys
-import threading
-import time
 from pathlib import Path
+
+from memory import peak_while
 
 OUT = Path(__file__).parent / "out"
 
@@ -45,35 +44,17 @@ def prepare(path: Path, n: int) -> None:
     frame.to_file(path, layer="buildings")
 
 
-def _rss_mb() -> float:
-    """The process's resident memory now (MB), from /proc."""
-    with open("/proc/self/statm") as statm:
-        return int(statm.read().split()[1]) * resource.getpagesize() / 1e6
-
-
 def measure(path: Path, how: str) -> None:
-    """Read the footprints one way, sampling the resident memory every 5 ms: the peak over
-    what the process held before (the imports: their own peak is not the read's)."""
+    """Read the footprints one way, the resident memory sampled (:mod:`memory`)."""
     from gnss_citygml.footprints import footprint_batches, read_footprints
 
-    base, peak, done = _rss_mb(), [0.0], threading.Event()
+    def read():
+        if how == "whole":
+            return len(read_footprints(path))
+        return sum(len(batch) for batch in footprint_batches(path))
 
-    def sample():
-        while not done.is_set():
-            peak[0] = max(peak[0], _rss_mb())
-            time.sleep(0.005)
-
-    sampler = threading.Thread(target=sample)
-    sampler.start()
-    start = time.perf_counter()
-    if how == "whole":
-        rows = len(read_footprints(path))
-    else:
-        rows = sum(len(batch) for batch in footprint_batches(path))
-    seconds = time.perf_counter() - start
-    done.set()
-    sampler.join()
-    print(f"  {how:8s} {rows:>9,} footprints  {seconds:6.1f} s  peak +{peak[0] - base:7.0f} MB")
+    rows, seconds, peak = peak_while(read)
+    print(f"  {how:8s} {rows:>9,} footprints  {seconds:6.1f} s  peak +{peak:7.0f} MB")
 
 
 def main() -> None:

@@ -16,14 +16,13 @@ the imports.
 from __future__ import annotations
 
 import argparse
-import resource
 import shutil
 import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
 
+from memory import peak_while
 from shared_data import GRIDS
 
 OUT = Path(__file__).parent / "out"
@@ -73,13 +72,8 @@ def prepare(folder: Path, n: int) -> None:
     shutil.rmtree(work)
 
 
-def _rss_mb() -> float:
-    with open("/proc/self/statm") as statm:
-        return int(statm.read().split()[1]) * resource.getpagesize() / 1e6
-
-
 def measure(folder: Path, workers: int) -> None:
-    """One run written per tile, the client's resident memory sampled every 5 ms."""
+    """One run written per tile, the client's resident memory sampled (:mod:`memory`)."""
     import json
 
     from gnss_citygml.pipeline import write_tiles
@@ -87,27 +81,18 @@ def measure(folder: Path, workers: int) -> None:
 
     index = json.loads((folder / "partition.json").read_text())
     out = folder.with_name(folder.name + "-heights")
-    base, peak, done = _rss_mb(), [0.0], threading.Event()
-
-    def sample():
-        while not done.is_set():
-            peak[0] = max(peak[0], _rss_mb())
-            time.sleep(0.005)
-
-    sampler = threading.Thread(target=sample)
-    sampler.start()
-    start = time.perf_counter()
-    tiles = write_tiles(folder, None, None, out, tiling=Tiling("local", workers), overwrite=True)
-    seconds = time.perf_counter() - start
-    done.set()
-    sampler.join()
+    tiles, seconds, peak = peak_while(
+        lambda: write_tiles(
+            folder, None, None, out, tiling=Tiling("local", workers), overwrite=True
+        )
+    )
     shutil.rmtree(out)
     buildings = index["buildings"]
     print(
         f"  {buildings['rows']:>9,} buildings in {len(buildings['tiles'])} tiles, "
         f"{len(tiles)} tiles written ({int(tiles['with_height'].sum())} heights), "
         f"index {(folder / 'partition.json').stat().st_size / 1e3:.0f} kB: {seconds:6.1f} s, "
-        f"client peak +{peak[0] - base:5.0f} MB"
+        f"client peak +{peak:5.0f} MB"
     )
 
 

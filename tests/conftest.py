@@ -369,3 +369,14 @@ def commands(runs, tmp_path, package=None):
     """
     (line,) = isolated(code, tmp_path, package=package)
     return json.loads(line)
+
+
+@pytest.fixture(scope="module")
+def engine():
+    """A local Dask cluster of two worker processes (the ``[dask]`` extra), for a module's
+    runs in tiles."""
+    from gnss_citygml.settings import Tiling
+    from gnss_citygml.tiling.cluster import connect
+
+    with connect(Tiling("local", workers=2)) as engine:
+        yield engine

@@ -2,7 +2,9 @@
 them tile by tile: the single run's heights, bit for bit."""
 
 import json
+import os
 import shutil
+import signal
 
 import geopandas as gpd
 import numpy as np
@@ -603,6 +605,33 @@ def test_heights_written_per_tile_from_the_partition_alone(with_buildings, tmp_p
     for column in ("height", "height_lower", "height_upper", "ground", "relative_height"):
         np.testing.assert_allclose(a[column], b[column], atol=1e-3, err_msg=column)
     assert set(b.columns) - {"geometry"} <= set(a.columns)  # the footprints' attributes too
+
+
+def test_a_worker_killed_mid_run_from_the_partition_alone_changes_nothing(
+    with_buildings, engine, tmp_path
+):
+    """SIGKILL to one of two workers after the second iteration of a run whose workers read
+    their own buildings: Dask recomputes what it held, and the tiles written are the same."""
+    folder, index, _ = with_buildings
+    pids = engine.client.run(os.getpid)
+    killed = []
+
+    def kill_one(text):
+        if text == "iteration 2":
+            victim = sorted(pids.values())[0]
+            os.kill(victim, signal.SIGKILL)
+            killed.append(victim)
+
+    written = {}
+    for name, progress in (("calm", None), ("killed", kill_one)):
+        out = TileFolder(str(tmp_path / name), "4PL-B", "id", float(index["tile_size"]))
+        partitioned_heights(folder, engine=engine, output=out, progress=progress)
+        written[name] = gpd.read_parquet(tmp_path / name / "heights").sort_values("id")
+    assert killed and killed[0] not in engine.client.run(os.getpid).values()
+    pd.testing.assert_frame_equal(
+        written["killed"].reset_index(drop=True), written["calm"].reset_index(drop=True)
+    )
+    assert written["calm"]["converged"].sum() >= 10
 
 
 def test_a_building_id_in_two_batches_is_named_with_both_tiles(halves, tmp_path):

@@ -23,7 +23,6 @@ from gnss_citygml.pipeline import intersections, open_sky, write_tiles
 from gnss_citygml.settings import Estimator, Tiling
 from gnss_citygml.simulate import simulate
 from gnss_citygml.simulate.scenes import city_scene
-from gnss_citygml.tiling.cluster import connect
 from gnss_citygml.tiling.grid import building_tiles
 from gnss_citygml.tiling.output import TileFolder
 from gnss_citygml.tiling.run import failed_tiles, no_heights, tiled_heights
@@ -155,12 +154,6 @@ def test_progress_names_the_plan_and_each_iteration(scene, single):
     assert said[0].startswith("tile plan: ") and "tiles of 100 m" in said[0]
     assert re.fullmatch(r"8 phones levelled by their open sky: offsets \S+ to \S+ dB-Hz", said[1])
     assert said[2:] == [f"iteration {k}" for k in range(1, single[0]["iterations"].max() + 1)]
-
-
-@pytest.fixture(scope="module")
-def engine():
-    with connect(Tiling("local", workers=2)) as engine:
-        yield engine
 
 
 def test_on_a_dask_cluster_of_two_workers_the_heights_are_the_single_runs(scene, single, engine):

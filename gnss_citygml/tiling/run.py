@@ -122,7 +122,9 @@ class Signals:
     moments: Callable[[pd.Series | None], Cn0Moments]
     estimator: Estimator
 
-    def offsets(self, parts, engine, names, say) -> pd.Series | None:
+    def offsets(
+        self, parts: list[Any], engine: Engine, names: list[str], say: Callable[[str], None]
+    ) -> pd.Series | None:
         """The phones' offsets from the open sky (None: not asked for)."""
         if not self.estimator.levels_phones:
             return None
@@ -138,7 +140,9 @@ class Signals:
             )
         return offsets
 
-    def open_sky(self, parts, engine, names, offsets) -> Cn0Moments | None:
+    def open_sky(
+        self, parts: list[Any], engine: Engine, names: list[str], offsets: pd.Series | None
+    ) -> Cn0Moments | None:
         """What the open sky teaches the mixture signal model (None: another model)."""
         if self.estimator.signal_model != "mixture":
             return None
@@ -182,7 +186,16 @@ def held_plan(tiles: list[Tile], buildings: gpd.GeoDataFrame, size: float) -> Ti
     )
 
 
-def run_tiles(plan: TilePlan, casts, size, estimator, engine, say, output, signals) -> TileRun:
+def run_tiles(
+    plan: TilePlan,
+    casts: list[tuple[Any, ...]],
+    size: float,
+    estimator: Estimator,
+    engine: Engine | None,
+    say: Callable[[str], None],
+    output: TileFolder | None,
+    signals: Signals,
+) -> TileRun:
     """4PL-B over the tiles of ``plan``, each made by its cast (a function and its
     arguments): the heights table, or with ``output`` the tile index of the tiles written
     there. ``signals``: all the run's signals (:class:`Signals`), whose open sky levels the

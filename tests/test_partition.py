@@ -4,7 +4,6 @@ them tile by tile: the single run's heights, bit for bit."""
 import json
 import os
 import shutil
-import signal
 
 import geopandas as gpd
 import numpy as np
@@ -12,7 +11,7 @@ import pandas as pd
 import pytest
 from test_cli import run
 from test_outputs import CITY, estimate
-from test_tiled import assert_close_heights, assert_same_heights
+from test_tiled import assert_close_heights, assert_same_heights, killer
 
 from gnss_citygml.errors import InputError
 from gnss_citygml.footprints import read_footprints
@@ -613,15 +612,7 @@ def test_a_worker_killed_mid_run_from_the_partition_alone_changes_nothing(
     """SIGKILL to one of two workers after the second iteration of a run whose workers read
     their own buildings: Dask recomputes what it held, and the tiles written are the same."""
     folder, index, _ = with_buildings
-    pids = engine.client.run(os.getpid)
-    killed = []
-
-    def kill_one(text):
-        if text == "iteration 2":
-            victim = sorted(pids.values())[0]
-            os.kill(victim, signal.SIGKILL)
-            killed.append(victim)
-
+    kill_one, killed = killer(engine)
     written = {}
     for name, progress in (("calm", None), ("killed", kill_one)):
         out = TileFolder(str(tmp_path / name), "4PL-B", "id", float(index["tile_size"]))

@@ -163,19 +163,26 @@ def test_on_a_dask_cluster_of_two_workers_the_heights_are_the_single_runs(scene,
     assert_same_heights(tiled, single)
 
 
-def test_killing_a_worker_mid_run_does_not_change_the_heights(scene, single, engine):
-    """SIGKILL to one worker process after the second iteration: its results are lost, Dask
-    recomputes them from the steps that made them (its nanny starts a new worker)."""
-    rx, buildings = scene
+def killer(engine, at: str = "iteration 2"):
+    """A progress callback that SIGKILLs one of ``engine``'s worker processes when told
+    ``at``, and the list of the killed one's pid (to check that it is gone)."""
     pids = engine.client.run(os.getpid)
     killed = []
 
     def kill_one(text):
-        if text == "iteration 2":
+        if text == at:
             victim = sorted(pids.values())[0]
             os.kill(victim, signal.SIGKILL)
             killed.append(victim)
 
+    return kill_one, killed
+
+
+def test_killing_a_worker_mid_run_does_not_change_the_heights(scene, single, engine):
+    """SIGKILL to one worker process after the second iteration: its results are lost, Dask
+    recomputes them from the steps that made them (its nanny starts a new worker)."""
+    rx, buildings = scene
+    kill_one, killed = killer(engine)
     tiled = tiled_heights(rx, buildings, tile_size=100.0, engine=engine, progress=kill_one)
     assert killed
     assert killed[0] not in engine.client.run(os.getpid).values()

@@ -102,7 +102,7 @@ def read_footprints(
         Footprints in another CRS and the grids are missing.
     """
     source = Source.of(path, layer)
-    return _prepared(source.read(), source, id_field, grid_dir, first=True)
+    return _prepared(_buildings_only(source.read(), source), source, id_field, grid_dir)
 
 
 def footprint_batches(
@@ -119,30 +119,34 @@ def footprint_batches(
     :func:`gnss_citygml.tiling.buildings.partition_buildings`). An empty source is an error, a
     batch left empty (MasterMap features that are not buildings) is skipped."""
     source = Source.of(path, layer)
-    any_building = False
+    rows = 0  # the features before a batch: where its rows are in the source, for messages
     for frame in source.batches(size):
-        if source.kind == "mastermap" and "descriptiveGroup" in frame.columns:
-            frame = frame[_has_building_group(frame["descriptiveGroup"])]
-        if frame.empty:
-            continue
-        any_building = True
-        yield _prepared(frame, source, id_field, grid_dir, first=False)
-    if not any_building:
-        yield _prepared(source.empty(), source, id_field, grid_dir, first=True)
+        frame = _buildings_only(frame, source)
+        if not frame.empty:
+            yield _prepared(frame, source, id_field, grid_dir, first_row=rows)
+            rows += len(frame)
+    if rows == 0:
+        _prepared(source.empty(), source, id_field, grid_dir)  # (says what is missing)
 
 
-def _prepared(frame, source: Source, id_field, grid_dir, *, first: bool) -> gpd.GeoDataFrame:
-    """The buildings table of the features ``frame`` of ``source`` (see :func:`read_footprints`;
-    ``first``: the features are all there is, MasterMap's not yet filtered)."""
+def _buildings_only(frame: gpd.GeoDataFrame, source: Source) -> gpd.GeoDataFrame:
+    """The features of a MasterMap source whose descriptiveGroup has "Building" (the others:
+    every feature)."""
+    if source.kind == "mastermap" and "descriptiveGroup" in frame.columns:
+        return frame[_has_building_group(frame["descriptiveGroup"])]
+    return frame
+
+
+def _prepared(frame, source: Source, id_field, grid_dir, first_row: int = 0) -> gpd.GeoDataFrame:
+    """The buildings table of the (building) features ``frame`` of ``source`` (see
+    :func:`read_footprints`), the first of them the ``first_row``-th of the source's."""
     where = source.named
-    if first and source.kind == "mastermap" and "descriptiveGroup" in frame.columns:
-        frame = frame[_has_building_group(frame["descriptiveGroup"])]
     if source.kind == "mastermap" and id_field is None:
         id_field = next((c for c in ("fid", "gml_id") if c in frame.columns), None)
     if frame.empty:
         what = "no building features" if source.kind == "mastermap" else "the layer has no features"
         raise InputError(what, where=where, fix="give a layer with building footprints")
-    frame, field = _with_ids(frame, id_field, where)
+    frame, field = _with_ids(frame, id_field, where, first_row)
     check_polygonal(frame.geometry.to_numpy(), frame["id"].to_numpy(), where)
     frame = _repaired(_to_bng(frame, where, grid_dir), where)
     return with_id_field(frame, _output_name(field, source.kind == "mastermap"))
@@ -161,7 +165,7 @@ def _has_building_group(groups: pd.Series) -> np.ndarray:
 
 
 def _with_ids(
-    frame: gpd.GeoDataFrame, id_field: str | None, where: str
+    frame: gpd.GeoDataFrame, id_field: str | None, where: str, first_row: int = 0
 ) -> tuple[gpd.GeoDataFrame, str | None]:
     """Move the id field (or the feature id) to a text column ``id`` placed first; the field
     moved (None: the feature id)."""
@@ -182,7 +186,7 @@ def _with_ids(
             fix=f"use --id-field {others[0]} or rename that column",
         )
     name = id_field or "feature id"
-    text = _id_text(ids, name, where)
+    text = _id_text(ids, name, where, first_row)
     frame = frame.drop(columns=[id_field]) if id_field is not None else frame
     frame = frame.reset_index(drop=True)
     frame.insert(0, "id", text.to_numpy())
@@ -203,12 +207,12 @@ def _output_name(field: str | None, mastermap: bool) -> str:
     return "toid" if mastermap and field in ("fid", "gml_id") else field
 
 
-def _id_text(ids: pd.Series, name: str, where: str) -> pd.Series:
+def _id_text(ids: pd.Series, name: str, where: str, first_row: int = 0) -> pd.Series:
     """The ids as text; an :class:`InputError` naming the features (row of the source, from 0)
     whose id is missing, blank or holds a NUL (:func:`~gnss_citygml.files.ids.missing_ids`)."""
     missing = missing_ids(ids)
     if missing.any():
-        rows = np.flatnonzero(missing)
+        rows = first_row + np.flatnonzero(missing)
         raise InputError(
             f"{rows.size} feature(s) without an id (missing, blank or with a NUL character)"
             f" in '{user_text(name)}': rows {listing(rows)}",

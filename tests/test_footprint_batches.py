@@ -82,3 +82,32 @@ def test_an_empty_source_in_batches_is_an_error(tmp_path):
     gpd.GeoDataFrame({"toid": []}, geometry=[], crs=BNG).to_file(path)
     with pytest.raises(InputError, match="the layer has no features"):
         list(footprint_batches(path, size=10))
+
+
+def test_geoparquet_in_geoarrows_own_encoding_in_batches(tmp_path):
+    """GeoArrow's native encodings (which GeoPandas writes on request) are read as WKB is."""
+    boxes = [shapely.box(500000 + 30 * i, 200000, 500020 + 30 * i, 200020) for i in range(5)]
+    frame = gpd.GeoDataFrame({"toid": [f"b{i}" for i in range(5)]}, geometry=boxes, crs=BNG)
+    frame.to_parquet(tmp_path / "native.parquet", geometry_encoding="geoarrow")
+    whole, together = whole_and_batches(tmp_path / "native.parquet", 2)
+    assert_same_buildings(whole, together)
+
+
+def test_a_missing_id_in_a_later_batch_is_named_by_its_row_in_the_source(tmp_path):
+    boxes = [shapely.box(500000 + 30 * i, 200000, 500020 + 30 * i, 200020) for i in range(5)]
+    frame = gpd.GeoDataFrame({"toid": ["a", "b", "c", None, "e"]}, geometry=boxes, crs=BNG)
+    frame.to_file(tmp_path / "missing.gpkg")
+    with pytest.raises(InputError, match=r"without an id .*: rows 3 \(") as whole:
+        read_footprints(tmp_path / "missing.gpkg")
+    with pytest.raises(InputError) as batches:
+        list(footprint_batches(tmp_path / "missing.gpkg", size=2))
+    assert str(batches.value) == str(whole.value)
+
+
+def test_a_layer_without_geometry_is_named_whole_or_in_batches(tmp_path):
+    """A table (a CSV of ids) is no footprint layer: its features are named, never a
+    traceback."""
+    (tmp_path / "ids.csv").write_text("toid\na\nb\n")
+    for read in (read_footprints, lambda path: list(footprint_batches(path, size=2))):
+        with pytest.raises(InputError, match=r"2 feature\(s\) are not polygons \(missing\): a, b"):
+            read(tmp_path / "ids.csv")

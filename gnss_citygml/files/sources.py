@@ -221,11 +221,14 @@ def _read_layer(path, layer: str | None, where: str, options: dict) -> gpd.GeoDa
     """The layer (None: the first), or an :class:`InputError` for an unreadable source, a
     source without layers or a geometry GEOS cannot build (e.g. an unclosed ring)."""
     try:
-        return pyogrio.read_dataframe(
+        frame = pyogrio.read_dataframe(
             path, layer=0 if layer is None else layer, force_2d=True, fid_as_index=True, **options
         )
     except _GDAL_ERRORS as exc:
         raise _unreadable(exc, where) from None
+    if not isinstance(frame, gpd.GeoDataFrame):  # a layer without geometry (a CSV table)
+        frame = gpd.GeoDataFrame(frame, geometry=np.full(len(frame), None), crs=_BNG)
+    return frame
 
 
 def _layer_batches(path, layer, where: str, options: dict, size: int) -> Iterator[gpd.GeoDataFrame]:
@@ -244,7 +247,10 @@ def _layer_batches(path, layer, where: str, options: dict, size: int) -> Iterato
             for batch in reader:
                 table = batch.to_pandas(date_as_object=False)  # dates as read_dataframe's
                 fids = table.pop(meta["fid_column"]).to_numpy()
-                geoms = shapely.force_2d(shapely.from_wkb(table.pop(geometry).to_numpy()))
+                wkb = table.pop(geometry).to_numpy() if geometry in table else None
+                # (a layer without geometry: every feature's is missing, which the rules name)
+                geoms = np.full(len(table), None) if wkb is None else shapely.from_wkb(wkb)
+                geoms = shapely.force_2d(geoms)
                 yield gpd.GeoDataFrame(table.set_axis(fids), geometry=geoms, crs=meta["crs"])
     except _GDAL_ERRORS as exc:
         raise _unreadable(exc, where) from None
@@ -259,6 +265,9 @@ def _geoparquet_batches(path: Path, size: int) -> Iterator[gpd.GeoDataFrame]:
     data = ds.dataset(path, format="parquet", partitioning="hive")
     geo = json.loads(data.schema.metadata[b"geo"])
     column = geo["primary_column"]
+    if geo["columns"][column].get("encoding") != "WKB":
+        yield from _geoarrow_batches(path, size)
+        return
     crs = geo["columns"][column].get("crs", "OGC:CRS84")
     start = 0
     for batch in data.to_batches(batch_size=size):
@@ -272,6 +281,36 @@ def _geoparquet_batches(path: Path, size: int) -> Iterator[gpd.GeoDataFrame]:
         start += len(frame)
         check_text(frame, str(path))
         yield frame
+
+
+def _parquet_files(path: Path) -> list[Path]:
+    """The Parquet files of a file or hive folder, as pyarrow reads a folder: not the hidden
+    files (``._x``, ``.x.part-...``)."""
+    if not path.is_dir():
+        return [path]
+    return sorted(
+        f
+        for f in path.rglob("*.parquet")
+        if not any(p.startswith((".", "_")) for p in f.relative_to(path).parts)
+    )
+
+
+def _geoarrow_batches(path: Path, size: int) -> Iterator[gpd.GeoDataFrame]:
+    """GeoParquet whose geometry is in one of GeoArrow's native encodings, which only GeoPandas
+    decodes here: each file read whole by it (its hive keys as text columns), ``size`` rows at
+    a time, indexed by row in the source."""
+    start = 0
+    for file in _parquet_files(path):
+        frame = gpd.read_parquet(file)
+        for part in file.relative_to(path).parent.parts if path.is_dir() else ():
+            key, equals, value = part.partition("=")
+            if equals:
+                frame[key] = value
+        frame.index = np.arange(start, start + len(frame))
+        start += len(frame)
+        check_text(frame, str(file))
+        for at in range(0, len(frame), size):
+            yield frame.iloc[at : at + size]
 
 
 def _is_geoparquet(path: Path) -> bool:
@@ -326,14 +365,7 @@ def _check_geoparquet(path: Path) -> None:
     import pyproj
 
     fix = "write it as GeoParquet (geopandas' to_parquet, or ogr2ogr with Arrow), or a GeoPackage"
-    files = [path]
-    if path.is_dir():  # as pyarrow reads a folder: not the hidden files (._x, .x.part-...)
-        files = sorted(
-            f
-            for f in path.rglob("*.parquet")
-            if not any(p.startswith((".", "_")) for p in f.relative_to(path).parts)
-        )
-    for file in files:
+    for file in _parquet_files(path):
         try:
             schema = pq.read_schema(file)
         except (OSError, pa.ArrowException) as exc:

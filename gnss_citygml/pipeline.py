@@ -48,7 +48,12 @@ from .tiling.buildings import BUILDINGS
 from .tiling.from_partition import partitioned_heights
 from .tiling.grid import building_tiles
 from .tiling.output import INDEX, TileFolder, check_tile_folder, write_index
-from .tiling.partition import check_partition, partition_footprints, partition_run
+from .tiling.partition import (
+    check_holds_buildings,
+    check_partition,
+    partition_footprints,
+    partition_run,
+)
 from .tiling.run import TileRun, tiled_heights
 
 __all__ = [
@@ -304,8 +309,7 @@ def _partitioned(folder, footprints, dem, settings, say, *, held=False):
 
 def _held_ids(folder: StrPath, index: dict[str, Any]) -> str:
     """The name of the ids of the buildings a partition holds, or an error if it holds none."""
-    if BUILDINGS not in index:
-        partition_footprints(folder, index)  # (says so, and what to give)
+    check_holds_buildings(folder, index)
     return str(index[BUILDINGS]["id_field"])
 
 

@@ -34,6 +34,7 @@ from .output import TileFolder
 from .partition import (
     check_digests,
     check_partition,
+    listed_sha256,
     read_index,
     read_receivers,
     refuse_changed,
@@ -101,18 +102,12 @@ def _check_digests(engine: Engine, index: dict[str, Any], files: dict[str, list[
     checks = [
         engine.submit(
             check_digests,
-            [(f, _sha256(index, f)) for f in paths],
+            [(f, listed_sha256(index, f)) for f in paths],
             key=f"sha256-{name}-{uuid.uuid4().hex[:8]}",
         )
         for name, paths in files.items()
     ]
     refuse_changed([f for bad in engine.gather(checks) for f in bad])
-
-
-def _sha256(index: dict[str, Any], path: Path) -> str:
-    """The SHA-256 the index lists for a file of the partition (its receivers' or buildings')."""
-    tiles = index[BUILDINGS]["tiles"] if path.parent.parent.name == BUILDINGS else index["tiles"]
-    return str(tiles[path.parent.name.removeprefix("tile=")]["files"][path.name]["sha256"])
 
 
 def _signals(engine: Engine, parts: dict[str, list[Path]], estimator: Estimator) -> Signals:

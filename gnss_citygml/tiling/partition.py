@@ -53,13 +53,15 @@ from ..settings import (
 from ..settings.checks import finite
 from ..stages import in_mask, recordings, run_receivers
 from ..terrain import Dem
-from .buildings import BUILDINGS, Footprints, partition_buildings, read_buildings
+from .buildings import BUILDINGS, Footprints, building_files, partition_buildings, read_buildings
 from .grid import check_reach, check_tile_count, tile_index, tile_names
 
 __all__ = [
     "INDEX",
     "RECEIVERS",
     "check_digests",
+    "check_holds_buildings",
+    "listed_sha256",
     "check_partition",
     "partition_footprints",
     "partition_observations",
@@ -501,10 +503,8 @@ def tile_files(folder: StrPath, index: dict[str, Any]) -> dict[str, list[Path]]:
     }
 
 
-def partition_footprints(folder: StrPath, index: dict[str, Any]) -> gpd.GeoDataFrame:
-    """The buildings a partition holds (written with footprints), with their ``ground`` and
-    the footprints' id name, each file first checked against the index's SHA-256 (as the
-    workers check the receivers'); an :class:`InputError` if it holds none."""
+def check_holds_buildings(folder: StrPath, index: dict[str, Any]) -> None:
+    """Refuse a run without footprints from a partition written without them."""
     if BUILDINGS not in index:
         raise InputError(
             "the partition holds no footprints",
@@ -512,13 +512,21 @@ def partition_footprints(folder: StrPath, index: dict[str, Any]) -> gpd.GeoDataF
             fix="give the footprints too (estimate FOLDER FOOTPRINTS), or partition again "
             "with --footprints",
         )
-    top = Path(folder) / BUILDINGS
-    files = [
-        (top / f"tile={name}" / file, entry["sha256"])
-        for name, spec in index[BUILDINGS]["tiles"].items()
-        for file, entry in spec["files"].items()
-    ]
-    refuse_changed(check_digests(files))
+
+
+def listed_sha256(index: dict[str, Any], path: Path) -> str:
+    """The SHA-256 the index lists for a file of the partition (its receivers' or buildings')."""
+    tiles = index[BUILDINGS]["tiles"] if path.parent.parent.name == BUILDINGS else index["tiles"]
+    return str(tiles[path.parent.name.removeprefix("tile=")]["files"][path.name]["sha256"])
+
+
+def partition_footprints(folder: StrPath, index: dict[str, Any]) -> gpd.GeoDataFrame:
+    """The buildings a partition holds (written with footprints), with their ``ground`` and
+    the footprints' id name, each file first checked against the index's SHA-256 (as the
+    workers check the receivers'); an :class:`InputError` if it holds none."""
+    check_holds_buildings(folder, index)
+    files = [f for tile in building_files(folder, index).values() for f in tile]
+    refuse_changed(check_digests([(f, listed_sha256(index, f)) for f in files]))
     return read_buildings(folder, index[BUILDINGS])
 
 

@@ -141,6 +141,14 @@ def test_run_settings_are_checked_together_when_made():
     RunSettings(estimator=Estimator(method="hinge"))  # no tiles, no calibration: any method
 
 
+def test_a_run_settings_part_of_another_kind_is_named():
+    """``RunSettings(estimator="4PL")`` is a caller's slip, named, not an AttributeError."""
+    with pytest.raises(TypeError, match="the run settings' estimator must be of type Estimator, not"):
+        RunSettings(estimator="4PL")
+    with pytest.raises(TypeError, match="the run settings' tiling must be of type Tiling"):
+        RunSettings.of(tiling="local")
+
+
 def test_an_unknown_part_of_the_run_settings_is_named():
     with pytest.raises(TypeError, match="unknown run settings: estimater, grid"):
         RunSettings.of(estimater=Estimator(), grid="x", rays=Rays())

@@ -495,6 +495,13 @@ class RunSettings:
         4PL-B (:meth:`Calibration.check_method`); in a run in tiles, a method other than 4PL-B
         or 4PL (the baselines have no parts) and self-calibration (its offsets move rays
         across tiles)."""
+        for part in fields(self):
+            kind = type(part.default)
+            if part.default is not None and not isinstance(getattr(self, part.name), kind):
+                raise TypeError(
+                    f"the run settings' {part.name} must be of type {kind.__name__}, "
+                    f"not {getattr(self, part.name)!r}"
+                )
         self.calibration.check_method(self.estimator)
         if self.tiling.on and not self.estimator.fourpl:
             raise InputError(

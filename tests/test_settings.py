@@ -143,7 +143,9 @@ def test_run_settings_are_checked_together_when_made():
 
 def test_a_run_settings_part_of_another_kind_is_named():
     """``RunSettings(estimator="4PL")`` is a caller's slip, named, not an AttributeError."""
-    with pytest.raises(TypeError, match="the run settings' estimator must be of type Estimator, not"):
+    with pytest.raises(
+        TypeError, match="the run settings' estimator must be of type Estimator, not"
+    ):
         RunSettings(estimator="4PL")
     with pytest.raises(TypeError, match="the run settings' tiling must be of type Tiling"):
         RunSettings.of(tiling="local")

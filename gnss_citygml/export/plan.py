@@ -245,10 +245,14 @@ class Plan:
         self.written = 0
         self._bounds = bounds
 
-    def chunks(self, size: int = CHUNK) -> Iterator[gpd.GeoDataFrame]:
-        """The buildings, ``size`` at a time: text ``id``, snapped footprints, a fresh index."""
-        for part in chunks(len(self.rows), size):
-            rows = self.frame.iloc[self.rows[part]].reset_index(drop=True)
+    def chunks(
+        self, size: int = CHUNK, subset: np.ndarray | None = None
+    ) -> Iterator[gpd.GeoDataFrame]:
+        """The buildings, ``size`` at a time: text ``id``, snapped footprints, a fresh index;
+        those at ``subset`` only (some of :attr:`rows`), if given."""
+        positions = self.rows if subset is None else subset
+        for part in chunks(len(positions), size):
+            rows = self.frame.iloc[positions[part]].reset_index(drop=True)
             footprints = snap_footprints(rows.geometry.to_numpy())
             gone = shapely.is_empty(footprints)
             rows["id"] = rows["id"].astype(str)

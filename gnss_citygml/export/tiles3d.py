@@ -1,0 +1,310 @@
+"""3D Tiles 1.1 of the LOD1 buildings, for CesiumJS, deck.gl, QGIS 3.34+ and city portals.
+
+``write_3dtiles(buildings, "city/tileset.json")`` writes the folder ``city``::
+
+    city/tileset.json            the tileset: OS grid squares of 100 km, 10 km and 1 km
+    city/tiles/TQ2982.glb        the buildings of 1 km square TQ2982 (glTF 2.0, binary)
+    city/viewer.html             CesiumJS on the tileset (serve the folder over HTTP)
+
+Each 1 km square's buildings are one mesh (:mod:`.meshes`: placed on the Earth through
+OSTN15/OSGM15) relative to the square's centre (the tile's ``transform``: float32 positions
+then keep a tenth of a millimetre), each building one feature (``EXT_mesh_features``) with its
+row of a property table (``EXT_structural_metadata``): id, height (m ODN), ground, measured
+height, and, when the table has them, the interval (``height_lower``, ``height_upper``),
+``status``, ``n_signals``, ``method`` and ``height_source``. With ``ranges``, a second,
+translucent prism from ``height_lower`` to ``height_upper`` shows each height's uncertainty.
+
+The squares are written one at a time (:meth:`~gnss_citygml.export.plan.Plan.chunks` of their
+rows), so memory holds one square's buildings besides the table. The folder appears whole
+or not at all (:func:`~gnss_citygml.files.paths.atomic_folder`).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import geopandas as gpd
+import numpy as np
+import pandas as pd
+import shapely
+
+from ..errors import InputError
+from ..files.paths import StrPath, atomic_folder
+from ..geodesy.grid_refs import tile_index, tile_names
+from .glb import ELEMENT_ARRAY_BUFFER, Glb
+from .meshes import Mesh, prism_mesh
+from .output import ExportResult, Progress
+from .plan import Plan, prepare_buildings
+
+__all__ = ["TILESET", "write_3dtiles"]
+
+#: The tileset's file, in the folder written.
+TILESET = "tileset.json"
+#: The squares of the tileset's levels (m), largest first: the last holds the buildings.
+LEVELS = (100_000.0, 10_000.0, 1_000.0)
+#: A square's geometric error (m) per metre of its side: a viewer (16 px of screen-space
+#: error) opens a 1 km square's buildings from about 3 km away.
+ERROR_PER_SIDE = 0.05
+#: The buildings' colour and the ranges' (RGBA, linear).
+BUILDING_COLOUR = [0.8, 0.8, 0.78, 1.0]
+RANGE_COLOUR = [0.9, 0.35, 0.1, 0.35]
+#: The property table's columns besides id and height, when the table has them, with their
+#: metadata types.
+OPTIONAL = {
+    "ground": "FLOAT64",
+    "height_lower": "FLOAT64",
+    "height_upper": "FLOAT64",
+    "n_signals": "UINT32",
+    "status": "STRING",
+    "method": "STRING",
+    "height_source": "STRING",
+}
+
+
+def write_3dtiles(
+    buildings: gpd.GeoDataFrame,
+    path: StrPath,
+    *,
+    overwrite: bool = False,
+    strict: bool = False,
+    ranges: bool = False,
+    grid_dir: StrPath | None = None,
+    progress: Progress | None = None,
+) -> ExportResult:
+    """Write the buildings (as :func:`~gnss_citygml.export.cityjson.write_cityjson` takes
+    them) as a 3D Tiles 1.1 tileset: ``path`` is the tileset's ``tileset.json`` in a folder of
+    its own, written whole (``overwrite`` replaces only a folder holding a tileset). ``ranges``
+    adds each height's interval as a translucent prism; ``grid_dir`` is where the OSTN15 and
+    OSGM15 grids are (default: as :func:`gnss_citygml.geodesy.from_osgb` finds them)."""
+    path = Path(path)
+    if path.name != TILESET:
+        raise InputError(
+            f"a 3D Tiles output is a folder's {TILESET}",
+            where=str(path),
+            fix=f"give -o FOLDER/{TILESET} (the folder is written whole)",
+        )
+    plan = prepare_buildings(buildings, strict=strict)
+    squares = _squares(plan)
+    leaves = []
+    with atomic_folder(path.parent, overwrite=overwrite, mark=TILESET) as work:
+        (work / "tiles").mkdir()
+        for name, rows in squares:
+            frame = _frame(plan, rows)
+            if frame is None:
+                continue
+            leaves.append(_write_square(work, name, frame, ranges, grid_dir))
+            if progress is not None:
+                progress(len(frame))
+        if not leaves:
+            plan.result(path, None)  # raises: nothing to write
+        tileset = _tileset(leaves)
+        (work / TILESET).write_text(json.dumps(tileset, indent=1, allow_nan=False))
+        (work / "viewer.html").write_text(_viewer())
+    return plan.result(path, None)
+
+
+def _squares(plan: Plan) -> Iterator[tuple[str, np.ndarray]]:
+    """The 1 km squares holding the buildings to write (their bounds' centre), in name order,
+    with their rows (positions in the plan's table)."""
+    bounds = shapely.bounds(plan.frame.geometry.to_numpy()[plan.rows])
+    ix, iy = tile_index((bounds[:, 0] + bounds[:, 2]) / 2, (bounds[:, 1] + bounds[:, 3]) / 2)
+    names = tile_names(ix, iy, LEVELS[-1]) if len(ix) else np.empty(0, dtype=object)
+    groups = pd.Series(plan.rows).groupby(names, sort=True)
+    for name, rows in groups:
+        yield str(name), rows.to_numpy()
+
+
+def _frame(plan: Plan, rows: np.ndarray) -> gpd.GeoDataFrame | None:
+    """The buildings of one square, snapped (None if none is left)."""
+    frames = list(plan.chunks(subset=rows))
+    return pd.concat(frames, ignore_index=True) if frames else None
+
+
+def _write_square(work: Path, name: str, frame, ranges: bool, grid_dir) -> dict[str, Any]:
+    """Write one square's GLB; return its leaf of the tileset."""
+    footprints = frame.geometry.to_numpy()
+    mesh = prism_mesh(
+        footprints, frame["ground"].to_numpy(float), frame["height"].to_numpy(float), grid_dir
+    )
+    centre = (mesh.ecef.min(axis=0) + mesh.ecef.max(axis=0)) / 2
+    glb = Glb()
+    table = _property_table(glb, frame)
+    primitives = [_primitive(glb, mesh, centre, len(frame), _material(glb, BUILDING_COLOUR))]
+    lon, lat, h = [mesh.lon], [mesh.lat], [mesh.h]
+    if ranges:
+        lower, upper = (
+            frame.get(c, pd.Series(np.nan, index=frame.index))
+            for c in ("height_lower", "height_upper")
+        )
+        known = (np.isfinite(lower) & np.isfinite(upper) & (upper > lower)).to_numpy()
+        if known.any():
+            band = prism_mesh(
+                footprints[known],
+                lower[known].to_numpy(float),
+                upper[known].to_numpy(float),
+                grid_dir,
+            )
+            band = _renumbered(band, np.flatnonzero(known))
+            primitives.append(
+                _primitive(glb, band, centre, len(frame), _material(glb, RANGE_COLOUR))
+            )
+            lon, lat, h = lon + [band.lon], lat + [band.lat], h + [band.h]
+    glb.gltf.update(
+        scene=0,
+        scenes=[{"nodes": [0]}],
+        nodes=[{"mesh": 0, "name": name}],
+        meshes=[{"name": name, "primitives": primitives}],
+    )
+    glb.extension("EXT_structural_metadata", table)
+    glb.extension("EXT_mesh_features")
+    (work / "tiles" / f"{name}.glb").write_bytes(glb.to_bytes())
+    lon, lat, h = np.concatenate(lon), np.concatenate(lat), np.concatenate(h)
+    region = [lon.min(), lat.min(), lon.max(), lat.max(), h.min(), h.max()]
+    return {
+        "name": name,
+        "region": [float(v) for v in region],
+        "transform": [1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, *map(float, centre), 1],
+    }
+
+
+def _renumbered(mesh: Mesh, rows: np.ndarray) -> Mesh:
+    """``mesh`` whose features are ``rows`` of the square's table."""
+    return Mesh(
+        mesh.ecef, mesh.normals, rows[mesh.feature], mesh.indices, mesh.lon, mesh.lat, mesh.h
+    )
+
+
+def _primitive(
+    glb: Glb, mesh: Mesh, centre: np.ndarray, count: int, material: int
+) -> dict[str, Any]:
+    """A triangle primitive of ``mesh``, its positions about ``centre`` turned glTF's y axis
+    up (x, z, -y: 3D Tiles turns it back), each vertex's feature the building's row."""
+    local = mesh.ecef - centre
+    position = np.column_stack([local[:, 0], local[:, 2], -local[:, 1]]).astype(np.float32)
+    normal = np.column_stack([mesh.normals[:, 0], mesh.normals[:, 2], -mesh.normals[:, 1]])
+    feature = mesh.feature.astype(np.float32)  # exact to 2^24; a vertex attribute of
+    # 8 or 16 bits would need a stride of 4 bytes anyway (glTF 2.0, 3.6.2.4)
+    return {
+        "attributes": {
+            "POSITION": glb.accessor(position, bounds=True),
+            "NORMAL": glb.accessor(np.ascontiguousarray(normal, dtype=np.float32)),
+            "_FEATURE_ID_0": glb.accessor(feature),
+        },
+        "indices": glb.accessor(mesh.indices.ravel(), target=ELEMENT_ARRAY_BUFFER),
+        "material": material,
+        "mode": 4,
+        "extensions": {
+            "EXT_mesh_features": {
+                "featureIds": [{"featureCount": count, "attribute": 0, "propertyTable": 0}]
+            }
+        },
+    }
+
+
+def _material(glb: Glb, colour: list[float]) -> int:
+    """A plain material of ``colour`` (translucent if its alpha is below 1)."""
+    materials = glb.gltf.setdefault("materials", [])
+    material: dict[str, Any] = {
+        "pbrMetallicRoughness": {
+            "baseColorFactor": colour,
+            "metallicFactor": 0.0,
+            "roughnessFactor": 1.0,
+        }
+    }
+    if colour[3] < 1:
+        material.update(alphaMode="BLEND", doubleSided=True)
+    materials.append(material)
+    return len(materials) - 1
+
+
+def _property_table(glb: Glb, frame: pd.DataFrame) -> dict[str, Any]:
+    """The ``EXT_structural_metadata`` of the square's buildings: the schema and one table."""
+    columns = {"id": "STRING", "height": "FLOAT64", **OPTIONAL}
+    properties, values = {}, {}
+    for column, kind in columns.items():
+        if column not in frame.columns:
+            continue
+        properties[column] = _schema_property(kind)
+        values[column] = _values(glb, frame[column], kind)
+    if "measured_height" not in frame.columns and "ground" in frame.columns:
+        properties["measured_height"] = _schema_property("FLOAT64")
+        values["measured_height"] = _values(glb, frame["height"] - frame["ground"], "FLOAT64")
+    return {
+        "schema": {
+            "id": "gnss_citygml",
+            "classes": {"building": {"name": "Building", "properties": properties}},
+        },
+        "propertyTables": [{"class": "building", "count": len(frame), "properties": values}],
+    }
+
+
+def _schema_property(kind: str) -> dict[str, Any]:
+    if kind == "STRING":
+        return {"type": "STRING"}
+    return {"type": "SCALAR", "componentType": kind}
+
+
+def _values(glb: Glb, column: pd.Series, kind: str) -> dict[str, Any]:
+    """A property's buffer views: its values (and a string's offsets)."""
+    if kind != "STRING":
+        dtype = {"FLOAT64": np.float64, "UINT32": np.uint32}[kind]
+        data = column.to_numpy(dtype=float)
+        if dtype is np.uint32:
+            data = np.nan_to_num(data, nan=0.0)
+        return {"values": glb.view(data.astype(dtype))}
+    texts = [str(v).encode("utf-8") if pd.notna(v) else b"" for v in column]
+    offsets = np.r_[0, np.cumsum([len(t) for t in texts])].astype(np.uint32)
+    return {
+        "values": glb.view(np.frombuffer(b"".join(texts), dtype=np.uint8)),
+        "stringOffsets": glb.view(offsets),
+        "stringOffsetType": "UINT32",
+    }
+
+
+def _tileset(leaves: list[dict[str, Any]]) -> dict[str, Any]:
+    """The tileset: the root, then the 100 km squares (``TQ``) and 10 km squares (``TQ28``)
+    holding the 1 km leaves (``TQ2982``), each with the union of its children's regions."""
+    squares: dict[str, dict[str, list[dict[str, Any]]]] = {}
+    for leaf in leaves:
+        name = leaf["name"]
+        tile = {
+            "boundingVolume": {"region": leaf["region"]},
+            "geometricError": 0.0,
+            "refine": "ADD",
+            "transform": leaf["transform"],
+            "content": {"uri": f"tiles/{name}.glb"},
+        }
+        squares.setdefault(name[:2], {}).setdefault(name[:3] + name[4], []).append(tile)
+    hundreds = [
+        _parent(LEVELS[0], [_parent(LEVELS[1], tens) for tens in ten_km.values()])
+        for ten_km in squares.values()
+    ]
+    root = _parent(4 * LEVELS[0], hundreds)
+    return {
+        "asset": {"version": "1.1", "generator": "gnss-citygml"},
+        "geometricError": root["geometricError"],
+        "root": root,
+    }
+
+
+def _parent(side: float, children: list[dict[str, Any]]) -> dict[str, Any]:
+    """A square of ``side`` metres holding ``children``, with no content of its own."""
+    regions = np.array([c["boundingVolume"]["region"] for c in children])
+    region = [*regions[:, :2].min(axis=0), *regions[:, 2:4].max(axis=0)]
+    region += [regions[:, 4].min(), regions[:, 5].max()]
+    return {
+        "boundingVolume": {"region": [float(v) for v in region]},
+        "geometricError": side * ERROR_PER_SIDE,
+        "refine": "ADD",
+        "children": children,
+    }
+
+
+def _viewer() -> str:
+    """A CesiumJS page on the tileset beside it."""
+    from importlib.resources import files
+
+    return files("gnss_citygml.data").joinpath("viewer/viewer.html").read_text(encoding="utf-8")

@@ -247,14 +247,34 @@ def _model_writer(
     *,
     overwrite: bool = False,
     typed_attributes: bool = False,
+    ranges: bool = False,
+    grid_dir: StrPath | None = None,
     inputs: Iterable[object] = (),
 ) -> Callable[..., ExportResult]:
-    """The writer for the format ``output``'s suffix names (:data:`MODEL_SUFFIXES`), checked
-    before any work, also against the job's ``inputs`` (typed attributes are CityJSON's:
-    CityGML's generic attributes are typed already)."""
+    """The writer for the format ``output`` names (:data:`MODEL_SUFFIXES`, or a folder's
+    ``tileset.json`` for 3D Tiles), checked before any work, also against the job's ``inputs``
+    (typed attributes are CityJSON's: CityGML's generic attributes and 3D Tiles' properties are
+    typed already; ``ranges`` are drawn in 3D Tiles only)."""
     from .export import write_citygml, write_cityjson, write_cityjsonseq
-    from .files.paths import check_not_input, check_output
+    from .export.tiles3d import TILESET, write_3dtiles
+    from .files.paths import check_new_folder, check_not_input, check_output
 
+    if Path(output).name == TILESET:
+        folder = check_new_folder(Path(output).parent, overwrite=overwrite, mark=TILESET)
+        check_not_input(folder, inputs)
+        if typed_attributes:
+            raise InputError(
+                "typed attributes are for CityJSON: 3D Tiles' properties are typed already",
+                where=str(output),
+                fix="leave --typed-attributes off",
+            )
+        return functools.partial(write_3dtiles, ranges=ranges, grid_dir=grid_dir)
+    if ranges:
+        raise InputError(
+            "the heights' ranges are drawn in 3D Tiles only",
+            where=str(output),
+            fix=f"write FOLDER/{TILESET}, or leave --ranges off",
+        )
     path = check_output(output, overwrite=overwrite, suffixes=MODEL_SUFFIXES)
     check_not_input(path, inputs)
     suffix = path.suffix.lower()
@@ -276,20 +296,14 @@ def _model_writer(
 def _model_job(
     output: StrPath,
     buildings: Callable[[], gpd.GeoDataFrame],
-    overwrite: bool,
-    strict: bool,
-    validate: bool,
-    schema_dir: StrPath | None,
-    typed_attributes: bool,
+    writer: Callable[..., ExportResult],
     progress: Progress,
-    inputs: Iterable[object],
+    **options: Any,
 ) -> ExportResult:
-    """Check the output (none of the job's ``inputs``), make the buildings (with ``ground``
-    and ``height``) with ``buildings``, write them as the city model ``output`` (validated
-    unless ``validate`` is false); the result lists the buildings skipped and why."""
-    writer = _model_writer(
-        output, overwrite=overwrite, typed_attributes=typed_attributes, inputs=inputs
-    )
+    """Make the buildings (with ``ground`` and ``height``) with ``buildings``, write them as
+    the city model ``output`` with ``writer`` (:func:`_model_writer`, called first: it checks
+    the output before any work) and its ``options`` (overwrite, strict, validate,
+    schema_dir); the result lists the buildings skipped and why."""
     progress("reading", 0.0)
     frame = buildings()
     total = max(len(frame), 1)
@@ -300,15 +314,7 @@ def _model_job(
         written += n
         progress("writing", written / total)
 
-    result = writer(
-        frame,
-        output,
-        validate=validate,
-        schema_dir=schema_dir,
-        overwrite=overwrite,
-        strict=strict,
-        progress=counted,
-    )
+    result = writer(frame, output, progress=counted, **options)
     progress("done", 1.0)  # (skipped buildings are not counted as they go)
     return result
 
@@ -322,6 +328,7 @@ def convert_file(
     height_field: str = "height",
     relative: bool = False,
     ground_field: str | None = None,
+    fallback_field: str | None = None,
     dem: StrPath | None = None,
     dem_crs: str | None = None,
     grid_dir: StrPath | None = None,
@@ -330,13 +337,17 @@ def convert_file(
     validate: bool = True,
     schema_dir: StrPath | None = None,
     typed_attributes: bool = False,
+    ranges: bool = False,
     progress: Progress = _silent,
 ) -> ExportResult:
-    """Turn a polygon layer with a height field into a validated LOD1 city model.
+    """Turn a polygon layer with a height field into a validated LOD1 city model (or 3D Tiles,
+    ``output`` a folder's ``tileset.json``; ``ranges`` draws each height's interval there).
 
     The height is absolute (m ODN) unless ``relative``; the ground comes from
     ``ground_field`` or from the ``dem`` (one of the two, or the layer's ``ground`` column as
-    the heights layer of :func:`estimate_file` has)."""
+    the heights layer of :func:`estimate_file` has). The buildings without a usable height
+    take ``fallback_field``'s, if given, and every building says where its height came from
+    (``height_source``: :func:`~gnss_citygml.export.plan.buildings_with_heights`)."""
     from .export import buildings_with_heights
 
     if ground_field is not None and dem is not None:
@@ -351,12 +362,20 @@ def convert_file(
             source, layer=layer, id_field=id_field, dem=dem, dem_crs=dem_crs, grid_dir=grid_dir
         )
         return buildings_with_heights(
-            frame, height_field, relative=relative, ground_field=ground_field
+            frame,
+            height_field,
+            relative=relative,
+            ground_field=ground_field,
+            fallback_field=fallback_field,
         )
 
+    writer = _model_writer(
+        output, overwrite=overwrite, typed_attributes=typed_attributes, ranges=ranges,
+        grid_dir=grid_dir, inputs=[source, dem],
+    )  # fmt: skip
     return _model_job(
-        output, buildings, overwrite, strict, validate, schema_dir, typed_attributes, progress,
-        [source, dem],
+        output, buildings, writer, progress,
+        overwrite=overwrite, strict=strict, validate=validate, schema_dir=schema_dir,
     )  # fmt: skip
 
 
@@ -375,10 +394,12 @@ def export_file(
     validate: bool = True,
     schema_dir: StrPath | None = None,
     typed_attributes: bool = False,
+    ranges: bool = False,
     progress: Progress = _silent,
 ) -> ExportResult:
-    """Write the city model of a heights table (CSV or Parquet) for the footprints it was
-    estimated for; the ground from the table's ``ground`` column or from the ``dem``."""
+    """Write the city model (or 3D Tiles, as :func:`convert_file`) of a heights table (CSV or
+    Parquet) for the footprints it was estimated for; the ground from the table's ``ground``
+    column or from the ``dem``."""
     from .export import footprints_with_heights
     from .files.tables import read_table
 
@@ -389,7 +410,11 @@ def export_file(
         )
         return footprints_with_heights(frame, table, where=str(heights))
 
+    writer = _model_writer(
+        output, overwrite=overwrite, typed_attributes=typed_attributes, ranges=ranges,
+        grid_dir=grid_dir, inputs=[heights, footprints, dem],
+    )  # fmt: skip
     return _model_job(
-        output, buildings, overwrite, strict, validate, schema_dir, typed_attributes, progress,
-        [heights, footprints, dem],
+        output, buildings, writer, progress,
+        overwrite=overwrite, strict=strict, validate=validate, schema_dir=schema_dir,
     )  # fmt: skip

@@ -49,6 +49,12 @@ _MODEL_OPTIONS = together(
     click.option("--no-validate", "no_validate", is_flag=True, help="Skip validating the output."),
     SCHEMA_DIR,
     TYPED_ATTRIBUTES,
+    click.option(
+        "--ranges",
+        is_flag=True,
+        help="3D Tiles: draw each height's interval (height_lower to height_upper) as a "
+        "translucent prism.",
+    ),
     QUIET,
 )
 
@@ -71,8 +77,9 @@ def _run(job: Callable[..., ExportResult], output: Path, quiet: bool, **options)
 
 
 def _options(
-    layer, id_field, dem, dem_crs, grid_dir, overwrite, strict, no_validate, schema_dir, typed
-) -> dict:
+    layer, id_field, dem, dem_crs, grid_dir, overwrite, strict, no_validate, schema_dir, typed,
+    ranges,
+) -> dict:  # fmt: skip
     """The options ``convert`` and ``export`` share, as the jobs name them."""
     return {
         "layer": layer,
@@ -85,6 +92,7 @@ def _options(
         "validate": not no_validate,
         "schema_dir": schema_dir,
         "typed_attributes": typed,
+        "ranges": ranges,
     }
 
 
@@ -146,8 +154,17 @@ def _stdout_gone(stream) -> None:
     show_default=True,
     help="Field with the roof height in metres (absolute ODN unless --relative).",
 )
-@click.option("--relative", is_flag=True, help="The height field is above the ground.")
+@click.option(
+    "--relative",
+    is_flag=True,
+    help="The height field (for estimate's heights layer: the fallback field) is above the ground.",
+)
 @click.option("--ground-field", help="Field with the ground height (m ODN).")
+@click.option(
+    "--fallback-field",
+    help="Field whose height the buildings without a usable height get (e.g. OS's relh2, with "
+    "--relative); each building's height_source says where its height came from.",
+)
 @dem_file("DEM for the ground under each footprint (instead of --ground-field).")
 @DEM_CRS
 @GRID_DIR
@@ -159,6 +176,7 @@ def convert(
     height_field,
     relative,
     ground_field,
+    fallback_field,
     dem,
     dem_crs,
     grid_dir,
@@ -168,9 +186,11 @@ def convert(
     no_validate,
     schema_dir,
     typed_attributes,
+    ranges,
     quiet,
 ):
-    """Turn footprints with a height attribute into CityJSON, CityJSONSeq or CityGML LOD1.
+    """Turn footprints with a height attribute into CityJSON, CityJSONSeq, CityGML LOD1 or 3D
+    Tiles.
 
     INPUT is the heights layer of `estimate` or any polygon source with a height field (e.g.
     OS Building Height Attribute's abshmax, or relh2 with --relative). The heights a run in
@@ -185,10 +205,11 @@ def convert(
         height_field=height_field,
         relative=relative,
         ground_field=ground_field,
+        fallback_field=fallback_field,
     )
     options = _options(
         layer, id_field, dem, dem_crs, grid_dir, overwrite, strict, no_validate, schema_dir,
-        typed_attributes,
+        typed_attributes, ranges,
     )  # fmt: skip
     _run(job, output, quiet, **options)
 
@@ -218,6 +239,7 @@ def export(
     no_validate,
     schema_dir,
     typed_attributes,
+    ranges,
     quiet,
 ):
     """Write the city model of a heights table (CSV or Parquet, from `heights`)."""
@@ -226,7 +248,7 @@ def export(
     job = functools.partial(export_file, heights, footprints)
     options = _options(
         layer, id_field, dem, dem_crs, grid_dir, overwrite, strict, no_validate, schema_dir,
-        typed_attributes,
+        typed_attributes, ranges,
     )  # fmt: skip
     _run(job, output, quiet, **options)
 

@@ -214,7 +214,9 @@ MODEL_OUTPUT = click.option(
     "-o",
     type=click.Path(dir_okay=False, allow_dash=True, path_type=Path),
     required=True,
-    help="OUT.city.json (CityJSON 2.0), OUT.city.jsonl (CityJSONSeq) or OUT.gml (CityGML 2.0); "
+    help="OUT.city.json (CityJSON 2.0), OUT.city.jsonl (CityJSONSeq), OUT.gml (CityGML 2.0) "
+    "or FOLDER/tileset.json (3D Tiles 1.1 for web viewers: the folder, written whole, holds the "
+    "tiles and viewer.html); "
     "'-' writes CityJSONSeq to standard output (e.g. | cjio stdin ...) once it is complete "
     "and validated: it is written to a temporary file (in $TMPDIR) first, so a failed run "
     "writes nothing there; messages go to standard error.",

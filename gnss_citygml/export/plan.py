@@ -130,6 +130,7 @@ def buildings_with_heights(
     *,
     relative: bool = False,
     ground_field: str | None = None,
+    fallback_field: str | None = None,
 ) -> gpd.GeoDataFrame:
     """Any footprint layer with a height attribute as the buildings table the writers take.
 
@@ -146,6 +147,13 @@ def buildings_with_heights(
         The height field is the height above the ground (m); the roof is ground + height.
     ground_field
         The column with the ground height (m ODN), moved to ``ground``.
+    fallback_field
+        A column whose height the buildings without a usable height get (not converged, or
+        none): relative to the ground with ``relative``. The table then says where each
+        height came from in ``height_source``: ``gnss`` (or the height field's name, for a
+        layer that is not ``estimate``'s) or the fallback field's name; a fallback height has
+        no interval. A heights layer of ``estimate`` (with ``converged`` and
+        ``relative_height``) has absolute heights: ``relative`` is then the fallback's.
 
     Returns
     -------
@@ -170,9 +178,16 @@ def buildings_with_heights(
     [[12.0, 21.5, 'attribute relh2 + ground']]
     """
     columns = list(frame.columns)
-    for name in (height_field, ground_field):
+    for name in (height_field, ground_field, fallback_field):
         if name is not None and name not in columns:
             raise MissingColumnError([name], where="footprint layer", have=columns)
+    estimated = height_field == "height" and {"converged", "relative_height"} <= set(columns)
+    if relative and estimated and fallback_field is None:
+        raise InputError(
+            "the heights layer's heights are absolute (its relative_height is beside them)",
+            where="footprint layer",
+            fix="leave out --relative, or give the --fallback-field it is for",
+        )
     if ground_field is None and "ground" not in columns:
         raise MissingColumnError(
             ["ground"], where="footprint layer (give a ground field or a DEM)", have=columns
@@ -188,11 +203,31 @@ def buildings_with_heights(
     ground = _numeric(out, ground_field or "ground")
     height = _numeric(out, height_field)
     out["ground"] = ground
-    out["height"] = ground + height if relative else height
+    out["height"] = ground + height if relative and not estimated else height
     if ground_field not in (None, "ground"):
         out = out.drop(columns=[ground_field])
     if "method" not in out.columns and height_field != "height":
         out["method"] = f"attribute {height_field}" + (" + ground" if relative else "")
+    if fallback_field is not None:
+        out = _fallback(out, fallback_field, relative, "gnss" if estimated else height_field)
+    return out
+
+
+def _fallback(frame: gpd.GeoDataFrame, field: str, relative: bool, source: str):
+    """``frame`` whose buildings without a usable height take ``field``'s, with
+    ``height_source`` (:func:`buildings_with_heights`)."""
+    height = frame["height"].to_numpy(dtype=float)
+    usable = np.isfinite(height)
+    if "converged" in frame.columns:
+        usable &= booleans(frame["converged"], "converged", frame).fillna(False).to_numpy(bool)
+    other = _numeric(frame, field) + (frame["ground"].to_numpy(dtype=float) if relative else 0.0)
+    taken = ~usable & np.isfinite(other)
+    out = frame.copy()
+    out["height"] = np.where(taken, other, height)
+    for column in ("height_lower", "height_upper"):
+        if column in out.columns:
+            out.loc[taken, column] = np.nan
+    out["height_source"] = np.where(taken, field, source)
     return out
 
 
@@ -442,6 +477,8 @@ def _reasons(frame: gpd.GeoDataFrame, ground: np.ndarray, height: np.ndarray) ->
     if "converged" in frame.columns:
         converged = booleans(frame["converged"], "converged", frame)  # missing: no estimate
         failed = (~converged).fillna(False).to_numpy(dtype=bool)
+        if "height_source" in frame.columns:  # a fallback's height is not an estimate's
+            failed &= frame["height_source"].astype(str).to_numpy() == "gnss"
         status = frame["status"].astype(str).to_numpy() if "status" in frame else None
         reason[failed] = [
             "height estimate did not converge" + (f" ({status[i]})" if status is not None else "")

@@ -44,8 +44,6 @@ SCRIPT = Path(__file__).with_name("gltf_validate.mjs")
 FILES_PER_RUN = 200
 #: Messages kept per file (errors first); the counts are always whole.
 MAX_MESSAGES = 100
-#: The validator's severities, by number.
-SEVERITIES = ("error", "warning", "information", "hint")
 
 
 class GltfMessage(NamedTuple):

@@ -95,6 +95,7 @@ class MetadataRules:
         if schema is not None:
             for error in self.schema_validator.iter_errors(schema):
                 yield _pointer(f"{_ROOT}/schema", error), _text(error)
+            yield from _class_types(_dict(schema))
         tables = extension.get("propertyTables")
         if tables is None:
             return
@@ -178,6 +179,27 @@ def _index(value: object) -> bool:
     return isinstance(value, int) and not isinstance(value, bool) and value >= 0
 
 
+def _class_types(schema: dict) -> Iterator[tuple[str, str]]:
+    """The class properties of a metadata schema whose type or component type is not one of
+    the specification's (the JSON schema allows any string, for later versions), and the enum
+    properties whose enum is not in the schema."""
+    enums = _dict(schema.get("enums"))
+    for name, definition in _dict(schema.get("classes")).items():
+        for key, prop in _dict(_dict(definition).get("properties")).items():
+            at = f"{_ROOT}/schema/classes/{name}/properties/{key}"
+            prop = _dict(prop)
+            kind, component = prop.get("type"), prop.get("componentType")
+            if kind not in (*COMPONENTS, "STRING", "BOOLEAN", "ENUM"):
+                yield f"{at}/type", f"{kind!r} is not a type of the 3D Metadata Specification"
+            elif kind in COMPONENTS and component not in SIZES:
+                yield (
+                    f"{at}/componentType",
+                    f"{component!r} is not a component type of the 3D Metadata Specification",
+                )
+            elif kind == "ENUM" and prop.get("enumType") not in enums:
+                yield f"{at}/enumType", f"{prop.get('enumType')!r} is not an enum of the schema"
+
+
 def _table(table: dict, schema: dict, binaries: _Bytes, at: str) -> Iterator[tuple[str, str]]:
     """The errors of a property table (valid against its JSON schema) against its class and
     its bytes."""
@@ -204,7 +226,9 @@ def _table(table: dict, schema: dict, binaries: _Bytes, at: str) -> Iterator[tup
 def _column(prop: dict, storage: dict, count: int, binaries: _Bytes, enums: dict):
     """The errors of one column of a property table: ``prop`` its class property, ``storage``
     where its values are."""
-    kind = prop.get("type")
+    kind, size = prop.get("type"), SIZES.get(str(prop.get("componentType")), 0)
+    if kind not in (*COMPONENTS, "STRING", "BOOLEAN", "ENUM") or (kind in COMPONENTS and not size):
+        return  # an error of the class (_class_types)
     if prop.get("array") and "count" not in prop:  # variable-length arrays: their offsets
         yield from binaries.check(
             storage.get("arrayOffsets"),
@@ -223,13 +247,13 @@ def _column(prop: dict, storage: dict, count: int, binaries: _Bytes, enums: dict
         yield from binaries.check(
             storage["values"], "values", n, SIZES.get(enum.get("valueType", "UINT16"), 2)
         )
-    elif kind in COMPONENTS and prop.get("componentType") in SIZES:
-        component = prop["componentType"]
+    else:
         n *= COMPONENTS[kind]
-        yield from binaries.check(storage["values"], "values", n, SIZES[component])
-        values = binaries.data(storage["values"], n * SIZES[component])
-        if component in _FLOATS and values is not None:
-            bad = ~np.isfinite(np.frombuffer(values, _FLOATS[component]))
+        yield from binaries.check(storage["values"], "values", n, size)
+        values = binaries.data(storage["values"], n * size)
+        floats = _FLOATS.get(prop["componentType"])
+        if floats is not None and values is not None:
+            bad = ~np.isfinite(np.frombuffer(values, floats))
             if bad.any():
                 yield f"values: {int(bad.sum())} of {n} values are NaN or infinite"
 

@@ -436,6 +436,20 @@ def test_without_npm_the_install_says_what_to_do(tmp_path, monkeypatch):
     assert "install Node.js" in caught.value.fix and "npm install --prefix" in caught.value.fix
 
 
+@pytest.mark.skipif(not shutil.which("npm") and not in_ci(), reason="needs npm")
+def test_a_failed_install_says_what_to_run(tmp_path, monkeypatch):
+    """npm cannot reach its registry (a closed port, an empty cache): the error gives the
+    command to run, and nothing is left that looks installed."""
+    monkeypatch.setenv("npm_config_registry", "http://127.0.0.1:9/")
+    monkeypatch.setenv("npm_config_fetch_retries", "0")
+    monkeypatch.setenv("npm_config_cache", str(tmp_path / "cache"))
+    with pytest.raises(InputError, match="installing the glTF validator failed") as caught:
+        install_gltf_validator(tmp_path / "n")
+    assert f"npm install --prefix {tmp_path / 'n'} gltf-validator@" in caught.value.fix
+    with pytest.raises(InputError, match="is not installed"):
+        gltf_validator(tmp_path / "n")
+
+
 def test_the_node_folder(monkeypatch, tmp_path):
     monkeypatch.setenv(NODE_DIR_ENV, str(tmp_path))
     assert node_folder() == tmp_path

@@ -153,7 +153,7 @@ def install_gltf_validator(node_dir: StrPath | None = None) -> Path:
         raise InputError(
             f"installing the glTF validator failed ({user_text(reason, 200)})",
             where=str(folder),
-            fix=f"run: {command} (it needs the npm registry, registry.npmjs.org, reachable)",
+            fix=f"run: {command} (it needs the npm registry reachable)",
         )
     return folder
 

@@ -177,7 +177,9 @@ class _Walk:
             elif target.suffix.lower() == ".json":
                 chain = (*above, path.resolve())
                 if target.resolve() in chain:
-                    message = f"{name}: {pointer}/uri: {user_text(uri)} is a tileset above it"
+                    message = (
+                        f"{name}: {pointer}/uri: {user_text(uri)} is this tileset or one above it"
+                    )
                     errors.append(Issue(name, "tileset-cycle", message))
                 elif target.resolve() not in self.tilesets:
                     self.tilesets.add(target.resolve())

@@ -116,6 +116,7 @@ def test_the_wheel_holds_the_grids_their_licence_the_city_and_the_command(wheel)
         assert archive.read(data + "styles/heights.qml").decode() == heights_qml()  # QGIS style
         for name in SCHEMA_FOLDER.iterdir():  # the contracts: JSON Schemas, CityJSON Extension
             assert archive.read("gnss_citygml/schemas/" + name.name) == name.read_bytes()
+        assert "gnss_citygml/validate/gltf_validate.mjs" in names  # runs the glTF validator
         assert f"{info}/licenses/LICENSE" in names
         notice = archive.read(f"{info}/licenses/gnss_citygml/data/grids/LICENSE").decode()
         assert "Ordnance Survey" in notice and "Redistribution and use" in notice

@@ -1,4 +1,5 @@
-"""Validation of CityGML 2.0, CityJSON and CityJSONSeq files: schemas, structure, geometry.
+"""Validation of CityGML 2.0, CityJSON and CityJSONSeq files (schemas, structure, geometry),
+and of 3D Tiles 1.1 output.
 
 :func:`validate_file` finds the format from the file's content and returns a :class:`Report`
 listing every error with the object it concerns and the rule it breaks. The checks live in the
@@ -10,7 +11,12 @@ modules of this package:
   (:mod:`.cityjson_rules`), the toolkit's own CityJSON Extension (:mod:`.extensions`) and
   the official JSON schemas (:mod:`.json_schema`);
 - :mod:`.geometry`: the solids of both formats, with the matching val3dity error codes;
-- :mod:`.schemas`: where the official schemas are found.
+- :mod:`.schemas`: where the official schemas are found;
+- :mod:`.tiles3d`: 3D Tiles 1.1, :func:`validate_tileset`: a ``tileset.json`` and its external
+  tilesets against the official JSON schemas, their content files there, the glTF content
+  through Khronos' glTF validator (:mod:`.gltf`, an npm package run by node, installed by
+  :func:`install_gltf_validator`) and its ``EXT_mesh_features`` and ``EXT_structural_metadata``,
+  which that validator does not know (:mod:`.gltf_metadata`).
 
 A report is ``valid`` when it lists no error. A file that cannot be validated at all (missing,
 not CityGML or CityJSON, a CityGML version other than 2.0, a CityGML with a ``<!DOCTYPE>``,
@@ -32,16 +38,22 @@ from ..files.paths import StrPath, input_file
 from .citygml import validate_citygml
 from .cityjson import validate_cityjson
 from .geometry import PLANARITY_TOLERANCE, SNAP_TOLERANCE
+from .gltf import GLTF_VALIDATOR_VERSION, install_gltf_validator
 from .report import Issue, Report
-from .schemas import SCHEMA_DIR_ENV, schema_folder
+from .schemas import SCHEMA_DIR_ENV, TILES3D_SCHEMA_DIR_ENV, schema_folder
+from .tiles3d import validate_tileset
 
 __all__ = [
+    "GLTF_VALIDATOR_VERSION",
     "PLANARITY_TOLERANCE",
     "SCHEMA_DIR_ENV",
     "SNAP_TOLERANCE",
+    "TILES3D_SCHEMA_DIR_ENV",
     "Issue",
     "Report",
+    "install_gltf_validator",
     "validate_file",
+    "validate_tileset",
 ]
 
 

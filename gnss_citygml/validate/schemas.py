@@ -1,4 +1,5 @@
-"""Where the official schemas are: the schema folder, the CityGML 2.0 tree, CityJSON's files."""
+"""Where the official schemas are: the schema folder, the CityGML 2.0 tree, CityJSON's files,
+the 3D Tiles 1.1 folder."""
 
 from __future__ import annotations
 
@@ -9,10 +10,23 @@ from pathlib import Path
 from ..errors import InputError
 from ..files.paths import StrPath
 
-__all__ = ["SCHEMA_DIR_ENV", "citygml_schema_folder", "cityjson_schema_file", "schema_folder"]
+__all__ = [
+    "SCHEMA_DIR_ENV",
+    "TILES3D_SCHEMA_DIR_ENV",
+    "TILES3D_SCHEMA_SUBFOLDER",
+    "citygml_schema_folder",
+    "cityjson_schema_file",
+    "schema_folder",
+    "tiles3d_schema_folder",
+]
 
 #: Environment variable naming the folder of the official schemas.
 SCHEMA_DIR_ENV = "GNSS_CITYGML_SCHEMA_DIR"
+#: Environment variable naming the folder of the 3D Tiles 1.1 JSON schemas (the folder
+#: ``specification/schema`` of github.com/CesiumGS/3d-tiles, holding ``tileset.schema.json``).
+TILES3D_SCHEMA_DIR_ENV = "GNSS_CITYGML_3DTILES_SCHEMA_DIR"
+#: Where the 3D Tiles 1.1 JSON schemas are by default: this sub-folder of the schema folder.
+TILES3D_SCHEMA_SUBFOLDER = "3dtiles-1.1"
 
 
 def schema_folder(schema_dir: StrPath | None) -> Path | None:
@@ -64,3 +78,34 @@ def cityjson_schema_file(folder: Path, version: str | None, kind: str) -> Path |
     if not candidates:
         return None
     return max(candidates, key=lambda p: tuple(int(v) for v in re.findall(r"\d+", p.parent.name)))
+
+
+def tiles3d_schema_folder(schema_dir: StrPath | None = None) -> Path:
+    """The folder of the 3D Tiles 1.1 JSON schemas, the one holding ``tileset.schema.json``.
+
+    ``schema_dir`` if given, else ``$GNSS_CITYGML_3DTILES_SCHEMA_DIR``, else the sub-folder
+    ``3dtiles-1.1`` of the schema folder ``$GNSS_CITYGML_SCHEMA_DIR`` (as laid out in the
+    project's shared data, ``../shared/data/schemas``); an :class:`InputError` naming the
+    folders looked at if none holds the schemas.
+    """
+    if schema_dir is not None:
+        tried = [Path(schema_dir)]
+    elif os.environ.get(TILES3D_SCHEMA_DIR_ENV):
+        tried = [Path(os.environ[TILES3D_SCHEMA_DIR_ENV])]
+    else:
+        base = os.environ.get(SCHEMA_DIR_ENV)
+        tried = [Path(base) / TILES3D_SCHEMA_SUBFOLDER] if base else []
+    for folder in tried:
+        if (folder / "tileset.schema.json").is_file():
+            return folder
+    where = (
+        ", ".join(map(str, tried)) or f"neither ${TILES3D_SCHEMA_DIR_ENV} nor ${SCHEMA_DIR_ENV} set"
+    )
+    raise InputError(
+        "the 3D Tiles 1.1 JSON schemas (tileset.schema.json and the files it refers to) "
+        "are not found",
+        where=where,
+        fix=f"give their folder (schema_dir=, ${TILES3D_SCHEMA_DIR_ENV}) or put it as "
+        f"{TILES3D_SCHEMA_SUBFOLDER}/ in the schema folder (${SCHEMA_DIR_ENV}); it is the "
+        "folder specification/schema of github.com/CesiumGS/3d-tiles (version 1.1)",
+    )

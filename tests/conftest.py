@@ -24,6 +24,7 @@ import pandas as pd
 import pytest
 
 import gnss_citygml
+from gnss_citygml.errors import InputError
 from gnss_citygml.geodesy.grids import BUNDLED_GRID_DIR, GRID_DIR_ENV, GridError, grid_status
 from gnss_citygml.gnss.gpstime import gps_to_utc
 from gnss_citygml.gnss.sp3 import read_sp3
@@ -380,3 +381,24 @@ def engine():
 
     with connect(Tiling("local", workers=2)) as engine:
         yield engine
+
+
+@pytest.fixture(scope="session")
+def node_dir():
+    """Khronos' glTF validator, installed when missing (``$GNSS_CITYGML_NODE_DIR`` or the
+    user's cache folder)."""
+    from gnss_citygml.validate import install_gltf_validator
+
+    try:
+        return install_gltf_validator()
+    except InputError as exc:
+        message = f"needs Khronos' glTF validator, which could not be installed: {exc}"
+        if in_ci():
+            pytest.fail(f"{message}; with $CI set this is a failure", pytrace=False)
+        pytest.skip(message)
+
+
+@pytest.fixture(scope="session")
+def tiles3d_schema_dir(shared_data):
+    """The official 3D Tiles 1.1 JSON schemas, in the shared data."""
+    return shared_data / "schemas" / "3dtiles-1.1"

@@ -67,10 +67,21 @@ def buildings():
 
 
 @pytest.fixture(scope="module")
-def tileset(buildings, tmp_path_factory):
+def tileset(buildings, tiles3d_schema_dir, node_dir, tmp_path_factory):
+    """The buildings' tileset, with their ranges, validated as it is written (the official
+    schemas, Khronos' glTF validator installed where it looks first, the metadata
+    extensions)."""
     path = tmp_path_factory.mktemp("t") / "city" / "tileset.json"
-    result = write_3dtiles(buildings, path, ranges=True, grid_dir=BUNDLED_GRID_DIR)
+    result = write_3dtiles(
+        buildings, path, ranges=True, grid_dir=BUNDLED_GRID_DIR, schema_dir=tiles3d_schema_dir
+    )
     return path, result
+
+
+def test_the_tileset_is_validated_as_it_is_written(tileset):
+    _, result = tileset
+    assert result.report.valid and result.report.errors == []
+    assert {"json-schema", "gltf", "gltf-metadata"} <= set(result.report.checks)
 
 
 def read_glb(path):

@@ -26,25 +26,6 @@ ARRAY_BUFFER = 34962
 FLOAT = 5126
 
 
-@pytest.fixture(scope="module")
-def node_dir():
-    """Khronos' glTF validator, installed when missing (``$GNSS_CITYGML_NODE_DIR`` or the
-    user's cache folder)."""
-    try:
-        return install_gltf_validator()
-    except InputError as exc:
-        message = f"needs Khronos' glTF validator, which could not be installed: {exc}"
-        if in_ci():
-            pytest.fail(f"{message}; with $CI set this is a failure", pytrace=False)
-        pytest.skip(message)
-
-
-@pytest.fixture(scope="session")
-def schema_dir(shared_data):
-    """The official 3D Tiles 1.1 JSON schemas, in the shared data."""
-    return shared_data / "schemas" / "3dtiles-1.1"
-
-
 # --- a GLB made by hand: what the writer produces ---------------------------------------------
 
 
@@ -182,14 +163,14 @@ def write(folder, files: dict):
     return folder / "tileset.json"
 
 
-def validate(path, schema_dir, node_dir):
-    return validate_tileset(path, schema_dir=schema_dir, node_dir=node_dir)
+def validate(path, tiles3d_schema_dir, node_dir):
+    return validate_tileset(path, schema_dir=tiles3d_schema_dir, node_dir=node_dir)
 
 
 # --- valid and invalid tilesets ---------------------------------------------------------------
 
 
-def test_a_valid_tileset_passes(tmp_path, schema_dir, node_dir):
+def test_a_valid_tileset_passes(tmp_path, tiles3d_schema_dir, node_dir):
     root = tile("tiles/0.glb", refine="ADD", children=[tile("tiles/1.glb"), tile("sub.json")])
     path = write(
         tmp_path,
@@ -201,7 +182,7 @@ def test_a_valid_tileset_passes(tmp_path, schema_dir, node_dir):
             "tiles/2.glb": buildings(ids=("b", "", "c"), heights=(1.0, 2.0, 3.0)),
         },
     )
-    report = validate(path, schema_dir, node_dir)
+    report = validate(path, tiles3d_schema_dir, node_dir)
     assert report.errors == []
     assert report.valid
     assert report.format == "3D Tiles 1.1"
@@ -211,20 +192,20 @@ def test_a_valid_tileset_passes(tmp_path, schema_dir, node_dir):
     assert any("UNSUPPORTED_EXTENSION" in note for note in report.notes)
 
 
-def test_a_tileset_missing_its_geometric_error_fails(tmp_path, schema_dir, node_dir):
+def test_a_tileset_missing_its_geometric_error_fails(tmp_path, tiles3d_schema_dir, node_dir):
     doc = tileset(tile("0.glb"))
     del doc["geometricError"]
     report = validate(
-        write(tmp_path, {"tileset.json": doc, "0.glb": buildings()}), schema_dir, node_dir
+        write(tmp_path, {"tileset.json": doc, "0.glb": buildings()}), tiles3d_schema_dir, node_dir
     )
     assert [(e.object_id, e.rule) for e in report.errors] == [("tileset.json", "json-schema")]
     assert "'geometricError' is a required property" in report.errors[0].message
 
 
-def test_schema_errors_name_where_they_are(tmp_path, schema_dir, node_dir):
+def test_schema_errors_name_where_they_are(tmp_path, tiles3d_schema_dir, node_dir):
     doc = tileset(tile(children=[tile(), {"boundingVolume": {}, "geometricError": -1}]))
     doc["asset"] = {"version": 1.1}
-    report = validate(write(tmp_path, {"tileset.json": doc}), schema_dir, node_dir)
+    report = validate(write(tmp_path, {"tileset.json": doc}), tiles3d_schema_dir, node_dir)
     messages = sorted(e.message for e in report.errors)
     assert {e.rule for e in report.errors} == {"json-schema"}
     assert any("asset/version: 1.1 is not of type 'string'" in m for m in messages)
@@ -232,16 +213,18 @@ def test_schema_errors_name_where_they_are(tmp_path, schema_dir, node_dir):
     assert any("root/children/1/geometricError: -1 is less than" in m for m in messages)
 
 
-def test_a_missing_content_fails(tmp_path, schema_dir, node_dir):
+def test_a_missing_content_fails(tmp_path, tiles3d_schema_dir, node_dir):
     root = tile("0.glb", children=[tile("tiles/gone.glb")])
     report = validate(
-        write(tmp_path, {"tileset.json": tileset(root), "0.glb": buildings()}), schema_dir, node_dir
+        write(tmp_path, {"tileset.json": tileset(root), "0.glb": buildings()}),
+        tiles3d_schema_dir,
+        node_dir,
     )
     assert [(e.object_id, e.rule) for e in report.errors] == [("tileset.json", "content-missing")]
     assert "/root/children/0/content/uri: tiles/gone.glb: no such file" in report.errors[0].message
 
 
-def test_a_broken_accessor_fails_naming_the_file(tmp_path, schema_dir, node_dir):
+def test_a_broken_accessor_fails_naming_the_file(tmp_path, tiles3d_schema_dir, node_dir):
     doc, binary = buildings()
     broken = copy.deepcopy(doc)
     broken["accessors"][0]["count"] = 600  # far more than its buffer view holds
@@ -249,7 +232,7 @@ def test_a_broken_accessor_fails_naming_the_file(tmp_path, schema_dir, node_dir)
     root = tile("tiles/good.glb", children=[tile("tiles/broken.glb")])
     files = {"tileset.json": tileset(root), "tiles/good.glb": (doc, binary)}
     files["tiles/broken.glb"] = (broken, binary)
-    report = validate(write(tmp_path, files), schema_dir, node_dir)
+    report = validate(write(tmp_path, files), tiles3d_schema_dir, node_dir)
     assert not report.valid
     assert {(e.object_id, e.rule) for e in report.errors} == {("tiles/broken.glb", "gltf")}
     first = report.errors[0].message
@@ -257,7 +240,7 @@ def test_a_broken_accessor_fails_naming_the_file(tmp_path, schema_dir, node_dir)
     assert "does not fit referenced bufferView [0]" in first
 
 
-def test_external_tilesets_are_validated_recursively(tmp_path, schema_dir, node_dir):
+def test_external_tilesets_are_validated_recursively(tmp_path, tiles3d_schema_dir, node_dir):
     """An external tileset's own errors, those of its content, a cycle back to the root."""
     deeper = tileset(tile("../../tileset.json", children=[tile("../nothing.glb")]))
     del deeper["root"]["geometricError"]
@@ -268,7 +251,7 @@ def test_external_tilesets_are_validated_recursively(tmp_path, schema_dir, node_
         "a/b/not.glb": b"not a GLB",
     }
     deeper["root"]["children"].append(tile("not.glb"))
-    report = validate(write(tmp_path, files), schema_dir, node_dir)
+    report = validate(write(tmp_path, files), tiles3d_schema_dir, node_dir)
     found = sorted((e.object_id, e.rule) for e in report.errors)
     assert found == [
         ("a/b/deeper.json", "content-missing"),
@@ -279,18 +262,20 @@ def test_external_tilesets_are_validated_recursively(tmp_path, schema_dir, node_
     assert report.n_objects == 5
 
 
-def test_not_json_is_a_syntax_error(tmp_path, schema_dir, node_dir):
+def test_not_json_is_a_syntax_error(tmp_path, tiles3d_schema_dir, node_dir):
     path = tmp_path / "tileset.json"
     path.write_text('{"asset": {"version": "1.1"},', encoding="utf-8")
-    report = validate(path, schema_dir, node_dir)
+    report = validate(path, tiles3d_schema_dir, node_dir)
     assert [(e.rule, e.object_id) for e in report.errors] == [("json-syntax", "tileset.json")]
     assert "line 1" in report.errors[0].message
 
 
-def test_content_not_read_is_noted(tmp_path, schema_dir, node_dir):
+def test_content_not_read_is_noted(tmp_path, tiles3d_schema_dir, node_dir):
     root = tile("https://example.invalid/0.glb", children=[tile("0.b3dm")])
     report = validate(
-        write(tmp_path, {"tileset.json": tileset(root), "0.b3dm": b"b3dm"}), schema_dir, node_dir
+        write(tmp_path, {"tileset.json": tileset(root), "0.b3dm": b"b3dm"}),
+        tiles3d_schema_dir,
+        node_dir,
     )
     assert report.valid
     assert "1 content file(s) not checked: https: URI, not a local file" in report.notes
@@ -362,13 +347,13 @@ METADATA = {
 }
 
 
-def test_metadata_errors_are_found(tmp_path, schema_dir, node_dir):
+def test_metadata_errors_are_found(tmp_path, tiles3d_schema_dir, node_dir):
     """Each broken GLB, all in one tileset (one node process), has its own error."""
     names = {case: f"{i}.glb" for i, case in enumerate(METADATA)}
     root = tile(children=[tile(name) for name in names.values()])
     files = {"tileset.json": tileset(root)}
     files.update({names[case]: _broken(change) for case, (change, _) in METADATA.items()})
-    report = validate(write(tmp_path, files), schema_dir, node_dir)
+    report = validate(write(tmp_path, files), tiles3d_schema_dir, node_dir)
     by_file: dict[str, list[str]] = {}
     for issue in report.errors:
         assert issue.rule == "gltf-metadata", issue
@@ -378,12 +363,12 @@ def test_metadata_errors_are_found(tmp_path, schema_dir, node_dir):
         assert any(expected in m for m in messages), (case, messages)
 
 
-def test_strings_that_are_not_utf8_fail(tmp_path, schema_dir, node_dir):
+def test_strings_that_are_not_utf8_fail(tmp_path, tiles3d_schema_dir, node_dir):
     doc, binary = buildings(ids=("ab", "cd"))
     start = doc["bufferViews"][2]["byteOffset"]
     binary = binary[:start] + b"\xff" + binary[start + 1 :]
     files = {"tileset.json": tileset(tile("0.glb")), "0.glb": (doc, binary)}
-    report = validate(write(tmp_path, files), schema_dir, node_dir)
+    report = validate(write(tmp_path, files), tiles3d_schema_dir, node_dir)
     assert [e.rule for e in report.errors] == ["gltf-metadata"]
     assert "the strings are not UTF-8" in report.errors[0].message
 
@@ -404,24 +389,28 @@ def test_missing_schemas_are_an_input_error(tmp_path, monkeypatch):
         tiles3d_schema_folder()
 
 
-def test_the_schema_folder_from_the_environment(schema_dir, monkeypatch):
-    monkeypatch.setenv(SCHEMA_DIR_ENV, str(schema_dir.parent))
+def test_the_schema_folder_from_the_environment(tiles3d_schema_dir, monkeypatch):
+    monkeypatch.setenv(SCHEMA_DIR_ENV, str(tiles3d_schema_dir.parent))
     monkeypatch.delenv(TILES3D_SCHEMA_DIR_ENV, raising=False)
-    assert tiles3d_schema_folder() == schema_dir
+    assert tiles3d_schema_folder() == tiles3d_schema_dir
     monkeypatch.setenv(SCHEMA_DIR_ENV, "/nowhere")
-    monkeypatch.setenv(TILES3D_SCHEMA_DIR_ENV, str(schema_dir))
-    assert tiles3d_schema_folder() == schema_dir
+    monkeypatch.setenv(TILES3D_SCHEMA_DIR_ENV, str(tiles3d_schema_dir))
+    assert tiles3d_schema_folder() == tiles3d_schema_dir
 
 
-def test_a_missing_tileset_is_an_input_error(tmp_path, schema_dir):
+def test_a_missing_tileset_is_an_input_error(tmp_path, tiles3d_schema_dir):
     with pytest.raises(InputError, match="tileset not found"):
-        validate_tileset(tmp_path / "tileset.json", schema_dir=schema_dir)
+        validate_tileset(tmp_path / "tileset.json", schema_dir=tiles3d_schema_dir)
 
 
-def test_a_missing_validator_says_what_to_run(tmp_path, schema_dir):
+def test_a_missing_validator_says_what_to_run(tmp_path, tiles3d_schema_dir):
     write(tmp_path, {"tileset.json": tileset(tile("0.glb")), "0.glb": buildings()})
     with pytest.raises(InputError) as caught:
-        validate_tileset(tmp_path / "tileset.json", schema_dir=schema_dir, node_dir=tmp_path / "n")
+        validate_tileset(
+            tmp_path / "tileset.json",
+            schema_dir=tiles3d_schema_dir,
+            node_dir=tmp_path / "n",
+        )
     command = f"npm install --prefix {tmp_path / 'n'} gltf-validator@{GLTF_VALIDATOR_VERSION}"
     assert command in caught.value.fix
     with pytest.raises(InputError):

@@ -34,9 +34,10 @@ import shapely
 from ..errors import InputError
 from ..files.paths import StrPath, atomic_folder
 from ..geodesy.grid_refs import tile_index, tile_names
+from ..validate import Report
 from .glb import ELEMENT_ARRAY_BUFFER, Glb
 from .meshes import Mesh, prism_mesh
-from .output import ExportResult, Progress
+from .output import ExportResult, InvalidOutputError, Progress
 from .plan import Plan, prepare_buildings
 
 __all__ = ["TILESET", "write_3dtiles"]
@@ -51,6 +52,8 @@ ERROR_PER_SIDE = 0.05
 #: The buildings' colour and the ranges' (RGBA, linear).
 BUILDING_COLOUR = [0.8, 0.8, 0.78, 1.0]
 RANGE_COLOUR = [0.9, 0.35, 0.1, 0.35]
+#: What stands for a missing number in the property table (3D Metadata's ``noData``).
+NO_DATA = {"FLOAT64": -9999.0, "UINT32": 4_294_967_295}
 #: The property table's columns besides id and height, when the table has them, with their
 #: metadata types.
 OPTIONAL = {
@@ -68,6 +71,8 @@ def write_3dtiles(
     buildings: gpd.GeoDataFrame,
     path: StrPath,
     *,
+    validate: bool = True,
+    schema_dir: StrPath | None = None,
     overwrite: bool = False,
     strict: bool = False,
     ranges: bool = False,
@@ -78,7 +83,14 @@ def write_3dtiles(
     them) as a 3D Tiles 1.1 tileset: ``path`` is the tileset's ``tileset.json`` in a folder of
     its own, written whole (``overwrite`` replaces only a folder holding a tileset). ``ranges``
     adds each height's interval as a translucent prism; ``grid_dir`` is where the OSTN15 and
-    OSGM15 grids are (default: as :func:`gnss_citygml.geodesy.from_osgb` finds them)."""
+    OSGM15 grids are (default: as :func:`gnss_citygml.geodesy.from_osgb` finds them).
+
+    With ``validate``, the tileset is checked before the folder is renamed into place
+    (:func:`gnss_citygml.validate.tiles3d.validate_tileset`: the 3D Tiles 1.1 JSON schemas in
+    ``schema_dir`` or its ``3dtiles-1.1`` folder, every GLB by Khronos' glTF validator, the
+    metadata extensions); an invalid tileset raises
+    :class:`~gnss_citygml.export.output.InvalidOutputError` and is not kept, and a missing
+    validator or schema folder is an :class:`InputError` saying how to install it."""
     path = Path(path)
     if path.name != TILESET:
         raise InputError(
@@ -103,7 +115,32 @@ def write_3dtiles(
         tileset = _tileset(leaves)
         (work / TILESET).write_text(json.dumps(tileset, indent=1, allow_nan=False))
         (work / "viewer.html").write_text(_viewer())
-    return plan.result(path, None)
+        report = _validated(work, path, schema_dir) if validate else None
+    return plan.result(path, report)
+
+
+def _validated(work: Path, path: Path, schema_dir: StrPath | None) -> Report:
+    """The report of the tileset written in ``work`` (to be ``path``); raise if invalid."""
+    from ..validate.tiles3d import validate_tileset
+
+    try:
+        report = validate_tileset(work / TILESET, schema_dir=schema_dir)
+    except InputError as err:
+        raise InputError(
+            f"cannot validate the tileset: {err.what}",
+            where=err.where,
+            fix=f"{err.fix}; or write it without validating (--no-validate)",
+        ) from None
+    if not report.valid:
+        first = report.errors[0]
+        raise InvalidOutputError(
+            f"the tileset written is not valid: {len(report.errors)} error(s), the first "
+            f"{first.rule} ({first.object_id}): {first.message}",
+            where=str(path),
+            fix="please report this bug with the input; the tileset was not kept",
+        )
+    report.path = str(path)
+    return report
 
 
 def _squares(plan: Plan) -> Iterator[tuple[str, np.ndarray]]:
@@ -242,19 +279,20 @@ def _property_table(glb: Glb, frame: pd.DataFrame) -> dict[str, Any]:
 
 
 def _schema_property(kind: str) -> dict[str, Any]:
+    """A property of the class: a string, or a number with its no-data value (a missing value:
+    a building without an interval, say)."""
     if kind == "STRING":
         return {"type": "STRING"}
-    return {"type": "SCALAR", "componentType": kind}
+    return {"type": "SCALAR", "componentType": kind, "noData": NO_DATA[kind]}
 
 
 def _values(glb: Glb, column: pd.Series, kind: str) -> dict[str, Any]:
-    """A property's buffer views: its values (and a string's offsets)."""
+    """A property's buffer views: its values (a missing number as its no-data value) and a
+    string's offsets."""
     if kind != "STRING":
-        dtype = {"FLOAT64": np.float64, "UINT32": np.uint32}[kind]
         data = column.to_numpy(dtype=float)
-        if dtype is np.uint32:
-            data = np.nan_to_num(data, nan=0.0)
-        return {"values": glb.view(data.astype(dtype))}
+        data = np.where(np.isfinite(data), data, NO_DATA[kind])
+        return {"values": glb.view(data.astype({"FLOAT64": np.float64, "UINT32": np.uint32}[kind]))}
     texts = [str(v).encode("utf-8") if pd.notna(v) else b"" for v in column]
     offsets = np.r_[0, np.cumsum([len(t) for t in texts])].astype(np.uint32)
     return {

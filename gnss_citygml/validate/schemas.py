@@ -83,13 +83,14 @@ def cityjson_schema_file(folder: Path, version: str | None, kind: str) -> Path |
 def tiles3d_schema_folder(schema_dir: StrPath | None = None) -> Path:
     """The folder of the 3D Tiles 1.1 JSON schemas, the one holding ``tileset.schema.json``.
 
-    ``schema_dir`` if given, else ``$GNSS_CITYGML_3DTILES_SCHEMA_DIR``, else the sub-folder
+    ``schema_dir`` (or its sub-folder ``3dtiles-1.1``) if given, else
+    ``$GNSS_CITYGML_3DTILES_SCHEMA_DIR``, else the sub-folder
     ``3dtiles-1.1`` of the schema folder ``$GNSS_CITYGML_SCHEMA_DIR`` (as laid out in the
     project's shared data, ``../shared/data/schemas``); an :class:`InputError` naming the
     folders looked at if none holds the schemas.
     """
-    if schema_dir is not None:
-        tried = [Path(schema_dir)]
+    if schema_dir is not None:  # the folder itself, or the schema folder holding it
+        tried = [Path(schema_dir), Path(schema_dir) / TILES3D_SCHEMA_SUBFOLDER]
     elif os.environ.get(TILES3D_SCHEMA_DIR_ENV):
         tried = [Path(os.environ[TILES3D_SCHEMA_DIR_ENV])]
     else:

@@ -128,22 +128,33 @@ def estimate_file(
     else:  # (footprints given: _check_estimate refuses a file of observations without)
         result = run(obs, cast("gpd.GeoDataFrame", fp), dem, settings, progress=stage)
         heights = result.heights
-    _write_outputs(heights, result, output, report, true, overwrite, stage)
+    made = _provenance("estimate", settings, observations=observations, footprints=footprints,
+                       dem=dem)  # fmt: skip
+    _write_outputs(heights, result, output, report, true, overwrite, stage, made)
     progress("done", 1.0)
     return Estimated(heights=heights)
 
 
-def _write_outputs(heights, result, output, report, true, overwrite, stage) -> None:
-    """The heights layer into ``output`` and, from a single run's ``result``, the report."""
+def _provenance(command: str, settings: Any, **inputs: StrPath | None) -> dict[str, Any]:
+    """The provenance record of an output (:mod:`gnss_citygml.files.provenance`)."""
+    from .files.provenance import provenance
+
+    return provenance(command, settings, inputs.items())
+
+
+def _write_outputs(heights, result, output, report, true, overwrite, stage, made) -> None:
+    """The heights layer into ``output`` and, from a single run's ``result``, the report,
+    each with the provenance record ``made``."""
     from .files.styles import heights_qml
     from .files.tables import write_layer
     from .report import write_report
 
     if output is not None:
-        write_layer(heights, output, "heights", overwrite=overwrite, style=heights_qml())
+        style = heights_qml()
+        write_layer(heights, output, "heights", overwrite=overwrite, style=style, provenance=made)
     if result is not None and report is not None:
         stage("report")
-        write_report(result, report, truth=true, overwrite=overwrite)
+        write_report(result, report, truth=true, overwrite=overwrite, provenance=made)
 
 
 def _check_estimate(
@@ -249,6 +260,7 @@ def _model_writer(
     typed_attributes: bool = False,
     ranges: bool = False,
     grid_dir: StrPath | None = None,
+    title: str | None = None,
     inputs: Iterable[object] = (),
 ) -> Callable[..., ExportResult]:
     """The writer for the format ``output`` names (:data:`MODEL_SUFFIXES`, or a folder's
@@ -268,7 +280,7 @@ def _model_writer(
                 where=str(output),
                 fix="leave --typed-attributes off",
             )
-        return functools.partial(write_3dtiles, ranges=ranges, grid_dir=grid_dir)
+        return functools.partial(write_3dtiles, ranges=ranges, grid_dir=grid_dir, title=title)
     if ranges:
         raise InputError(
             "the heights' ranges are drawn in 3D Tiles only",
@@ -282,15 +294,14 @@ def _model_writer(
         ".jsonl": write_cityjsonseq,
         ".json": write_cityjson,
     }.get(suffix, write_citygml)
-    if not typed_attributes:
-        return writer
-    if writer is write_citygml:
+    if typed_attributes and writer is write_citygml:
         raise InputError(
             "typed attributes are for CityJSON: CityGML's generic attributes are typed already",
             where=str(output),
             fix="write .city.json or .city.jsonl, or leave the typed attributes off",
         )
-    return functools.partial(writer, typed_attributes=True)
+    typed = {"typed_attributes": True} if typed_attributes else {}
+    return functools.partial(writer, title=title, **typed)
 
 
 def _model_job(
@@ -338,6 +349,7 @@ def convert_file(
     schema_dir: StrPath | None = None,
     typed_attributes: bool = False,
     ranges: bool = False,
+    title: str | None = None,
     progress: Progress = _silent,
 ) -> ExportResult:
     """Turn a polygon layer with a height field into a validated LOD1 city model (or 3D Tiles,
@@ -371,11 +383,19 @@ def convert_file(
 
     writer = _model_writer(
         output, overwrite=overwrite, typed_attributes=typed_attributes, ranges=ranges,
-        grid_dir=grid_dir, inputs=[source, dem],
+        grid_dir=grid_dir, title=title, inputs=[source, dem],
+    )  # fmt: skip
+    made = _provenance(
+        "convert",
+        {"height_field": height_field, "relative": relative, "ground_field": ground_field,
+         "fallback_field": fallback_field, "layer": layer, "id_field": id_field,
+         "dem_crs": dem_crs, "strict": strict, "ranges": ranges},
+        source=source, dem=dem,
     )  # fmt: skip
     return _model_job(
         output, buildings, writer, progress,
         overwrite=overwrite, strict=strict, validate=validate, schema_dir=schema_dir,
+        provenance=made,
     )  # fmt: skip
 
 
@@ -395,6 +415,7 @@ def export_file(
     schema_dir: StrPath | None = None,
     typed_attributes: bool = False,
     ranges: bool = False,
+    title: str | None = None,
     progress: Progress = _silent,
 ) -> ExportResult:
     """Write the city model (or 3D Tiles, as :func:`convert_file`) of a heights table (CSV or
@@ -412,9 +433,16 @@ def export_file(
 
     writer = _model_writer(
         output, overwrite=overwrite, typed_attributes=typed_attributes, ranges=ranges,
-        grid_dir=grid_dir, inputs=[heights, footprints, dem],
+        grid_dir=grid_dir, title=title, inputs=[heights, footprints, dem],
+    )  # fmt: skip
+    made = _provenance(
+        "export",
+        {"layer": layer, "id_field": id_field, "dem_crs": dem_crs, "strict": strict,
+         "ranges": ranges},
+        heights=heights, footprints=footprints, dem=dem,
     )  # fmt: skip
     return _model_job(
         output, buildings, writer, progress,
         overwrite=overwrite, strict=strict, validate=validate, schema_dir=schema_dir,
+        provenance=made,
     )  # fmt: skip

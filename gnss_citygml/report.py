@@ -24,6 +24,7 @@ from __future__ import annotations
 import base64
 import html
 import io
+import json
 from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -34,6 +35,7 @@ import pandas as pd
 from .errors import InputError, user_text
 from .files.ids import id_named
 from .files.paths import StrPath, atomic_path, check_output_folder, make_folder
+from .files.provenance import summary
 from .model.fourpl import logistic4
 from .model.mixture import Cn0Mixture, elevation_units
 
@@ -208,6 +210,7 @@ def write_report(
     truth: pd.DataFrame | None = None,
     title: str = "gnss-citygml report",
     overwrite: bool = True,
+    provenance: dict | None = None,
     progress: Callable[[str], None] | None = None,
 ) -> Path:
     """Write the report of ``run`` (:func:`gnss_citygml.pipeline.run`) into ``folder``:
@@ -215,7 +218,9 @@ def write_report(
 
     ``truth`` (a simulator's truth table: ``id``, ``height``, ``ground``) adds the true
     heights and the errors to the table, and the worst and best fits are then those with the
-    largest and smallest errors. ``progress`` is told the name of each figure as it starts.
+    largest and smallest errors. ``provenance`` (:func:`gnss_citygml.files.provenance.provenance`)
+    heads the page, as a line and as JSON in ``<script type="application/json"
+    id="provenance">``. ``progress`` is told the name of each figure as it starts.
     Without ``overwrite``, existing report files are an error (:func:`check_report`)."""
     check_report(folder, overwrite=overwrite)
     plt = _pyplot()
@@ -228,7 +233,7 @@ def write_report(
             say(name)
             sections.append((heading, name, _png(plt, draw(plt, run, table, states))))
     say("page")
-    page = _page(title, run, table, sections)
+    page = _page(title, run, table, sections, provenance)
     folder = make_folder(folder)
     figures = make_folder(Path(folder) / "figures")
     for _, name, png in sections:
@@ -484,7 +489,20 @@ _FIGURES: list[tuple[str, str, Callable[..., Any]]] = [
 ]
 
 
-def _page(title: str, run: Run, table: pd.DataFrame, sections: list) -> str:
+def _made(provenance: dict | None) -> list[str]:
+    """The page's lines on where it came from: the summary, the settings, the record."""
+    if provenance is None:
+        return []
+    record = json.dumps(provenance).replace("</", "<\\/")  # (never closes the script)
+    settings = json.dumps(provenance.get("settings", {}), indent=1)
+    return [
+        f'<p class="made">{html.escape(summary(provenance))}</p>',
+        f"<details><summary>Settings</summary><pre>{html.escape(settings)}</pre></details>",
+        f'<script type="application/json" id="provenance">{record}</script>',
+    ]
+
+
+def _page(title: str, run: Run, table: pd.DataFrame, sections: list, provenance) -> str:
     """The HTML page: a summary, the figures (embedded), the counts by status and the table."""
     converged = int(table["converged"].sum())
     lines = [
@@ -502,6 +520,7 @@ def _page(title: str, run: Run, table: pd.DataFrame, sections: list) -> str:
         f"<title>{html.escape(title)}</title>",
         f"<style>{_STYLE}</style></head><body>",
         f"<h1>{html.escape(title)}</h1>",
+        *_made(provenance),
         *(f"<p>{html.escape(line)}</p>" for line in lines),
     ]
     for heading, name, png in sections:

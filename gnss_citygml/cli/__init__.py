@@ -34,7 +34,8 @@ __all__ = ["COMMANDS", "LazyGroup", "cli", "main"]
 COMMANDS = {
     "convert": (
         "citymodel",
-        "Turn footprints with a height attribute into CityJSON, CityJSONSeq or CityGML LOD1.",
+        "Turn footprints with a height attribute into CityJSON, CityJSONSeq, CityGML LOD1 or "
+        "3D Tiles.",
     ),
     "demo": ("demo", "Run the main job on the bundled sample city and compare it with the truth."),
     "estimate": ("estimate", "Estimate the height of every footprint from GNSS OBSERVATIONS."),
@@ -49,6 +50,10 @@ COMMANDS = {
     "heights": (
         "heights",
         "Estimate building heights from an intersections table (CSV or Parquet).",
+    ),
+    "info": (
+        "citymodel",
+        "Print where an output came from: the version, command, settings and inputs (SHA-256).",
     ),
     "observe": (
         "observe",

@@ -50,6 +50,9 @@ _MODEL_OPTIONS = together(
     SCHEMA_DIR,
     TYPED_ATTRIBUTES,
     click.option(
+        "--title", help="The model's title (CityJSON metadata, CityGML gml:name, 3D Tiles)."
+    ),
+    click.option(
         "--ranges",
         is_flag=True,
         help="3D Tiles: draw each height's interval (height_lower to height_upper) as a "
@@ -78,7 +81,7 @@ def _run(job: Callable[..., ExportResult], output: Path, quiet: bool, **options)
 
 def _options(
     layer, id_field, dem, dem_crs, grid_dir, overwrite, strict, no_validate, schema_dir, typed,
-    ranges,
+    title, ranges,
 ) -> dict:  # fmt: skip
     """The options ``convert`` and ``export`` share, as the jobs name them."""
     return {
@@ -92,6 +95,7 @@ def _options(
         "validate": not no_validate,
         "schema_dir": schema_dir,
         "typed_attributes": typed,
+        "title": title,
         "ranges": ranges,
     }
 
@@ -186,11 +190,11 @@ def convert(
     no_validate,
     schema_dir,
     typed_attributes,
+    title,
     ranges,
     quiet,
 ):
-    """Turn footprints with a height attribute into CityJSON, CityJSONSeq, CityGML LOD1 or 3D
-    Tiles.
+    """Turn footprints with a height attribute into CityJSON, CityJSONSeq, CityGML LOD1 or 3D Tiles.
 
     INPUT is the heights layer of `estimate` or any polygon source with a height field (e.g.
     OS Building Height Attribute's abshmax, or relh2 with --relative). The heights a run in
@@ -209,7 +213,7 @@ def convert(
     )
     options = _options(
         layer, id_field, dem, dem_crs, grid_dir, overwrite, strict, no_validate, schema_dir,
-        typed_attributes, ranges,
+        typed_attributes, title, ranges,
     )  # fmt: skip
     _run(job, output, quiet, **options)
 
@@ -239,6 +243,7 @@ def export(
     no_validate,
     schema_dir,
     typed_attributes,
+    title,
     ranges,
     quiet,
 ):
@@ -248,7 +253,7 @@ def export(
     job = functools.partial(export_file, heights, footprints)
     options = _options(
         layer, id_field, dem, dem_crs, grid_dir, overwrite, strict, no_validate, schema_dir,
-        typed_attributes, ranges,
+        typed_attributes, title, ranges,
     )  # fmt: skip
     _run(job, output, quiet, **options)
 
@@ -281,3 +286,33 @@ def validate(path, schema_dir, max_errors):
         click.echo(f"note: {escape_controls(note)}", err=True)
     click.echo(report.summary())
     sys.exit(report.exit_code)
+
+
+@click.command()
+@click.argument("path", type=click.Path(path_type=Path))
+@LAYER
+@click.option("--json", "as_json", is_flag=True, help="Print the record as JSON.")
+def info(path, layer, as_json):
+    """Print where an output came from: the version, command, settings and inputs (SHA-256).
+
+    PATH is the heights GeoPackage, a CityJSON, CityJSONSeq or CityGML model, a 3D Tiles
+    tileset (its tileset.json or folder) or a report page."""
+    import json
+
+    from ..files.provenance import read_provenance
+
+    record = read_provenance(path, layer=layer)
+    if as_json:
+        click.echo(json.dumps(record, indent=1))
+        return
+    for key in ("software", "created", "command"):
+        click.echo(f"{key + ':':<10}{user_text(str(record.get(key)))}")
+    click.echo("inputs:")
+    for item in record.get("inputs", []):
+        click.echo(
+            f"  {item.get('role', ''):<13}{user_text(str(item.get('name'))):<32}"
+            f"{item.get('bytes', 0):>14,} B  sha256 {item.get('sha256')}"
+        )
+    click.echo("settings:")
+    for line in json.dumps(record.get("settings", {}), indent=1).splitlines()[1:-1]:
+        click.echo(f" {line}")

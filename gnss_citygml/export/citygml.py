@@ -32,6 +32,7 @@ vertex and gluing the texts in Python gave 18,000.
 from __future__ import annotations
 
 import datetime as dt
+import json
 import re
 import warnings
 from collections.abc import Iterable
@@ -44,6 +45,7 @@ from lxml import etree
 
 from ..errors import InputError, listing
 from ..files.paths import StrPath, atomic_path
+from ..files.provenance import summary
 from .attributes import attribute_columns, attribute_values, creation_date, measured_heights
 from .output import ExportResult, Progress, validated_output
 from .plan import CHECK_CHUNK, Plan, chunks, hash_texts, prepare_buildings, repeated_positions
@@ -110,6 +112,8 @@ def write_citygml(
     overwrite: bool = False,
     strict: bool = False,
     date: dt.date | str | None = None,
+    title: str | None = None,
+    provenance: dict | None = None,
     progress: Progress | None = None,
 ) -> ExportResult:
     """Write the buildings as a CityGML 2.0 file of LOD1 solids.
@@ -134,6 +138,11 @@ def write_citygml(
         Stop with an error if a building has no usable height, instead of skipping it.
     date
         ``core:creationDate`` (``datetime.date`` or ``YYYY-MM-DD``; default today).
+    title
+        The model's ``gml:name``.
+    provenance
+        Where the model came from (:func:`gnss_citygml.files.provenance.provenance`), written
+        as the model's ``gml:description``: its one-line summary, then the record as JSON.
     progress
         Called with the number of buildings written after each chunk.
 
@@ -157,7 +166,7 @@ def write_citygml(
     date = creation_date(date)
     _check_unique(plan)
     with atomic_path(path, overwrite=overwrite) as tmp:
-        replaced = _write_model(tmp, plan, date, progress)
+        replaced = _write_model(tmp, plan, date, (title, provenance), progress)
         result = plan.result(path, None)  # raises if nothing was written
         result.report = validated_output(tmp, path, validate, schema_dir)
     if replaced:
@@ -170,9 +179,11 @@ def write_citygml(
     return result
 
 
-def _write_model(tmp, plan, date: str, progress) -> list[str]:
-    """Stream the city model into ``tmp``, chunk by chunk of buildings; returns the ids of
-    those whose text XML cannot hold (:func:`_unwritable`)."""
+def _write_model(tmp, plan, date: str, about, progress) -> list[str]:
+    """Stream the city model into ``tmp``, chunk by chunk of buildings, with its title and
+    provenance (``about``); returns the ids of those whose text XML cannot hold
+    (:func:`_unwritable`)."""
+    title, provenance = about
     replaced: list[str] = []
     with open(tmp, "wb") as raw:
         with etree.xmlfile(raw, encoding="utf-8") as xf:
@@ -180,6 +191,12 @@ def _write_model(tmp, plan, date: str, progress) -> list[str]:
             root = etree.QName(_NS["core"], "CityModel")
             location = {etree.QName(_NS["xsi"], "schemaLocation"): _SCHEMA_LOCATION}
             with xf.element(root, location, nsmap=_NS):
+                if provenance is not None:  # (GML: description, name, then boundedBy)
+                    with xf.element(etree.QName(_NS["gml"], "description")):
+                        xf.write(f"{summary(provenance)}\n{json.dumps(provenance)}")
+                if title is not None:
+                    with xf.element(etree.QName(_NS["gml"], "name")):
+                        xf.write(title)
                 _envelope(xf, plan.bounds_mm())
                 for rows in plan.chunks():
                     replaced.extend(_unwritable(rows))

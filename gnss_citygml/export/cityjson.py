@@ -42,6 +42,7 @@ import pandas as pd
 from ..contracts import EXTENSION, load
 from ..errors import InputError, listing
 from ..files.paths import atomic_path
+from ..files.provenance import KEY
 from .attributes import attribute_columns, attribute_values, creation_date, measured_heights
 from .output import ExportResult, Progress, validated_output
 from .plan import CHUNK, booleans, chunks, prepare_buildings
@@ -87,6 +88,7 @@ def write_cityjson(
     strict: bool = False,
     date: dt.date | str | None = None,
     title: str | None = None,
+    provenance: dict | None = None,
     progress: Progress | None = None,
     typed_attributes: bool = False,
 ) -> ExportResult:
@@ -113,6 +115,9 @@ def write_cityjson(
     date, title
         The creation date written (``datetime.date`` or ``YYYY-MM-DD``; default today) and
         ``metadata.title``.
+    provenance
+        Where the model came from (:func:`gnss_citygml.files.provenance.provenance`), written
+        as ``metadata.provenance``.
     progress
         Called with the number of buildings written after each chunk.
     typed_attributes
@@ -147,7 +152,7 @@ def write_cityjson(
     """
     plan = prepare_buildings(buildings, strict=strict)
     date = creation_date(date)
-    header, translate = _header(plan.bounds_mm(), date, title, typed_attributes)
+    header, translate = _header(plan.bounds_mm(), date, title, typed_attributes, provenance)
     frame = _all_chunks(plan, path)
     parts = part_ids(frame["id"], frame.geometry)
     prisms = extrude(frame.geometry, frame["ground"], frame["height"], numbering="all")
@@ -193,6 +198,7 @@ def write_cityjsonseq(
     strict: bool = False,
     date: dt.date | str | None = None,
     title: str | None = None,
+    provenance: dict | None = None,
     progress: Progress | None = None,
     typed_attributes: bool = False,
 ) -> ExportResult:
@@ -217,7 +223,7 @@ def write_cityjsonseq(
     """
     plan = prepare_buildings(buildings, strict=strict)
     date = creation_date(date)
-    header, translate = _header(plan.bounds_mm(), date, title, typed_attributes)
+    header, translate = _header(plan.bounds_mm(), date, title, typed_attributes, provenance)
     header.update({"CityObjects": {}, "vertices": []})
     with atomic_path(path, overwrite=overwrite) as tmp:
         with open(tmp, "w", encoding="utf-8") as out:
@@ -247,10 +253,12 @@ def _dumps(value) -> str:
 
 
 def _header(
-    bounds: np.ndarray, date: str, title: str | None, typed: bool
+    bounds: np.ndarray, date: str, title: str | None, typed: bool, provenance: dict | None
 ) -> tuple[dict, np.ndarray]:
     """The CityJSON object without CityObjects and vertices, and the translation (mm); with
-    ``typed``, it declares the toolkit's Extension."""
+    ``typed``, it declares the toolkit's Extension; the ``provenance`` record
+    (:mod:`gnss_citygml.files.provenance`) goes in the metadata, where other members than the
+    six the specification names are allowed (3DBAG keeps its version there too)."""
     translate = (bounds[:3] // 1000) * 1000  # whole metres below the data
     metadata = {
         "referenceSystem": CRS_URL,
@@ -259,6 +267,8 @@ def _header(
     }
     if title is not None:
         metadata["title"] = title
+    if provenance is not None:
+        metadata[KEY] = provenance
     header: dict[str, object] = {"type": "CityJSON", "version": VERSION}
     if typed:
         extension = load(EXTENSION)

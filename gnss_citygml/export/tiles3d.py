@@ -33,6 +33,7 @@ import shapely
 
 from ..errors import InputError
 from ..files.paths import StrPath, atomic_folder
+from ..files.provenance import KEY
 from ..geodesy.grid_refs import tile_index, tile_names
 from ..validate import Report
 from .glb import ELEMENT_ARRAY_BUFFER, Glb
@@ -77,13 +78,17 @@ def write_3dtiles(
     strict: bool = False,
     ranges: bool = False,
     grid_dir: StrPath | None = None,
+    title: str | None = None,
+    provenance: dict | None = None,
     progress: Progress | None = None,
 ) -> ExportResult:
     """Write the buildings (as :func:`~gnss_citygml.export.cityjson.write_cityjson` takes
     them) as a 3D Tiles 1.1 tileset: ``path`` is the tileset's ``tileset.json`` in a folder of
     its own, written whole (``overwrite`` replaces only a folder holding a tileset). ``ranges``
     adds each height's interval as a translucent prism; ``grid_dir`` is where the OSTN15 and
-    OSGM15 grids are (default: as :func:`gnss_citygml.geodesy.from_osgb` finds them).
+    OSGM15 grids are (default: as :func:`gnss_citygml.geodesy.from_osgb` finds them);
+    ``title`` and ``provenance`` (:func:`gnss_citygml.files.provenance.provenance`) go in the
+    tileset's ``asset.extras``.
 
     With ``validate``, the tileset is checked before the folder is renamed into place
     (:func:`gnss_citygml.validate.tiles3d.validate_tileset`: the 3D Tiles 1.1 JSON schemas in
@@ -113,6 +118,10 @@ def write_3dtiles(
         if not leaves:
             plan.result(path, None)  # raises: nothing to write
         tileset = _tileset(leaves)
+        extras = {"title": title, KEY: provenance}
+        extras = {k: v for k, v in extras.items() if v is not None}
+        if extras:
+            tileset["asset"]["extras"] = extras
         (work / TILESET).write_text(json.dumps(tileset, indent=1, allow_nan=False))
         (work / "viewer.html").write_text(_viewer())
         report = _validated(work, path, schema_dir) if validate else None

@@ -8,9 +8,10 @@ every other layer (and the styles table) of the file is kept."""
 
 from __future__ import annotations
 
+import json
 from collections.abc import Iterable
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
@@ -19,6 +20,7 @@ from ..errors import InputError, first_line, user_text
 from .geopackage import check_no_triggers
 from .ids import source_named
 from .paths import StrPath, atomic_path, check_not_input, check_output, input_file, same_file
+from .provenance import KEY, summary
 from .styles import save_default_style
 
 if TYPE_CHECKING:
@@ -216,6 +218,7 @@ def write_layer(
     *,
     overwrite: bool = True,
     style: str | None = None,
+    provenance: dict | None = None,
 ) -> None:
     """Write a GeoDataFrame as ``layer`` of ``path``, atomically, in the format its suffix names.
 
@@ -228,6 +231,9 @@ def write_layer(
 
     ``style`` (QGIS QML) is saved in a GeoPackage as the layer's default style
     (:func:`gnss_citygml.files.styles.save_default_style`); the other formats have no place for it.
+    So is ``provenance`` (:func:`gnss_citygml.files.provenance.provenance`): the layer's
+    metadata item ``provenance`` in ``gpkg_metadata``, and its one-line summary as the layer's
+    description.
     A new GeoPackage is version 1.2, which every GDAL since 2.2 (QGIS 3.22's too) reads
     without a warning."""
     path = check_layer_output(path, layer, overwrite=overwrite)
@@ -246,7 +252,13 @@ def write_layer(
             if update:  # the copy GDAL writes to (the file may have changed since the check)
                 check_no_triggers(tmp)
             version = None if update else {"VERSION": "1.2"}
-            out.to_file(tmp, layer=layer, driver=driver, dataset_options=version)
+            made: dict[str, Any] = {}
+            if provenance is not None:
+                made = {
+                    "layer_options": {"DESCRIPTION": summary(provenance)},
+                    "layer_metadata": {KEY: json.dumps(provenance)},
+                }
+            out.to_file(tmp, layer=layer, driver=driver, dataset_options=version, **made)
             if style is not None:
                 save_default_style(tmp, layer, style)
         else:

@@ -40,6 +40,7 @@ import pandas as pd
 
 from ..errors import InputError, listing, user_text
 from ..files.paths import StrPath, atomic_folder, check_not_input, file_digest
+from ..files.provenance import PARTITION_INDEX
 from ..observations import read_observations, repeated_signals
 from ..settings import (
     DEFAULT_TILE_SIZE,
@@ -72,8 +73,8 @@ __all__ = [
     "tile_files",
 ]
 
-#: The partition's index, in its folder.
-INDEX = "partition.json"
+#: The partition's index, in its folder (the name provenance records know it by).
+INDEX = PARTITION_INDEX
 #: The folder of the receivers' partitions, in the partition's folder.
 RECEIVERS = "receivers"
 #: The index's format version: 2 lists each tile's files (with rows, size and SHA-256).

@@ -1,0 +1,193 @@
+"""Where an output came from: the toolkit's version, the command and its settings, each input's
+name and SHA-256, and when, written into every output and read back by ``gnss-citygml info``.
+
+A map made from crowdsourced data must say with what and from what it was made. The record
+(:func:`provenance`) is one JSON object::
+
+    {"software": "gnss-citygml 0.9.0", "created": "2026-11-27T12:00:00Z", "command": "estimate",
+     "settings": {...}, "inputs": [{"role": "observations", "name": "june.parquet",
+     "bytes": 1234, "sha256": "..."}]}
+
+Each output keeps it where its format has room: a GeoPackage layer in ``gpkg_metadata``
+(GDAL's metadata of the layer, item :data:`KEY`) with a one-line summary as the layer's
+description; CityJSON and CityJSONSeq in ``metadata.provenance``; CityGML as the model's
+``gml:description`` (the summary, then the record); a 3D Tiles tileset in
+``asset.extras.provenance``; the report in its header and in a ``<script
+type="application/json" id="provenance">``. A folder given as input (a partition, a DEM's
+tiles) is digested as the SHA-256 of its files' relative paths and SHA-256, in name order; a
+partition, as its index (which lists its files' SHA-256).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime as dt
+import enum
+import hashlib
+import json
+import math
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any
+
+from ..errors import InputError
+from .paths import StrPath, file_digest
+
+__all__ = ["KEY", "PARTITION_INDEX", "digest_input", "provenance", "read_provenance", "summary"]
+
+#: The metadata item (GeoPackage) or member (JSON) holding the record.
+KEY = "provenance"
+#: A partition's index (:mod:`gnss_citygml.tiling.partition`), which lists the SHA-256 of each
+#: of its files: a partition is digested as its index.
+PARTITION_INDEX = "partition.json"
+
+
+def provenance(
+    command: str, settings: Any, inputs: Iterable[tuple[str, StrPath | None]]
+) -> dict[str, Any]:
+    """The record of an output made by ``command`` with ``settings`` (a dataclass such as
+    :class:`~gnss_citygml.settings.RunSettings`, or a mapping) from ``inputs`` (``(role,
+    path)``; None paths are left out), now."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        release = version("gnss-citygml")
+    except PackageNotFoundError:  # (a source tree that was never installed)
+        release = "unknown"
+    return {
+        "software": f"gnss-citygml {release}",
+        "created": dt.datetime.now(dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
+        "command": command,
+        "settings": json.loads(json.dumps(_plain(settings), default=str)),
+        "inputs": [
+            {"role": role, **digest_input(path)} for role, path in inputs if path is not None
+        ],
+    }
+
+
+def digest_input(path: StrPath) -> dict[str, Any]:
+    """``name``, ``bytes`` and ``sha256`` of an input file, or of a folder's files."""
+    path = Path(path)
+    if (path / PARTITION_INDEX).is_file():  # a partition: its index lists its files' SHA-256
+        return {"name": path.name + "/", **digest_input(path / PARTITION_INDEX)}
+    if path.is_file():
+        size, sha = file_digest(path)
+        return {"name": path.name, "bytes": size, "sha256": sha}
+    if not path.is_dir():
+        raise InputError("an input is gone", where=str(path), fix="give the file again")
+    lines, total = [], 0
+    for file in sorted(p for p in path.rglob("*") if p.is_file()):
+        size, sha = file_digest(file)
+        total += size
+        lines.append(f"{file.relative_to(path).as_posix()} {sha}\n")
+    sha = hashlib.sha256("".join(lines).encode()).hexdigest()
+    return {"name": path.name + "/", "bytes": total, "sha256": sha}
+
+
+def summary(record: dict[str, Any]) -> str:
+    """One line: what made it, when, from what."""
+    inputs = ", ".join(f"{i['name']} ({i['sha256'][:12]})" for i in record.get("inputs", []))
+    return (
+        f"made by {record.get('software')} ({record.get('command')}) on "
+        f"{record.get('created')} from {inputs or 'no file'}"
+    )
+
+
+def _plain(value: Any) -> Any:
+    """Settings as JSON's types: dataclasses as objects, enums by value, paths as text."""
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return {f.name: _plain(getattr(value, f.name)) for f in dataclasses.fields(value)}
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_plain(v) for v in value]
+    if isinstance(value, enum.Enum):
+        return value.value
+    if isinstance(value, Path):
+        return str(value)
+    if isinstance(value, float) and not math.isfinite(value):
+        return str(value)  # (JSON has no NaN nor infinity)
+    return value
+
+
+def read_provenance(path: StrPath, layer: str | None = None) -> dict[str, Any]:
+    """The provenance record an output holds: a GeoPackage's layer (``layer``, default the
+    ``heights`` layer or the only one), a CityJSON or CityJSONSeq file, a CityGML file, a 3D
+    Tiles tileset (its ``tileset.json`` or folder) or a report page; an :class:`InputError`
+    if it holds none."""
+    path = Path(path)
+    if path.is_dir() and (path / "tileset.json").is_file():
+        path = path / "tileset.json"
+    if not path.is_file():
+        raise InputError("no such file", where=str(path), fix="give an output of gnss-citygml")
+    suffix = path.suffix.lower()
+    reader = {
+        ".gpkg": lambda: _from_geopackage(path, layer),
+        ".json": lambda: _from_json(json.loads(path.read_text(encoding="utf-8"))),
+        ".jsonl": lambda: _from_json(json.loads(_first_line(path))),
+        ".gml": lambda: _from_citygml(path),
+        ".xml": lambda: _from_citygml(path),
+        ".html": lambda: _from_report(path),
+    }.get(suffix)
+    try:
+        record = reader() if reader is not None else None
+    except (ValueError, OSError) as err:  # (json's and lxml's errors are ValueErrors)
+        raise InputError(f"cannot read it: {err}", where=str(path)) from None
+    if not isinstance(record, dict):
+        raise InputError(
+            "no provenance record in it",
+            where=str(path),
+            fix="give a heights GeoPackage, city model, tileset or report this toolkit wrote",
+        )
+    return record
+
+
+def _from_json(doc: Any) -> Any:
+    """A CityJSON's ``metadata`` or a tileset's ``asset.extras``."""
+    if not isinstance(doc, dict):
+        return None
+    holder = doc.get("metadata") if "metadata" in doc else doc.get("asset", {}).get("extras")
+    return holder.get(KEY) if isinstance(holder, dict) else None
+
+
+def _first_line(path: Path) -> str:
+    with open(path, encoding="utf-8") as file:
+        return file.readline()
+
+
+def _from_citygml(path: Path) -> Any:
+    """The JSON after the summary line of the model's ``gml:description``."""
+    from lxml import etree
+
+    for _, element in etree.iterparse(str(path), events=("end",), resolve_entities=False):
+        if etree.QName(element).localname == "description":
+            text = (element.text or "").split("\n", 1)
+            return json.loads(text[1]) if len(text) == 2 else None
+        if etree.QName(element).localname in ("boundedBy", "cityObjectMember"):
+            return None
+    return None
+
+
+def _from_report(path: Path) -> Any:
+    import re
+
+    found = re.search(
+        r'<script type="application/json" id="provenance">(.*?)</script>',
+        path.read_text(encoding="utf-8"),
+        re.S,
+    )
+    return json.loads(found.group(1)) if found else None
+
+
+def _from_geopackage(path: Path, layer: str | None) -> Any:
+    import pyogrio
+
+    layers = [str(name) for name, _ in pyogrio.list_layers(path)]
+    if layer is None:
+        layer = "heights" if "heights" in layers else (layers[0] if len(layers) == 1 else None)
+    if layer is None or layer not in layers:
+        raise InputError(
+            f"which layer? it has {', '.join(layers)}", where=str(path), fix="give --layer"
+        )
+    text = (pyogrio.read_info(path, layer=layer).get("layer_metadata") or {}).get(KEY)
+    return json.loads(text) if text else None

@@ -110,14 +110,10 @@ def write_cityjson(
         Folder of the official CityJSON JSON schemas, for the validation (default:
         ``$GNSS_CITYGML_SCHEMA_DIR``; without it the JSON Schema check is left out).
     overwrite, strict
-        Replace an existing file; stop with an error if a building has no usable height,
-        instead of skipping it.
-    date, title
-        The creation date written (``datetime.date`` or ``YYYY-MM-DD``; default today) and
-        ``metadata.title``.
-    provenance
-        Where the model came from (:func:`gnss_citygml.files.provenance.provenance`), written
-        as ``metadata.provenance``.
+        Replace an existing file; stop if a building has no usable height (not skip it).
+    date, title, provenance
+        The creation date written (``datetime.date`` or ``YYYY-MM-DD``; default today),
+        ``metadata.title`` and ``metadata.provenance`` (:mod:`gnss_citygml.files.provenance`).
     progress
         Called with the number of buildings written after each chunk.
     typed_attributes

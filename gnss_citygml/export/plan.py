@@ -178,9 +178,7 @@ def buildings_with_heights(
     [[12.0, 21.5, 'attribute relh2 + ground']]
     """
     columns = list(frame.columns)
-    for name in (height_field, ground_field, fallback_field):
-        if name is not None and name not in columns:
-            raise MissingColumnError([name], where="footprint layer", have=columns)
+    _check_fields(columns, height_field, ground_field, fallback_field)
     estimated = height_field == "height" and {"converged", "relative_height"} <= set(columns)
     if relative and estimated and fallback_field is None:
         raise InputError(
@@ -188,18 +186,7 @@ def buildings_with_heights(
             where="footprint layer",
             fix="leave out --relative, or give the --fallback-field it is for",
         )
-    if ground_field is None and "ground" not in columns:
-        raise MissingColumnError(
-            ["ground"], where="footprint layer (give a ground field or a DEM)", have=columns
-        )
     out = frame.copy()
-    for target, name in (("ground", ground_field), ("height", height_field)):
-        if name is not None and name != target and target in columns:
-            raise InputError(
-                f"the layer has a column {target!r} besides the {target} field {name!r}",
-                where="footprint layer",
-                fix=f"rename or drop the column {target!r}",
-            )
     ground = _numeric(out, ground_field or "ground")
     height = _numeric(out, height_field)
     out["ground"] = ground
@@ -211,6 +198,25 @@ def buildings_with_heights(
     if fallback_field is not None:
         out = _fallback(out, fallback_field, relative, "gnss" if estimated else height_field)
     return out
+
+
+def _check_fields(columns: list, height_field: str, ground_field, fallback_field) -> None:
+    """Refuse fields the layer lacks, a layer without a ground, and a field that would be
+    renamed over another column (:func:`buildings_with_heights`)."""
+    for name in (height_field, ground_field, fallback_field):
+        if name is not None and name not in columns:
+            raise MissingColumnError([name], where="footprint layer", have=columns)
+    if ground_field is None and "ground" not in columns:
+        raise MissingColumnError(
+            ["ground"], where="footprint layer (give a ground field or a DEM)", have=columns
+        )
+    for target, name in (("ground", ground_field), ("height", height_field)):
+        if name is not None and name != target and target in columns:
+            raise InputError(
+                f"the layer has a column {target!r} besides the {target} field {name!r}",
+                where="footprint layer",
+                fix=f"rename or drop the column {target!r}",
+            )
 
 
 def _fallback(frame: gpd.GeoDataFrame, field: str, relative: bool, source: str):

@@ -32,6 +32,7 @@ screenshots: demo
 	qgis_plugin/run-tests --setup
 	.venv-qgis/bin/python tools/qgis_screenshots.py
 	.venv-qgis/bin/python tools/report_screenshot.py demo-out/report.html docs/report-page.png
+	.venv/bin/python tools/tileset_screenshot.py demo-out/heights.gpkg docs/tileset-cesium.png
 
 # The QGIS plugin's installable zip: dist/gnss_citygml_qgis-VERSION.zip
 plugin: $(STAMP)

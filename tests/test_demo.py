@@ -6,6 +6,7 @@ import os
 import shlex
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -71,6 +72,10 @@ def test_demo_writes_the_models_and_compares_with_the_truth(tmp_path, capsys, mo
         f"span for {(meets & ok).sum()} of {ok.sum()}"
     )
     assert ok.sum() == 24  # as `estimate` on the sample city (README)
+    readme = (Path(__file__).parents[1] / "README.md").read_text(encoding="utf-8")
+    assert f"\n{lines[start + 31]}\n" in readme, (
+        "the README's demo line is stale: " + lines[start + 31]
+    )
 
     # Again without --overwrite: refused before any work, the files untouched.
     before = {p.name: p.stat().st_mtime_ns for p in folder.iterdir()}

@@ -167,6 +167,14 @@ def test_every_vertex_is_inside_its_leafs_and_the_roots_region(tileset):
             assert (lat >= region[1] - 1e-7).all() and (lat <= region[3] + 1e-7).all()
 
 
+def strings(gltf, binary, table, name):
+    """A string property's values."""
+    spec = table["properties"][name]
+    text = bytes(view(gltf, binary, spec["values"], np.uint8))
+    offsets = view(gltf, binary, spec["stringOffsets"], np.uint32)
+    return [text[a:b].decode() for a, b in zip(offsets[:-1], offsets[1:], strict=True)]
+
+
 def test_each_building_is_a_feature_with_its_properties(tileset, buildings):
     path, _ = tileset
     doc = json.loads(path.read_text())
@@ -174,16 +182,15 @@ def test_each_building_is_a_feature_with_its_properties(tileset, buildings):
     for leaf in leaves(doc["root"]):
         _, gltf, binary, primitive = world_positions(path.parent, leaf)
         table = gltf["extensions"]["EXT_structural_metadata"]["propertyTables"][0]
-        count = table["count"]
+        ids, part = strings(gltf, binary, table, "id"), strings(gltf, binary, table, "part")
+        count = part.count("building")
+        assert part == ["building"] * count + ["range"] * (len(part) - count)
         features = accessor(gltf, binary, primitive["attributes"]["_FEATURE_ID_0"])
         assert set(np.unique(features).astype(int)) == set(range(count))
-        ids_view = table["properties"]["id"]
-        text = bytes(view(gltf, binary, ids_view["values"], np.uint8))
-        offsets = view(gltf, binary, ids_view["stringOffsets"], np.uint32)
-        ids = [text[a:b].decode() for a, b in zip(offsets[:-1], offsets[1:], strict=True)]
         heights = view(gltf, binary, table["properties"]["height"]["values"], np.float64)
         measured = view(gltf, binary, table["properties"]["measured_height"]["values"], np.float64)
-        seen.update(zip(ids, zip(heights, measured, strict=True), strict=True))
+        rows = zip(ids[:count], zip(heights, measured, strict=False), strict=False)
+        seen.update(rows)
     expected = buildings.set_index("id").drop(index="none")
     assert sorted(seen) == sorted(expected.index)
     for name, (height, measured) in seen.items():
@@ -193,14 +200,24 @@ def test_each_building_is_a_feature_with_its_properties(tileset, buildings):
         )
 
 
-def test_ranges_are_a_second_translucent_primitive(tileset):
+def test_ranges_are_a_second_translucent_primitive_with_rows_of_their_own(tileset, buildings):
+    """Each range's feature is a row of its own (``part`` ``range``), with its building's id
+    and properties: a viewer styles them apart. The yard has no interval: no range."""
     path, _ = tileset
     doc = json.loads(path.read_text())
+    ranged = []
     for leaf in leaves(doc["root"]):
-        _, gltf, _, _ = world_positions(path.parent, leaf)
+        _, gltf, binary, _ = world_positions(path.parent, leaf)
         primitives = gltf["meshes"][0]["primitives"]
         assert len(primitives) == 2  # every square has a building with an interval
         assert gltf["materials"][primitives[1]["material"]]["alphaMode"] == "BLEND"
+        table = gltf["extensions"]["EXT_structural_metadata"]["propertyTables"][0]
+        ids, part = strings(gltf, binary, table, "id"), strings(gltf, binary, table, "part")
+        features = accessor(gltf, binary, primitives[1]["attributes"]["_FEATURE_ID_0"])
+        rows = np.unique(features).astype(int)
+        assert all(part[k] == "range" for k in rows)
+        ranged += [ids[k] for k in rows]
+    assert sorted(ranged) == ["box", "ell", "parts"]
 
 
 def test_the_output_is_a_tileset_json_in_a_folder_of_its_own(buildings, tmp_path):

@@ -177,27 +177,14 @@ def _write_square(work: Path, name: str, frame, ranges: bool, grid_dir) -> dict[
     )
     centre = (mesh.ecef.min(axis=0) + mesh.ecef.max(axis=0)) / 2
     glb = Glb()
-    table = _property_table(glb, frame)
-    primitives = [_primitive(glb, mesh, centre, len(frame), _material(glb, BUILDING_COLOUR))]
+    band, known = _band(frame, footprints, grid_dir) if ranges else (None, [])
+    table = _property_table(glb, frame, known)
+    building = _material(glb, BUILDING_COLOUR)
+    primitives = [_primitive(glb, mesh, centre, len(frame), building)]
     lon, lat, h = [mesh.lon], [mesh.lat], [mesh.h]
-    if ranges:
-        lower, upper = (
-            frame.get(c, pd.Series(np.nan, index=frame.index))
-            for c in ("height_lower", "height_upper")
-        )
-        known = (np.isfinite(lower) & np.isfinite(upper) & (upper > lower)).to_numpy()
-        if known.any():
-            band = prism_mesh(
-                footprints[known],
-                lower[known].to_numpy(float),
-                upper[known].to_numpy(float),
-                grid_dir,
-            )
-            band = _renumbered(band, np.flatnonzero(known))
-            primitives.append(
-                _primitive(glb, band, centre, len(frame), _material(glb, RANGE_COLOUR))
-            )
-            lon, lat, h = lon + [band.lon], lat + [band.lat], h + [band.h]
+    if band is not None:
+        primitives.append(_primitive(glb, band, centre, len(known), _material(glb, RANGE_COLOUR)))
+        lon, lat, h = lon + [band.lon], lat + [band.lat], h + [band.h]
     glb.gltf.update(
         scene=0,
         scenes=[{"nodes": [0]}],
@@ -214,6 +201,20 @@ def _write_square(work: Path, name: str, frame, ranges: bool, grid_dir) -> dict[
         "region": [float(v) for v in region],
         "transform": [1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, *map(float, centre), 1],
     }
+
+
+def _band(frame: pd.DataFrame, footprints: np.ndarray, grid_dir) -> tuple[Mesh | None, Any]:
+    """The prisms from each building's ``height_lower`` to its ``height_upper``, their
+    features numbered after the buildings' (:func:`_property_table`), and the rows of the
+    buildings with an interval (None and none if no building has one)."""
+    missing = pd.Series(np.nan, index=frame.index)
+    lower, upper = (frame.get(c, missing) for c in ("height_lower", "height_upper"))
+    known = np.flatnonzero(np.isfinite(lower) & np.isfinite(upper) & (upper > lower))
+    if not known.size:
+        return None, known
+    low, high = lower.iloc[known].to_numpy(float), upper.iloc[known].to_numpy(float)
+    mesh = prism_mesh(footprints[known], low, high, grid_dir)
+    return _renumbered(mesh, len(frame) + np.arange(known.size)), known
 
 
 def _renumbered(mesh: Mesh, rows: np.ndarray) -> Mesh:
@@ -266,24 +267,30 @@ def _material(glb: Glb, colour: list[float]) -> int:
     return len(materials) - 1
 
 
-def _property_table(glb: Glb, frame: pd.DataFrame) -> dict[str, Any]:
-    """The ``EXT_structural_metadata`` of the square's buildings: the schema and one table."""
+def _property_table(glb: Glb, frame: pd.DataFrame, ranged: Any) -> dict[str, Any]:
+    """The ``EXT_structural_metadata`` of the square's buildings: the schema and one table, a
+    row per building, then one per range (the ``ranged`` rows again, ``part`` ``range``): a
+    viewer styles one table per model, and so tells a range from its building."""
+    rows = frame if not len(ranged) else pd.concat([frame, frame.iloc[ranged]])
     columns = {"id": "STRING", "height": "FLOAT64", **OPTIONAL}
     properties, values = {}, {}
     for column, kind in columns.items():
-        if column not in frame.columns:
+        if column not in rows.columns:
             continue
         properties[column] = _schema_property(kind)
-        values[column] = _values(glb, frame[column], kind)
-    if "measured_height" not in frame.columns and "ground" in frame.columns:
+        values[column] = _values(glb, rows[column], kind)
+    if "measured_height" not in rows.columns and "ground" in rows.columns:
         properties["measured_height"] = _schema_property("FLOAT64")
-        values["measured_height"] = _values(glb, frame["height"] - frame["ground"], "FLOAT64")
+        values["measured_height"] = _values(glb, rows["height"] - rows["ground"], "FLOAT64")
+    properties["part"] = _schema_property("STRING")
+    part = ["building"] * len(frame) + ["range"] * len(ranged)
+    values["part"] = _values(glb, pd.Series(part), "STRING")
     return {
         "schema": {
             "id": "gnss_citygml",
             "classes": {"building": {"name": "Building", "properties": properties}},
         },
-        "propertyTables": [{"class": "building", "count": len(frame), "properties": values}],
+        "propertyTables": [{"class": "building", "count": len(rows), "properties": values}],
     }
 
 

@@ -1,12 +1,14 @@
 """Export speed and memory: buildings/s and peak memory of each writer, and validation time.
 
 Writes N synthetic buildings (typical London footprints: rectangles, L-shapes, courtyards with
-a hole, two-part buildings; 7.6 vertices on average) to CityJSONSeq, CityGML and CityJSON, each
+a hole, two-part buildings; 7.6 vertices on average) to CityJSONSeq, CityGML, CityJSON and 3D
+Tiles (with the ranges; its size is the folder's), each
 run in a fresh process so that its peak memory is its own. Peak memory is the growth of the
 process's resident set (VmHWM, reset before writing) over its size once the buildings table is
 built and the memory freed while building it is handed back to the system (glibc's and
 Arrow's allocators): the memory of the writing only, not of the input table the caller holds.
-Then the CityGML file is validated (XSD + geometry).
+Then the CityGML file is validated (XSD + geometry), and the tileset (its schemas from the
+shared data, every GLB by Khronos' glTF validator).
 Rates are given per wall-clock second and per CPU second (the two differ on a busy machine).
 
     python benchmarks/export.py                  # 10,000 and 100,000 buildings
@@ -19,6 +21,7 @@ import argparse
 import ctypes
 import gc
 import json
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -29,9 +32,15 @@ import geopandas as gpd
 import numpy as np
 import pyarrow as pa
 import shapely
+from shared_data import SHARED_DATA
 
-WRITERS = ("cityjsonseq", "citygml", "cityjson")
-SUFFIX = {"cityjsonseq": ".city.jsonl", "citygml": ".gml", "cityjson": ".city.json"}
+WRITERS = ("cityjsonseq", "citygml", "cityjson", "3dtiles")
+SUFFIX = {
+    "cityjsonseq": ".city.jsonl",
+    "citygml": ".gml",
+    "cityjson": ".city.json",
+    "3dtiles": "/tileset.json",
+}
 
 
 def buildings(n: int, seed: int = 0) -> gpd.GeoDataFrame:
@@ -93,8 +102,10 @@ def one(writer: str, n: int, folder: str) -> dict:
     Path("/proc/self/clear_refs").write_text("5")  # reset the peak (VmHWM) to the current size
     before = _status("VmRSS")
     start, cpu = time.perf_counter(), time.process_time()
-    getattr(export, f"write_{writer}")(frame, path, validate=False, overwrite=True)
+    options = {"ranges": True} if writer == "3dtiles" else {}
+    getattr(export, f"write_{writer}")(frame, path, validate=False, overwrite=True, **options)
     seconds, cpu = time.perf_counter() - start, time.process_time() - cpu
+    files = [path] if writer != "3dtiles" else [p for p in path.parent.rglob("*") if p.is_file()]
     result = {
         "writer": writer,
         "n": n,
@@ -102,17 +113,23 @@ def one(writer: str, n: int, folder: str) -> dict:
         "per_second": n / seconds,
         "per_cpu_second": n / cpu,
         "peak_mb": (_status("VmHWM") - before) / 1024,
-        "file_mb": path.stat().st_size / 2**20,
+        "file_mb": sum(f.stat().st_size for f in files) / 2**20,
     }
-    if writer == "citygml":
-        from gnss_citygml.validate import validate_file
+    if writer in ("citygml", "3dtiles"):
+        from gnss_citygml.validate import validate_file, validate_tileset
 
         start, cpu = time.perf_counter(), time.process_time()
-        report = validate_file(path)
+        if writer == "citygml":
+            report = validate_file(path)
+        else:
+            report = validate_tileset(path, schema_dir=SHARED_DATA / "schemas")
         result["validate_seconds"] = time.perf_counter() - start
         result["validate_cpu"] = time.process_time() - cpu
         result["valid"] = report.valid
-    path.unlink()
+    if writer == "3dtiles":
+        shutil.rmtree(path.parent)
+    else:
+        path.unlink()
     return result
 
 
@@ -147,8 +164,9 @@ def main() -> None:
                 if "validate_seconds" in r:
                     validations.append(r)
     for r in validations:
+        kind = "CityGML" if r["writer"] == "citygml" else "the tileset"
         print(
-            f"validate CityGML, {r['n']:,} buildings ({r['file_mb']:.0f} MB): "
+            f"validate {kind}, {r['n']:,} buildings ({r['file_mb']:.0f} MB): "
             f"{r['validate_seconds']:.1f} s ({r['validate_cpu']:.1f} CPU-s), valid={r['valid']}"
         )
 

@@ -10,7 +10,8 @@ loading numpy, pandas, scipy, GDAL or PROJ.
 - :func:`estimate` runs the pipeline: observations + footprints + DEM -> one row per footprint
   with its height (:func:`estimate_heights` is the height model alone, on intersections);
 - :func:`write_cityjson`, :func:`write_cityjsonseq` and :func:`write_citygml` write that
-  GeoDataFrame as an LOD1 city model, validated before it is renamed into place;
+  GeoDataFrame as an LOD1 city model, validated before it is renamed into place, and
+  :func:`write_3dtiles` as 3D Tiles for web viewers;
 - :func:`validate_file` checks a CityGML or CityJSON file;
 - :class:`Rays`, :class:`ReceiverHeights`, :class:`Estimator` (with :class:`Acceptance`),
   :class:`PositionError`, :class:`Calibration` and :class:`Tiling` are the options of
@@ -42,6 +43,7 @@ _LAZY = {
     "write_cityjson": "export.cityjson",
     "write_cityjsonseq": "export.cityjson",
     "write_citygml": "export.citygml",
+    "write_3dtiles": "export.tiles3d",
     "validate_file": "validate",
     # the stages and tables
     "HEIGHTS_COLUMNS": "model.estimate",
@@ -75,6 +77,7 @@ _LAZY = {
 if TYPE_CHECKING:  # the same names, for type checkers (tests/test_package.py compares them)
     from .export.citygml import write_citygml
     from .export.cityjson import write_cityjson, write_cityjsonseq
+    from .export.tiles3d import write_3dtiles
     from .footprints import read_footprints
     from .geodesy import (
         OutsideExtentError,
@@ -117,6 +120,7 @@ __all__ = [
     "write_cityjson",
     "write_cityjsonseq",
     "write_citygml",
+    "write_3dtiles",
     "validate_file",
     # the stages and tables
     "HEIGHTS_COLUMNS",

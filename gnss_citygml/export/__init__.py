@@ -1,4 +1,5 @@
-"""3D city models from the buildings table: CityJSON 2.0, CityJSONSeq and CityGML 2.0 LOD1.
+"""3D city models from the buildings table: CityJSON 2.0, CityJSONSeq and CityGML 2.0 LOD1, and
+3D Tiles 1.1 for web viewers (:func:`write_3dtiles`).
 
 Each writer checks the table (:func:`prepare_buildings`), skips and lists the buildings without
 a usable height, extrudes the footprints into LOD1 solids (:func:`extrude`), writes a temporary
@@ -11,6 +12,7 @@ from .cityjson import write_cityjson, write_cityjsonseq
 from .output import ExportResult, InvalidOutputError
 from .plan import buildings_with_heights, footprints_with_heights, prepare_buildings
 from .prisms import Prisms, extrude, snap_footprints
+from .tiles3d import write_3dtiles
 
 __all__ = [
     "ExportResult",
@@ -22,6 +24,7 @@ __all__ = [
     "gml_ids",
     "prepare_buildings",
     "snap_footprints",
+    "write_3dtiles",
     "write_citygml",
     "write_cityjson",
     "write_cityjsonseq",

@@ -17,6 +17,7 @@ looks). All of it is numpy and shapely over all buildings of a tile at once.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -59,7 +60,7 @@ def prism_mesh(
     e, n, z = np.r_[e, ce], np.r_[n, cn], np.r_[z, cz]
     feature = np.r_[feature, cfeature]
     lon, lat, h = _geodetic(e, n, z, grid_dir)
-    x, y, zz = _GEOCENTRIC.transform(np.degrees(lon), np.degrees(lat), h)
+    x, y, zz = _geocentric().transform(np.degrees(lon), np.degrees(lat), h)
     ecef = np.column_stack([x, y, zz])
     quads = np.arange(wall, dtype=np.uint32).reshape(-1, 4)
     indices = np.concatenate(
@@ -69,8 +70,10 @@ def prism_mesh(
     return Mesh(ecef, normals, feature, indices, lon, lat, h)
 
 
-#: ETRS89 geographic 3D (EPSG:4937) -> ETRS89 geocentric (EPSG:4936): a conversion, no grid.
-_GEOCENTRIC = Transformer.from_crs("EPSG:4937", "EPSG:4936", always_xy=True, allow_ballpark=False)
+@functools.cache
+def _geocentric() -> Transformer:
+    """ETRS89 geographic 3D (EPSG:4937) -> ETRS89 geocentric (EPSG:4936): a conversion."""
+    return Transformer.from_crs("EPSG:4937", "EPSG:4936", always_xy=True, allow_ballpark=False)
 
 
 def _walls(polygons, owner, bottom, top):

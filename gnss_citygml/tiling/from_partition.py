@@ -220,7 +220,7 @@ def partition_files_part(
     ``own_files``, its halo from ``halo_files`` (the buildings whose extent meets ``box``)."""
     columns = ["id", "ground", "geometry"]
     own = read_building_files(own_files, columns)
-    halo = read_building_files(halo_files, columns)
+    halo = read_building_files(halo_files, columns) if halo_files else own.iloc[:0]
     b = shapely.bounds(halo.geometry.to_numpy())
     inside = (b[:, 0] <= box[2]) & (b[:, 2] >= box[0]) & (b[:, 1] <= box[3]) & (b[:, 3] >= box[1])
     cast = pd.concat([own, halo[inside]], ignore_index=True)

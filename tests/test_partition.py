@@ -581,6 +581,22 @@ def test_a_run_from_the_partition_alone_gives_the_single_runs_heights(with_build
         np.testing.assert_allclose(a[column], b[column], atol=1e-3, err_msg=column)
 
 
+def test_a_tile_without_neighbours_reads_no_halo(halves, tmp_path):
+    """Every building in one tile (10 km): no other tile is within the rays' reach, and the
+    tile's run reads its own buildings only, with the single run's heights."""
+    folder = tmp_path / "p"
+    partition_observations(
+        halves, folder, DEM, tile_size=10_000.0, footprints=Footprints(CITY / "footprints.gpkg")
+    )
+    assert len(read_index(folder)["buildings"]["tiles"]) == 1
+    made = partitioned_heights(folder).table
+    single = estimate_file(
+        CITY / "observations.parquet", CITY / "footprints.gpkg", DEM, tmp_path / "s.gpkg"
+    )
+    assert single.heights["converged"].sum() >= 10
+    assert_close_heights(made, single.heights)
+
+
 def test_heights_written_per_tile_from_the_partition_alone(with_buildings, tmp_path, monkeypatch):
     """Written tile by tile, the client holds the plan only: each worker reads its tile's
     buildings and its halo's from the partition (reading them all here would fail), and the

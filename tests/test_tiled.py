@@ -18,6 +18,7 @@ from test_cli import run
 from test_outputs import estimate
 
 from gnss_citygml.errors import InputError
+from gnss_citygml.model.engine import InProcess, in_windows
 from gnss_citygml.model.estimate import heights_and_signal_model
 from gnss_citygml.pipeline import intersections, open_sky, write_tiles
 from gnss_citygml.settings import Estimator, Tiling
@@ -25,7 +26,7 @@ from gnss_citygml.simulate import simulate
 from gnss_citygml.simulate.scenes import city_scene
 from gnss_citygml.tiling.grid import building_tiles
 from gnss_citygml.tiling.output import TileFolder
-from gnss_citygml.tiling.run import failed_tiles, no_heights, tiled_heights
+from gnss_citygml.tiling.run import failed_tiles, tiled_heights
 
 #: The simulated city's corner in British National Grid (its grid is local): the city's
 #: 350 m x 290 m cut by 100 m tiles across TQ2981, TQ3081, TQ2982 and TQ3082.
@@ -230,6 +231,32 @@ def test_a_tile_that_fails_twice_is_reported_by_name_and_the_others_go_on(scene,
         tiled_heights(broken, buildings, tile_size=100.0)
 
 
+class _Counting:
+    """An engine that counts the steps submitted and not yet gathered."""
+
+    def __init__(self, engine):
+        self.engine, self.waiting, self.most = engine, 0, 0
+
+    def submit(self, func, *args, key=None):
+        self.waiting += 1
+        self.most = max(self.most, self.waiting)
+        return self.engine.submit(func, *args, key=key)
+
+    def gather(self, futures):
+        self.waiting -= len(futures)
+        return self.engine.gather(futures)
+
+
+@pytest.mark.parametrize("on_dask", [False, True])
+def test_steps_in_windows_keep_their_order_and_at_most_a_window_in_flight(on_dask, request):
+    """A step per tile (writes, checks) runs a window at a time, so the client holds one
+    window's tasks whatever the number of tiles; the values come back in the steps' order."""
+    engine = _Counting(request.getfixturevalue("engine") if on_dask else InProcess())
+    steps = ((f"square-{k}-{on_dask}", pow, k, 2) for k in range(23))
+    assert in_windows(engine, steps, window=5) == [k * k for k in range(23)]
+    assert engine.most == 5 and engine.waiting == 0
+
+
 @pytest.mark.parametrize(
     "options, message",
     [
@@ -300,14 +327,14 @@ def test_a_tile_written_again_replaces_its_file(scene, tmp_path):
     _, buildings = scene
     own = buildings.iloc[:3].assign(ground=0.0)
     out = TileFolder(str(tmp_path), "4PL-B", "id", 100.0)
-    table = no_heights(np.empty(0, dtype=object), "4PL-B", "")  # a tile no ray reaches
-    first = out.write(table, own, "TQ2981", "")
+    first = out.write(None, own, "TQ2981", "")  # a tile no ray reaches
     assert first["buildings"] == 3 and first["with_height"] == 0 and first["failed"] == ""
     written = gpd.read_parquet(tmp_path / first["location"])
-    assert out.write(table, own, "TQ2981", "") == first
+    assert out.write(None, own, "TQ2981", "") == first
     pd.testing.assert_frame_equal(gpd.read_parquet(tmp_path / first["location"]), written)
     assert [p.name for p in (tmp_path / first["location"]).parent.iterdir()] == ["part-0.parquet"]
     assert (written["status"] == "no signal's ray enters the footprint").all()
+    assert written["height"].dtype == np.float64 and written["n_signals"].dtype == np.int64
 
 
 def test_a_tile_folder_is_written_only_by_a_run_in_tiles_and_never_over_a_users_folder(

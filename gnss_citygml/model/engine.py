@@ -7,8 +7,9 @@ reduce of DESIGN.md over it.
 from __future__ import annotations
 
 import functools
+import itertools
 import operator
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import replace
 from typing import Any, Protocol
 
@@ -18,7 +19,7 @@ from .fourplb import BuildingFits, SignalModel
 from .mixture import Cn0Mixture, Cn0Moments
 from .parts import Part, Shared, Tally
 
-__all__ = ["Engine", "InProcess", "run_parts"]
+__all__ = ["Engine", "InProcess", "WINDOW", "in_windows", "run_parts"]
 
 
 class Engine(Protocol):
@@ -48,6 +49,22 @@ class InProcess:
     def failures(self, futures: Sequence[Any]) -> dict[int, str]:
         """None: a step that fails raises as it runs."""
         return {}
+
+
+#: The most independent steps :func:`in_windows` keeps submitted at once.
+WINDOW = 256
+
+
+def in_windows(engine: Engine, steps: Iterable[tuple[Any, ...]], window: int = WINDOW) -> list[Any]:
+    """The values of ``steps`` (each ``(key, func, *args)``, made as they are needed), run on
+    ``engine`` ``window`` at a time. A step per tile (the tiles' writes, their files' checks)
+    submitted all at once makes the client hold every tile's task and arguments until the
+    last one ends; in windows it holds one window's, whatever the number of tiles."""
+    values: list[Any] = []
+    steps = iter(steps)
+    while batch := list(itertools.islice(steps, window)):
+        values += engine.gather([engine.submit(*step[1:], key=step[0]) for step in batch])
+    return values
 
 
 #: Tallies summed per task of :func:`run_parts`'s reduce: a tree, not one task of every part.

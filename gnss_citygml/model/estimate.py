@@ -27,6 +27,7 @@ __all__ = [
     "fourplb",
     "heights_and_signal_model",
     "intersections_part",
+    "no_heights",
     "phone_offsets",
     "open_sky_moments",
 ]
@@ -49,6 +50,9 @@ HEIGHTS_COLUMNS = [
     "method",
     "status",
 ]
+
+#: The heights table's columns that are not floats (or are set apart).
+_NOT_FLOAT = ("id", "n_signals", "iterations", "converged", "method", "status")
 
 _REQUIRED = ["building", "height", "cn0"]
 
@@ -423,3 +427,21 @@ def _numeric(table, column) -> np.ndarray:
 def _rows(mask) -> str:
     """The first few rows where ``mask`` holds, for a message."""
     return listing(np.flatnonzero(mask), shown=5)
+
+
+def no_heights(ids: np.ndarray, method: str, status: str) -> pd.DataFrame:
+    """The heights table's rows of buildings ``ids`` that have no estimate, and why
+    (``status``), with the table's column types."""
+    n = ids.size
+    fits = {c: np.full(n, np.nan) for c in HEIGHTS_COLUMNS if c not in _NOT_FLOAT}
+    return pd.DataFrame(
+        {
+            "id": ids,
+            **fits,
+            "n_signals": np.zeros(n, dtype=np.int64),
+            "iterations": np.zeros(n, dtype=np.int64),
+            "converged": np.zeros(n, dtype=bool),
+            "method": method,
+            "status": pd.Series([status] * n, dtype=object),
+        }
+    )[HEIGHTS_COLUMNS]

@@ -23,7 +23,7 @@ import pandas as pd
 import shapely
 
 from ..files.paths import StrPath
-from ..model.engine import Engine, InProcess
+from ..model.engine import Engine, InProcess, in_windows
 from ..model.mixture import Cn0Moments
 from ..model.offsets import SkyCounts, sky_counts
 from ..model.parts import Part
@@ -98,16 +98,19 @@ def partitioned_heights(
 
 def _check_digests(engine: Engine, index: dict[str, Any], files: dict[str, list[Path]]) -> None:
     """Refuse a partition whose files' SHA-256 are not its index's (one task per tile, on the
-    workers, where the files are)."""
-    checks = [
-        engine.submit(
-            check_digests,
-            [(f, listed_sha256(index, f)) for f in paths],
-            key=f"sha256-{name}-{uuid.uuid4().hex[:8]}",
-        )
-        for name, paths in files.items()
-    ]
-    refuse_changed([f for bad in engine.gather(checks) for f in bad])
+    workers, where the files are, in windows: :func:`~gnss_citygml.model.engine.in_windows`)."""
+    bad = in_windows(
+        engine,
+        (
+            (
+                f"sha256-{name}-{uuid.uuid4().hex[:8]}",
+                check_digests,
+                [(f, listed_sha256(index, f)) for f in paths],
+            )
+            for name, paths in files.items()
+        ),
+    )
+    refuse_changed([f for found in bad for f in found])
 
 
 def _signals(engine: Engine, parts: dict[str, list[Path]], estimator: Estimator) -> Signals:
@@ -217,7 +220,7 @@ def partition_files_part(
     ``own_files``, its halo from ``halo_files`` (the buildings whose extent meets ``box``)."""
     columns = ["id", "ground", "geometry"]
     own = read_building_files(own_files, columns)
-    halo = read_building_files(halo_files, columns)
+    halo = read_building_files(halo_files, columns) if halo_files else own.iloc[:0]
     b = shapely.bounds(halo.geometry.to_numpy())
     inside = (b[:, 0] <= box[2]) & (b[:, 2] >= box[0]) & (b[:, 1] <= box[3]) & (b[:, 3] >= box[1])
     cast = pd.concat([own, halo[inside]], ignore_index=True)

@@ -31,6 +31,7 @@ import shapely
 from ..errors import InputError
 from ..files.paths import StrPath, check_new_folder
 from ..files.tables import write_layer
+from ..model.estimate import no_heights
 from ..settings import Tiling
 from ..stages import join_heights
 from .buildings import read_building_files
@@ -78,15 +79,22 @@ class TileFolder:
     size: float
 
     def write(
-        self, table: pd.DataFrame, buildings: gpd.GeoDataFrame | list[Path], name: str, failed: str
+        self,
+        table: pd.DataFrame | None,
+        buildings: gpd.GeoDataFrame | list[Path],
+        name: str,
+        failed: str,
     ) -> dict[str, Any]:
-        """Write tile ``name``'s heights (its rows of the heights table, ``table``) joined onto
+        """Write tile ``name``'s heights (its rows of the heights table, ``table``; None for a
+        tile that took no part in the run: no ray reaches its buildings) joined onto
         its own ``buildings`` (or the partition's files that hold them, read here, by the
         worker); return its row of the index. ``failed`` is why its cast failed (empty if it
         did not). Run again (Dask's retry, or a dead worker's task recomputed), it replaces its
         file with the same one."""
         if isinstance(buildings, list):
             buildings = read_building_files(buildings)
+        if table is None:
+            table = no_heights(np.empty(0, dtype=object), self.method, "")
         heights = join_heights(buildings, table, self.method, self.id_name)
         location = Path(HEIGHTS) / f"tile={name}" / "part-0.parquet"
         target = Path(self.path) / location

@@ -25,8 +25,8 @@ import numpy as np
 import pandas as pd
 
 from ..errors import InputError
-from ..model.engine import Engine, InProcess, run_parts
-from ..model.estimate import HEIGHTS_COLUMNS, intersections_part
+from ..model.engine import Engine, InProcess, in_windows, run_parts
+from ..model.estimate import HEIGHTS_COLUMNS, intersections_part, no_heights
 from ..model.fourplb import SignalModel
 from ..model.mixture import Cn0Moments, elevation_units
 from ..model.offsets import SkyCounts, levelled, sky_counts
@@ -41,7 +41,6 @@ __all__ = [
     "FailedTile",
     "TileRun",
     "failed_tiles",
-    "no_heights",
     "Signals",
     "TilePlan",
     "held_plan",
@@ -250,19 +249,21 @@ def run_tiles(
     made = dict(zip(plan.names, tables, strict=True))
     every = plan.every_tile()
     say(f"writing {len(every)} tiles")
-    none = no_heights(np.empty(0, dtype=object), estimator.method, "")
-    rows = [
-        engine.submit(
-            output.write,
-            made.get(name, none),
-            own,
-            name,
-            failed.get(name, ("", 0))[0],
-            key=f"write-{name}-{run}",
-        )
-        for name, own in every
-    ]
-    return TileRun(tile_index_frame(engine.gather(rows), size), classifier, lost)
+    rows = in_windows(
+        engine,
+        (
+            (
+                f"write-{name}-{run}",
+                output.write,
+                made.get(name),
+                own,
+                name,
+                failed.get(name, ("", 0))[0],
+            )
+            for name, own in every
+        ),
+    )
+    return TileRun(tile_index_frame(rows, size), classifier, lost)
 
 
 def tile_part(
@@ -309,24 +310,6 @@ def tile_heights(part: Part | FailedTile, iterations: int, method: str) -> pd.Da
     return table[HEIGHTS_COLUMNS]
 
 
-def no_heights(ids: np.ndarray, method: str, status: str) -> pd.DataFrame:
-    """The heights table's rows of buildings ``ids`` that have no estimate, and why
-    (``status``), with the table's column types."""
-    n = ids.size
-    fits = {c: np.full(n, np.nan) for c in HEIGHTS_COLUMNS if c not in _NOT_FLOAT}
-    return pd.DataFrame(
-        {
-            "id": ids,
-            **fits,
-            "n_signals": np.zeros(n, dtype=np.int64),
-            "iterations": np.zeros(n, dtype=np.int64),
-            "converged": np.zeros(n, dtype=bool),
-            "method": method,
-            "status": pd.Series([status] * n, dtype=object),
-        }
-    )[HEIGHTS_COLUMNS]
-
-
 @dataclass(frozen=True)
 class FailedTile:
     """A tile whose cast failed (twice, on a cluster): it takes no part in the run, and its
@@ -356,9 +339,6 @@ class FailedTile:
         """The heights table's rows of the tile's buildings: not estimated, and why."""
         return no_heights(self.building, method, _FAILED.format(self.name, self.reason))
 
-
-#: The heights table's columns that are not floats (or are set apart).
-_NOT_FLOAT = ("id", "n_signals", "iterations", "converged", "method", "status")
 
 #: The status of a failed tile's buildings.
 _FAILED = "tile {} failed: {}"

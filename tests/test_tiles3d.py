@@ -230,3 +230,12 @@ def test_the_output_is_a_tileset_json_in_a_folder_of_its_own(buildings, tmp_path
     with pytest.raises(InputError, match="holds files this output did not write"):
         write_3dtiles(buildings, tmp_path / "mine" / "tileset.json", overwrite=True)
     assert [p.name for p in (tmp_path / "mine").iterdir()] == ["notes.txt"]
+
+
+def test_without_its_schemas_the_tileset_is_not_kept_and_the_error_says_what_to_do(
+    buildings, tmp_path
+):
+    with pytest.raises(InputError, match="cannot validate the tileset") as caught:
+        write_3dtiles(buildings, tmp_path / "city" / "tileset.json", schema_dir=tmp_path / "none")
+    assert "--no-validate" in caught.value.fix
+    assert list(tmp_path.iterdir()) == []  # no folder, and nothing half-written beside it

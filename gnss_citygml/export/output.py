@@ -19,7 +19,7 @@ from ..errors import GnssCityGMLError
 from ..files.paths import StrPath
 from ..validate import Report, validate_file
 
-__all__ = ["ExportResult", "InvalidOutputError", "Progress", "validated_output"]
+__all__ = ["ExportResult", "InvalidOutputError", "Progress", "checked", "validated_output"]
 
 
 class InvalidOutputError(GnssCityGMLError):
@@ -62,14 +62,19 @@ def validated_output(
     """The validation report of a file just written to ``tmp``; raise if it is invalid."""
     if not validate:
         return None
-    report = validate_file(tmp, schema_dir=schema_dir)
+    return checked(validate_file(tmp, schema_dir=schema_dir), path, "file")
+
+
+def checked(report: Report, path: StrPath, what: str) -> Report:
+    """The ``report`` of an output just written (a ``what``: file, tileset), with the path it
+    is to have; an :class:`InvalidOutputError` naming the first error if it is invalid."""
     if not report.valid:
         first = report.errors[0]
         raise InvalidOutputError(
-            f"the file written is not valid: {len(report.errors)} error(s), the first "
+            f"the {what} written is not valid: {len(report.errors)} error(s), the first "
             f"{first.rule} ({first.object_id}): {first.message}",
             where=str(path),
-            fix="please report this bug with the input; the file was not kept",
+            fix=f"please report this bug with the input; the {what} was not kept",
         )
     report.path = str(path)
     return report

@@ -38,7 +38,7 @@ from ..geodesy.grid_refs import tile_index, tile_names
 from ..validate import Report
 from .glb import ELEMENT_ARRAY_BUFFER, Glb
 from .meshes import Mesh, prism_mesh
-from .output import ExportResult, InvalidOutputError, Progress
+from .output import ExportResult, Progress, checked
 from .plan import Plan, prepare_buildings
 
 __all__ = ["TILESET", "write_3dtiles"]
@@ -140,16 +140,7 @@ def _validated(work: Path, path: Path, schema_dir: StrPath | None) -> Report:
             where=err.where,
             fix=f"{err.fix}; or write it without validating (--no-validate)",
         ) from None
-    if not report.valid:
-        first = report.errors[0]
-        raise InvalidOutputError(
-            f"the tileset written is not valid: {len(report.errors)} error(s), the first "
-            f"{first.rule} ({first.object_id}): {first.message}",
-            where=str(path),
-            fix="please report this bug with the input; the tileset was not kept",
-        )
-    report.path = str(path)
-    return report
+    return checked(report, path, "tileset")
 
 
 def _squares(plan: Plan) -> Iterator[tuple[str, np.ndarray]]:

@@ -188,6 +188,23 @@ def test_a_failure_while_writing_leaves_the_map_as_it_was(city_map, halves, grid
     assert sorted(p.name for p in city_map.parent.iterdir()) == ["map.gpkg"]
 
 
+def test_a_folder_of_tiles_is_refused_with_what_to_do_instead(halves, tmp_path, capsys):
+    """A run in tiles' output folder: the update says how to refresh it (a new run over the
+    old and new observations), not that a directory is not a file; a plain folder is named
+    as a folder."""
+    tiles = tmp_path / "tiles"
+    (tiles / "heights").mkdir(parents=True)
+    (tiles / "tiles.gpkg").write_bytes(b"")
+    code, _, err = run(
+        ["update", str(tiles), "--observations", str(halves[0]), "--dem", str(DEM)], capsys
+    )
+    assert code == 2 and "a folder of tiles from a run in tiles" in err and "partition" in err
+    code, _, err = run(
+        ["update", str(tmp_path), "--observations", str(halves[0]), "--dem", str(DEM)], capsys
+    )
+    assert code == 2 and "map is a folder, not a file" in err
+
+
 def test_a_map_another_program_is_writing_is_refused(city_map, halves, grid_dir):
     original = digest(city_map)
     with contextlib.closing(sqlite3.connect(city_map)) as other:

@@ -28,7 +28,7 @@ from .options import (
 
 
 @click.command()
-@click.argument("map_", metavar="MAP", type=click.Path(dir_okay=False, path_type=Path))
+@click.argument("map_", metavar="MAP", type=click.Path(path_type=Path))
 @click.option(
     "--observations",
     "observations",

@@ -45,6 +45,7 @@ from ..errors import InputError
 from ..files.geopackage import check_geopackage, check_no_triggers, check_table_layer, refused
 from ..files.paths import StrPath, atomic_path, check_not_input, input_file
 from ..settings import PositionError, RunSettings
+from ..tiling.output import INDEX as TILE_INDEX
 from .evidence import (
     CAST,
     EVIDENCE,
@@ -402,6 +403,14 @@ def _write_report(report, true, estimate, here: _Layer, everything, model, evide
 def _check_map(path: StrPath) -> Path:
     """The map: an existing GeoPackage that no other program is writing to; the file itself
     when ``path`` is a symbolic link (the update replaces the file, and the link stays)."""
+    if (Path(path) / TILE_INDEX).is_file():
+        raise InputError(
+            "the map is a folder of tiles from a run in tiles: an update keeps its evidence and "
+            "columns in one GeoPackage, and a tile's rays cross into its neighbours",
+            where=str(path),
+            fix="estimate the whole again, the same heights as one run: partition the old and "
+            "new observations together, then estimate PARTITION -o FOLDER --scheduler ...",
+        )
     path = Path(os.path.realpath(input_file(path, "map")))
     if path.suffix.lower() != ".gpkg":
         raise InputError(

@@ -6,7 +6,8 @@ import json
 import subprocess
 
 import geopandas as gpd
-from conftest import assert_same_heights, estimate_with_the_cli
+import pandas as pd
+from conftest import ROOT, assert_same_heights, estimate_with_the_cli
 
 
 def qgis_process(env, *args):
@@ -54,6 +55,32 @@ def test_enable_and_run_every_algorithm(qgis_env, scene, tmp_path):
     assert converted["WRITTEN"] == estimated["CONVERGED"] and converted["VALIDATED"]
     checked = run(qgis_env, "gnsscitygml:validate", INPUT=model, ERRORS=tmp_path / "errors.gpkg")
     assert checked["VALID"] and checked["N_ERRORS"] == 0
+
+    data = ROOT / "tests" / "data"
+    log = data / "gnss" / "google_demo_pseudoranges_log_2016_08_22_14_45_50.txt"
+    observations = tmp_path / "observations.parquet"
+    observed = run(
+        qgis_env,
+        "gnsscitygml:observe",
+        LOGS=log,
+        ORBITS=data / "orbits" / "hour2350.16n",
+        OUTPUT=observations,
+    )
+    assert observed["SIGNALS"] == len(pd.read_parquet(observations)) > 0
+
+    # the page is not opened by a QGIS without its desktop (OPEN is left ticked)
+    reported = run(
+        qgis_env,
+        "gnsscitygml:report",
+        OBSERVATIONS=scene["observations"],
+        FOOTPRINTS=scene["footprints"],
+        DEM=scene["dem"],
+        MIN_ELEVATION=12,
+        OUTPUT=tmp_path / "report",
+    )
+    assert reported["PAGE"] == str(tmp_path / "report" / "report.html")
+    assert reported["CONVERGED"] == estimated["CONVERGED"]
+    assert (tmp_path / "report" / "report.html").is_file()
 
     home = tmp_path / "home"
     assert not home.exists() or not any(home.rglob("*")), sorted(home.rglob("*"))

@@ -89,6 +89,22 @@ def test_each_algorithms_help_is_its_readme_section(plugin):
         assert f"gnss-citygml {algorithm.name()}</tt>" in algorithm.shortHelpString()
 
 
+def test_the_metadata_and_the_readme_list_every_algorithm(plugin):
+    """The plugin's description (metadata.txt's about) names every algorithm by what it does,
+    and the README's QGIS section lists every algorithm: neither goes stale."""
+    meta = configparser.ConfigParser()
+    meta.read(PLUGIN / "metadata.txt")
+    about = meta["general"]["about"].lower()
+    readme = (ROOT / "README.md").read_text()
+    section = readme.split("\n## QGIS\n")[1].split("\n## ")[0]
+    provider = QgsApplication.processingRegistry().providerById("gnsscitygml")
+    for algorithm in provider.algorithms():
+        assert algorithm.displayName().lower() in about, algorithm.displayName()
+        assert f"| `{algorithm.id()}` |" in section, algorithm.id()
+    counted = r"\b(\d+|two|three|four|five|six|seven|eight|nine) (processing )?algorithms"
+    assert not re.search(counted, about + section.lower())
+
+
 def test_observe_parameters_take_the_librarys_defaults(plugin):
     """Those of gnss_citygml.jobs.observe_file, which the command line's defaults are too."""
     import inspect

@@ -4,6 +4,7 @@ validate, its errors are the command line's one-line messages, Cancel stops it w
 output, its layer opens styled and its report page in the browser."""
 
 import shutil
+from pathlib import Path
 
 import geopandas as gpd
 import numpy as np
@@ -426,30 +427,35 @@ class _Browser:
 
 
 def test_the_plugins_report_is_the_clis(plugin, processing_framework, scene, monkeypatch, tmp_path):
-    """The same tables of buildings and the same figures; the page opens in the browser (in
-    QGIS's desktop, unless OPEN is unticked), never in a headless QGIS."""
+    """The same tables of buildings (with the truth's heights and errors) and the same
+    figures; the page opens in the browser (in QGIS's desktop, unless OPEN is unticked), never
+    in a headless QGIS."""
     import gnss_citygml_qgis.report as report
 
+    truth = scene["folder"] / "truth.csv"
     inputs = [scene["observations"], scene["footprints"], "--dem", scene["dem"]]
-    cli("report", *inputs, "-o", tmp_path / "cli", "-q")
+    cli("report", *inputs, "--truth", truth, "-o", tmp_path / "cli", "-q")
     assert not report.shows_pages()  # (pytest-qgis's QGIS is no desktop)
     monkeypatch.setattr(report, "shows_pages", lambda: True)
     monkeypatch.setattr(report, "QDesktopServices", _Browser)
     monkeypatch.setattr(_Browser, "opened", [])
     folder = tmp_path / "plugin"
-    result = processing_framework.run("gnsscitygml:report", _inputs(scene, folder))
+    parameters = {**_inputs(scene, folder), "TRUTH": str(truth)}
+    result = processing_framework.run("gnsscitygml:report", parameters)
     page = folder / "report.html"
     assert result["OUTPUT"] == str(folder) and result["PAGE"] == str(page)
     assert _Browser.opened == [str(page)]
     assert _buildings_tables(folder) == _buildings_tables(tmp_path / "cli")
+    assert "<th>error</th>" in _buildings_tables(folder)
     figures = sorted(p.name for p in (tmp_path / "cli" / "figures").iterdir())
     assert sorted(p.name for p in (folder / "figures").iterdir()) == figures
     for figure in figures:
         assert (folder / "figures" / figure).read_bytes().startswith(b"\x89PNG")
     heights = estimate_with_the_cli(scene, tmp_path / "cli.gpkg")
     assert result["BUILDINGS"] == len(heights) and result["CONVERGED"] == heights["converged"].sum()
-    # again into the same folder (its own files replaced), not opened
-    processing_framework.run("gnsscitygml:report", {**_inputs(scene, folder), "OPEN": False})
-    assert _Browser.opened == [str(page)]
-    assert _buildings_tables(folder) == _buildings_tables(tmp_path / "cli")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cli", "cli.gpkg", "plugin"]
+    # into a temporary folder (the dialog's default), OPEN unticked: not opened
+    again = {**_inputs(scene, "TEMPORARY_OUTPUT"), "OPEN": False}
+    result = processing_framework.run("gnsscitygml:report", again)
+    assert result["PAGE"].startswith(result["OUTPUT"]) and result["PAGE"].endswith("report.html")
+    assert Path(result["PAGE"]).is_file() and _Browser.opened == [str(page)]

@@ -2,16 +2,17 @@
 
 Each job is what one command does, with its options as arguments and nothing about how they
 were asked for: ``gnss-citygml estimate`` and the plugin's "Estimate building heights" both
-call :func:`estimate_file`, so they give the same heights. Every output is checked before any
-work starts and written atomically. ``progress`` is told the name of what is being done and
-the share of the job done (0 to 1) as the job goes on; it may raise to stop the job (QGIS's
-cancel button), which leaves no output behind.
+call :func:`estimate_file`, so they give the same heights (``observe`` and "Turn GnssLogger
+logs into observations" both call :func:`observe_file`: the same observations). Every output
+is checked before any work starts and written atomically. ``progress`` is told the name of
+what is being done and the share of the job done (0 to 1) as the job goes on; it may raise to
+stop the job (QGIS's cancel button), which leaves no output behind.
 """
 
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, cast
@@ -29,11 +30,13 @@ if TYPE_CHECKING:
 __all__ = [
     "MODEL_SUFFIXES",
     "Estimated",
+    "Observed",
     "Progress",
     "convert_file",
     "estimate_file",
     "export_file",
     "is_tile_folder",
+    "observe_file",
     "read_buildings",
 ]
 
@@ -70,6 +73,64 @@ class Estimated:
 
 def _silent(what: str, done: float) -> None:
     """The progress of a job nobody watches."""
+
+
+@dataclass(frozen=True)
+class Observed:
+    """What :func:`observe_file` made: the observations table."""
+
+    table: pd.DataFrame
+
+    def summary(self) -> str:
+        """How many signals, received and blocked, from how many receivers."""
+        signals = len(self.table)
+        received = int(self.table["cn0"].notna().sum())
+        receivers = self.table["receiver"].nunique()
+        return (
+            f"{signals} signals ({received} received, {signals - received} blocked) "
+            f"from {receivers} receiver(s)"
+        )
+
+
+def observe_file(
+    logs: Sequence[StrPath],
+    orbit_files: Sequence[StrPath],
+    output: StrPath,
+    *,
+    surveyed: StrPath | None = None,
+    provider: str = "gps",
+    method: str = "nearest",
+    min_elevation: float = 10.0,
+    max_elevation: float = 85.0,
+    band: str = "L1",
+    lenient: bool = False,
+    overwrite: bool = False,
+    progress: Progress = _silent,
+) -> Observed:
+    """Turn GnssLogger ``logs`` and the satellite orbits of ``orbit_files`` (SP3, RINEX
+    navigation) into the observations table ``output`` (CSV or Parquet, checked before any
+    log is read): :func:`gnss_citygml.gnss.observe.observe` with its options, one log after
+    another (``progress`` is told each log's receiver when it is done)."""
+    from .files.tables import check_table_output
+    from .gnss.observe import observe
+    from .observations import write_observations
+
+    check_table_output(output, overwrite=overwrite, inputs=[*logs, *orbit_files, surveyed])
+    done = 0
+
+    def observed(receiver: str) -> None:
+        nonlocal done
+        done += 1
+        progress(receiver, done / max(len(logs), 1))
+
+    table = observe(
+        logs, orbit_files, surveyed=surveyed, provider=provider, method=method,
+        min_elevation=min_elevation, max_elevation=max_elevation, band=band, lenient=lenient,
+        progress=observed,
+    )  # fmt: skip
+    write_observations(table, output, overwrite=overwrite)
+    progress("done", 1.0)
+    return Observed(table)
 
 
 def estimate_file(

@@ -8,11 +8,11 @@ the wheel's PROJ knows, at best; a crash, at worst. A child Python has only the 
 
 ``python -m gnss_citygml.worker`` reads one job as JSON on standard input::
 
-    {"job": "estimate" | "convert" | "validate" | "update", "args": {...}}
+    {"job": "observe" | "estimate" | "report" | "convert" | "validate" | "update", "args": {...}}
 
-``args`` are the job's keyword arguments; the settings of ``estimate`` (``rays``,
-``receiver_heights``, ``estimator``, ``position_error``, ``calibration``) are given as dicts of
-their fields. It answers in JSON lines on standard output, one object each::
+``args`` are the job's keyword arguments; the settings of ``estimate`` and ``report``
+(``rays``, ``receiver_heights``, ``estimator``, ``position_error``, ``calibration``) are given
+as dicts of their fields. It answers in JSON lines on standard output, one object each::
 
     {"progress": [what, done]}   {"warning": text}   {"result": {...}}   {"error": text}
 
@@ -50,12 +50,30 @@ def _run_settings(args: dict[str, Any], parts: Iterable[str]) -> RunSettings:
     return RunSettings.of(**made, **places)
 
 
+def _observe(args: dict[str, Any], say: Say) -> dict[str, Any]:
+    from .jobs import observe_file
+
+    made = observe_file(**args, progress=_progress(say))
+    return {"signals": len(made.table), "summary": made.summary()}
+
+
 def _estimate(args: dict[str, Any], say: Say) -> dict[str, Any]:
     from .jobs import estimate_file
 
     settings = _run_settings(args, SETTINGS)
     made = estimate_file(**args, settings=settings, progress=_progress(say))
     return {"buildings": made.buildings, "converged": made.with_height}
+
+
+def _report(args: dict[str, Any], say: Say) -> dict[str, Any]:
+    """``estimate`` without a heights layer, into the report folder ``report`` (as
+    ``gnss-citygml report``); the result names the page too."""
+    from pathlib import Path
+
+    from .report import REPORT
+
+    made = _estimate({**args, "output": None}, say)
+    return {**made, "page": str(Path(args["report"]).absolute() / REPORT)}
 
 
 def _convert(args: dict[str, Any], say: Say) -> dict[str, Any]:
@@ -99,7 +117,14 @@ def _update(args: dict[str, Any], say: Say) -> dict[str, Any]:
 
 
 #: The jobs a host can ask for.
-JOBS = {"estimate": _estimate, "convert": _convert, "validate": _validate, "update": _update}
+JOBS = {
+    "observe": _observe,
+    "estimate": _estimate,
+    "report": _report,
+    "convert": _convert,
+    "validate": _validate,
+    "update": _update,
+}
 
 
 def _progress(say: Say) -> Callable[[str, float], None]:

@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 
 import geopandas as gpd
+import pandas as pd
 import pytest
 from test_cli import run
 
@@ -187,3 +188,67 @@ def test_a_library_that_cannot_be_imported_is_the_installation_not_a_bug(tmp_pat
     said = [json.loads(line) for line in process.stdout.splitlines()]
     assert process.returncode == 2 and said[-1]["error"].startswith("the installation is broken")
     assert not (tmp_path / "h.gpkg").exists() and not (tmp_path / "w.gpkg").exists()
+
+
+DEMO_2016 = "google_demo_pseudoranges_log_2016_08_22_14_45_50.txt"
+DEMO_JUNE = "google_demo_pseudoranges_log_2016_06_30_21_26_07.txt"
+
+
+def test_observe_writes_the_clis_observations(repo_data, tmp_path, capsys):
+    """Two logs with the orbit files of each: the command line's table, its summary, the
+    logs' warnings passed on, progress log by log."""
+    logs = [str(repo_data / "gnss" / name) for name in (DEMO_2016, DEMO_JUNE)]
+    orbits = [str(repo_data / "orbits" / name) for name in ("hour2350.16n", "hour1820.16n")]
+    args = {"logs": logs, "orbit_files": orbits, "output": str(tmp_path / "w.parquet")}
+    said = answers(child({"job": "observe", "args": {**args, "min_elevation": 15.0}}))
+    result = said[-1]["result"]
+    flags = [flag for orbit in orbits for flag in ("--orbits", orbit)]
+    cli = [*logs, *flags, "--min-elevation", "15", "-o", str(tmp_path / "cli.parquet"), "-q"]
+    code, out, err = run(["observe", *cli], capsys)
+    assert code == 0, err
+    assert out.strip() == f"{result['summary']} -> {tmp_path / 'cli.parquet'}"
+    ours, theirs = (
+        pd.read_parquet(tmp_path / "w.parquet"),
+        pd.read_parquet(tmp_path / "cli.parquet"),
+    )
+    pd.testing.assert_frame_equal(ours, theirs)
+    assert result["signals"] == len(ours) > 0 and ours["elevation"].min() >= 15.0
+    assert [m["progress"] for m in said if "progress" in m] == [
+        [Path(logs[0]).stem, 0.5],
+        [Path(logs[1]).stem, 1.0],
+        ["done", 1.0],
+    ]
+    assert any("without orbit data" in m.get("warning", "") for m in said)
+    # an error is the command line's one line, before any log is read
+    wrong = str(tmp_path / "o.xlsx")
+    said = answers(child({"job": "observe", "args": {**args, "output": wrong}}))
+    code, _, err = run(["observe", *logs, *flags, "-o", wrong], capsys)
+    assert code == 2 and said == [{"error": err.strip().removeprefix("error: ")}]
+    assert "unknown table format" in err
+
+
+def _buildings_table(page: Path) -> str:
+    """The report page's tables of the buildings (what does not depend on the time nor on how
+    the PNGs were compressed)."""
+    return page.read_text(encoding="utf-8").split("<h2>Buildings by status</h2>")[1]
+
+
+def test_report_writes_the_clis_report(grid_dir, grid_args, tmp_path, capsys):
+    grids = None if grid_dir is None else str(grid_dir)
+    request = estimate(tmp_path / "unused.gpkg", grid_dir=grids, report=str(tmp_path / "w"))
+    request["job"] = "report"
+    said = answers(child(request))
+    result = said[-1]["result"]
+    assert result["page"] == str(tmp_path / "w" / "report.html")
+    assert [m["progress"][0] for m in said if "progress" in m][-2:] == ["report", "done"]
+    inputs = [CITY / "observations.parquet", CITY / "footprints.gpkg", "--dem", CITY / "dem.tif"]
+    code, _, err = run(["report", *map(str, inputs), "-o", str(tmp_path / "cli"), *grid_args, "-q"],
+                       capsys)  # fmt: skip
+    assert code == 0, err
+    assert _buildings_table(tmp_path / "w" / "report.html") == _buildings_table(
+        tmp_path / "cli" / "report.html"
+    )
+    figures = sorted(p.name for p in (tmp_path / "cli" / "figures").iterdir())
+    assert sorted(p.name for p in (tmp_path / "w" / "figures").iterdir()) == figures
+    assert result["buildings"] == 30 and result["converged"] > 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cli", "w"]  # no heights layer

@@ -61,16 +61,17 @@ def observe(
     One row per epoch and satellite between the elevation masks, with the phone's C/N0, or
     empty C/N0 where the phone received nothing (a blocked signal).
     """
-    from ..files.tables import check_table_output
-    from ..gnss.observe import observe as run
-    from ..observations import write_observations
+    from ..jobs import observe_file
 
-    # before reading anything
-    check_table_output(output, overwrite=overwrite, inputs=[*logs, *orbit_files, surveyed])
     with progress(len(logs), "logs", quiet) as bar:
-        table = run(
+
+        def logs_done(_: str, done: float) -> None:
+            bar.update(round(done * len(logs)) - bar.n)
+
+        made = observe_file(
             logs,
             orbit_files,
+            output,
             surveyed=surveyed,
             provider=provider,
             method="interpolate" if interpolate else "nearest",
@@ -78,14 +79,10 @@ def observe(
             max_elevation=max_elevation,
             band=band,
             lenient=lenient,
-            progress=lambda _: bar.update(1),
+            overwrite=overwrite,
+            progress=logs_done,
         )
-    write_observations(table, output, overwrite=overwrite)
-    received = int(table["cn0"].notna().sum())
-    click.echo(
-        f"{len(table)} signals ({received} received, {len(table) - received} blocked) "
-        f"from {table['receiver'].nunique()} receiver(s) -> {output}"
-    )
+    click.echo(f"{made.summary()} -> {output}")
 
 
 @click.command()

@@ -1,5 +1,5 @@
-"""What the three algorithms share: group, icon, the library check, and running the library's
-job in a child Python with its progress, warnings, Cancel and one-line errors."""
+"""What the algorithms share: group, icon, help link, the library check, and running the
+library's job in a child Python with its progress, warnings, Cancel and one-line errors."""
 
 import functools
 import json
@@ -21,7 +21,7 @@ from qgis.core import (
 )
 from qgis.PyQt.QtGui import QIcon
 
-from .library import install, interpreter, unavailable
+from .library import README, install, interpreter, unavailable
 
 ICON = os.path.join(os.path.dirname(__file__), "icon.svg")
 
@@ -47,9 +47,15 @@ class Algorithm(QgsProcessingAlgorithm):
     """A Processing algorithm that runs one job of the library.
 
     Subclasses define :meth:`define` (the parameters, with the library's own defaults) and
-    :meth:`job` (parse the parameters, :meth:`run_job`, the outputs). Everything else is here,
-    once.
+    :meth:`job` (parse the parameters, :meth:`run_job`, the outputs), and :attr:`section`.
+    Everything else is here, once.
     """
+
+    #: The anchor of the README's section on the job: the Help button opens it.
+    section = "qgis"
+
+    def helpUrl(self):  # noqa: N802 (the name QGIS calls)
+        return f"{README.split('#')[0]}#{self.section}"
 
     def group(self):
         return "GNSS 3D mapping"

@@ -33,6 +33,8 @@ same as <tt>gnss-citygml convert</tt> on the command line."""
 
 
 class ConvertAlgorithm(Algorithm):
+    section = "convert-heights-to-cityjson-citygml-or-3d-tiles"
+
     def name(self):
         return "convert"
 

@@ -1,7 +1,8 @@
 """``gnsscitygml:estimate``: observations + footprint layer + DEM -> heights layer (4PL-B).
 
 The same job as ``gnss-citygml estimate`` (:func:`gnss_citygml.jobs.estimate_file`), with the
-same defaults, read from the library's settings: the heights are the command line's.
+same defaults, read from the library's settings: the heights are the command line's. Its
+inputs and options are those of the run (:class:`RunAlgorithm`), which ``report`` shares.
 """
 
 from qgis.core import (
@@ -43,19 +44,25 @@ _OPTIONS = (
 )
 _ADVANCED = set(_OPTIONS[7:])
 
+#: The help on the run's inputs (estimate, report).
+INPUTS_HELP = """<b>Observations</b>: the observations table (Parquet or CSV: time_utc, \
+receiver, lat, lon, h, constellation, svid, azimuth, elevation, cn0, with an empty cn0 for a \
+blocked signal, and optionally position_sd, how far each position may be off: 1 m where it is \
+empty), as written by <tt>gnss-citygml observe</tt> or "Turn GnssLogger logs into \
+observations" from GnssLogger logs.
+<b>Footprints</b>: building polygons (OS MasterMap, any GeoPackage; in British National Grid, \
+or in ETRS89/WGS 84, converted with OSTN15).
+<b>DEM</b>: the terrain in British National Grid with ODN heights."""
+
 HELP = (
     """Estimates the height of every building footprint from the GNSS signals that \
 smartphones received or lost around it, with 4PL-B (Lines & Basiri): for each building, a \
 four-parameter logistic regression of "signal received" against the height at which each \
 satellite ray crosses the footprint, co-trained with a C/N0 signal classifier.
 
-<b>Observations</b>: the observations table (Parquet or CSV: time_utc, receiver, lat, lon, h, \
-constellation, svid, azimuth, elevation, cn0, with an empty cn0 for a blocked signal, and \
-optionally position_sd, how far each position may be off: 1 m where it is empty), as written \
-by <tt>gnss-citygml observe</tt> from GnssLogger logs.
-<b>Footprints</b>: building polygons (OS MasterMap, any GeoPackage; in British National Grid, \
-or in ETRS89/WGS 84, converted with OSTN15).
-<b>DEM</b>: the terrain in British National Grid with ODN heights.
+"""
+    + INPUTS_HELP
+    + """
 
 The output layer holds every footprint with its attributes and the estimate: height (m ODN: \
 the 4PL's inflection point c; the height rule "paper" gives c + 1.5/b, which height_paper \
@@ -93,17 +100,12 @@ class _Style(QgsProcessingLayerPostProcessorInterface):
         layer.triggerRepaint()
 
 
-class EstimateAlgorithm(Algorithm):
-    def name(self):
-        return "estimate"
+class RunAlgorithm(Algorithm):
+    """The run's inputs and options, as parameters and as the job's arguments: what
+    ``estimate`` and ``report`` share (as the command line's two commands do)."""
 
-    def displayName(self):  # noqa: N802 (the name QGIS calls)
-        return "Estimate building heights from GNSS (4PL-B)"
-
-    def shortHelpString(self):  # noqa: N802 (the name QGIS calls)
-        return HELP
-
-    def define(self):
+    def define_run(self):
+        """Add the run's parameters: observations, footprints, DEM, id field, options, grids."""
         self.addParameter(
             QgsProcessingParameterFile(
                 "OBSERVATIONS",
@@ -129,6 +131,39 @@ class EstimateAlgorithm(Algorithm):
             parameter = option(name)
             self.addParameter(advanced(parameter) if name in _ADVANCED else parameter)
         self.addParameter(folder("GRID_DIR", "Folder with the OSTN15/OSGM15 grids"))
+
+    def run_args(self, parameters, context, feedback):
+        """The job's arguments for the run's parameters (:meth:`define_run`)."""
+        footprints, layer = self.parameterAsCompatibleSourceLayerPathAndLayerName(
+            parameters, "FOOTPRINTS", context, ["gpkg", "fgb", "shp", "gml"], "gpkg", feedback
+        )
+        dem = self.parameterAsRasterLayer(parameters, "DEM", context)
+        return {
+            "observations": self.parameterAsFile(parameters, "OBSERVATIONS", context),
+            "footprints": footprints,
+            "dem": dem.source(),
+            "layer": layer or None,
+            "id_field": self.optional_text(parameters, "ID_FIELD", context),
+            **self.settings(parameters, _OPTIONS, context),
+            "dem_crs": dem.crs().authid() or None,
+            "grid_dir": self.optional_text(parameters, "GRID_DIR", context),
+        }
+
+
+class EstimateAlgorithm(RunAlgorithm):
+    section = "estimate-observations-footprints-and-a-dem-to-heights"
+
+    def name(self):
+        return "estimate"
+
+    def displayName(self):  # noqa: N802 (the name QGIS calls)
+        return "Estimate building heights from GNSS (4PL-B)"
+
+    def shortHelpString(self):  # noqa: N802 (the name QGIS calls)
+        return HELP
+
+    def define(self):
+        self.define_run()
         self.addParameter(
             QgsProcessingParameterVectorDestination(
                 "OUTPUT", "Heights", QgsProcessing.TypeVectorPolygon
@@ -138,21 +173,10 @@ class EstimateAlgorithm(Algorithm):
         self.addOutput(QgsProcessingOutputNumber("CONVERGED", "Buildings with a height"))
 
     def job(self, parameters, context, feedback):
-        footprints, layer = self.parameterAsCompatibleSourceLayerPathAndLayerName(
-            parameters, "FOOTPRINTS", context, ["gpkg", "fgb", "shp", "gml"], "gpkg", feedback
-        )
-        dem = self.parameterAsRasterLayer(parameters, "DEM", context)
         output = self.parameterAsOutputLayer(parameters, "OUTPUT", context)
         args = {
-            "observations": self.parameterAsFile(parameters, "OBSERVATIONS", context),
-            "footprints": footprints,
-            "dem": dem.source(),
+            **self.run_args(parameters, context, feedback),
             "output": output,
-            "layer": layer or None,
-            "id_field": self.optional_text(parameters, "ID_FIELD", context),
-            **self.settings(parameters, _OPTIONS, context),
-            "dem_crs": dem.crs().authid() or None,
-            "grid_dir": self.optional_text(parameters, "GRID_DIR", context),
             "overwrite": True,  # QGIS's file dialog has asked; a GeoPackage keeps other layers
         }
         result = self.run_job("estimate", args, feedback)

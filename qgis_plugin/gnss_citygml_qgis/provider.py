@@ -6,6 +6,8 @@ from .algorithm import icon
 from .convert import ConvertAlgorithm
 from .estimate import EstimateAlgorithm
 from .library import TITLE, version
+from .observe import ObserveAlgorithm
+from .report import ReportAlgorithm
 from .update import UpdateAlgorithm
 from .validate import ValidateAlgorithm
 
@@ -25,7 +27,9 @@ class GnssCityGMLProvider(QgsProcessingProvider):
 
     def loadAlgorithms(self):  # noqa: N802 (the name QGIS calls)
         algorithms = (
+            ObserveAlgorithm(),
             EstimateAlgorithm(),
+            ReportAlgorithm(),
             ConvertAlgorithm(),
             ValidateAlgorithm(),
             UpdateAlgorithm(),

@@ -46,6 +46,8 @@ The same as <tt>gnss-citygml update</tt> on the command line."""
 
 
 class UpdateAlgorithm(Algorithm):
+    section = "keeping-a-map-up-to-date-gnss-citygml-update"
+
     def name(self):
         return "update"
 

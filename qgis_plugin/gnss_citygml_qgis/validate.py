@@ -35,6 +35,8 @@ city model, schemas missing) is an error of the algorithm. The same as \
 
 
 class ValidateAlgorithm(Algorithm):
+    section = "validate-is-a-city-model-valid"
+
     def name(self):
         return "validate"
 

@@ -110,4 +110,8 @@ def qgis_env(tmp_path):
     env["HOME"] = str(tmp_path / "home")
     env["QT_QPA_PLATFORM"] = "offscreen"
     env["PYTHONPATH"] = os.pathsep.join([str(ROOT), sysconfig.get_paths()["purelib"]])
+    # QGIS's Python (this venv's base) first on PATH, as where it is the python3 there:
+    # qgis_process's embedded Python names its executable from PATH, and the jobs run in that
+    # (another python3 earlier on PATH, e.g. pyenv's, lacks the Debian packages: matplotlib)
+    env["PATH"] = os.pathsep.join([os.path.join(sys.base_prefix, "bin"), env.get("PATH", "")])
     return env

@@ -1,14 +1,16 @@
-"""The algorithms through QGIS's Processing framework, on simulated scenes: the plugin's
-heights are the command line's, its city models validate, its errors are the command line's
-one-line messages, Cancel stops it without an output, and its layer opens styled."""
+"""The algorithms through QGIS's Processing framework, on simulated scenes and real GnssLogger
+logs: the plugin's observations, heights and reports are the command line's, its city models
+validate, its errors are the command line's one-line messages, Cancel stops it without an
+output, its layer opens styled and its report page in the browser."""
 
 import shutil
+from pathlib import Path
 
 import geopandas as gpd
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import assert_same_heights, cli, estimate_with_the_cli
+from conftest import ROOT, assert_same_heights, cli, estimate_with_the_cli
 from qgis.core import (
     QgsApplication,
     QgsFillSymbol,
@@ -323,3 +325,137 @@ def test_update_a_map_in_the_project_as_the_cli_does(plugin, processing_framewor
     np.testing.assert_allclose(mine.loc[theirs.index], theirs, atol=1e-3, equal_nan=True)
     assert len(shown) == len(theirs)
     assert (tmp_path / "ours.bak.gpkg").is_file()
+
+
+# --- observe: real GnssLogger logs and orbit files ---------------------------------------------
+
+#: The shared data's logs and orbits that the repository keeps (tests/data, laid out as the
+#: shared folder): two logs of two days, each with its own navigation file.
+DATA = ROOT / "tests" / "data"
+LOGS = [
+    DATA / "gnss" / "google_demo_pseudoranges_log_2016_08_22_14_45_50.txt",
+    DATA / "gnss" / "google_demo_pseudoranges_log_2016_06_30_21_26_07.txt",
+]
+ORBITS = [DATA / "orbits" / "hour2350.16n", DATA / "orbits" / "hour1820.16n"]
+
+#: Options of `gnss-citygml observe` and the plugin's parameters for them ({positions}: a file
+#: of surveyed positions the test writes), and the output's suffix.
+OBSERVE_OPTIONS = {
+    "defaults": ([], {}, ".parquet"),
+    "changed": (
+        ["--min-elevation", "15", "--max-elevation", "80", "--interpolate", "--lenient"],
+        {"MIN_ELEVATION": 15, "MAX_ELEVATION": 80, "INTERPOLATE": True, "LENIENT": True},
+        ".parquet",
+    ),
+    "surveyed": (["--positions", "{positions}"], {"POSITIONS": "{positions}"}, ".csv"),
+}
+
+SURVEYED = """receiver,start_utc,end_utc,lat,lon,h,sd
+{0},2016-08-22T00:00:00Z,2016-08-23T00:00:00Z,37.422,-122.084,,0.5
+{1},2016-06-30T00:00:00Z,2016-07-01T00:00:00Z,37.4221,-122.0841,10,0.2
+"""
+
+
+def _observe_inputs(output, **extra):
+    return {
+        "LOGS": [str(log) for log in LOGS],
+        "ORBITS": [str(orbit) for orbit in ORBITS],
+        "OUTPUT": str(output),
+        **extra,
+    }
+
+
+@pytest.mark.parametrize("options", sorted(OBSERVE_OPTIONS))
+def test_the_plugins_observations_are_the_clis(plugin, processing_framework, options, tmp_path):
+    flags, parameters, suffix = OBSERVE_OPTIONS[options]
+    positions = tmp_path / "positions.csv"
+    positions.write_text(SURVEYED.format(*(log.stem for log in LOGS)))
+    flags = [flag.format(positions=positions) for flag in flags]
+    parameters = {k: str(v).format(positions=positions) if k == "POSITIONS" else v
+                  for k, v in parameters.items()}  # fmt: skip
+    theirs, ours = tmp_path / f"cli{suffix}", tmp_path / f"plugin{suffix}"
+    orbits = [flag for orbit in ORBITS for flag in ("--orbits", orbit)]
+    said = cli("observe", *LOGS, *orbits, *flags, "-o", theirs, "-q").stdout.strip()
+    result = processing_framework.run("gnsscitygml:observe", _observe_inputs(ours, **parameters))
+    assert result["OUTPUT"] == str(ours)
+    if suffix == ".csv":
+        assert ours.read_text() == theirs.read_text()
+        table = pd.read_csv(ours)
+    else:
+        table = pd.read_parquet(ours)
+        pd.testing.assert_frame_equal(table, pd.read_parquet(theirs))
+    assert result["SIGNALS"] == len(table) > 0 and said.startswith(f"{len(table)} signals (")
+    assert sorted(table["receiver"].unique()) == sorted(log.stem for log in LOGS)
+    if options == "surveyed":
+        assert set(table["position_sd"]) == {0.5, 0.2}
+
+
+def test_observe_errors_are_the_clis(plugin, processing_framework, tmp_path):
+    """A band the logs do not have (the choice reaches the library): the command line's
+    one-line message, and nothing written."""
+    orbits = [flag for orbit in ORBITS for flag in ("--orbits", orbit)]
+    message = cli("observe", *LOGS, *orbits, "--band", "L5", "-o", tmp_path / "cli.parquet",
+                  check=False).stderr.strip().splitlines()[-1]  # fmt: skip
+    assert message.startswith("error: no L5 measurements in the log")
+    with pytest.raises(QgsProcessingException) as raised:
+        processing_framework.run(
+            "gnsscitygml:observe", _observe_inputs(tmp_path / "p.parquet", BAND=1)
+        )
+    assert str(raised.value) == message.removeprefix("error: ")
+    assert not list(tmp_path.iterdir())
+
+
+# --- report ------------------------------------------------------------------------------------
+
+
+def _buildings_tables(folder):
+    """The report page's tables of the buildings: what depends neither on the time nor on how
+    the figures were compressed."""
+    page = (folder / "report.html").read_text(encoding="utf-8")
+    return page.split("<h2>Buildings by status</h2>")[1]
+
+
+class _Browser:
+    """Stands in for QDesktopServices: the pages it was asked to open."""
+
+    opened = []
+
+    @classmethod
+    def openUrl(cls, url):  # noqa: N802 (Qt's name)
+        cls.opened.append(url.toLocalFile())
+        return True
+
+
+def test_the_plugins_report_is_the_clis(plugin, processing_framework, scene, monkeypatch, tmp_path):
+    """The same tables of buildings (with the truth's heights and errors) and the same
+    figures; the page opens in the browser (in QGIS's desktop, unless OPEN is unticked), never
+    in a headless QGIS."""
+    import gnss_citygml_qgis.report as report
+
+    truth = scene["folder"] / "truth.csv"
+    inputs = [scene["observations"], scene["footprints"], "--dem", scene["dem"]]
+    cli("report", *inputs, "--truth", truth, "-o", tmp_path / "cli", "-q")
+    assert not report.shows_pages()  # (pytest-qgis's QGIS is no desktop)
+    monkeypatch.setattr(report, "shows_pages", lambda: True)
+    monkeypatch.setattr(report, "QDesktopServices", _Browser)
+    monkeypatch.setattr(_Browser, "opened", [])
+    folder = tmp_path / "plugin"
+    parameters = {**_inputs(scene, folder), "TRUTH": str(truth)}
+    result = processing_framework.run("gnsscitygml:report", parameters)
+    page = folder / "report.html"
+    assert result["OUTPUT"] == str(folder) and result["PAGE"] == str(page)
+    assert _Browser.opened == [str(page)]
+    assert _buildings_tables(folder) == _buildings_tables(tmp_path / "cli")
+    assert "<th>error</th>" in _buildings_tables(folder)
+    figures = sorted(p.name for p in (tmp_path / "cli" / "figures").iterdir())
+    assert sorted(p.name for p in (folder / "figures").iterdir()) == figures
+    for figure in figures:
+        assert (folder / "figures" / figure).read_bytes().startswith(b"\x89PNG")
+    heights = estimate_with_the_cli(scene, tmp_path / "cli.gpkg")
+    assert result["BUILDINGS"] == len(heights) and result["CONVERGED"] == heights["converged"].sum()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cli", "cli.gpkg", "plugin"]
+    # into a temporary folder (the dialog's default), OPEN unticked: not opened
+    again = {**_inputs(scene, "TEMPORARY_OUTPUT"), "OPEN": False}
+    result = processing_framework.run("gnsscitygml:report", again)
+    assert result["PAGE"].startswith(result["OUTPUT"]) and result["PAGE"].endswith("report.html")
+    assert Path(result["PAGE"]).is_file() and _Browser.opened == [str(page)]

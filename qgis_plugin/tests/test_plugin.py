@@ -2,6 +2,7 @@
 and a QGIS whose Python has no gnss-citygml (the plugin loads and says what to install)."""
 
 import configparser
+import re
 import subprocess
 
 import pytest
@@ -14,6 +15,8 @@ import gnss_citygml
 ALGORITHMS = [
     "gnsscitygml:convert",
     "gnsscitygml:estimate",
+    "gnsscitygml:observe",
+    "gnsscitygml:report",
     "gnsscitygml:update",
     "gnsscitygml:validate",
 ]
@@ -56,9 +59,88 @@ def test_load_and_unload_with_the_qgis_interface(qgis_iface, processing_framewor
             assert algorithm.group() == "GNSS 3D mapping"
             assert algorithm.shortHelpString() and algorithm.displayName()
             assert algorithm.canExecute() == (True, "")
+            assert algorithm.helpUrl().startswith(REPOSITORY + "#")
     finally:
         plugin.unload()
     assert registry.providerById("gnsscitygml") is None
+
+
+REPOSITORY = "https://github.com/gnss-citygml/gnss-citygml"
+
+
+def github_anchor(heading):
+    """The anchor GitHub gives a Markdown heading: lower case, spaces as hyphens, no
+    punctuation but hyphens and underscores."""
+    return re.sub(r"[^\w\- ]", "", heading.strip().lower()).replace(" ", "-")
+
+
+def test_each_algorithms_help_is_its_readme_section(plugin):
+    """The Help button opens the README's section on the algorithm's command (an anchor that
+    is a heading of README.md), and each help text names that command."""
+    headings = re.findall(r"^#+ (.+)$", (ROOT / "README.md").read_text(), re.M)
+    anchors = {github_anchor(heading): heading for heading in headings}
+    provider = QgsApplication.processingRegistry().providerById("gnsscitygml")
+    for algorithm in provider.algorithms():
+        url = algorithm.helpUrl()
+        assert url.startswith(REPOSITORY + "#"), url
+        heading = anchors.get(url.split("#")[1])
+        assert heading is not None, f"{algorithm.id()}: no README section {url}"
+        assert algorithm.name() in heading, (algorithm.id(), heading)
+        assert f"gnss-citygml {algorithm.name()}</tt>" in algorithm.shortHelpString()
+
+
+def test_the_metadata_and_the_readme_list_every_algorithm(plugin):
+    """The plugin's description (metadata.txt's about) names every algorithm by what it does,
+    and the README's QGIS section lists every algorithm: neither goes stale."""
+    meta = configparser.ConfigParser()
+    meta.read(PLUGIN / "metadata.txt")
+    about = meta["general"]["about"].lower()
+    readme = (ROOT / "README.md").read_text()
+    section = readme.split("\n## QGIS\n")[1].split("\n## ")[0]
+    provider = QgsApplication.processingRegistry().providerById("gnsscitygml")
+    for algorithm in provider.algorithms():
+        assert algorithm.displayName().lower() in about, algorithm.displayName()
+        assert f"| `{algorithm.id()}` |" in section, algorithm.id()
+    counted = r"\b(\d+|two|three|four|five|six|seven|eight|nine) (processing )?algorithms"
+    assert not re.search(counted, about + section.lower())
+
+
+def test_observe_parameters_take_the_librarys_defaults(plugin):
+    """Those of gnss_citygml.jobs.observe_file, which the command line's defaults are too."""
+    import inspect
+
+    from gnss_citygml.jobs import observe_file
+    from gnss_citygml.settings import Rays
+
+    algorithm = QgsApplication.processingRegistry().algorithmById("gnsscitygml:observe")
+    given = {p.name(): p for p in algorithm.parameterDefinitions()}
+    library = {name: p.default for name, p in inspect.signature(observe_file).parameters.items()}
+    assert library["min_elevation"] == given["MIN_ELEVATION"].defaultValue() == Rays.min_elevation
+    assert library["max_elevation"] == given["MAX_ELEVATION"].defaultValue() == Rays.max_elevation
+    for name in ("PROVIDER", "BAND"):
+        parameter = given[name]
+        assert parameter.options()[parameter.defaultValue()] == library[name.lower()]
+    assert library["method"] == "nearest" and given["INTERPOLATE"].defaultValue() is False
+    assert library["lenient"] is given["LENIENT"].defaultValue() is False
+    positions = given["POSITIONS"]
+    assert library["surveyed"] is None and positions.flags() & positions.FlagOptional
+
+
+def test_report_has_the_parameters_of_estimate(plugin):
+    """The same run's parameters, made once (RunAlgorithm); the report's own after them."""
+    registry = QgsApplication.processingRegistry()
+
+    def described(name):
+        return [
+            (p.name(), p.type(), p.description(), p.defaultValue(), int(p.flags()))
+            for p in registry.algorithmById(name).parameterDefinitions()
+        ]
+
+    estimate, report = described("gnsscitygml:estimate"), described("gnsscitygml:report")
+    assert report[: len(estimate) - 1] == estimate[:-1]  # all but the heights layer
+    assert [p[0] for p in report[len(estimate) - 1 :]] == ["TRUTH", "OPEN", "OUTPUT"]
+    opens = registry.algorithmById("gnsscitygml:report").parameterDefinition("OPEN")
+    assert opens.defaultValue() is True
 
 
 def test_estimate_parameters_take_the_librarys_defaults(plugin):

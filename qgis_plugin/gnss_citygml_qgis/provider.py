@@ -6,6 +6,7 @@ from .algorithm import icon
 from .convert import ConvertAlgorithm
 from .estimate import EstimateAlgorithm
 from .library import TITLE, version
+from .set_up import SetUpAlgorithm
 from .update import UpdateAlgorithm
 from .validate import ValidateAlgorithm
 
@@ -29,6 +30,7 @@ class GnssCityGMLProvider(QgsProcessingProvider):
             ConvertAlgorithm(),
             ValidateAlgorithm(),
             UpdateAlgorithm(),
+            SetUpAlgorithm(),
         )
         for algorithm in algorithms:
             self.addAlgorithm(algorithm)

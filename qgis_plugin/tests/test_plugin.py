@@ -14,6 +14,7 @@ import gnss_citygml
 ALGORITHMS = [
     "gnsscitygml:convert",
     "gnsscitygml:estimate",
+    "gnsscitygml:setup",
     "gnsscitygml:update",
     "gnsscitygml:validate",
 ]

@@ -4,7 +4,7 @@ with a button that opens "Set up gnss-citygml"."""
 from qgis.core import Qgis, QgsApplication, QgsMessageLog
 
 from . import set_up
-from .library import TITLE, needs_set_up, unavailable
+from .library import TITLE, needs_set_up, private, repair, unavailable
 from .provider import GnssCityGMLProvider
 
 #: The set-up algorithm, which the message bar's button opens.
@@ -28,6 +28,12 @@ class GnssCityGMLPlugin:
     def initGui(self):  # noqa: N802 (the name QGIS calls)
         self.initProcessing()
         problem = unavailable()
+        own = private()
+        if problem is None and own.status == "broken" and needs_set_up():
+            # the jobs run with QGIS's own library meanwhile
+            problem = repair(
+                f"the environment of gnss-citygml in {own.folder} is broken ({own.problem})"
+            )
         if problem is not None:
             QgsMessageLog.logMessage(problem, TITLE, Qgis.Warning)
             if self.iface is not None:
@@ -57,7 +63,12 @@ class GnssCityGMLPlugin:
 
     def _ready(self):
         """Set-up has made the library usable: the message goes."""
-        if self.message is not None and unavailable() is None:
+        if unavailable() is None and private().status != "broken":
+            self._unsay()
+
+    def _unsay(self):
+        """Take the message away."""
+        if self.message is not None:
             try:
                 self.iface.messageBar().popWidget(self.message)
             except RuntimeError:  # the user closed it: Qt has deleted it
@@ -65,6 +76,7 @@ class GnssCityGMLPlugin:
             self.message = None
 
     def unload(self):
+        self._unsay()
         if self._ready in set_up.READY:
             set_up.READY.remove(self._ready)
         if self.provider is not None:

@@ -251,6 +251,31 @@ def test_the_message_bar_offers_set_up(qgis_iface, processing_framework, monkeyp
     assert set_up.READY == []
 
 
+def test_a_broken_environment_is_offered_for_repair(qgis_iface, processing_framework, profile):
+    """Broken, the environment is not used (the jobs run with QGIS's own library, which this
+    QGIS has), and the message bar offers set-up to repair it."""
+    import gnss_citygml_qgis
+    from qgis.PyQt.QtWidgets import QPushButton
+
+    profile["folder"].mkdir(parents=True)
+    (profile["folder"] / environment.INCOMPLETE).write_text("")
+    assert library.unavailable() is None
+    assert library.interpreter() == library.qgis_python()
+    loaded = gnss_citygml_qgis.classFactory(qgis_iface)
+    loaded.initGui()
+    try:
+        item = qgis_iface.messageBar().currentItem()
+        assert item.text() == (
+            f"the environment of gnss-citygml in {profile['folder']} is broken (its set-up did "
+            "not finish: it was cancelled or failed): run Set up gnss-citygml (Processing "
+            "Toolbox, GNSS 3D mapping) to make it anew"
+        )
+        assert [b.text() for b in item.findChildren(QPushButton)] == ["Set up"]
+    finally:
+        loaded.unload()
+    assert qgis_iface.messageBar().currentItem() is None
+
+
 #: A QGIS whose Python has no gnss-citygml, with the jobs' environment at ``FOLDER`` (in its
 #: profile): what it imports and from where.
 SCRIPT = """

@@ -410,16 +410,19 @@ _NETWORK = re.compile(
 )
 
 
-def pip_failure(lines, version, wheels=None, python=None):
+def pip_failure(lines, requirement, wheels=None, python=None):
     """What went wrong, in one line, from pip's output ``lines``: no network (with what to do
     offline), a folder of ``wheels`` without a requirement, or pip's last error.
-    ``version``: the plugin's; ``python``: the environment's Python version."""
+    ``requirement``: what set-up installs (the plugin's wheel, or the library's release);
+    ``python``: the environment's Python version."""
     text = "\n".join(lines)
     missing = re.search(r"No matching distribution found for (\S+)", text)
     this = f"Python {python}" if python else "this Python"
+    if os.path.isabs(requirement):
+        requirement = f'"{requirement}"'
     offline = (
         "give Set up gnss-citygml a folder of wheels made where there is a network, for "
-        f"{this} on this system, with: pip download --dest wheels gnss-citygml=={version}"
+        f"{this} on this system, with: pip download --dest wheels {requirement}"
     )
     if wheels and missing:
         return (

@@ -71,8 +71,9 @@ gone, the library not importing, another version than this plugin's) is made ane
 leaves no half environment.
 
 <b>Folder of wheels</b> (advanced, offline): install the requirements from this folder only, \
-made where there is a network with <tt>pip download --dest wheels gnss-citygml</tt> for the \
-same Python and system.
+made where there is a network, by the same Python version on the same system, with \
+<tt>pip download --dest wheels gnss_citygml-VERSION-py3-none-any.whl</tt> (the wheel in this \
+plugin's folder, under wheels/).
 <b>Make the environment anew</b> (advanced): remove it first, and make it from scratch."""
 
 
@@ -280,7 +281,8 @@ class SetUp:
         code, lines = follow(command, line, self.feedback.isCanceled, env=clean_environ())
         if code != 0:
             python = ".".join(self.base.version.split(".")[:2])
-            raise Failed(environment.pip_failure(lines, self.version, self.wheels, python))
+            requirement = self.wheel or f"gnss-citygml=={self.version}"
+            raise Failed(environment.pip_failure(lines, requirement, self.wheels, python))
 
     def _undo(self, fresh):
         """After a failure or Cancel: a new environment removed, one being upgraded left

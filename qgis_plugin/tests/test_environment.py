@@ -219,24 +219,26 @@ ERROR: No matching distribution found for numpy>=1.26
 
 
 def test_pips_failures_in_one_line():
-    message = pip_failure(NO_NETWORK, "0.1.0", python="3.11")
+    wheel = "/plugins/gnss_citygml_qgis/wheels/gnss_citygml-0.1.0-py3-none-any.whl"
+    message = pip_failure(NO_NETWORK, wheel, python="3.11")
     assert message.startswith("no network: pip could not reach the package index to download")
     assert "set HTTPS_PROXY" in message and "run Set up gnss-citygml again" in message
     assert "offline, give Set up gnss-citygml a folder of wheels" in message
-    assert "for Python 3.11 on this system, with: pip download --dest wheels " in message
+    assert f'for Python 3.11 on this system, with: pip download --dest wheels "{wheel}"' in message
     assert "\n" not in message
 
     missing = [line for line in NO_NETWORK if line.startswith("ERROR")]
-    message = pip_failure(missing, "0.1.0", wheels="/media/usb/wheels", python="3.11")
+    message = pip_failure(missing, wheel, wheels="/media/usb/wheels", python="3.11")
     assert message.startswith(
         "the folder of wheels /media/usb/wheels has no numpy>=1.26 for Python 3.11 on this "
     )
-    message = pip_failure(missing, "0.1.0", python="3.11")
+    message = pip_failure(missing, "gnss-citygml==0.1.0", python="3.11")
     assert message.startswith("pip found no numpy>=1.26 for Python 3.11 on this system in ")
+    assert message.endswith("with: pip download --dest wheels gnss-citygml==0.1.0)")
 
     other = ["Processing ./x.whl", "ERROR: Could not install packages due to an OSError: [Errno "
              "28] No space left on device"]  # fmt: skip
-    assert pip_failure(other, "0.1.0") == (
+    assert pip_failure(other, wheel) == (
         "pip failed: Could not install packages due to an OSError: [Errno 28] No space left on "
         "device"
     )

@@ -209,7 +209,7 @@ def test_no_network_and_a_folder_without_the_requirements_are_one_line(
         run_set_up(processing_framework, profile, WHEELS="")
     message = str(raised.value)
     assert message.startswith("no network: pip could not reach the package index")
-    assert "\n" not in message and "pip download --dest wheels gnss-citygml==" in message
+    assert "\n" not in message and 'pip download --dest wheels "' in message
     assert not profile["folder"].exists()
 
     with pytest.raises(QgsProcessingException) as raised:

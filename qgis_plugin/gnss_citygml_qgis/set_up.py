@@ -280,7 +280,8 @@ class SetUp:
 
         code, lines = follow(command, line, self.feedback.isCanceled, env=clean_environ())
         if code != 0:
-            python = ".".join(self.base.version.split(".")[:2])
+            known = self.base.version[:1].isdigit()  # not known of an old environment
+            python = ".".join(self.base.version.split(".")[:2]) if known else None
             requirement = self.wheel or f"gnss-citygml=={self.version}"
             raise Failed(environment.pip_failure(lines, requirement, self.wheels, python))
 

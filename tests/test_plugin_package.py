@@ -4,6 +4,7 @@ QGIS (qgis_plugin/tests, run by `make test`)."""
 
 import ast
 import configparser
+import io
 import subprocess
 import sys
 import zipfile
@@ -18,14 +19,23 @@ sys.path.insert(0, str(ROOT / "tools"))
 from build_plugin import build  # noqa: E402
 
 
-def test_the_zip_holds_the_plugin_folder_with_its_licence(tmp_path):
+def test_the_zip_holds_the_plugin_folder_with_its_licence_and_the_librarys_wheel(tmp_path):
     target = build(tmp_path)
     assert target.name == f"gnss_citygml_qgis-{gnss_citygml.__version__}.zip"
-    names = set(zipfile.ZipFile(target).namelist())
+    archive = zipfile.ZipFile(target)
+    names = set(archive.namelist())
     expected = {f"gnss_citygml_qgis/{p.name}" for p in PLUGIN.iterdir() if p.is_file()}
-    assert names == expected | {"gnss_citygml_qgis/LICENSE"}
+    wheel = f"gnss_citygml_qgis/wheels/gnss_citygml-{gnss_citygml.__version__}-py3-none-any.whl"
+    assert names == expected | {"gnss_citygml_qgis/LICENSE", wheel}
     assert {"gnss_citygml_qgis/metadata.txt", "gnss_citygml_qgis/icon.svg"} <= names
     assert not list(tmp_path.glob("*.part"))
+    # the wheel "Set up gnss-citygml" installs: the library's modules and data, its metadata
+    inner = zipfile.ZipFile(io.BytesIO(archive.read(wheel)))
+    held = set(inner.namelist())
+    assert {"gnss_citygml/__init__.py", "gnss_citygml/worker.py"} <= held
+    assert any(n.startswith("gnss_citygml/data/grids/") for n in held)
+    info = f"gnss_citygml-{gnss_citygml.__version__}.dist-info/METADATA"
+    assert "Requires-Dist: numpy" in inner.read(info).decode()
 
 
 def test_metadata_version_is_the_librarys():

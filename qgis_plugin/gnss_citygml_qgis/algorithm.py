@@ -21,7 +21,7 @@ from qgis.core import (
 )
 from qgis.PyQt.QtGui import QIcon
 
-from .library import README, install, interpreter, unavailable
+from .library import README, install, job_command, repair, unavailable
 
 ICON = os.path.join(os.path.dirname(__file__), "icon.svg")
 
@@ -102,20 +102,24 @@ class Algorithm(QgsProcessingAlgorithm):
         whose docstring says why not in QGIS's process): its progress and warnings go to
         QGIS, Cancel interrupts it (it then removes what it was writing), and its error is
         the command line's one-line message. Returns the job's result."""
-        python = interpreter()
+        command, env = job_command()
+        python = command[0]
+        # the jobs' own environment, when they run there (job_command): repaired by set-up
+        fix = install if env is None else repair
         with tempfile.TemporaryFile("w+", encoding="utf-8", errors="replace") as stderr:
             try:
                 child = subprocess.Popen(
-                    [python, "-m", "gnss_citygml.worker"],
+                    [*command, "-m", "gnss_citygml.worker"],
                     stdin=subprocess.PIPE,
                     stdout=subprocess.PIPE,
                     stderr=stderr,
                     text=True,
                     encoding="utf-8",
+                    env=env,
                     **_GROUP,
                 )
             except OSError as exc:
-                raise QgsProcessingException(install(f"cannot start {python} ({exc})")) from None
+                raise QgsProcessingException(fix(f"cannot start {python} ({exc})")) from None
             interrupt = functools.partial(_interrupt, child)
             feedback.canceled.connect(interrupt)
             try:
@@ -138,7 +142,7 @@ class Algorithm(QgsProcessingAlgorithm):
         if "error" in outcome:
             raise QgsProcessingException(outcome["error"])
         last = printed.splitlines()[-1] if printed else f"exit status {child.returncode}"
-        raise QgsProcessingException(install(f"{python} cannot run gnss-citygml ({last})"))
+        raise QgsProcessingException(fix(f"{python} cannot run gnss-citygml ({last})"))
 
     @staticmethod
     def _follow(child, feedback):

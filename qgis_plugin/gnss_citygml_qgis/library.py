@@ -1,19 +1,26 @@
-"""Is the gnss-citygml library usable from QGIS's Python, and if not, what to install and how.
+"""Is the gnss-citygml library usable from QGIS, which Python runs the jobs, and if none can,
+what to do.
 
 QGIS runs its own Python (Debian's ``/usr/bin/python3``, OSGeo4W's, the macOS bundle's), which
-has no gnss-citygml until the user installs it there. The plugin must still load then, and say
-exactly what is missing and the command that installs it into *that* Python. This module uses
-nothing newer than Python 3.7, so that even a QGIS on an old Python gets the message.
+has no gnss-citygml until the user installs it there, or until "Set up gnss-citygml" makes the
+jobs an environment of their own in the QGIS profile's folder (:mod:`.environment`). The jobs'
+Python is ``$GNSS_CITYGML_PYTHON`` if set, else that environment's if it is sound, else QGIS's
+own. The plugin must still load when none has the library, and say exactly what is missing and
+what to do. This module uses nothing newer than Python 3.7, so that even a QGIS on an old
+Python gets the message.
 """
 
 import configparser
 import importlib
+import importlib.machinery
 import importlib.util
 import os
 import re
 import shutil
 import sys
 from importlib import metadata
+
+from . import environment
 
 TITLE = "gnss-citygml"
 DISTRIBUTION = "gnss-citygml"
@@ -24,12 +31,25 @@ PYTHON = (3, 11)
 PYTHON_VARIABLE = "GNSS_CITYGML_PYTHON"
 
 
+#: The name of the algorithm that makes the jobs' environment, as a user finds it.
+SET_UP = "Set up gnss-citygml"
+
+
 def version():
-    """The library's version, or "not installed"."""
+    """The version of the library the jobs run, or "not installed"."""
+    if not os.environ.get(PYTHON_VARIABLE):
+        own = private()
+        if own.status == "sound":
+            return own.version
     try:
         return metadata.version(DISTRIBUTION)
     except metadata.PackageNotFoundError:
         return "(library not installed)"
+
+
+def private():
+    """The state of the jobs' own environment in the QGIS profile (:func:`environment.state`)."""
+    return environment.state(environment.location(), plugin_version())
 
 
 def unavailable():
@@ -42,6 +62,11 @@ def unavailable():
     metadata without its modules, or modules that fail to import) must not stop QGIS loading
     the plugin. No compiled module is loaded into QGIS; a broken one is reported when a job
     runs, with the child's message.
+
+    Without ``$GNSS_CITYGML_PYTHON``, a sound environment of the jobs' own (made by
+    :data:`SET_UP`) comes first: its ``gnss_citygml`` package, and only that, is then imported
+    into QGIS from there (:class:`_Library`). When it is broken and QGIS's Python has no usable
+    library either, the message says to run :data:`SET_UP` again.
     """
     if sys.version_info[:2] < PYTHON:
         return (
@@ -50,7 +75,52 @@ def unavailable():
                 TITLE, *PYTHON, *sys.version_info[:2]
             )
         )
-    return _configured_python() or _installed() or _not_importable()
+    if os.environ.get(PYTHON_VARIABLE):
+        return _configured_python() or _installed() or _not_importable()
+    own = private()
+    _Library.use(own.site if own.status == "sound" else None)
+    if own.status == "sound":
+        return _not_importable(own.folder)
+    problem = _installed() or _not_importable()
+    if problem is not None and own.status == "broken":
+        return repair(f"the environment of gnss-citygml in {own.folder} is broken ({own.problem})")
+    return problem
+
+
+def needs_set_up():
+    """Whether :data:`SET_UP` is what makes the library usable (not a Python too old, nor
+    ``$GNSS_CITYGML_PYTHON``, which the jobs would run with whatever it makes)."""
+    return sys.version_info[:2] >= PYTHON and not os.environ.get(PYTHON_VARIABLE)
+
+
+def repair(what):
+    """The message: what is wrong with the jobs' own environment, and how to repair it."""
+    return f"{what}: run {SET_UP} (Processing Toolbox, GNSS 3D mapping) to make it anew"
+
+
+class _Library:
+    """Finds the package ``gnss_citygml`` (and nothing else) in the jobs' own environment, for
+    the modules the algorithms import into QGIS (:data:`MODULES`, pure Python): the rest of
+    that environment's site-packages (numpy, ...) is never on QGIS's path, where it would clash
+    with QGIS's own. First on ``sys.meta_path``, so that QGIS shows the defaults of the library
+    that runs the jobs."""
+
+    site = None
+
+    @classmethod
+    def use(cls, site):
+        """Find ``gnss_citygml`` in the folder ``site`` from now on (None: stop)."""
+        if site != cls.site:
+            importlib.invalidate_caches()
+        cls.site = site
+        if site is not None and cls not in sys.meta_path:
+            sys.meta_path.insert(0, cls)
+
+    @classmethod
+    def find_spec(cls, name, path=None, target=None):
+        if name != "gnss_citygml" or cls.site is None:
+            return None
+        return importlib.machinery.PathFinder.find_spec(name, [cls.site])
 
 
 def _configured_python():
@@ -117,14 +187,20 @@ def _spec(module):
         return None
 
 
-def _not_importable():
-    """Why the library's :data:`MODULES` do not import in QGIS's Python, or None."""
+def _not_importable(folder=None):
+    """Why the library's :data:`MODULES` do not import in QGIS's Python (from the jobs' own
+    environment ``folder``, when given), or None."""
     for module in MODULES:
         try:
             importlib.import_module(module)
         except Exception as exc:  # a broken install: any error of its import
             lines = str(exc).strip().splitlines() or [""]
             why = f"{type(exc).__name__}: {lines[0]}".rstrip(": ")
+            if folder is not None:
+                return repair(
+                    f"the environment of gnss-citygml in {folder} is broken: import {module} "
+                    f"fails in QGIS ({why})"
+                )
             return install(
                 f"the gnss-citygml library in QGIS's Python is broken: import {module} "
                 f"fails ({why})",
@@ -166,9 +242,12 @@ def _numbers(text):
 
 
 def install(what, requirement=DISTRIBUTION, reinstall=False):
-    """The message: what is wrong, and the command that installs the library into this Python
-    (``requirement``, e.g. a release; ``reinstall``: its files and its requirements' again)."""
-    command = f'"{interpreter()}" -m pip install --user --upgrade '
+    """The message: what is wrong, and what to do: run :data:`SET_UP` (unless
+    ``$GNSS_CITYGML_PYTHON`` is set), or the command that installs the library into the Python
+    that runs the jobs (``requirement``, e.g. a release; ``reinstall``: its files and its
+    requirements' again)."""
+    configured = os.environ.get(PYTHON_VARIABLE)
+    command = f'"{configured or qgis_python()}" -m pip install --user --upgrade '
     command += "--force-reinstall " * reinstall + (
         requirement if requirement == DISTRIBUTION else f'"{requirement}"'
     )
@@ -182,8 +261,16 @@ def install(what, requirement=DISTRIBUTION, reinstall=False):
     ):
         # Debian/Ubuntu: pip refuses the system Python unless told; --user keeps it in ~/.local
         command += " --break-system-packages"
-    verb = "Reinstall" if reinstall else "Install"
-    return f"{what}. {verb} it there, then restart QGIS: {command} (more in {README})"
+    verb = "reinstall" if reinstall else "install"
+    if configured:
+        return (
+            f"{what}. {verb.capitalize()} it there, then restart QGIS: {command} (more in {README})"
+        )
+    return (
+        f"{what}: run {SET_UP} (Processing Toolbox, GNSS 3D mapping), which installs it in an "
+        f"environment of its own, or {verb} it into QGIS's Python and restart QGIS: {command} "
+        f"(more in {README})"
+    )
 
 
 def _numpy_below_2():
@@ -195,10 +282,29 @@ def _numpy_below_2():
 
 
 def interpreter():
-    """The Python that runs the jobs: ``$GNSS_CITYGML_PYTHON``, or the one QGIS runs (QGIS's
-    own executable is not it)."""
+    """The Python that runs the jobs: ``$GNSS_CITYGML_PYTHON``, or the jobs' own environment's
+    if it is sound, or the one QGIS runs."""
     if os.environ.get(PYTHON_VARIABLE):
         return os.environ[PYTHON_VARIABLE]
+    own = private()
+    if own.status == "sound":
+        return own.python
+    return qgis_python()
+
+
+def job_command():
+    """How to start the jobs' Python: the program and its options, and its environment
+    variables (None: QGIS's). The jobs' own environment runs isolated from QGIS's Python
+    settings (PYTHONPATH, PYTHONHOME) and the user's site folder."""
+    python = interpreter()
+    own = private()
+    if not os.environ.get(PYTHON_VARIABLE) and own.status == "sound" and own.python == python:
+        return [python, "-I"], environment.clean_environ()
+    return [python], None
+
+
+def qgis_python():
+    """The Python that QGIS runs (QGIS's own executable is not it)."""
     if os.path.basename(sys.executable).lower().startswith("python"):
         return sys.executable
     version = "python{}.{}".format(*sys.version_info[:2])

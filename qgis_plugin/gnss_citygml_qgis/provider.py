@@ -8,6 +8,7 @@ from .estimate import EstimateAlgorithm
 from .library import TITLE, version
 from .observe import ObserveAlgorithm
 from .report import ReportAlgorithm
+from .set_up import SetUpAlgorithm
 from .update import UpdateAlgorithm
 from .validate import ValidateAlgorithm
 
@@ -33,6 +34,7 @@ class GnssCityGMLProvider(QgsProcessingProvider):
             ConvertAlgorithm(),
             ValidateAlgorithm(),
             UpdateAlgorithm(),
+            SetUpAlgorithm(),
         )
         for algorithm in algorithms:
             self.addAlgorithm(algorithm)

@@ -17,6 +17,7 @@ ALGORITHMS = [
     "gnsscitygml:estimate",
     "gnsscitygml:observe",
     "gnsscitygml:report",
+    "gnsscitygml:setup",
     "gnsscitygml:update",
     "gnsscitygml:validate",
 ]
@@ -267,7 +268,7 @@ def test_without_the_library_the_plugin_loads_and_says_what_to_install(tmp_path)
     lines = plugin_in_qgis(tmp_path)
     for key in ("LOG", "RUN"):
         message = lines[key]
-        assert "the gnss-citygml library is missing from QGIS's Python" in message
+        assert "the gnss-citygml library is missing from QGIS's Python: run Set up " in message
         assert "-m pip install --user --upgrade gnss-citygml" in message
 
 

@@ -27,12 +27,15 @@ test-qgis:
 	qgis_plugin/run-tests
 
 # The README's pictures (docs/*.png): QGIS's, and the demo's report page, rendered headless in
-# the QGIS tests' environment
+# the QGIS tests' environment; the tileset in CesiumJS (Chromium, npm) and QGIS's 3D view
+# (Xvfb): apt-get install chromium xvfb
 screenshots: demo
 	qgis_plugin/run-tests --setup
 	.venv-qgis/bin/python tools/qgis_screenshots.py
 	.venv-qgis/bin/python tools/report_screenshot.py demo-out/report.html docs/report-page.png
 	.venv/bin/python tools/tileset_screenshot.py demo-out/heights.gpkg docs/tileset-cesium.png
+	xvfb-run -a .venv-qgis/bin/python tools/qgis_3d_screenshot.py demo-out/heights.gpkg \
+		docs/qgis-3d-view.png
 
 # The QGIS plugin's installable zip: dist/gnss_citygml_qgis-VERSION.zip
 plugin: $(STAMP)

@@ -43,13 +43,9 @@ def _interrupt(child):
         child.send_signal(signal.CTRL_BREAK_EVENT if sys.platform == "win32" else signal.SIGINT)
 
 
-class Algorithm(QgsProcessingAlgorithm):
-    """A Processing algorithm that runs one job of the library.
-
-    Subclasses define :meth:`define` (the parameters, with the library's own defaults) and
-    :meth:`job` (parse the parameters, :meth:`run_job`, the outputs), and :attr:`section`.
-    Everything else is here, once.
-    """
+class Grouped(QgsProcessingAlgorithm):
+    """An algorithm of the toolkit's group, with its icon and a Help button that opens its
+    section of the README (:attr:`section`)."""
 
     #: The anchor of the README's section on the job: the Help button opens it.
     section = "qgis"
@@ -68,6 +64,15 @@ class Algorithm(QgsProcessingAlgorithm):
 
     def createInstance(self):  # noqa: N802 (the name QGIS calls)
         return type(self)()
+
+
+class Algorithm(Grouped):
+    """A Processing algorithm that runs one job of the library.
+
+    Subclasses define :meth:`define` (the parameters, with the library's own defaults) and
+    :meth:`job` (parse the parameters, :meth:`run_job`, the outputs), and :attr:`section`.
+    Everything else is here, once.
+    """
 
     def canExecute(self):  # noqa: N802 (the name QGIS calls)
         problem = unavailable()

@@ -17,7 +17,6 @@ import time
 
 from qgis.core import (
     QgsApplication,
-    QgsProcessingAlgorithm,
     QgsProcessingException,
     QgsProcessingOutputFolder,
     QgsProcessingOutputString,
@@ -26,7 +25,7 @@ from qgis.core import (
 )
 
 from . import environment, library
-from .algorithm import advanced, icon
+from .algorithm import Grouped, advanced
 from .environment import (
     INCOMPLETE,
     MARKER,
@@ -87,8 +86,10 @@ class Failed(Exception):
     """Set-up failed: the one-line message says what to do."""
 
 
-class SetUpAlgorithm(QgsProcessingAlgorithm):
+class SetUpAlgorithm(Grouped):
     """The algorithm: it can always run (it is what makes the others runnable)."""
+
+    section = "install-the-plugin-then-set-up-gnss-citygml"
 
     def name(self):
         return "setup"
@@ -96,20 +97,8 @@ class SetUpAlgorithm(QgsProcessingAlgorithm):
     def displayName(self):  # noqa: N802 (the name QGIS calls)
         return library.SET_UP
 
-    def group(self):
-        return "GNSS 3D mapping"
-
-    def groupId(self):  # noqa: N802 (the name QGIS calls)
-        return "gnss3dmapping"
-
-    def icon(self):
-        return icon()
-
     def shortHelpString(self):  # noqa: N802 (the name QGIS calls)
         return HELP
-
-    def createInstance(self):  # noqa: N802 (the name QGIS calls)
-        return type(self)()
 
     def canExecute(self):  # noqa: N802 (the name QGIS calls)
         return True, ""

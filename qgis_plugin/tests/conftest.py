@@ -115,3 +115,15 @@ def qgis_env(tmp_path):
     # (another python3 earlier on PATH, e.g. pyenv's, lacks the Debian packages: matplotlib)
     env["PATH"] = os.pathsep.join([os.path.join(sys.base_prefix, "bin"), env.get("PATH", "")])
     return env
+
+
+def debian_qgis(script, tmp_path):
+    """``script`` run by Debian's own Python (QGIS's), isolated (``-I -S``: no user or
+    virtual environment's packages), headless, with ``tmp_path`` as its home."""
+    return subprocess.run(
+        ["/usr/bin/python3", "-I", "-S", "-c", script],
+        capture_output=True,
+        text=True,
+        env={"QT_QPA_PLATFORM": "offscreen", "HOME": str(tmp_path), "PATH": "/usr/bin:/bin"},
+        timeout=120,
+    )

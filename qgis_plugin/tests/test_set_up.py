@@ -11,12 +11,11 @@ import base64
 import hashlib
 import os
 import shutil
-import subprocess
 import sys
 import zipfile
 
 import pytest
-from conftest import PLUGINS, ROOT
+from conftest import PLUGINS, ROOT, debian_qgis
 from gnss_citygml_qgis import environment, library, set_up
 from qgis.core import QgsApplication, QgsProcessingException, QgsProcessingFeedback
 
@@ -314,13 +313,7 @@ for tag, text in messages:
 
 def qgis_with_environment(tmp_path, folder):
     script = f"PLUGINS = {str(PLUGINS)!r}\nFOLDER = {str(folder)!r}\n{SCRIPT}"
-    process = subprocess.run(
-        ["/usr/bin/python3", "-I", "-S", "-c", script],
-        capture_output=True,
-        text=True,
-        env={"QT_QPA_PLATFORM": "offscreen", "HOME": str(tmp_path), "PATH": "/usr/bin:/bin"},
-        timeout=120,
-    )
+    process = debian_qgis(script, tmp_path)
     assert process.returncode == 0, process.stderr
     return dict(line.split(": ", 1) for line in process.stdout.splitlines() if ": " in line)
 

@@ -279,3 +279,9 @@ def test_version_printed_by_the_command(capsys):
     with contextlib.suppress(SystemExit):
         main(["--version"])
     assert capsys.readouterr().out == f"gnss-citygml, version {gnss_citygml.__version__}\n"
+
+
+def test_the_readme_stays_a_users_guide():
+    """At most 400 lines (issue 29): measurements and details live in docs/, linked from it."""
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text(encoding="utf-8")
+    assert len(readme.splitlines()) <= 400, "move details into docs/ and link them"

@@ -81,3 +81,17 @@ def test_a_folder_is_digested_by_its_files_and_a_partition_by_its_index(tmp_path
     assert digest_input(tmp_path / "dem")["sha256"] != first["sha256"]
     (tmp_path / "dem" / "partition.json").write_text("{}")
     assert digest_input(tmp_path / "dem")["sha256"] == sha256(tmp_path / "dem" / "partition.json")
+
+
+@pytest.mark.parametrize(
+    "name, text, message",
+    [
+        ("bad.gpkg", "junk", "not a GeoPackage"),
+        ("bad.gml", "<x>", "cannot read it"),
+        ("bad.city.json", "{", "cannot read it"),
+    ],
+)
+def test_a_damaged_file_is_one_line_naming_it(name, text, message, tmp_path, capsys):
+    (tmp_path / name).write_text(text)
+    code, _, err = run(["info", str(tmp_path / name)], capsys)
+    assert code == 2 and message in err and name in err and "internal error" not in err

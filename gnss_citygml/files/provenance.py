@@ -31,6 +31,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import InputError
+from .geopackage import check_geopackage
 from .paths import StrPath, file_digest
 
 __all__ = ["KEY", "PARTITION_INDEX", "digest_input", "provenance", "read_provenance", "summary"]
@@ -129,9 +130,11 @@ def read_provenance(path: StrPath, layer: str | None = None) -> dict[str, Any]:
         ".xml": lambda: _from_citygml(path),
         ".html": lambda: _from_report(path),
     }.get(suffix)
+    from lxml.etree import XMLSyntaxError
+
     try:
         record = reader() if reader is not None else None
-    except (ValueError, OSError) as err:  # (json's and lxml's errors are ValueErrors)
+    except (ValueError, OSError, XMLSyntaxError) as err:  # (json's errors are ValueErrors)
         raise InputError(f"cannot read it: {err}", where=str(path)) from None
     if not isinstance(record, dict):
         raise InputError(
@@ -182,6 +185,7 @@ def _from_report(path: Path) -> Any:
 def _from_geopackage(path: Path, layer: str | None) -> Any:
     import pyogrio
 
+    check_geopackage(path, empty_ok=False)
     layers = [str(name) for name, _ in pyogrio.list_layers(path)]
     if layer is None:
         layer = "heights" if "heights" in layers else (layers[0] if len(layers) == 1 else None)

@@ -34,6 +34,8 @@ import numpy.typing as npt
 import pandas as pd
 from scipy.special import expit
 
+from . import fourpl_kernels
+
 __all__ = ["B_BOUNDS", "FourPLFit", "c_interval", "fit_4pl", "log_likelihood", "logistic4"]
 
 #: Default bounds of the slope b (1/unit of x): the upper bound is where separable data stop
@@ -501,15 +503,24 @@ def _evaluate(theta, x, y, w, g, v, n_groups, active, *, ll_only=False):
     (:func:`_blocks`).
 
     The hot loop of every fit. Samples sorted by group make each block's sums cover a short
-    range of groups (:func:`fit_4pl` sorts them)."""
+    range of groups (:func:`fit_4pl` sorts them). With numba, the groups of at most
+    :data:`_BLOCK` samples are summed by compiled loops, to the same bits
+    (:mod:`.fourpl_kernels`)."""
     ll = np.zeros(n_groups)
     grad = np.zeros((n_groups, 4))
     fisher = np.zeros((n_groups, 4, 4))
+    a_g, r_g = expit(theta[:, 0]), expit(theta[:, 3])
+    c_g = np.ascontiguousarray(theta[:, 2])
+    per_group = (a_g, a_g * r_g, np.exp(theta[:, 1]), c_g, r_g)
+    if fourpl_kernels.COMPILED:
+        large = np.diff(np.searchsorted(g, np.arange(n_groups + 1))) > _BLOCK
+        small = active & ~large
+        sums = (ll, grad, fisher, ll_only)
+        fourpl_kernels.likelihood_sums(x, y, w, v, g, small, per_group, _EPS, *sums)
+        active = active & large
     sel = active[g]
     if not sel.all():
         x, y, w, g, v = x[sel], y[sel], w[sel], g[sel], v[sel]
-    a_g, r_g = expit(theta[:, 0]), expit(theta[:, 3])
-    per_group = (a_g, a_g * r_g, np.exp(theta[:, 1]), theta[:, 2], r_g)
     for lo, hi, alone in _blocks(g):
         block = slice(lo, hi)
         gb = g[block]

@@ -1,0 +1,92 @@
+"""The compiled sums of the 4PL likelihood (numba) against numpy's: the same bits."""
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from conftest import draw_4pl
+
+from gnss_citygml.model import fourpl, fourpl_kernels
+
+
+@pytest.fixture
+def numpy_only(monkeypatch):
+    """Sum in numpy, as without numba."""
+    monkeypatch.setattr(fourpl_kernels, "COMPILED", False)
+
+
+def test_numba_is_installed():
+    """The dev extra installs numba: without it every other test would run the numpy path only
+    and this file's comparisons would compare numpy with itself."""
+    assert fourpl_kernels.COMPILED
+
+
+def _samples(rng, sizes):
+    """Groups of the given sizes, sorted by group: soft and hard labels, zero and positive
+    weights and errors in x."""
+    g = np.repeat(np.arange(len(sizes)), sizes)
+    x = rng.uniform(0.0, 60.0, g.size)
+    y = np.where(rng.random(g.size) < 0.5, rng.random(g.size) < 0.5, rng.random(g.size))
+    w = np.where(rng.random(g.size) < 0.1, 0.0, rng.uniform(0.2, 2.0, g.size))
+    v = np.where(rng.random(g.size) < 0.3, 0.0, rng.uniform(0.0, 4.0, g.size))
+    return x, y.astype(float), w, g, v
+
+
+@pytest.mark.parametrize("ll_only", [False, True])
+def test_the_compiled_sums_are_numpys_bit_for_bit(rng, monkeypatch, ll_only):
+    """Groups packed in blocks and one larger than a block; some groups inactive; parameters
+    from gentle to so steep that exp overflows and p is clipped."""
+    sizes = [1, 2, 40, 3000, fourpl._BLOCK + 17, 5, 700]
+    x, y, w, g, v = _samples(rng, sizes)
+    n = len(sizes)
+    theta = np.column_stack(
+        [rng.normal(0, 3, n), rng.uniform(-7, 5, n), rng.uniform(0, 60, n), rng.normal(0, 3, n)]
+    )
+    theta[1] = [9.0, np.log(100.0), 30.0, -9.0]  # on the box: p clipped at eps
+    active = np.array([True, True, False, True, True, True, True])
+    compiled = fourpl._evaluate(theta, x, y, w, g, v, n, active.copy(), ll_only=ll_only)
+    monkeypatch.setattr(fourpl_kernels, "COMPILED", False)
+    numpy = fourpl._evaluate(theta, x, y, w, g, v, n, active.copy(), ll_only=ll_only)
+    for ours, theirs in zip(compiled, numpy, strict=True):
+        assert np.array_equal(ours, theirs)
+    assert np.all(np.isfinite(compiled[0])) and np.all(compiled[0][~active] == 0.0)
+
+
+def test_a_fit_and_its_interval_do_not_depend_on_numba(rng, monkeypatch):
+    """A whole fit (starts, Levenberg-Marquardt, likelihood interval) of many groups."""
+    xs, ys, gs = [], [], []
+    slopes, roofs = rng.uniform(0.1, 5.0, 60), rng.uniform(10, 50, 60)
+    for k, (b, c) in enumerate(zip(slopes, roofs, strict=True)):
+        x, y = draw_4pl(rng, int(rng.integers(5, 400)), 0.9, b, c, 0.1)
+        xs.append(x)
+        ys.append(y)
+        gs.append(np.full(x.size, k))
+    x, y, g = np.concatenate(xs), np.concatenate(ys), np.concatenate(gs)
+    sd = rng.uniform(0.0, 2.0, x.size)
+
+    def fit():
+        result = fourpl.fit_4pl(x, y, groups=g, sd=sd)
+        return result, fourpl.c_interval(result, x, y, g, sd=sd)
+
+    compiled, c_range = fit()
+    monkeypatch.setattr(fourpl_kernels, "COMPILED", False)
+    numpy, numpy_range = fit()
+    for name in ("a", "b", "c", "d", "loglik", "converged", "n_iter"):
+        assert np.array_equal(getattr(compiled, name), getattr(numpy, name), equal_nan=True)
+    assert all(np.array_equal(a, b) for a, b in zip(c_range, numpy_range, strict=True))
+
+
+def test_without_numba_the_fit_runs_in_numpy():
+    """The ``fast`` extra is optional: without numba the package imports and fits."""
+    code = (
+        "import sys; sys.modules['numba'] = None\n"  # as if not installed: import fails
+        "import numpy as np\n"
+        "from gnss_citygml.model import fourpl_kernels\n"
+        "from gnss_citygml.model.fourpl import fit_4pl\n"
+        "assert not fourpl_kernels.COMPILED\n"
+        "x = np.linspace(0, 60, 400)\n"
+        "fit = fit_4pl(x, (x > 30) ^ (np.arange(400) % 7 == 0))\n"
+        "assert fit.converged[0] and abs(fit.c[0] - 30) < 1, fit\n"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True)

@@ -40,71 +40,71 @@ def _compiled(func):
 
 
 @_compiled
-def _exponents(x, v, g, sel, b_g, c_g, out):
-    """Each selected sample's ``-b kappa (x - c)``, the logistic's exponent (0 elsewhere)."""
+def _exponents(x, v, g, b_g, c_g, out):
+    """Each sample's ``-b kappa (x - c)``, the logistic's exponent (a loop without branches:
+    the compiler makes it vector instructions)."""
     for i in range(x.size):
-        k = g[i]
-        if sel[k]:
-            b = b_g[k]
-            kappa = 1.0 / np.sqrt(1.0 + _PROBIT * b * b * v[i])
-            out[i] = -(b * kappa * (x[i] - c_g[k]))
-        else:
-            out[i] = 0.0
+        b = b_g[g[i]]
+        kappa = 1.0 / np.sqrt(1.0 + _PROBIT * b * b * v[i])
+        out[i] = -(b * kappa * (x[i] - c_g[g[i]]))
 
 
 @_compiled
-def _probabilities(e, g, sel, a_g, d_g, eps, p, q):
-    """Each selected sample's ``p = d + (a - d) s`` (``s = 1 / (1 + e)``) clipped to
-    ``[eps, 1 - eps]``, and ``q = 1 - p`` (0.5 elsewhere, a finite logarithm)."""
+def _probabilities(e, g, a_g, d_g, eps, p, q):
+    """Each sample's ``p = d + (a - d) s`` (``s = 1 / (1 + e)``) clipped to ``[eps, 1 - eps]``,
+    and ``q = 1 - p``."""
     for i in range(e.size):
-        k = g[i]
-        if sel[k]:
-            a, d = a_g[k], d_g[k]
-            pi = d + (a - d) * (1.0 / (1.0 + e[i]))
-            pi = min(max(pi, eps), 1 - eps)
-            p[i] = pi
-            q[i] = 1 - pi
-        else:
-            p[i] = 0.5
-            q[i] = 0.5
+        a, d = a_g[g[i]], d_g[g[i]]
+        pi = min(max(d + (a - d) * (1.0 / (1.0 + e[i])), eps), 1 - eps)
+        p[i] = pi
+        q[i] = 1 - pi
 
 
 @_compiled
 def _sums(x, y, w, v, g, sel, params, e, p, q, log_p, log_q, ll, grad, fisher, ll_only):
     """Add each selected sample's log-likelihood term (and, unless ``ll_only``, its gradient
-    and Fisher information in theta) to its group's, in the samples' order."""
+    and Fisher information in theta) to its group's, in the samples' order (sorted by group:
+    each group's sums are kept in registers until its last sample)."""
     a_g, d_g, b_g, c_g, r_g = params
-    jac = np.empty(4)
-    for i in range(x.size):
+    jac = np.zeros(4)
+    acc = np.zeros(15)  # ll, the gradient's 4, the information's upper triangle's 10
+    n_rows = x.size
+    for i in range(n_rows):
         k = g[i]
         if not sel[k]:
             continue
         yi, wi = y[i], w[i]
-        ll[k] += wi * (yi * log_p[i] + (1 - yi) * log_q[i])
-        if ll_only:
-            continue
-        a, d, b, r = a_g[k], d_g[k], b_g[k], r_g[k]
-        x_c = x[i] - c_g[k]
-        kappa = 1.0 / np.sqrt(1.0 + _PROBIT * b * b * v[i])
-        s = 1.0 / (1.0 + e[i])
-        s_low = 1 - s
-        dsb = (a - d) * s * s_low * b * kappa
-        jac[0] = a * (1 - a) * (s + s_low * r)
-        jac[1] = dsb * (kappa * kappa) * x_c
-        jac[2] = -dsb
-        jac[3] = s_low * a * r * (1 - r)
-        info = wi / (p[i] * q[i])
-        resid = info * (yi - p[i])
-        for m in range(4):
-            grad[k, m] += resid * jac[m]
-            weighted = info * jac[m]
-            for n in range(m, 4):
-                fisher[k, m, n] += weighted * jac[n]
-    if not ll_only:
-        for k in range(fisher.shape[0]):
+        acc[0] += wi * (yi * log_p[i] + (1 - yi) * log_q[i])
+        if not ll_only:
+            a, d, b, r = a_g[k], d_g[k], b_g[k], r_g[k]
+            x_c = x[i] - c_g[k]
+            kappa = 1.0 / np.sqrt(1.0 + _PROBIT * b * b * v[i])
+            s = 1.0 / (1.0 + e[i])
+            s_low = 1 - s
+            dsb = (a - d) * s * s_low * b * kappa
+            jac[0] = a * (1 - a) * (s + s_low * r)
+            jac[1] = dsb * (kappa * kappa) * x_c
+            jac[2] = -dsb
+            jac[3] = s_low * a * r * (1 - r)
+            info = wi / (p[i] * q[i])
+            resid = info * (yi - p[i])
+            at = 5
             for m in range(4):
-                for n in range(m + 1, 4):
+                acc[1 + m] += resid * jac[m]
+                weighted = info * jac[m]
+                for n in range(m, 4):
+                    acc[at] += weighted * jac[n]
+                    at += 1
+        if i + 1 == n_rows or g[i + 1] != k:  # the group's last sample: its sums are done
+            ll[k] += acc[0]
+            at = 5
+            for m in range(4):
+                grad[k, m] += acc[1 + m]
+                for n in range(m, 4):
+                    fisher[k, m, n] += acc[at]
                     fisher[k, n, m] = fisher[k, m, n]
+                    at += 1
+            acc[:] = 0.0
 
 
 def likelihood_sums(x, y, w, v, g, sel, per_group, eps, ll, grad, fisher, ll_only):
@@ -115,10 +115,10 @@ def likelihood_sums(x, y, w, v, g, sel, per_group, eps, ll, grad, fisher, ll_onl
     probabilities."""
     a_g, d_g, b_g, c_g, r_g = per_group
     e = np.empty(x.size)
-    _exponents(x, v, g, sel, b_g, c_g, e)
+    _exponents(x, v, g, b_g, c_g, e)
     with np.errstate(over="ignore"):  # exp(large) = inf makes s = 0, as in numpy's path
         np.exp(e, out=e)
     p, q = np.empty(x.size), np.empty(x.size)
-    _probabilities(e, g, sel, a_g, d_g, eps, p, q)
+    _probabilities(e, g, a_g, d_g, eps, p, q)
     log_p, log_q = np.log(p), np.log(q)
     _sums(x, y, w, v, g, sel, per_group, e, p, q, log_p, log_q, ll, grad, fisher, ll_only)

@@ -35,7 +35,7 @@ from raycast import OUT
 from shared_data import GRIDS
 
 from gnss_citygml.footprints import read_footprints
-from gnss_citygml.model import estimate, fourpl, parts
+from gnss_citygml.model import estimate, likelihood, parts
 from gnss_citygml.model.classifier import SignalClassifier
 from gnss_citygml.model.estimate import estimate_heights
 from gnss_citygml.observations import read_observations
@@ -47,7 +47,7 @@ TIMED = [
     (estimate, "intersections_part"),
     (parts.Part, "fitted"),
     (parts, "fit_4pl"),
-    (fourpl, "_evaluate"),
+    (likelihood, "evaluate"),
     (parts.Part, "shared"),
     (parts.Part, "exchanged"),
     (parts, "_unoccluded"),
@@ -91,7 +91,7 @@ def timed_fit(inter: pd.DataFrame) -> pd.DataFrame:
             entry[1] += 1
             if name == "fit_4pl":
                 lm_iterations[iteration[0]] = int(result.n_iter.max(initial=0))
-            if name == "_evaluate":  # (theta, x, y, w, g, v, n_groups, active)
+            if name == "evaluate":  # (theta, x, y, w, g, v, n_groups, active)
                 g, active = args[4], args[7]
                 n_rows = int(np.count_nonzero(active[g]))
                 rows[iteration[0]] += n_rows

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from conftest import draw_4pl
 
-from gnss_citygml.model import fourpl, fourpl_kernels
+from gnss_citygml.model import fourpl, fourpl_kernels, likelihood
 
 
 @pytest.fixture
@@ -37,7 +37,7 @@ def _samples(rng, sizes):
 def test_the_compiled_sums_are_numpys_bit_for_bit(rng, monkeypatch, ll_only):
     """Groups packed in blocks and one larger than a block; some groups inactive; parameters
     from gentle to so steep that exp overflows and p is clipped."""
-    sizes = [1, 2, 40, 3000, fourpl._BLOCK + 17, 5, 700]
+    sizes = [1, 2, 40, 3000, likelihood.BLOCK + 17, 5, 700]
     x, y, w, g, v = _samples(rng, sizes)
     n = len(sizes)
     theta = np.column_stack(
@@ -45,9 +45,9 @@ def test_the_compiled_sums_are_numpys_bit_for_bit(rng, monkeypatch, ll_only):
     )
     theta[1] = [9.0, np.log(100.0), 30.0, -9.0]  # on the box: p clipped at eps
     active = np.array([True, True, False, True, True, True, True])
-    compiled = fourpl._evaluate(theta, x, y, w, g, v, n, active.copy(), ll_only=ll_only)
+    compiled = likelihood.evaluate(theta, x, y, w, g, v, n, active.copy(), ll_only=ll_only)
     monkeypatch.setattr(fourpl_kernels, "COMPILED", False)
-    numpy = fourpl._evaluate(theta, x, y, w, g, v, n, active.copy(), ll_only=ll_only)
+    numpy = likelihood.evaluate(theta, x, y, w, g, v, n, active.copy(), ll_only=ll_only)
     for ours, theirs in zip(compiled, numpy, strict=True):
         assert np.array_equal(ours, theirs)
     assert np.all(np.isfinite(compiled[0])) and np.all(compiled[0][~active] == 0.0)

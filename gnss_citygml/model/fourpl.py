@@ -6,9 +6,11 @@ The 4PL is ``Pr(x) = d + (a - d) / (1 + exp(-b (x - c)))`` with ``0 <= d < a <= 
 intersection height) and as the signal classifier of one device (``x`` is C/N0).
 
 :func:`fit_4pl` fits many independent curves at once (one per *group*, e.g. one per building)
-with a damped Fisher-scoring (Levenberg-Marquardt) iteration whose per-group sums are
-``numpy.bincount`` calls, so a city of buildings costs a few passes over the signals instead of
-one optimiser call per building. The constraints are built into the parametrisation
+with a damped Fisher-scoring (Levenberg-Marquardt) iteration whose per-group sums are batched
+(:mod:`.likelihood`), so a city of buildings costs a few passes over the signals instead of one
+optimiser call per building; runs of whole groups are fitted in threads
+(:mod:`.group_threads`), each group to the same bits whatever groups surround it. The
+constraints are built into the parametrisation
 
 ``a = sigmoid(alpha)``, ``d = a * sigmoid(delta)``, ``b = exp(beta)``,
 
@@ -34,7 +36,8 @@ import numpy.typing as npt
 import pandas as pd
 from scipy.special import expit
 
-from . import fourpl_kernels
+from .group_threads import by_groups
+from .likelihood import EPS, evaluate
 
 __all__ = ["B_BOUNDS", "FourPLFit", "c_interval", "fit_4pl", "log_likelihood", "logistic4"]
 
@@ -43,8 +46,6 @@ __all__ = ["B_BOUNDS", "FourPLFit", "c_interval", "fit_4pl", "log_likelihood", "
 B_BOUNDS = (1e-3, 1e2)
 #: Box for the logits of ``a`` and ``d / a``: a in [1.2e-4, 0.99988].
 _LOGIT_BOUND = 9.0
-#: Probabilities are clipped to this distance from 0 and 1 inside logarithms.
-_EPS = 1e-12
 #: Log-likelihood drop of a 95 % likelihood-ratio interval of one parameter: chi2(1, 0.95) / 2.
 LR_DROP = 1.92
 
@@ -92,7 +93,7 @@ def log_likelihood(
     y = np.asarray(y, dtype=float)
     w = np.ones_like(x) if weights is None else np.asarray(weights, dtype=float)
     s = expit(b * (x - c))
-    p = np.clip(d + (a - d) * s, _EPS, 1 - _EPS)
+    p = np.clip(d + (a - d) * s, EPS, 1 - EPS)
     ll = float(np.sum(w * (y * np.log(p) + (1 - y) * np.log1p(-p))))
     r = w * (y - p) / (p * (1 - p))
     ds = s * (1 - s)
@@ -180,6 +181,19 @@ def fit_4pl(
     True
     """
     x, y, w, g, v, n_groups = _samples(x, y, weights, groups, n_groups, sd)
+    init = None if init is None else np.asarray(init, dtype=float)
+
+    def fit(rows: slice, own: slice) -> tuple[np.ndarray, ...]:
+        start = None if init is None else init[own]
+        n_own = own.stop - own.start
+        samples = (x[rows], y[rows], w[rows], g[rows] - own.start, v[rows])
+        return _fit(*samples, n_own, start, b_bounds, max_iter, tol)
+
+    return FourPLFit(*by_groups(g, n_groups, fit))
+
+
+def _fit(x, y, w, g, v, n_groups, init, b_bounds, max_iter, tol) -> tuple[np.ndarray, ...]:
+    """:func:`fit_4pl` of samples sorted by group: its :class:`FourPLFit`'s fields."""
     counts = np.bincount(g, weights=(w > 0).astype(float), minlength=n_groups)
     lo, hi = group_range(x, g, n_groups)
     span = np.maximum(hi - lo, 1e-6)
@@ -196,7 +210,7 @@ def fit_4pl(
     for v in (a, b, c, d, ll):
         v[empty] = np.nan
     separable = ~empty & (theta[:, 1] >= box_hi[:, 1] - 1e-9)
-    return FourPLFit(a, b, c, d, ll, converged & ~empty, n_iter, separable)
+    return a, b, c, d, ll, converged & ~empty, n_iter, separable
 
 
 def _samples(x, y, weights, groups, n_groups, sd):
@@ -241,7 +255,7 @@ def _levenberg_marquardt(
     """Damped (projected) Newton steps on the Fisher information of every active group at
     once, until each converges or ``max_iter``: the parameters, log-likelihoods, convergence
     flags and iteration counts."""
-    ll, grad, fisher = _evaluate(theta, *data.arrays, n_groups, active)
+    ll, grad, fisher = evaluate(theta, *data.arrays, n_groups, active)
     lam = np.full(n_groups, 1e-3)
     converged = np.zeros(n_groups, dtype=bool)
     n_iter = np.zeros(n_groups, dtype=int)
@@ -257,7 +271,7 @@ def _levenberg_marquardt(
         step = _damped_step(grad[idx], fisher[idx], lam[idx], frozen)
         trial = theta.copy()
         trial[idx] = np.clip(theta[idx] + step, box_lo[idx], box_hi[idx])
-        t_ll, t_grad, t_fisher = _evaluate(trial, *data.shrink(active), n_groups, active)
+        t_ll, t_grad, t_fisher = evaluate(trial, *data.shrink(active), n_groups, active)
         gain = t_ll[idx] - ll[idx]
         accept = gain >= -1e-12 * (1.0 + np.abs(ll[idx]))
         acc = idx[accept]
@@ -311,17 +325,30 @@ def c_interval(
         order = np.argsort(g, kind="stable")
         x, y, w, g, v = x[order], y[order], w[order], g[order], v[order]
     theta = np.nan_to_num(_to_theta(fit.params))
-    everyone = np.ones(n_groups, dtype=bool)
-    best = _evaluate(theta, x, y, w, g, v, n_groups, everyone, ll_only=True)[0]
     steps = _offsets(reach)
-    lower, upper = fit.c.copy(), fit.c.copy()
+
+    def interval(rows: slice, own: slice) -> tuple[np.ndarray, ...]:
+        samples = (x[rows], y[rows], w[rows], g[rows] - own.start, v[rows])
+        return _c_ends(theta[own], fit.c[own], samples, steps, drop)
+
+    lower, upper = by_groups(g, n_groups, interval)
+    return lower, upper
+
+
+def _c_ends(theta, c, samples: _Samples, steps, drop) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`c_interval`'s ends of the groups of sorted ``samples`` (x, y, w, g, v), their
+    parameters ``theta`` and inflection points ``c``, trying the offsets ``steps``."""
+    n_groups = c.size
+    everyone = np.ones(n_groups, dtype=bool)
+    best = evaluate(theta, *samples, n_groups, everyone, ll_only=True)[0]
+    lower, upper = c.copy(), c.copy()
     for sign, end in ((-1.0, lower), (1.0, upper)):
         for step in steps:
             shifted = theta.copy()
             shifted[:, 2] += sign * step
-            ll = _evaluate(shifted, x, y, w, g, v, n_groups, everyone, ll_only=True)[0]
+            ll = evaluate(shifted, *samples, n_groups, everyone, ll_only=True)[0]
             inside = ll >= best - drop
-            end[inside] = fit.c[inside] + sign * step
+            end[inside] = c[inside] + sign * step
     return lower, upper
 
 
@@ -335,7 +362,7 @@ def _offsets(reach: float) -> np.ndarray:
     return np.r_[steps[steps < reach], reach]
 
 
-#: The samples' x, y, w, g and v of :func:`_evaluate`.
+#: The samples' x, y, w, g and v of :func:`~.likelihood.evaluate`.
 _Samples = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
 
@@ -427,7 +454,7 @@ def _likeliest(starts, x, y, w, g, v, n_groups):
     everyone = np.ones(n_groups, dtype=bool)
     best, best_ll = None, None
     for cand in starts:
-        ll = _evaluate(cand, x, y, w, g, v, n_groups, everyone, ll_only=True)[0]
+        ll = evaluate(cand, x, y, w, g, v, n_groups, everyone, ll_only=True)[0]
         if best is None:
             best, best_ll = cand, ll
             continue
@@ -468,124 +495,6 @@ def _to_theta(params):
 def _from_theta(theta):
     a = expit(theta[:, 0])
     return np.column_stack([a, np.exp(theta[:, 1]), theta[:, 2], a * expit(theta[:, 3])])
-
-
-#: Samples per block of :func:`_evaluate`: a block's temporaries stay in the CPU cache and in
-#: the allocator's heap; whole-array temporaries are slower by 2x on a few million samples.
-_BLOCK = 1 << 16
-
-
-def _blocks(g: np.ndarray) -> list[tuple[int, int, bool]]:
-    """The blocks of :func:`_evaluate` over samples sorted by group: (start, stop, alone).
-    Groups of at most :data:`_BLOCK` samples are never split: those that start in one
-    stretch of ``_BLOCK`` samples make a block. A larger group is ``alone``, in blocks of
-    ``_BLOCK`` samples counted from its own first. So every group is summed the same way
-    whichever groups lie around it: a tile's fit of a building is the whole run's, bit for
-    bit, not only to rounding (which a flat likelihood would turn into metres)."""
-    if g.size == 0:
-        return []
-    starts = np.flatnonzero(np.r_[True, g[1:] != g[:-1]])
-    sizes = np.diff(np.r_[starts, g.size])
-    large = sizes > _BLOCK
-    stretch = starts // _BLOCK
-    new = np.r_[True, (stretch[1:] != stretch[:-1]) | large[1:] | large[:-1]]
-    first = starts[new]
-    blocks = []
-    for lo, hi, alone in zip(first, np.r_[first[1:], g.size], large[new], strict=True):
-        step = _BLOCK if alone else hi - lo
-        blocks += [(int(k), int(min(k + step, hi)), bool(alone)) for k in range(lo, hi, step)]
-    return blocks
-
-
-def _evaluate(theta, x, y, w, g, v, n_groups, active, *, ll_only=False):
-    """Log-likelihood, gradient and Fisher information (in theta) of the active groups
-    (gradient and information left at zero with ``ll_only``), summed block by block
-    (:func:`_blocks`).
-
-    The hot loop of every fit. Samples sorted by group make each block's sums cover a short
-    range of groups (:func:`fit_4pl` sorts them). With numba, the groups of at most
-    :data:`_BLOCK` samples are summed by compiled loops, to the same bits
-    (:mod:`.fourpl_kernels`)."""
-    ll = np.zeros(n_groups)
-    grad = np.zeros((n_groups, 4))
-    fisher = np.zeros((n_groups, 4, 4))
-    a_g, r_g = expit(theta[:, 0]), expit(theta[:, 3])
-    c_g = np.ascontiguousarray(theta[:, 2])
-    per_group = (a_g, a_g * r_g, np.exp(theta[:, 1]), c_g, r_g)
-    if fourpl_kernels.COMPILED:
-        large = np.diff(np.searchsorted(g, np.arange(n_groups + 1))) > _BLOCK
-        small = active & ~large
-        sums = (ll, grad, fisher, ll_only)
-        fourpl_kernels.likelihood_sums(x, y, w, v, g, small, per_group, _EPS, *sums)
-        active = active & large
-    sel = active[g]
-    if not sel.all():
-        x, y, w, g, v = x[sel], y[sel], w[sel], g[sel], v[sel]
-    for lo, hi, alone in _blocks(g):
-        block = slice(lo, hi)
-        gb = g[block]
-        first, last = gb[0], gb[-1] + 1
-        sums = _block_sums(
-            x[block],
-            y[block],
-            w[block],
-            v[block],
-            gb - first,
-            per_group,
-            first,
-            last,
-            ll_only,
-            alone,
-        )
-        ll[first:last] += sums[0]
-        if not ll_only:
-            grad[first:last] += sums[1]
-            fisher[first:last] += sums[2]
-    return ll, grad, fisher
-
-
-def _block_sums(x, y, w, v, g, per_group, first, last, ll_only, alone):
-    """Per-group sums of one block of samples (``g`` counted from group ``first``). A block of
-    a large group (``alone``) sums by matrix products, the others by ``bincount``, which adds
-    each group's samples in order whatever the other groups in the block."""
-    n = last - first
-    if alone:
-        a, d, b, c, r = (v[first] for v in per_group)
-    else:
-        a, d, b, c, r = (np.take(v[first:last], g) for v in per_group)
-    x_c = x - c
-    kappa = 1.0 / np.sqrt(1.0 + (np.pi / 8.0) * b * b * v)  # v: variance of x; d(b kappa)/db
-    s = _sigmoid(b * kappa * x_c)  # = kappa^3, hence the kappa^2 in the slope's jacobian
-    p = np.clip(d + (a - d) * s, _EPS, 1 - _EPS)
-    q = 1 - p
-    terms = w * (y * np.log(p) + (1 - y) * np.log(q))
-    ll = terms.sum(keepdims=True) if alone else np.bincount(g, terms, n)
-    if ll_only:
-        return (ll,)
-    s_low = 1 - s
-    dsb = (a - d) * s * s_low * b * kappa
-    jac = np.stack(
-        np.broadcast_arrays(
-            a * (1 - a) * (s + s_low * r), dsb * kappa**2 * x_c, -dsb, s_low * a * r * (1 - r)
-        )
-    )
-    info = w / (p * q)
-    resid = info * (y - p)
-    if alone:
-        return ll, (jac @ resid)[None, :], ((jac * info) @ jac.T)[None, :, :]
-    grad = np.column_stack([np.bincount(g, resid * j, n) for j in jac])
-    fisher = np.empty((n, 4, 4))
-    for i in range(4):
-        weighted = info * jac[i]
-        for j in range(i, 4):
-            fisher[:, i, j] = fisher[:, j, i] = np.bincount(g, weighted * jac[j], n)
-    return ll, grad, fisher
-
-
-def _sigmoid(z):
-    """The logistic function, faster than scipy's ``expit`` on large arrays."""
-    with np.errstate(over="ignore"):
-        return 1.0 / (1.0 + np.exp(-z))
 
 
 def _damped_step(grad, fisher, lam, frozen):

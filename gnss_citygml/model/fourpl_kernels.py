@@ -1,7 +1,7 @@
 """The 4PL likelihood's per-group sums as compiled loops (numba, the optional ``fast`` extra).
 
 :func:`~.fourpl.fit_4pl` spends most of its time summing, per group, each sample's
-log-likelihood term, gradient and Fisher information (:func:`~.fourpl._block_sums`). In numpy
+log-likelihood term, gradient and Fisher information (:func:`~.likelihood._block_sums`). In numpy
 every intermediate is a whole array and each of the 15 sums a ``bincount`` pass, about 80 ns a
 sample; a compiled loop that gathers each group's parameters and adds into its sums in one
 pass takes about a quarter of that.
@@ -10,7 +10,7 @@ The sums are the numpy path's bit for bit, so a fit does not depend on whether n
 installed: every product and sum is taken in the same order (IEEE arithmetic rounds each the
 same way), each group's samples are added in order from zero as ``bincount`` adds them, and the
 only functions that are not exactly rounded, ``exp`` and ``log``, are numpy's own, called on
-whole arrays between the loops (:func:`likelihood_sums`). ``tests/test_fourpl.py`` holds the
+whole arrays between the loops (:func:`likelihood_sums`). ``tests/test_fourpl_kernels.py`` holds the
 two paths to that.
 
 Without numba, :data:`COMPILED` is False and :mod:`.fourpl` sums in numpy.
@@ -110,8 +110,8 @@ def _sums(x, y, w, v, g, sel, params, e, p, q, log_p, log_q, ll, grad, fisher, l
 def likelihood_sums(x, y, w, v, g, sel, per_group, eps, ll, grad, fisher, ll_only):
     """Add the samples of the groups in ``sel`` to their groups' log-likelihoods ``ll`` (and,
     unless ``ll_only``, gradients ``grad`` and Fisher informations ``fisher``), as
-    :func:`~.fourpl._block_sums` sums them. ``per_group``: each group's ``(a, d, b, c, r)``
-    (:func:`~.fourpl._evaluate`); ``v``: the variances of ``x``; ``eps``: the clip of
+    :func:`~.likelihood._block_sums` sums them. ``per_group``: each group's ``(a, d, b, c, r)``
+    (:func:`~.likelihood.evaluate`); ``v``: the variances of ``x``; ``eps``: the clip of
     probabilities."""
     a_g, d_g, b_g, c_g, r_g = per_group
     e = np.empty(x.size)

@@ -14,6 +14,14 @@ With ``--locations gnss`` the walkers' positions are their phones' fixes; ``--ca
 shadows`` self-calibrates them first by shadow matching (10 s windows, one round, each
 window's prior its fixes' own error) and times it.
 
+``--against REV`` measures side by side: the same process with the package of git revision
+REV (``git archive``, in a temporary folder) and with this tree's, alternately ``--repeat``
+times each, then prints each stage's best time of each, the speed-up, the peak memory, and
+whether the two give the same intersections (a hash of the table) and the same heights
+(``DataFrame.equals``; else the largest difference of the heights both give).
+
+    python benchmarks/raycast.py --against d079ccf [--repeat 2]
+
 Targets (issue 4): cast + fit <= 60 s on a 2-core machine, peak memory <= 2 GB; (issue 28)
 with shadow matching, within 3 times the run without it, peak memory <= 3 GB.
 """
@@ -21,9 +29,12 @@ with shadow matching, within 3 times the run without it, peak memory <= 3 GB.
 from __future__ import annotations
 
 import argparse
+import json
+import os
 import resource
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -51,7 +62,9 @@ def prepare(folder: Path, signals: int, blocks: int, grid_dir, locations: str) -
     )
 
 
-def run(folder: Path, grid_dir, signal_model: str, level_phones: bool, calibrate) -> None:
+def run(folder: Path, grid_dir, signal_model: str, level_phones: bool, calibrate, save) -> None:
+    import pandas as pd
+
     from gnss_citygml.calibrate import calibrate_receivers
     from gnss_citygml.footprints import read_footprints
     from gnss_citygml.model.estimate import estimate_heights
@@ -90,6 +103,11 @@ def run(folder: Path, grid_dir, signal_model: str, level_phones: bool, calibrate
         lambda: estimate_heights(inter, estimator, open_sky=open_sky(rx, inter)),
     )
     peak_gb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024**2
+    if save is not None:  # for --against: the figures, a hash of the intersections, the heights
+        digest = int(pd.util.hash_pandas_object(inter, index=False).sum())
+        figures = {"times": times, "peak_gb": peak_gb, "intersections": digest}
+        (save / "figures.json").write_text(json.dumps(figures))
+        heights.to_parquet(save / "heights.parquet")
     for name, seconds in times.items():
         print(f"  {name:28s} {seconds:7.2f} s")
     cast_fit = times["cast"] + times["fit (4PL-B)"] + times.get(f"calibrate ({calibrate})", 0.0)
@@ -113,10 +131,14 @@ def main():
     )
     parser.add_argument("--locations", choices=("manual", "gnss"), default="manual")
     parser.add_argument("--calibrate", choices=("shadows", "roof lines"))
+    parser.add_argument("--against", metavar="REV", help="side by side with git revision REV")
+    parser.add_argument("--repeat", type=int, default=1, help="runs of each with --against")
     parser.add_argument("--run", type=Path, help=argparse.SUPPRESS)  # the measured process
+    parser.add_argument("--save", type=Path, help=argparse.SUPPRESS)  # its results, for --against
     args = parser.parse_args()
     if args.run:
-        run(args.run, args.grid_dir, args.signal_model, not args.no_level_phones, args.calibrate)
+        level = not args.no_level_phones
+        run(args.run, args.grid_dir, args.signal_model, level, args.calibrate, args.save)
         return
     folder = OUT / f"city_{args.blocks}x{args.blocks}_{args.signals}"
     if args.locations != "manual":
@@ -127,7 +149,64 @@ def main():
     command += ["--signal-model", args.signal_model]
     command += ["--calibrate", args.calibrate] if args.calibrate else []
     command += ["--no-level-phones"] if args.no_level_phones else []
-    subprocess.run(command, check=True)
+    if args.against:
+        side_by_side(command, args.against, args.repeat)
+    else:
+        subprocess.run(command, check=True)
+
+
+def side_by_side(command: list[str], revision: str, repeat: int) -> None:
+    """The measured process at ``revision``'s package and at this tree's, alternately."""
+    import pandas as pd
+
+    repo = Path(__file__).resolve().parents[1]
+    with tempfile.TemporaryDirectory(prefix="raycast-") as tmp:
+        old = Path(tmp) / "old"
+        old.mkdir()
+        archive = subprocess.run(
+            ["git", "-C", str(repo), "archive", revision, "gnss_citygml"],
+            check=True,
+            capture_output=True,
+        ).stdout
+        subprocess.run(["tar", "-x", "-C", str(old)], input=archive, check=True)
+        trees = {revision: old, "this tree": repo}
+        runs: dict[str, list[dict]] = {name: [] for name in trees}
+        for k in range(repeat):
+            for name, tree in trees.items():
+                save = Path(tmp) / f"{name.replace(' ', '_')}-{k}"
+                save.mkdir()
+                print(f"--- {name} ({tree}), run {k + 1} of {repeat}", flush=True)
+                env = {**os.environ, "PYTHONPATH": str(tree)}
+                subprocess.run([*command, "--save", str(save)], check=True, env=env)
+                runs[name].append(json.loads((save / "figures.json").read_text()))
+                runs[name][-1]["heights"] = pd.read_parquet(save / "heights.parquet")
+        _print_side_by_side(runs, revision)
+
+
+def _print_side_by_side(runs: dict[str, list[dict]], revision: str) -> None:
+    old, new = runs[revision], runs["this tree"]
+    stages = list(new[0]["times"])
+    best = {name: {s: min(r["times"][s] for r in rs) for s in stages} for name, rs in runs.items()}
+    print(f"\nbest of {len(new)} (s)            {revision:>12s} {'this tree':>12s} speed-up")
+    for stage in [*stages, "cast + fit"]:
+        if stage == "cast + fit":
+            a, b = (sum(best[n][s] for s in ("cast", "fit (4PL-B)")) for n in runs)
+        else:
+            a, b = best[revision][stage], best["this tree"][stage]
+        print(f"  {stage:28s} {a:12.2f} {b:12.2f} {a / b:7.2f}x")
+    peaks = [max(r["peak_gb"] for r in rs) for rs in (old, new)]
+    print(f"  {'peak memory (GB)':28s} {peaks[0]:12.2f} {peaks[1]:12.2f}")
+    same_cast = {r["intersections"] for r in old} == {r["intersections"] for r in new}
+    h_old, h_new = old[0]["heights"], new[0]["heights"]
+    same = h_old.equals(h_new)
+    print(f"intersections identical: {same_cast}; heights identical: {same}")
+    if not same:
+        both = h_old["converged"].to_numpy() & h_new["converged"].to_numpy()
+        diff = (h_old["height"] - h_new["height"]).abs().to_numpy()[both]
+        print(
+            f"  converged {int(h_old['converged'].sum())} -> {int(h_new['converged'].sum())}; "
+            f"largest height difference where both converged {diff.max(initial=0):.6f} m"
+        )
 
 
 if __name__ == "__main__":

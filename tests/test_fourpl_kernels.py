@@ -34,11 +34,15 @@ def _samples(rng, sizes):
 
 
 @pytest.mark.parametrize("ll_only", [False, True])
-def test_the_compiled_sums_are_numpys_bit_for_bit(rng, monkeypatch, ll_only):
+@pytest.mark.parametrize("labels", ["hard", "soft"])
+def test_the_compiled_sums_are_numpys_bit_for_bit(rng, monkeypatch, ll_only, labels):
     """Groups packed in blocks and one larger than a block; some groups inactive; parameters
-    from gentle to so steep that exp overflows and p is clipped."""
+    from gentle to so steep that exp overflows and p is clipped; labels 0 or 1 (one logarithm
+    a sample), or some fractions (both)."""
     sizes = [1, 2, 40, 3000, likelihood.BLOCK + 17, 5, 700]
     x, y, w, g, v = _samples(rng, sizes)
+    if labels == "hard":
+        y = np.round(y)
     n = len(sizes)
     theta = np.column_stack(
         [rng.normal(0, 3, n), rng.uniform(-7, 5, n), rng.uniform(0, 60, n), rng.normal(0, 3, n)]

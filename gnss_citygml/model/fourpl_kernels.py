@@ -50,14 +50,19 @@ def _exponents(x, v, g, b_g, c_g, out):
 
 
 @_compiled
-def _probabilities(e, g, a_g, d_g, eps, p, q):
+def _probabilities(e, y, g, a_g, d_g, eps, p, q, chosen):
     """Each sample's ``p = d + (a - d) s`` (``s = 1 / (1 + e)``) clipped to ``[eps, 1 - eps]``,
-    and ``q = 1 - p``."""
+    ``q = 1 - p``, and the one its label ``y`` (0 or 1) picks (``p`` for 1, ``q`` for 0); the
+    number of samples whose label is a fraction, for which both are needed."""
+    n_soft = 0
     for i in range(e.size):
         a, d = a_g[g[i]], d_g[g[i]]
         pi = min(max(d + (a - d) * (1.0 / (1.0 + e[i])), eps), 1 - eps)
         p[i] = pi
         q[i] = 1 - pi
+        chosen[i] = pi if y[i] == 1.0 else 1 - pi
+        n_soft += (y[i] != 0.0) & (y[i] != 1.0)
+    return n_soft
 
 
 @_compiled
@@ -118,7 +123,9 @@ def likelihood_sums(x, y, w, v, g, sel, per_group, eps, ll, grad, fisher, ll_onl
     _exponents(x, v, g, b_g, c_g, e)
     with np.errstate(over="ignore"):  # exp(large) = inf makes s = 0, as in numpy's path
         np.exp(e, out=e)
-    p, q = np.empty(x.size), np.empty(x.size)
-    _probabilities(e, g, a_g, d_g, eps, p, q)
-    log_p, log_q = np.log(p), np.log(q)
+    p, q, chosen = np.empty(x.size), np.empty(x.size), np.empty(x.size)
+    if _probabilities(e, y, g, a_g, d_g, eps, p, q, chosen):
+        log_p, log_q = np.log(p), np.log(q)
+    else:  # labels 0 or 1: y log(p) + (1 - y) log(q) is the chosen one's log, to the bit
+        log_p = log_q = np.log(chosen)  # (the other term is a signed zero)
     _sums(x, y, w, v, g, sel, per_group, e, p, q, log_p, log_q, ll, grad, fisher, ll_only)

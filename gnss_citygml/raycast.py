@@ -26,19 +26,19 @@ _CHUNK = 1 << 15
 
 
 class _Shapes(NamedTuple):
-    """The footprints as the cast reads them, each part derived once: the shapes; their
-    boxes' bounds (xmin, ymin, xmax, ymax) and centres and half sizes (cx, cy, hx, hy), one
-    row each; and their boundary edges grouped by footprint (footprint ``f``'s are
-    ``start[f]`` to ``start[f] + count[f]``), rows x1, y1 (first point), ex, ey (second point
-    minus first) and their length floored at 1e-12 m."""
+    """The footprints as the cast reads them, each part derived once (the same arithmetic as
+    per pair, so the same bits): the shapes; their boxes, rows xmin, ymin, xmax, ymax
+    (``bounds``) and cx, cy, hx, hy (centre and half sizes, ``box``); and their boundary edges,
+    rows x1, y1 (first point), ex, ey (second point minus first), with their ``length``
+    (floored at 1e-12 m), footprint ``f``'s ``edge_count[f]`` from ``first_edge[f]`` on."""
 
     shapes: np.ndarray
     bounds: np.ndarray
     box: np.ndarray
     edges: np.ndarray
     length: np.ndarray
-    start: np.ndarray
-    count: np.ndarray
+    first_edge: np.ndarray
+    edge_count: np.ndarray
 
     @classmethod
     def of(cls, footprints: np.ndarray) -> _Shapes:
@@ -195,16 +195,16 @@ def _first_crossings(x, y, dx, dy, fp_idx, shapes, gradient):
     of the footprint tried, in chunks of about :data:`_CHUNK` (pair, edge) combinations."""
     dist = np.full(x.size, np.inf)
     cos_inc = np.zeros(x.size)
-    grad = np.zeros((x.size, 2)) if gradient else None
-    per_pair = shapes.count[fp_idx]
+    grad = np.zeros((x.size if gradient else 0, 2))
+    per_pair = shapes.edge_count[fp_idx]
     bounds = np.concatenate([[0], np.cumsum(per_pair)])
     inner = np.searchsorted(bounds, np.arange(_CHUNK, bounds[-1], _CHUNK))
     cuts = np.unique(np.concatenate([[0], inner, [x.size]]))
     for lo, hi in zip(cuts[:-1], cuts[1:], strict=True):
         counts = per_pair[lo:hi]
         rep = np.repeat(np.arange(lo, hi), counts)
-        # combination g of pair p is edge start[fp] + g - bounds[p] of its footprint
-        shift = shapes.start[fp_idx[lo:hi]] - bounds[lo:hi]
+        # combination g of pair p is edge first_edge[fp] + g - bounds[p] of its footprint
+        shift = shapes.first_edge[fp_idx[lo:hi]] - bounds[lo:hi]
         edge = np.arange(bounds[lo], bounds[hi]) + np.repeat(shift, counts)
         x1, y1, ex, ey = shapes.edges[:, edge]
         t, denom = _ray_segment_distance(x[rep], y[rep], dx[rep], dy[rep], x1, y1, ex, ey)
@@ -213,7 +213,7 @@ def _first_crossings(x, y, dx, dy, fp_idx, shapes, gradient):
         cos_inc[rep[first]] = np.abs(denom[first]) / shapes.length[edge[first]]
         if gradient:  # d t / d origin for the entry edge: t = (q x edge) / (ray x edge)
             grad[rep[first]] = np.column_stack([-ey[first], ex[first]]) / denom[first, None]
-    return (dist, cos_inc) if grad is None else (dist, cos_inc, grad)
+    return (dist, cos_inc, grad) if gradient else (dist, cos_inc)
 
 
 def _crosses_box(x, y, dx, dy, cx, cy, hx, hy):

@@ -171,11 +171,21 @@ def _entries(x, y, dx, dy, pairs, shapes, max_range, gradient=False):
 
 
 def _by_ray_and_distance(ray, dist, n):
-    """The order sorting entries by ray, then distance, ties kept in their order (lexsort's),
-    in two stable passes: by distance, then by ray, a radix sort of the ray numbers (``n``
-    rays) in the fewest bits."""
-    by_dist = np.argsort(dist, kind="stable")
-    return by_dist[np.argsort(ray.astype(np.min_scalar_type(n))[by_dist], kind="stable")]
+    """The order sorting entries by ray, then distance, ties kept in their order (lexsort's):
+    by distance, then by ray in a stable radix sort of the ray numbers (``n`` rays) in the
+    fewest bits. The sort by distance is a fast unstable one unless two entries of one ray are
+    at the same distance, the only ones whose order it could change."""
+    key = ray.astype(np.min_scalar_type(n))
+    order = _then_by(key, np.argsort(dist))
+    along, at = ray[order], dist[order]
+    if np.any((along[1:] == along[:-1]) & (at[1:] == at[:-1])):
+        order = _then_by(key, np.argsort(dist, kind="stable"))
+    return order
+
+
+def _then_by(key, order):
+    """``order`` sorted by ``key``, stably."""
+    return order[np.argsort(key[order], kind="stable")]
 
 
 def _inside(x, y, fp_idx, shapes):

@@ -157,7 +157,7 @@ def _entries(x, y, dx, dy, pairs, shapes, max_range, gradient=False):
     """:func:`footprint_entries` for one batch of rays and their candidate ``pairs``: an exact
     ray x bounding-box test in numpy, then the distance to each entry wall."""
     ray_idx, fp_idx = pairs
-    cx, cy, hx, hy = shapes.box[:, fp_idx]
+    cx, cy, hx, hy = _at(shapes.box, fp_idx)
     near = _crosses_box(x[ray_idx], y[ray_idx], dx[ray_idx], dy[ray_idx], cx, cy, hx, hy)
     ray_idx, fp_idx = ray_idx[near], fp_idx[near]
     px, py = x[ray_idx], y[ray_idx]
@@ -191,7 +191,7 @@ def _then_by(key, order):
 def _inside(x, y, fp_idx, shapes):
     """Whether each origin is inside (or on the boundary of) its pair's footprint; asked of
     shapely only for the origins inside the footprint's box, the only ones that can be."""
-    xmin, ymin, xmax, ymax = shapes.bounds[:, fp_idx]
+    xmin, ymin, xmax, ymax = _at(shapes.bounds, fp_idx)
     maybe = np.flatnonzero((x >= xmin) & (x <= xmax) & (y >= ymin) & (y <= ymax))
     inside = np.zeros(x.size, dtype=bool)
     inside[maybe] = shapely.intersects_xy(shapes.shapes[fp_idx[maybe]], x[maybe], y[maybe])
@@ -216,7 +216,7 @@ def _first_crossings(x, y, dx, dy, fp_idx, shapes, gradient):
         # combination g of pair p is edge first_edge[fp] + g - bounds[p] of its footprint
         shift = shapes.first_edge[fp_idx[lo:hi]] - bounds[lo:hi]
         edge = np.arange(bounds[lo], bounds[hi]) + np.repeat(shift, counts)
-        x1, y1, ex, ey = shapes.edges[:, edge]
+        x1, y1, ex, ey = _at(shapes.edges, edge)
         t, denom = _ray_segment_distance(x[rep], y[rep], dx[rep], dy[rep], x1, y1, ex, ey)
         dist[lo:hi] = np.minimum.reduceat(t, bounds[lo:hi] - bounds[lo])
         first = np.flatnonzero(np.isfinite(t) & (t == np.repeat(dist[lo:hi], counts)))
@@ -224,6 +224,12 @@ def _first_crossings(x, y, dx, dy, fp_idx, shapes, gradient):
         if gradient:  # d t / d origin for the entry edge: t = (q x edge) / (ray x edge)
             grad[rep[first]] = np.column_stack([-ey[first], ex[first]]) / denom[first, None]
     return (dist, cos_inc, grad) if gradient else (dist, cos_inc)
+
+
+def _at(rows, index):
+    """Each of the ``rows`` (a 2D array) at ``index``, gathered row by row: several times
+    faster than numpy's ``rows[:, index]``."""
+    return [row[index] for row in rows]
 
 
 def _crosses_box(x, y, dx, dy, cx, cy, hx, hy):

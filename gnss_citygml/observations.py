@@ -134,10 +134,13 @@ def satellites(table: pd.DataFrame) -> pd.Categorical:
     nearly the same place, so the height fits count them as one look per height
     (:func:`~gnss_citygml.model.fourplb.height_weights`).
     """
-    codes, pairs = pd.MultiIndex.from_arrays(
-        [table["constellation"].astype(str), table["svid"].astype(int)]
-    ).factorize()
-    names = [f"{letter}{number:02d}" for letter, number in pairs]
+    letter, letters = pd.factorize(table["constellation"].astype(str), use_na_sentinel=False)
+    number = table["svid"].astype(int).to_numpy()
+    low = number.min(initial=0)
+    span = number.max(initial=0) - low + 1
+    # one integer per (letter, number) pair, factorized: the pairs in order of first appearance
+    codes, first = pd.factorize(letter * span + (number - low))
+    names = [f"{letters[i // span]}{i % span + low:02d}" for i in first]
     return pd.Categorical.from_codes(codes, categories=pd.Index(names, dtype=object))
 
 

@@ -11,6 +11,8 @@ building, so such a pair says nothing about the building and is left out.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 import numpy.typing as npt
 import shapely
@@ -18,9 +20,35 @@ import shapely
 __all__ = ["footprint_entries"]
 
 #: Rays cast per batch, and (ray x footprint, edge) combinations per numpy chunk within a
-#: batch: they bound the memory of a large cast and keep its arrays in the CPU cache.
-_RAYS = 1 << 15
-_CHUNK = 1 << 18
+#: batch: they bound the memory of a large cast and keep its arrays in the CPU's cache.
+_RAYS = 1 << 12
+_CHUNK = 1 << 15
+
+
+class _Shapes(NamedTuple):
+    """The footprints as the cast reads them, each part derived once (the same arithmetic as
+    per pair, so the same bits): the shapes; their boxes, rows xmin, ymin, xmax, ymax
+    (``bounds``) and cx, cy, hx, hy (centre and half sizes, ``box``); and their boundary edges,
+    rows x1, y1 (first point), ex, ey (second point minus first), with their ``length``
+    (floored at 1e-12 m), footprint ``f``'s ``edge_count[f]`` from ``first_edge[f]`` on."""
+
+    shapes: np.ndarray
+    bounds: np.ndarray
+    box: np.ndarray
+    edges: np.ndarray
+    length: np.ndarray
+    first_edge: np.ndarray
+    edge_count: np.ndarray
+
+    @classmethod
+    def of(cls, footprints: np.ndarray) -> _Shapes:
+        bounds = shapely.bounds(footprints).T
+        half = 0.5 * (bounds[2:] - bounds[:2])
+        seg, start, count = _edges(footprints)
+        edges = np.vstack([seg[:, :2].T, (seg[:, 2:] - seg[:, :2]).T])
+        length = np.maximum(np.hypot(edges[2], edges[3]), 1e-12)
+        box = np.vstack([bounds[:2] + half, half])
+        return cls(footprints, bounds, box, edges, length, start, count)
 
 
 def footprint_entries(
@@ -80,7 +108,7 @@ def footprint_entries(
     if x.size == 0 or footprints.size == 0 or k == 0:
         return _nothing(gradient)
     tree = shapely.STRtree(footprints)
-    geometry = (footprints, shapely.bounds(footprints), _edges(footprints))
+    shapes = _Shapes.of(footprints)
     batches = []
     step = max(1, _RAYS // k)
     for lo in range(0, x.size, step):
@@ -93,13 +121,12 @@ def footprint_entries(
             np.repeat(dx[rays], k),
             np.repeat(dy[rays], k),
             pairs,
-            *geometry,
+            shapes,
             max_range,
             gradient,
         )
         batches.append((ray + lo * k, fp, *rest))
-    out = tuple(np.concatenate(column) for column in zip(*batches, strict=True))
-    return out if gradient else out[:4]
+    return tuple(np.concatenate(column) for column in zip(*batches, strict=True))
 
 
 def _nothing(gradient: bool) -> tuple[np.ndarray, ...]:
@@ -126,57 +153,90 @@ def _pairs(x, y, dx, dy, tree, max_range, moves):
     return (ray[:, None] * k + np.arange(k)).ravel(), np.repeat(fp, k)
 
 
-def _entries(x, y, dx, dy, pairs, footprints, boxes, edges, max_range, gradient=False):
+def _entries(x, y, dx, dy, pairs, shapes, max_range, gradient=False):
     """:func:`footprint_entries` for one batch of rays and their candidate ``pairs``: an exact
     ray x bounding-box test in numpy, then the distance to each entry wall."""
     ray_idx, fp_idx = pairs
-    near = _crosses_box(x[ray_idx], y[ray_idx], dx[ray_idx], dy[ray_idx], boxes[fp_idx])
+    cx, cy, hx, hy = _at(shapes.box, fp_idx)
+    near = _crosses_box(x[ray_idx], y[ray_idx], dx[ray_idx], dy[ray_idx], cx, cy, hx, hy)
     ray_idx, fp_idx = ray_idx[near], fp_idx[near]
-    inside = shapely.intersects_xy(footprints[fp_idx], x[ray_idx], y[ray_idx])  # or on an edge
-    ray_idx, fp_idx = ray_idx[~inside], fp_idx[~inside]
-    edge_xy, edge_start, edge_count = edges
-    dist = np.full(ray_idx.size, np.inf)
-    cos_inc = np.zeros(ray_idx.size)
-    grad = np.zeros((ray_idx.size, 2))
-    # Expand every pair to the edges of its footprint, in chunks of bounded size.
-    per_pair = edge_count[fp_idx]
+    px, py = x[ray_idx], y[ray_idx]
+    outside = ~_inside(px, py, fp_idx, shapes)
+    ray_idx, fp_idx = ray_idx[outside], fp_idx[outside]
+    ray = (px[outside], py[outside], dx[ray_idx], dy[ray_idx])
+    found = _first_crossings(*ray, fp_idx, shapes, gradient)
+    keep = np.flatnonzero(found[0] <= max_range)
+    order = keep[_by_ray_and_distance(ray_idx[keep], found[0][keep], x.size)]
+    return tuple(column[order] for column in (ray_idx, fp_idx, *found))
+
+
+def _by_ray_and_distance(ray, dist, n):
+    """The order sorting entries by ray, then distance, ties kept in their order (lexsort's):
+    by distance, then by ray in a stable radix sort of the ray numbers (``n`` rays) in the
+    fewest bits. The sort by distance is a fast unstable one unless two entries of one ray are
+    at the same distance, the only ones whose order it could change."""
+    key = ray.astype(np.min_scalar_type(n))
+    order = _then_by(key, np.argsort(dist))
+    along, at = ray[order], dist[order]
+    if np.any((along[1:] == along[:-1]) & (at[1:] == at[:-1])):
+        order = _then_by(key, np.argsort(dist, kind="stable"))
+    return order
+
+
+def _then_by(key, order):
+    """``order`` sorted by ``key``, stably."""
+    return order[np.argsort(key[order], kind="stable")]
+
+
+def _inside(x, y, fp_idx, shapes):
+    """Whether each origin is inside (or on the boundary of) its pair's footprint; asked of
+    shapely only for the origins inside the footprint's box, the only ones that can be."""
+    xmin, ymin, xmax, ymax = _at(shapes.bounds, fp_idx)
+    maybe = np.flatnonzero((x >= xmin) & (x <= xmax) & (y >= ymin) & (y <= ymax))
+    inside = np.zeros(x.size, dtype=bool)
+    inside[maybe] = shapely.intersects_xy(shapes.shapes[fp_idx[maybe]], x[maybe], y[maybe])
+    return inside
+
+
+def _first_crossings(x, y, dx, dy, fp_idx, shapes, gradient):
+    """For each ray (origin ``x``, ``y``, unit direction ``dx``, ``dy``) and its footprint,
+    the distance to the first boundary crossing (inf if none), the cosine of incidence there
+    and, with ``gradient``, the distance's derivative with respect to the origin: every edge
+    of the footprint tried, in chunks of about :data:`_CHUNK` (pair, edge) combinations."""
+    dist = np.full(x.size, np.inf)
+    cos_inc = np.zeros(x.size)
+    grad = np.zeros((x.size if gradient else 0, 2))
+    per_pair = shapes.edge_count[fp_idx]
     bounds = np.concatenate([[0], np.cumsum(per_pair)])
     inner = np.searchsorted(bounds, np.arange(_CHUNK, bounds[-1], _CHUNK))
-    cuts = np.unique(np.concatenate([[0], inner, [ray_idx.size]]))
+    cuts = np.unique(np.concatenate([[0], inner, [x.size]]))
     for lo, hi in zip(cuts[:-1], cuts[1:], strict=True):
-        pairs = np.arange(lo, hi)
-        counts = per_pair[pairs]
-        rep = np.repeat(pairs, counts)
-        offs = np.arange(counts.sum()) - np.repeat(bounds[pairs] - bounds[lo], counts)
-        e = edge_xy[edge_start[fp_idx[rep]] + offs]
-        t, cos, denom = _ray_segment_distance(
-            x[ray_idx[rep]], y[ray_idx[rep]], dx[ray_idx[rep]], dy[ray_idx[rep]], e
-        )
-        block = bounds[pairs] - bounds[lo]  # where each pair's edges start in this chunk
-        dist[pairs] = np.minimum.reduceat(t, block)
-        first = np.isfinite(t) & (t == dist[rep])
-        cos_inc[rep[first]] = cos[first]
-        if not gradient:
-            continue
-        # d t / d origin for the entry edge: t = (q x edge) / (ray x edge) with q = start - origin
-        hit = e[first]
-        grad[rep[first]] = (
-            np.column_stack([-(hit[:, 3] - hit[:, 1]), hit[:, 2] - hit[:, 0]])
-            / (denom[first][:, None])
-        )
-    keep = dist <= max_range
-    ray_idx, fp_idx, dist, cos_inc, grad = (v[keep] for v in (ray_idx, fp_idx, dist, cos_inc, grad))
-    order = np.lexsort((dist, ray_idx))
-    return ray_idx[order], fp_idx[order], dist[order], cos_inc[order], grad[order]
+        counts = per_pair[lo:hi]
+        rep = np.repeat(np.arange(lo, hi), counts)
+        # combination g of pair p is edge first_edge[fp] + g - bounds[p] of its footprint
+        shift = shapes.first_edge[fp_idx[lo:hi]] - bounds[lo:hi]
+        edge = np.arange(bounds[lo], bounds[hi]) + np.repeat(shift, counts)
+        x1, y1, ex, ey = _at(shapes.edges, edge)
+        t, denom = _ray_segment_distance(x[rep], y[rep], dx[rep], dy[rep], x1, y1, ex, ey)
+        dist[lo:hi] = np.minimum.reduceat(t, bounds[lo:hi] - bounds[lo])
+        first = np.flatnonzero(np.isfinite(t) & (t == np.repeat(dist[lo:hi], counts)))
+        cos_inc[rep[first]] = np.abs(denom[first]) / shapes.length[edge[first]]
+        if gradient:  # d t / d origin for the entry edge: t = (q x edge) / (ray x edge)
+            grad[rep[first]] = np.column_stack([-ey[first], ex[first]]) / denom[first, None]
+    return (dist, cos_inc, grad) if gradient else (dist, cos_inc)
 
 
-def _crosses_box(x, y, dx, dy, box):
+def _at(rows, index):
+    """Each of the ``rows`` (a 2D array) at ``index``, gathered row by row: several times
+    faster than numpy's ``rows[:, index]``."""
+    return [row[index] for row in rows]
+
+
+def _crosses_box(x, y, dx, dy, cx, cy, hx, hy):
     """Whether the line through each origin (unit direction ``dx``, ``dy``) passes through the
-    axis-aligned box (xmin, ymin, xmax, ymax): the separating-axis test along the line's
-    normal. With the boxes of the ray segment and the footprint overlapping (the tree query),
-    this makes the segment x box test exact."""
-    hx, hy = 0.5 * (box[:, 2] - box[:, 0]), 0.5 * (box[:, 3] - box[:, 1])
-    cx, cy = box[:, 0] + hx, box[:, 1] + hy
+    axis-aligned box of centre (cx, cy) and half sizes (hx, hy): the separating-axis test
+    along the line's normal. With the boxes of the ray segment and the footprint overlapping
+    (the tree query), this makes the segment x box test exact."""
     return np.abs(dx * (cy - y) - dy * (cx - x)) <= hx * np.abs(dy) + hy * np.abs(dx)
 
 
@@ -195,16 +255,13 @@ def _edges(footprints):
     return seg, start, count
 
 
-def _ray_segment_distance(x, y, dx, dy, e):
-    """Distance along rays (unit direction dx, dy) to segments e (inf where they miss), the
-    cosine of the angle between each ray and the segment's normal, and the cross product of
-    ray and segment directions."""
-    ex, ey = e[:, 2] - e[:, 0], e[:, 3] - e[:, 1]
+def _ray_segment_distance(x, y, dx, dy, x1, y1, ex, ey):
+    """Distance along rays (unit direction dx, dy) to segments from (x1, y1) to (x1 + ex,
+    y1 + ey) (inf where they miss), and the cross product of ray and segment directions."""
     denom = dx * ey - dy * ex
-    qx, qy = e[:, 0] - x, e[:, 1] - y
+    qx, qy = x1 - x, y1 - y
     with np.errstate(divide="ignore", invalid="ignore"):
         t = (qx * ey - qy * ex) / denom
         u = (qx * dy - qy * dx) / denom
     hit = (np.abs(denom) > 1e-12) & (t >= 0) & (u >= 0) & (u <= 1)
-    cos = np.abs(denom) / np.maximum(np.hypot(ex, ey), 1e-12)
-    return np.where(hit, t, np.inf), cos, denom
+    return np.where(hit, t, np.inf), denom

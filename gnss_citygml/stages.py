@@ -160,21 +160,23 @@ def intersections(
         buildings.geometry.to_numpy(),
         rays.max_range,
     )
-    elevation = np.radians(receivers["elevation"].to_numpy()[ray])
-    height = receivers["z"].to_numpy()[ray] + dist * np.tan(elevation)
+    elevation = receivers["elevation"].to_numpy()[ray]
+    slope = np.tan(np.radians(elevation))
+    height = receivers["z"].to_numpy()[ray] + dist * slope
     if rays.earth_curvature:
         height += dist**2 * (1.0 - REFRACTION) / (2.0 * EARTH_RADIUS)
     first = np.r_[True, ray[1:] != ray[:-1]]
     start = np.maximum.accumulate(np.where(first, np.arange(ray.size), 0))
     extra = {}
     if not position_error.exact:
-        spread = np.tan(elevation) / np.maximum(incidence, MIN_INCIDENCE)
+        spread = slope / np.maximum(incidence, MIN_INCIDENCE)
         extra["height_sd"] = position_sds(receivers, position_error)[ray] * spread
         if recording is None:
             recording = recordings(receivers, position_error)
         extra["recording"] = recording[ray]
     if {"constellation", "svid"} <= set(receivers.columns):
         extra["satellite"] = satellites(receivers)[ray]
+    # the columns are this function's own arrays: the table takes them as they are (no copy)
     return pd.DataFrame(
         {
             "signal": receivers.index.to_numpy()[ray],
@@ -188,10 +190,11 @@ def intersections(
             "distance": dist,
             "order": np.arange(ray.size) - start,
             "cn0": receivers["cn0"].to_numpy()[ray],
-            "elevation": receivers["elevation"].to_numpy()[ray],
-            "receiver": receivers["receiver"].to_numpy()[ray],
+            "elevation": elevation,
+            "receiver": receivers["receiver"].array.take(ray),  # its dtype, no Python strings
             **extra,
-        }
+        },
+        copy=False,
     )
 
 

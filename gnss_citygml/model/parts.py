@@ -156,13 +156,13 @@ class Part:
             raise ModelError("a part of a run needs each row's signal and order along its ray")
         g = np.asarray(groups, dtype=np.intp)
         h = np.asarray(height, dtype=float)
-        by_group = np.lexsort((h, g))  # a building's rows together, by height: faster fits
+        by_group = _by_group(g, h)  # a building's rows together, by height: faster fits
         g, h = _compact(g[by_group]), h[by_group]
         sd = None if height_sd is None else np.asarray(height_sd, dtype=float)[by_group]
         if receiver is not None:  # coded in sorted order: the same order in any part
-            receiver = _compact(pd.factorize(np.asarray(receiver)[by_group], sort=True)[0])
+            receiver = _compact(_factorized(receiver, by_group, sort=True)[0])
         if signal is not None:
-            sig = _compact(np.unique(np.asarray(signal)[by_group], return_inverse=True)[1])
+            sig = _compact(pd.factorize(np.asarray(signal)[by_group], sort=True)[0])
         else:
             sig = _compact(np.arange(g.size))  # each row is a signal of its own
         if order is not None:
@@ -174,10 +174,10 @@ class Part:
         e = np.zeros(h.size) if elevation is None else elevation_units(elevation)[by_group]
         phone_code = phones = None
         if phone is not None and elevation is not None:
-            code, names = pd.factorize(np.asarray(phone, dtype=object)[by_group])
+            code, names = _factorized(phone, by_group)
             unknown = ~np.isfinite(np.asarray(elevation, dtype=float)[by_group])
             phone_code = np.where(unknown, -1, _compact(code))  # neither counted nor levelled
-            phones = np.asarray(names, dtype=object).astype(str).astype(object)
+            phones = names.astype(str).astype(object)
         occlusion = estimator.visibility and signal is not None
         seen = np.ones(h.size, dtype=bool)
         if occlusion and order is not None:
@@ -408,6 +408,31 @@ def _compact(codes: np.ndarray) -> np.ndarray:
     if whole and -(2**31) <= codes.min() and codes.max() < 2**31:
         return codes.astype(np.int32)
     return codes
+
+
+def _by_group(g: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """The rows sorted by building ``g``, then height ``h`` (``np.lexsort((h, g))``): by height
+    then, stably, by building, whose codes sort by radix where they fit in 16 bits (faster)."""
+    by_height = np.argsort(h, kind="stable")
+    small = g.size == 0 or (g.min() >= 0 and g.max() < 2**15)
+    return by_height[np.argsort(g[by_height].astype(np.int16 if small else g.dtype), kind="stable")]
+
+
+def _factorized(values: npt.ArrayLike, by: np.ndarray, sort: bool = False):
+    """``pd.factorize(values[by], sort=sort)`` as codes (-1: missing) and names (an object
+    array), hashing ``values`` as they come (a categorical by its codes, Arrow strings as
+    such) and not as one Python object a row."""
+    code, names = pd.factorize(pd.Series(values, copy=False))  # first appearance in ``values``
+    names = np.asarray(names, dtype=object)
+    if sort:
+        rank = pd.factorize(names, sort=True)[0]
+    else:  # in order of first appearance in ``values[by]``
+        first = pd.unique(code[by])
+        first = first[first >= 0]
+        rank = np.empty(names.size, dtype=np.intp)
+        rank[first] = np.arange(first.size)
+    names = names[np.argsort(rank)]
+    return np.append(rank, -1)[code[by]], names  # the last entry keeps a missing one's -1
 
 
 def _lookup(building: np.ndarray, shared: Sequence[Shared]):

@@ -137,6 +137,8 @@ def height_weights(
     height = np.asarray(height, dtype=float)
     groups = np.asarray(groups, dtype=np.intp)
     mask = np.ones(height.size, dtype=bool) if mask is None else np.asarray(mask, dtype=bool)
+    if scheme == "none":
+        return mask.astype(float)
     out = np.zeros(height.size)
     if scheme == "looks":
         ids = look_ids(height, groups) if looks is None else np.asarray(looks)
@@ -171,7 +173,7 @@ def look_ids(
 
 def _weights(height, groups, n_groups, scheme, c):
     n = np.bincount(groups, minlength=n_groups).astype(float)
-    if scheme == "none" or (scheme == "balanced" and c is None) or height.size == 0:
+    if (scheme == "balanced" and c is None) or height.size == 0:
         return np.ones_like(height)
     if scheme == "height":
         bins = np.floor(height / HEIGHT_BIN).astype(np.int64)
@@ -195,10 +197,10 @@ def _weights(height, groups, n_groups, scheme, c):
     return raw * (n / np.maximum(total, 1e-300))[groups]
 
 
-def _plausible(fit, h, g, seen, n_groups, min_separation):
+def _plausible(fit, lo, hi, min_separation):
     """Buildings whose current fit may stand in front of others: separated asymptotes and an
-    inflection point inside the heights they were fitted on."""
-    lo, hi = group_range(h[seen], g[seen], n_groups)
+    inflection point inside the heights they were fitted on (from ``lo`` to ``hi``,
+    :func:`~.fourpl.group_range`)."""
     return (fit.a - fit.d >= min_separation) & (fit.c >= lo) & (fit.c <= hi)
 
 
@@ -207,14 +209,15 @@ def _unoccluded(h, g, sig, c, b, plausible, order=None):
     ``b`` per building): it passes above the top of each one's height range, c + 3/b. A
     signal that may have been blocked by another building tells nothing about this one,
     whatever its C/N0. A building without a plausible estimate may stand at any height: with
-    ``order``, the rows behind it along the ray are left out too."""
-    blocks = plausible[g] & (h < c[g] + 3.0 / b[g])
+    ``order`` (whole numbers), the rows behind it along the ray are left out too."""
+    known = plausible[g]
+    blocks = known & (h < (c + 3.0 / b)[g])
     n_sig = int(sig.max(initial=-1)) + 1
-    n_blocking = np.bincount(sig, blocks, n_sig)
+    n_blocking = np.bincount(sig[blocks], minlength=n_sig)
     clear = (n_blocking[sig] - blocks) == 0
     if order is not None:
-        first_unknown = np.full(n_sig, np.iinfo(np.int64).max)
-        np.minimum.at(first_unknown, sig[~plausible[g]], order[~plausible[g]])
+        first_unknown = np.full(n_sig, np.iinfo(order.dtype).max, dtype=order.dtype)
+        np.minimum.at(first_unknown, sig[~known], order[~known])  # fast: of one dtype
         clear &= order <= first_unknown[sig]
     return clear
 

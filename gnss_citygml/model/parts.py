@@ -21,7 +21,7 @@ import pandas as pd
 from ..errors import ModelError
 from ..settings import Estimator
 from .classifier import Cn0Counts, SignalClassifier
-from .fourpl import FourPLFit, c_interval, fit_4pl
+from .fourpl import FourPLFit, c_interval, fit_4pl, group_range
 from .fourplb import (
     BuildingFits,
     SignalModel,
@@ -165,8 +165,10 @@ class Part:
             sig = _compact(pd.factorize(np.asarray(signal)[by_group], sort=True)[0])
         else:
             sig = _compact(np.arange(g.size))  # each row is a signal of its own
-        if order is not None:
+        if order is not None:  # only how a ray's rows compare: ranks where not whole (NaN last)
             order = _compact(np.asarray(order)[by_group])
+            if order.dtype.kind == "f":
+                order = _compact(np.unique(order, return_inverse=True)[1])
         tracks = None if track is None else np.asarray(track)[by_group]
         looks = None  # found once: a row's look does not change as 4PL-B iterates
         if estimator.weighting == "looks" or (estimator.method == "4PL-B" and tracks is not None):
@@ -237,14 +239,16 @@ class Part:
         change = np.ones(n_own)
         if last is not None:
             flips = (own_map != last.own_map) & seen
-            change = np.bincount(g, flips, n_own) / np.maximum(np.bincount(g, seen, n_own), 1)
+            n_flips = np.bincount(g[flips], minlength=n_own)  # few: faster than weighted
+            change = n_flips / np.maximum(np.bincount(g, seen, n_own), 1)
         return replace(self, last=LastFit(fit, self.seen, labels, own_map, change, model))
 
     def shared(self) -> Shared:
         """What the other parts need of the own buildings' fits (after :meth:`fitted`)."""
         last, own = self._last, self._own
         fit = last.fit
-        g, h, seen = self.g[own], self.h[own], last.seen[own]
+        seen = last.seen[own]
+        lo, hi = group_range(self.h[own][seen], self.g[own][seen], self.n_own)
         min_separation = self.estimator.acceptance.min_separation
         return Shared(
             building=self.building[: self.n_own],
@@ -252,8 +256,8 @@ class Part:
             b=fit.b,
             c=fit.c,
             d=fit.d,
-            plausible=_plausible(fit, h, g, seen, self.n_own, min_separation),
-            fallback=_plausible(fit, h, g, seen, self.n_own, 0.0),
+            plausible=_plausible(fit, lo, hi, min_separation),
+            fallback=_plausible(fit, lo, hi, 0.0),
         )
 
     def exchanged(self, *shared: Shared) -> tuple[Part, Tally]:
@@ -456,14 +460,18 @@ def _classifier_data(part: Part, open_map: np.ndarray, used: np.ndarray):
     ``order``, of those the fits ``used``; without ``order``, the first row), those of own
     buildings, and each signal's map label: open only if it clears every building it was
     used for."""
-    sig, open_map = part.sig[used], open_map[used]
+    rows = np.flatnonzero(used)
+    sig = part.sig[rows]
     n_sig = int(sig.max(initial=-1)) + 1
-    closed = np.bincount(sig, weights=(~open_map).astype(float), minlength=n_sig)
-    rows = np.arange(sig.size)
-    if part.order is not None:  # the last assignment wins: the lowest order's
-        rows = rows[np.argsort(part.order[used], kind="stable")]
-    lead = np.full(n_sig, -1)
-    lead[sig[rows[::-1]]] = rows[::-1]
-    lead = lead[lead >= 0]
-    mine = part.g[used][lead] < part.n_own
-    return np.flatnonzero(used)[lead[mine]], closed[sig[lead[mine]]] == 0
+    closed = np.bincount(sig[~open_map[rows]], minlength=n_sig)
+    if part.order is not None:  # each signal's rows of its lowest order
+        order = part.order[rows]
+        lowest = np.full(n_sig, np.iinfo(order.dtype).max, dtype=order.dtype)
+        np.minimum.at(lowest, sig, order)  # fast where both are of one dtype
+        keep = order == lowest[sig]
+        rows, sig = rows[keep], sig[keep]
+    lead = np.full(n_sig, np.iinfo(rows.dtype).max)
+    np.minimum.at(lead, sig, rows)  # each signal's first row of those
+    lead = lead[lead < np.iinfo(rows.dtype).max]
+    mine = part.g[lead] < part.n_own
+    return lead[mine], closed[part.sig[lead[mine]]] == 0

@@ -163,12 +163,17 @@ def look_ids(
     """
     bins = np.floor(np.asarray(height, dtype=float) / HEIGHT_BIN).astype(np.int64)
     bins -= bins.min(initial=0)
-    tracks = np.zeros(bins.size, np.int64) if track is None else pd.factorize(np.asarray(track))[0]
+    key = np.zeros(bins.size, np.int64) if track is None else pd.factorize(np.asarray(track))[0]
     # codes of (track, bin), then of (building, that): each below the number of rows, so the
-    # int64 keys cannot overflow, and hashing one int64 column is fast
-    pair = pd.factorize(tracks * (int(bins.max(initial=0)) + 1) + bins)[0]
-    building = np.asarray(groups, dtype=np.int64)
-    return pd.factorize(building * (int(pair.max(initial=0)) + 1) + pair)[0]
+    # int64 keys cannot overflow, and hashing one int64 column is fast; made in place, and
+    # each array let go once used (a run's every row: memory)
+    key *= int(bins.max(initial=0)) + 1
+    key += bins
+    del bins
+    pair = pd.factorize(key)[0]
+    del key
+    pair += np.multiply(groups, int(pair.max(initial=0)) + 1, dtype=np.int64, casting="unsafe")
+    return pd.factorize(pair)[0]
 
 
 def _weights(height, groups, n_groups, scheme, c):

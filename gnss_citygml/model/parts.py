@@ -156,9 +156,14 @@ class Part:
             raise ModelError("a part of a run needs each row's signal and order along its ray")
         g = np.asarray(groups, dtype=np.intp)
         h = np.asarray(height, dtype=float)
-        by_group = _by_group(g, h)  # a building's rows together, by height: faster fits
+        by_group = _compact(_by_group(g, h))  # a building's rows together, by height: faster fits
         g, h = _compact(g[by_group]), h[by_group]
-        sd = None if height_sd is None else np.asarray(height_sd, dtype=float)[by_group]
+        # the codes first, while the part has few columns: their temporaries are the set-up's
+        # peak of memory
+        looks = None  # found once: a row's look does not change as 4PL-B iterates
+        if estimator.weighting == "looks" or (estimator.method == "4PL-B" and track is not None):
+            looks = _compact(look_ids(h, g, None if track is None else np.asarray(track)[by_group]))
+        phone_code, phones = _phones(phone, elevation, by_group)
         if receiver is not None:  # coded in sorted order: the same order in any part
             receiver = _compact(_factorized(receiver, by_group, sort=True)[0])
         if signal is not None:
@@ -169,17 +174,8 @@ class Part:
             order = _compact(np.asarray(order)[by_group])
             if order.dtype.kind == "f":
                 order = _compact(np.unique(order, return_inverse=True)[1])
-        tracks = None if track is None else np.asarray(track)[by_group]
-        looks = None  # found once: a row's look does not change as 4PL-B iterates
-        if estimator.weighting == "looks" or (estimator.method == "4PL-B" and tracks is not None):
-            looks = _compact(look_ids(h, g, tracks))
+        sd = None if height_sd is None else np.asarray(height_sd, dtype=float)[by_group]
         e = np.zeros(h.size) if elevation is None else elevation_units(elevation)[by_group]
-        phone_code = phones = None
-        if phone is not None and elevation is not None:
-            code, names = _factorized(phone, by_group)
-            unknown = ~np.isfinite(np.asarray(elevation, dtype=float)[by_group])
-            phone_code = np.where(unknown, -1, _compact(code))  # neither counted nor levelled
-            phones = names.astype(str).astype(object)
         occlusion = estimator.visibility and signal is not None
         seen = np.ones(h.size, dtype=bool)
         if occlusion and order is not None:
@@ -420,6 +416,17 @@ def _by_group(g: np.ndarray, h: np.ndarray) -> np.ndarray:
     by_height = np.argsort(h, kind="stable")
     small = g.size == 0 or (g.min() >= 0 and g.max() < 2**15)
     return by_height[np.argsort(g[by_height].astype(np.int16 if small else g.dtype), kind="stable")]
+
+
+def _phones(phone, elevation, by: np.ndarray):
+    """Each row's phone (of ``phone``, rows in the order ``by``) coded into the phones' names
+    (-1 where the elevation is not known: neither counted nor levelled); (None, None) without
+    phones or elevations."""
+    if phone is None or elevation is None:
+        return None, None
+    code, names = _factorized(phone, by)
+    unknown = ~np.isfinite(np.asarray(elevation, dtype=float)[by])
+    return np.where(unknown, -1, _compact(code)), names.astype(str).astype(object)
 
 
 def _factorized(values: npt.ArrayLike, by: np.ndarray, sort: bool = False):

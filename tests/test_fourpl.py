@@ -2,7 +2,13 @@ import numpy as np
 import pytest
 from conftest import draw_4pl
 
-from gnss_citygml.model.fourpl import c_interval, fit_4pl, log_likelihood, logistic4
+from gnss_citygml.model.fourpl import (
+    c_interval,
+    fit_4pl,
+    group_range,
+    log_likelihood,
+    logistic4,
+)
 
 
 def test_logistic4_shape():
@@ -183,3 +189,17 @@ def test_c_interval_narrows_with_the_data():
         widths.append(upper[0] - lower[0])
     # about 1/sqrt(n): 100 times the data, a tenth of the width (to the grid's steps)
     assert widths[1] < 0.25 * widths[0]
+
+
+def test_group_range_is_the_same_on_rows_sorted_by_group(rng):
+    """Rows sorted by group are reduced run by run, others one by one: the same ranges, empty
+    groups included."""
+    g = rng.integers(0, 40, 2000)
+    g[g == 7] = 8  # group 7 is empty
+    x = rng.normal(size=g.size)
+    by_group = np.argsort(g, kind="stable")
+    shuffled = group_range(x, g, 42)
+    in_runs = group_range(x[by_group], g[by_group], 42)
+    np.testing.assert_array_equal(shuffled[0], in_runs[0])
+    np.testing.assert_array_equal(shuffled[1], in_runs[1])
+    assert shuffled[0][7] == shuffled[1][41] == 0.0

@@ -375,26 +375,30 @@ def _cn0(table: pd.DataFrame, what: str) -> np.ndarray:
     return cn0
 
 
-def _recordings(table, height_sd) -> np.ndarray | None:
+def _recordings(table, height_sd) -> pd.Series | None:
     """Which position error each row shares (``recording``, else ``receiver``), which the
-    position-error margin needs (only with ``height_sd``)."""
+    position-error margin needs (only with ``height_sd``); the column as it is (a categorical
+    is coded by its codes, not as one Python string a row)."""
     if height_sd is None:
         return None
     for column in ("recording", "receiver"):
         if column in table.columns:
-            return table[column].to_numpy()
+            return table[column]
     return None
 
 
 def _tracks(table) -> np.ndarray | None:
-    """Which rows are one look along a satellite's track: one recording (``recording``, else
-    ``receiver``) and one ``satellite``; None without a ``satellite`` column."""
+    """Which rows are one look along a satellite's track (one code each): one recording
+    (``recording``, else ``receiver``) and one ``satellite``; None without a ``satellite``
+    column. A missing value is a value like any other."""
     if "satellite" not in table.columns:
         return None
+    satellite = pd.factorize(table["satellite"])[0].astype(np.int64) + 1  # 0: missing
     recording = next((c for c in ("recording", "receiver") if c in table.columns), None)
     if recording is None:
-        return table["satellite"].to_numpy()
-    return pd.MultiIndex.from_arrays([table[recording], table["satellite"]]).factorize()[0]
+        return satellite
+    # one int64 per (recording, satellite) pair: both codes are below the number of rows
+    return (pd.factorize(table[recording])[0] + 1) * (int(satellite.max(initial=0)) + 1) + satellite
 
 
 def _height_sd(table) -> np.ndarray | None:

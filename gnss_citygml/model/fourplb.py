@@ -137,6 +137,8 @@ def height_weights(
     height = np.asarray(height, dtype=float)
     groups = np.asarray(groups, dtype=np.intp)
     mask = np.ones(height.size, dtype=bool) if mask is None else np.asarray(mask, dtype=bool)
+    if scheme == "none":
+        return mask.astype(float)
     out = np.zeros(height.size)
     if scheme == "looks":
         ids = look_ids(height, groups) if looks is None else np.asarray(looks)
@@ -161,17 +163,22 @@ def look_ids(
     """
     bins = np.floor(np.asarray(height, dtype=float) / HEIGHT_BIN).astype(np.int64)
     bins -= bins.min(initial=0)
-    tracks = np.zeros(bins.size, np.int64) if track is None else pd.factorize(np.asarray(track))[0]
+    key = np.zeros(bins.size, np.int64) if track is None else pd.factorize(np.asarray(track))[0]
     # codes of (track, bin), then of (building, that): each below the number of rows, so the
-    # int64 keys cannot overflow, and hashing one int64 column is fast
-    pair = pd.factorize(tracks * (int(bins.max(initial=0)) + 1) + bins)[0]
-    building = np.asarray(groups, dtype=np.int64)
-    return pd.factorize(building * (int(pair.max(initial=0)) + 1) + pair)[0]
+    # int64 keys cannot overflow, and hashing one int64 column is fast; made in place, and
+    # each array let go once used (a run's every row: memory)
+    key *= int(bins.max(initial=0)) + 1
+    key += bins
+    del bins
+    pair = pd.factorize(key)[0]
+    del key
+    pair += np.multiply(groups, int(pair.max(initial=0)) + 1, dtype=np.int64, casting="unsafe")
+    return pd.factorize(pair)[0]
 
 
 def _weights(height, groups, n_groups, scheme, c):
     n = np.bincount(groups, minlength=n_groups).astype(float)
-    if scheme == "none" or (scheme == "balanced" and c is None) or height.size == 0:
+    if (scheme == "balanced" and c is None) or height.size == 0:
         return np.ones_like(height)
     if scheme == "height":
         bins = np.floor(height / HEIGHT_BIN).astype(np.int64)
@@ -195,10 +202,10 @@ def _weights(height, groups, n_groups, scheme, c):
     return raw * (n / np.maximum(total, 1e-300))[groups]
 
 
-def _plausible(fit, h, g, seen, n_groups, min_separation):
+def _plausible(fit, lo, hi, min_separation):
     """Buildings whose current fit may stand in front of others: separated asymptotes and an
-    inflection point inside the heights they were fitted on."""
-    lo, hi = group_range(h[seen], g[seen], n_groups)
+    inflection point inside the heights they were fitted on (from ``lo`` to ``hi``,
+    :func:`~.fourpl.group_range`)."""
     return (fit.a - fit.d >= min_separation) & (fit.c >= lo) & (fit.c <= hi)
 
 
@@ -207,14 +214,15 @@ def _unoccluded(h, g, sig, c, b, plausible, order=None):
     ``b`` per building): it passes above the top of each one's height range, c + 3/b. A
     signal that may have been blocked by another building tells nothing about this one,
     whatever its C/N0. A building without a plausible estimate may stand at any height: with
-    ``order``, the rows behind it along the ray are left out too."""
-    blocks = plausible[g] & (h < c[g] + 3.0 / b[g])
+    ``order`` (whole numbers), the rows behind it along the ray are left out too."""
+    known = plausible[g]
+    blocks = known & (h < (c + 3.0 / b)[g])
     n_sig = int(sig.max(initial=-1)) + 1
-    n_blocking = np.bincount(sig, blocks, n_sig)
+    n_blocking = np.bincount(sig[blocks], minlength=n_sig)
     clear = (n_blocking[sig] - blocks) == 0
     if order is not None:
-        first_unknown = np.full(n_sig, np.iinfo(np.int64).max)
-        np.minimum.at(first_unknown, sig[~plausible[g]], order[~plausible[g]])
+        first_unknown = np.full(n_sig, np.iinfo(order.dtype).max, dtype=order.dtype)
+        np.minimum.at(first_unknown, sig[~known], order[~known])  # fast: of one dtype
         clear &= order <= first_unknown[sig]
     return clear
 

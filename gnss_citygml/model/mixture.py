@@ -86,7 +86,7 @@ def clears_all(prior: np.ndarray, signal: np.ndarray) -> np.ndarray:
 
 def elevation_units(elevation_deg: npt.ArrayLike) -> np.ndarray:
     """Elevations (degrees) in the model's units (90 degrees = 1; unknown: 0)."""
-    return np.nan_to_num(np.asarray(elevation_deg, dtype=float) / 90.0)
+    return np.nan_to_num(np.asarray(elevation_deg, dtype=float) / 90.0, copy=False)
 
 
 @dataclass(frozen=True)

@@ -21,7 +21,7 @@ import pandas as pd
 from ..errors import ModelError
 from ..settings import Estimator
 from .classifier import Cn0Counts, SignalClassifier
-from .fourpl import FourPLFit, c_interval, fit_4pl
+from .fourpl import FourPLFit, c_interval, fit_4pl, group_range
 from .fourplb import (
     BuildingFits,
     SignalModel,
@@ -156,28 +156,26 @@ class Part:
             raise ModelError("a part of a run needs each row's signal and order along its ray")
         g = np.asarray(groups, dtype=np.intp)
         h = np.asarray(height, dtype=float)
-        by_group = np.lexsort((h, g))  # a building's rows together, by height: faster fits
+        by_group = _compact(_by_group(g, h))  # a building's rows together, by height: faster fits
         g, h = _compact(g[by_group]), h[by_group]
-        sd = None if height_sd is None else np.asarray(height_sd, dtype=float)[by_group]
+        # the codes first, while the part has few columns: their temporaries are the set-up's
+        # peak of memory
+        looks = None  # found once: a row's look does not change as 4PL-B iterates
+        if estimator.weighting == "looks" or (estimator.method == "4PL-B" and track is not None):
+            looks = _compact(look_ids(h, g, None if track is None else np.asarray(track)[by_group]))
+        phone_code, phones = _phones(phone, elevation, by_group)
         if receiver is not None:  # coded in sorted order: the same order in any part
-            receiver = _compact(pd.factorize(np.asarray(receiver)[by_group], sort=True)[0])
+            receiver = _compact(_factorized(receiver, by_group, sort=True)[0])
         if signal is not None:
-            sig = _compact(np.unique(np.asarray(signal)[by_group], return_inverse=True)[1])
+            sig = _compact(pd.factorize(np.asarray(signal)[by_group], sort=True)[0])
         else:
             sig = _compact(np.arange(g.size))  # each row is a signal of its own
-        if order is not None:
+        if order is not None:  # only how a ray's rows compare: ranks where not whole (NaN last)
             order = _compact(np.asarray(order)[by_group])
-        tracks = None if track is None else np.asarray(track)[by_group]
-        looks = None  # found once: a row's look does not change as 4PL-B iterates
-        if estimator.weighting == "looks" or (estimator.method == "4PL-B" and tracks is not None):
-            looks = _compact(look_ids(h, g, tracks))
+            if order.dtype.kind == "f":
+                order = _compact(np.unique(order, return_inverse=True)[1])
+        sd = None if height_sd is None else np.asarray(height_sd, dtype=float)[by_group]
         e = np.zeros(h.size) if elevation is None else elevation_units(elevation)[by_group]
-        phone_code = phones = None
-        if phone is not None and elevation is not None:
-            code, names = pd.factorize(np.asarray(phone, dtype=object)[by_group])
-            unknown = ~np.isfinite(np.asarray(elevation, dtype=float)[by_group])
-            phone_code = np.where(unknown, -1, _compact(code))  # neither counted nor levelled
-            phones = np.asarray(names, dtype=object).astype(str).astype(object)
         occlusion = estimator.visibility and signal is not None
         seen = np.ones(h.size, dtype=bool)
         if occlusion and order is not None:
@@ -237,14 +235,16 @@ class Part:
         change = np.ones(n_own)
         if last is not None:
             flips = (own_map != last.own_map) & seen
-            change = np.bincount(g, flips, n_own) / np.maximum(np.bincount(g, seen, n_own), 1)
+            n_flips = np.bincount(g[flips], minlength=n_own)  # few: faster than weighted
+            change = n_flips / np.maximum(np.bincount(g, seen, n_own), 1)
         return replace(self, last=LastFit(fit, self.seen, labels, own_map, change, model))
 
     def shared(self) -> Shared:
         """What the other parts need of the own buildings' fits (after :meth:`fitted`)."""
         last, own = self._last, self._own
         fit = last.fit
-        g, h, seen = self.g[own], self.h[own], last.seen[own]
+        seen = last.seen[own]
+        lo, hi = group_range(self.h[own][seen], self.g[own][seen], self.n_own)
         min_separation = self.estimator.acceptance.min_separation
         return Shared(
             building=self.building[: self.n_own],
@@ -252,8 +252,8 @@ class Part:
             b=fit.b,
             c=fit.c,
             d=fit.d,
-            plausible=_plausible(fit, h, g, seen, self.n_own, min_separation),
-            fallback=_plausible(fit, h, g, seen, self.n_own, 0.0),
+            plausible=_plausible(fit, lo, hi, min_separation),
+            fallback=_plausible(fit, lo, hi, 0.0),
         )
 
     def exchanged(self, *shared: Shared) -> tuple[Part, Tally]:
@@ -410,6 +410,42 @@ def _compact(codes: np.ndarray) -> np.ndarray:
     return codes
 
 
+def _by_group(g: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """The rows sorted by building ``g``, then height ``h`` (``np.lexsort((h, g))``): by height
+    then, stably, by building, whose codes sort by radix where they fit in 16 bits (faster)."""
+    by_height = np.argsort(h, kind="stable")
+    small = g.size == 0 or (g.min() >= 0 and g.max() < 2**15)
+    return by_height[np.argsort(g[by_height].astype(np.int16 if small else g.dtype), kind="stable")]
+
+
+def _phones(phone, elevation, by: np.ndarray):
+    """Each row's phone (of ``phone``, rows in the order ``by``) coded into the phones' names
+    (-1 where the elevation is not known: neither counted nor levelled); (None, None) without
+    phones or elevations."""
+    if phone is None or elevation is None:
+        return None, None
+    code, names = _factorized(phone, by)
+    unknown = ~np.isfinite(np.asarray(elevation, dtype=float)[by])
+    return np.where(unknown, -1, _compact(code)), names.astype(str).astype(object)
+
+
+def _factorized(values: npt.ArrayLike, by: np.ndarray, sort: bool = False):
+    """``pd.factorize(values[by], sort=sort)`` as codes (-1: missing) and names (an object
+    array), hashing ``values`` as they come (a categorical by its codes, Arrow strings as
+    such) and not as one Python object a row."""
+    code, names = pd.factorize(pd.Series(values, copy=False))  # first appearance in ``values``
+    names = np.asarray(names, dtype=object)
+    if sort:
+        rank = pd.factorize(names, sort=True)[0]
+    else:  # in order of first appearance in ``values[by]``
+        first = pd.unique(code[by])
+        first = first[first >= 0]
+        rank = np.empty(names.size, dtype=np.intp)
+        rank[first] = np.arange(first.size)
+    names = names[np.argsort(rank)]
+    return np.append(rank, -1)[code[by]], names  # the last entry keeps a missing one's -1
+
+
 def _lookup(building: np.ndarray, shared: Sequence[Shared]):
     """``a``, ``b``, ``c``, ``d``, ``plausible`` and ``fallback`` of each of ``building``
     (codes in the whole run) from the parts' :class:`Shared` fits."""
@@ -431,14 +467,18 @@ def _classifier_data(part: Part, open_map: np.ndarray, used: np.ndarray):
     ``order``, of those the fits ``used``; without ``order``, the first row), those of own
     buildings, and each signal's map label: open only if it clears every building it was
     used for."""
-    sig, open_map = part.sig[used], open_map[used]
+    rows = np.flatnonzero(used)
+    sig = part.sig[rows]
     n_sig = int(sig.max(initial=-1)) + 1
-    closed = np.bincount(sig, weights=(~open_map).astype(float), minlength=n_sig)
-    rows = np.arange(sig.size)
-    if part.order is not None:  # the last assignment wins: the lowest order's
-        rows = rows[np.argsort(part.order[used], kind="stable")]
-    lead = np.full(n_sig, -1)
-    lead[sig[rows[::-1]]] = rows[::-1]
-    lead = lead[lead >= 0]
-    mine = part.g[used][lead] < part.n_own
-    return np.flatnonzero(used)[lead[mine]], closed[sig[lead[mine]]] == 0
+    closed = np.bincount(sig[~open_map[rows]], minlength=n_sig)
+    if part.order is not None:  # each signal's rows of its lowest order
+        order = part.order[rows]
+        lowest = np.full(n_sig, np.iinfo(order.dtype).max, dtype=order.dtype)
+        np.minimum.at(lowest, sig, order)  # fast where both are of one dtype
+        keep = order == lowest[sig]
+        rows, sig = rows[keep], sig[keep]
+    lead = np.full(n_sig, np.iinfo(rows.dtype).max)
+    np.minimum.at(lead, sig, rows)  # each signal's first row of those
+    lead = lead[lead < np.iinfo(rows.dtype).max]
+    mine = part.g[lead] < part.n_own
+    return lead[mine], closed[part.sig[lead[mine]]] == 0

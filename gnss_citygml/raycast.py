@@ -5,8 +5,9 @@ slope ``tan(elevation)``. In plan it is a segment of length ``max_range``; it *e
 footprint at the first point where it crosses the footprint's boundary (exterior ring or a hole;
 multipolygons are one footprint). An STRtree prunes ray x footprint pairs, then the distance to
 the first boundary crossing is found for all candidate (pair, edge) combinations at once with
-numpy. A ray starting inside a footprint enters nothing there: a receiver cannot be inside a
-building, so such a pair says nothing about the building and is left out.
+numpy, batch by batch of rays, the batches in threads (:mod:`.threads`). A ray starting
+inside a footprint enters nothing there: a receiver cannot be inside a building, so such a pair
+says nothing about the building and is left out.
 """
 
 from __future__ import annotations
@@ -16,6 +17,8 @@ from typing import NamedTuple
 import numpy as np
 import numpy.typing as npt
 import shapely
+
+from .threads import in_threads, threads
 
 __all__ = ["footprint_entries"]
 
@@ -109,9 +112,9 @@ def footprint_entries(
         return _nothing(gradient)
     tree = shapely.STRtree(footprints)
     shapes = _Shapes.of(footprints)
-    batches = []
     step = max(1, _RAYS // k)
-    for lo in range(0, x.size, step):
+
+    def batch(lo: int) -> tuple[np.ndarray, ...]:
         rays = slice(lo, lo + step)
         some = moves[rays] if len(moves) > 1 else moves
         pairs = _pairs(x[rays], y[rays], dx[rays], dy[rays], tree, max_range, some)
@@ -125,7 +128,10 @@ def footprint_entries(
             max_range,
             gradient,
         )
-        batches.append((ray + lo * k, fp, *rest))
+        return (ray + lo * k, fp, *rest)
+
+    starts = range(0, x.size, step)  # batches of rays in threads, joined in order: one pass's
+    batches = in_threads(batch, starts, min(threads(), len(starts)))
     return tuple(np.concatenate(column) for column in zip(*batches, strict=True))
 
 

@@ -40,24 +40,25 @@ def _compiled(func):
 
 
 @_compiled
-def _exponents(x, v, g, b_g, c_g, out):
-    """Each sample's ``-b kappa (x - c)``, the logistic's exponent (a loop without branches:
-    the compiler makes it vector instructions)."""
+def _exponents(x, v, g, b_g, c_g, kappa, out):
+    """Each sample's slope shrinkage ``kappa`` and ``-b kappa (x - c)``, the logistic's
+    exponent (a loop without branches: the compiler makes it vector instructions)."""
     for i in range(x.size):
         b = b_g[g[i]]
-        kappa = 1.0 / np.sqrt(1.0 + _PROBIT * b * b * v[i])
-        out[i] = -(b * kappa * (x[i] - c_g[g[i]]))
+        kappa[i] = 1.0 / np.sqrt(1.0 + _PROBIT * b * b * v[i])
+        out[i] = -(b * kappa[i] * (x[i] - c_g[g[i]]))
 
 
 @_compiled
-def _probabilities(e, y, g, a_g, d_g, eps, p, q, chosen):
-    """Each sample's ``p = d + (a - d) s`` (``s = 1 / (1 + e)``) clipped to ``[eps, 1 - eps]``,
-    ``q = 1 - p``, and the one its label ``y`` (0 or 1) picks (``p`` for 1, ``q`` for 0); the
-    number of samples whose label is a fraction, for which both are needed."""
+def _probabilities(e, y, g, a_g, d_g, eps, s, p, q, chosen):
+    """Each sample's logistic ``s = 1 / (1 + e)``, ``p = d + (a - d) s`` clipped to
+    ``[eps, 1 - eps]``, ``q = 1 - p``, and the one its label ``y`` (0 or 1) picks (``p`` for 1,
+    ``q`` for 0); the number of samples whose label is a fraction, for which both are needed."""
     n_soft = 0
     for i in range(e.size):
         a, d = a_g[g[i]], d_g[g[i]]
-        pi = min(max(d + (a - d) * (1.0 / (1.0 + e[i])), eps), 1 - eps)
+        s[i] = 1.0 / (1.0 + e[i])
+        pi = min(max(d + (a - d) * s[i], eps), 1 - eps)
         p[i] = pi
         q[i] = 1 - pi
         chosen[i] = pi if y[i] == 1.0 else 1 - pi
@@ -66,50 +67,67 @@ def _probabilities(e, y, g, a_g, d_g, eps, p, q, chosen):
 
 
 @_compiled
-def _sums(x, y, w, v, g, sel, params, e, p, q, log_p, log_q, ll, grad, fisher, ll_only):
-    """Add each selected sample's log-likelihood term (and, unless ``ll_only``, its gradient
-    and Fisher information in theta) to its group's, in the samples' order (sorted by group:
-    each group's sums are kept in registers until its last sample)."""
+def _log_likelihoods(y, w, g, sel, log_p, log_q, ll):
+    """Add each selected sample's log-likelihood term to its group's, in the samples' order."""
+    for i in range(y.size):
+        if sel[g[i]]:
+            ll[g[i]] += w[i] * (y[i] * log_p[i] + (1 - y[i]) * log_q[i])
+
+
+@_compiled
+def _sums(x, y, w, g, sel, params, kappa, s, p, q, log_p, log_q, ll, grad, fisher):
+    """Add each selected sample's log-likelihood term, gradient and Fisher information (in
+    theta) to its group's, in the samples' order (sorted by group: a group's 15 sums stay in
+    registers until its last sample)."""
     a_g, d_g, b_g, c_g, r_g = params
-    jac = np.zeros(4)
-    acc = np.zeros(15)  # ll, the gradient's 4, the information's upper triangle's 10
     n_rows = x.size
+    l0 = g0 = g1 = g2 = g3 = 0.0
+    f00 = f01 = f02 = f03 = f11 = f12 = f13 = f22 = f23 = f33 = 0.0
     for i in range(n_rows):
         k = g[i]
         if not sel[k]:
             continue
-        yi, wi = y[i], w[i]
-        acc[0] += wi * (yi * log_p[i] + (1 - yi) * log_q[i])
-        if not ll_only:
-            a, d, b, r = a_g[k], d_g[k], b_g[k], r_g[k]
-            x_c = x[i] - c_g[k]
-            kappa = 1.0 / np.sqrt(1.0 + _PROBIT * b * b * v[i])
-            s = 1.0 / (1.0 + e[i])
-            s_low = 1 - s
-            dsb = (a - d) * s * s_low * b * kappa
-            jac[0] = a * (1 - a) * (s + s_low * r)
-            jac[1] = dsb * (kappa * kappa) * x_c
-            jac[2] = -dsb
-            jac[3] = s_low * a * r * (1 - r)
-            info = wi / (p[i] * q[i])
-            resid = info * (yi - p[i])
-            at = 5
-            for m in range(4):
-                acc[1 + m] += resid * jac[m]
-                weighted = info * jac[m]
-                for n in range(m, 4):
-                    acc[at] += weighted * jac[n]
-                    at += 1
+        yi, wi, pi = y[i], w[i], p[i]
+        l0 += wi * (yi * log_p[i] + (1 - yi) * log_q[i])
+        a, d, r = a_g[k], d_g[k], r_g[k]
+        si, ki = s[i], kappa[i]
+        s_low = 1 - si
+        dsb = (a - d) * si * s_low * b_g[k] * ki
+        j0 = a * (1 - a) * (si + s_low * r)
+        j1 = dsb * (ki * ki) * (x[i] - c_g[k])
+        j2 = -dsb
+        j3 = s_low * a * r * (1 - r)
+        info = wi / (pi * q[i])
+        resid = info * (yi - pi)
+        g0 += resid * j0
+        g1 += resid * j1
+        g2 += resid * j2
+        g3 += resid * j3
+        w0, w1, w2, w3 = info * j0, info * j1, info * j2, info * j3
+        f00 += w0 * j0
+        f01 += w0 * j1
+        f02 += w0 * j2
+        f03 += w0 * j3
+        f11 += w1 * j1
+        f12 += w1 * j2
+        f13 += w1 * j3
+        f22 += w2 * j2
+        f23 += w2 * j3
+        f33 += w3 * j3
         if i + 1 == n_rows or g[i + 1] != k:  # the group's last sample: its sums are done
-            ll[k] += acc[0]
-            at = 5
+            ll[k] += l0
+            grad[k, 0] += g0
+            grad[k, 1] += g1
+            grad[k, 2] += g2
+            grad[k, 3] += g3
+            upper = (f00, f01, f02, f03, f11, f12, f13, f22, f23, f33)
+            at = 0
             for m in range(4):
-                grad[k, m] += acc[1 + m]
                 for n in range(m, 4):
-                    fisher[k, m, n] += acc[at]
-                    fisher[k, n, m] = fisher[k, m, n]
+                    fisher[k, m, n] = fisher[k, n, m] = fisher[k, m, n] + upper[at]
                     at += 1
-            acc[:] = 0.0
+            l0 = g0 = g1 = g2 = g3 = 0.0
+            f00 = f01 = f02 = f03 = f11 = f12 = f13 = f22 = f23 = f33 = 0.0
 
 
 def likelihood_sums(x, y, w, v, g, sel, per_group, eps, ll, grad, fisher, ll_only):
@@ -119,13 +137,16 @@ def likelihood_sums(x, y, w, v, g, sel, per_group, eps, ll, grad, fisher, ll_onl
     (:func:`~.likelihood.evaluate`); ``v``: the variances of ``x``; ``eps``: the clip of
     probabilities."""
     a_g, d_g, b_g, c_g, r_g = per_group
-    e = np.empty(x.size)
-    _exponents(x, v, g, b_g, c_g, e)
+    kappa, e = np.empty(x.size), np.empty(x.size)
+    _exponents(x, v, g, b_g, c_g, kappa, e)
     with np.errstate(over="ignore"):  # exp(large) = inf makes s = 0, as in numpy's path
         np.exp(e, out=e)
-    p, q, chosen = np.empty(x.size), np.empty(x.size), np.empty(x.size)
-    if _probabilities(e, y, g, a_g, d_g, eps, p, q, chosen):
+    s, p, q, chosen = np.empty(x.size), np.empty(x.size), np.empty(x.size), e  # e is done with
+    if _probabilities(e, y, g, a_g, d_g, eps, s, p, q, chosen):
         log_p, log_q = np.log(p), np.log(q)
     else:  # labels 0 or 1: y log(p) + (1 - y) log(q) is the chosen one's log, to the bit
         log_p = log_q = np.log(chosen)  # (the other term is a signed zero)
-    _sums(x, y, w, v, g, sel, per_group, e, p, q, log_p, log_q, ll, grad, fisher, ll_only)
+    if ll_only:
+        _log_likelihoods(y, w, g, sel, log_p, log_q, ll)
+    else:
+        _sums(x, y, w, g, sel, per_group, kappa, s, p, q, log_p, log_q, ll, grad, fisher)

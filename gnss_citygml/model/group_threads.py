@@ -2,38 +2,25 @@
 
 A 4PL fit and its likelihood interval treat every group on its own, to the same bits whatever
 groups surround it (:mod:`.likelihood`), so cutting the samples (sorted by group) into runs of
-whole groups and working on the runs in threads gives one pass's bits. The compiled sums
-(:mod:`.fourpl_kernels`) and numpy's array functions release the GIL, so a laptop's cores
-share a fit.
-
-Threads follow ``OMP_NUM_THREADS`` where it is set, as numerical libraries do: a Dask worker's
-nanny sets it to 1, the workers' processes being the parallelism there.
+whole groups and working on the runs in threads (:mod:`gnss_citygml.threads`) gives one
+pass's bits.
 """
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-__all__ = ["by_groups", "threads"]
+from ..threads import in_threads, threads
+
+__all__ = ["by_groups"]
 
 #: Samples per run below which threads cost more than they save (a few milliseconds of work).
 MIN_ROWS = 1 << 16
 #: Runs per thread: a few slow groups (hundreds of Levenberg-Marquardt steps) in one run should
-#: not leave the other threads idle.
-RUNS_PER_THREAD = 4
-
-
-def threads() -> int:
-    """The threads a fit may use: ``OMP_NUM_THREADS`` where it is a positive whole number,
-    else the cores this process may run on."""
-    value = os.environ.get("OMP_NUM_THREADS", "").strip()
-    if value.isdigit() and int(value) > 0:
-        return int(value)
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+#: not leave the other threads idle, and each run costs its own Python steps.
+RUNS_PER_THREAD = 2
 
 
 def by_groups(
@@ -55,6 +42,5 @@ def by_groups(
     runs = [
         (slice(rows[k], rows[k + 1]), slice(cuts[k], cuts[k + 1])) for k in range(cuts.size - 1)
     ]
-    with ThreadPoolExecutor(n_threads) as pool:
-        parts = list(pool.map(lambda run: work(*run), runs))
+    parts = in_threads(lambda run: work(*run), runs, n_threads)
     return tuple(np.concatenate(arrays) for arrays in zip(*parts, strict=True))

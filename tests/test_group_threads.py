@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 from conftest import draw_4pl
 
+from gnss_citygml import threads
 from gnss_citygml.model import fourpl, group_threads
 from gnss_citygml.model.fourpl import c_interval, fit_4pl
 
@@ -54,5 +55,5 @@ def test_a_fit_in_threads_is_one_threads_bit_for_bit(rng, monkeypatch, n_threads
 @pytest.mark.parametrize(("value", "expected"), [("3", 3), (" 2 ", 2), ("0", None), ("x", None)])
 def test_threads_follow_omp_num_threads(monkeypatch, value, expected):
     monkeypatch.setenv("OMP_NUM_THREADS", value)
-    n = group_threads.threads()
+    n = threads.threads()
     assert n == expected if expected is not None else n >= 1

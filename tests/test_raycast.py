@@ -2,6 +2,7 @@ import numpy as np
 import pytest
 import shapely
 
+from gnss_citygml import raycast
 from gnss_citygml.raycast import footprint_entries
 
 SQUARE = shapely.box(10, -5, 20, 5)
@@ -111,3 +112,26 @@ def test_rays_cast_from_moved_origins_are_those_cast_from_each(per_ray):
     assert ray.size > 100
     for one, other in zip(got, (ray, fp, dist, cos), strict=True):
         np.testing.assert_array_equal(one, other)
+
+
+@pytest.mark.parametrize("gradient", [False, True])
+def test_batches_chunks_and_threads_give_one_pass_bits(rng, monkeypatch, gradient):
+    """The cast in small batches of rays and small chunks, the batches in threads, is the cast
+    in one batch, bit for bit and in the same order: blocks sharing walls, one drawn twice (rays
+    entering two footprints at the same distance), a courtyard, rays along the axes."""
+    blocks = [shapely.box(x, y, x + 10, y + 10) for x in range(0, 60, 10) for y in (0, 30)]
+    yard = shapely.box(0, 60, 30, 90).difference(shapely.box(10, 70, 20, 80))
+    footprints = [*blocks, yard, blocks[3]]
+    n = 3000
+    x, y = rng.uniform(-20, 80, n), rng.uniform(-20, 100, n)
+    bearing = np.where(rng.random(n) < 0.2, rng.integers(0, 4, n) * 90.0, rng.uniform(0, 360, n))
+    monkeypatch.setenv("OMP_NUM_THREADS", "1")
+    one = footprint_entries(x, y, bearing, footprints, 200.0, gradient=gradient)
+    monkeypatch.setenv("OMP_NUM_THREADS", "3")
+    monkeypatch.setattr(raycast, "_RAYS", 64)
+    monkeypatch.setattr(raycast, "_CHUNK", 500)
+    many = footprint_entries(x, y, bearing, footprints, 200.0, gradient=gradient)
+    ray, distance = one[0], one[2]
+    assert ray.size > n // 2 and np.any((np.diff(ray) == 0) & (np.diff(distance) == 0))  # ties
+    for a, b in zip(one, many, strict=True):
+        assert np.array_equal(a, b)

@@ -460,12 +460,10 @@ def _likeliest(starts, x, y, w, g, v, n_groups):
     caller's start (the previous fit in 4PL-B) is kept only while it is still the likeliest, so
     an iteration cannot stay trapped where an earlier one went wrong."""
     everyone = np.ones(n_groups, dtype=bool)
-    best, best_ll = None, None
-    for cand in starts:
+    best = starts[0]
+    best_ll = evaluate(best, x, y, w, g, v, n_groups, everyone, ll_only=True)[0]
+    for cand in starts[1:]:
         ll = evaluate(cand, x, y, w, g, v, n_groups, everyone, ll_only=True)[0]
-        if best is None:
-            best, best_ll = cand, ll
-            continue
         better = ll > best_ll
         best = np.where(better[:, None], cand, best)
         best_ll = np.where(better, ll, best_ll)

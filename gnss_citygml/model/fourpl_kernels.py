@@ -130,7 +130,20 @@ def _sums(x, y, w, g, sel, params, kappa, s, p, q, log_p, log_q, ll, grad, fishe
             f00 = f01 = f02 = f03 = f11 = f12 = f13 = f22 = f23 = f33 = 0.0
 
 
-def likelihood_sums(x, y, w, v, g, sel, per_group, eps, ll, grad, fisher, ll_only):
+def likelihood_sums(
+    x: np.ndarray,
+    y: np.ndarray,
+    w: np.ndarray,
+    v: np.ndarray,
+    g: np.ndarray,
+    sel: np.ndarray,
+    per_group: tuple[np.ndarray, ...],
+    eps: float,
+    ll: np.ndarray,
+    grad: np.ndarray,
+    fisher: np.ndarray,
+    ll_only: bool,
+) -> None:
     """Add the samples of the groups in ``sel`` to their groups' log-likelihoods ``ll`` (and,
     unless ``ll_only``, gradients ``grad`` and Fisher informations ``fisher``), as
     :func:`~.likelihood._block_sums` sums them. ``per_group``: each group's ``(a, d, b, c, r)``

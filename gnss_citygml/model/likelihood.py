@@ -47,7 +47,18 @@ def _blocks(g: np.ndarray) -> list[tuple[int, int, bool]]:
     return blocks
 
 
-def evaluate(theta, x, y, w, g, v, n_groups, active, *, ll_only=False):
+def evaluate(
+    theta: np.ndarray,
+    x: np.ndarray,
+    y: np.ndarray,
+    w: np.ndarray,
+    g: np.ndarray,
+    v: np.ndarray,
+    n_groups: int,
+    active: np.ndarray,
+    *,
+    ll_only: bool = False,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Log-likelihood, gradient and Fisher information (in theta) of the active groups
     (gradient and information left at zero with ``ll_only``), summed block by block
     (:func:`_blocks`).

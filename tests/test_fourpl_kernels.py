@@ -19,7 +19,20 @@ def numpy_only(monkeypatch):
 def test_numba_is_installed():
     """The dev extra installs numba: without it every other test would run the numpy path only
     and this file's comparisons would compare numpy with itself."""
-    assert fourpl_kernels.COMPILED
+    assert fourpl_kernels.COMPILED and fourpl_kernels._loops() is not None
+
+
+def test_a_numba_that_does_not_import_leaves_the_fits_to_numpy(rng, monkeypatch):
+    """Installed but broken (e.g. built for another numpy): a warning, and numpy's sums."""
+    x, y, w, g, v = _samples(rng, [30, 500])
+    theta = np.array([[1.0, 0.0, 30.0, -1.0], [0.5, -1.0, 20.0, 0.0]])
+    active = np.ones(2, dtype=bool)
+    expected = likelihood.evaluate(theta, x, y, w, g, v, 2, active)
+    monkeypatch.setattr(fourpl_kernels, "_LOOPS", [])  # not loaded yet
+    monkeypatch.setitem(sys.modules, "numba", None)  # its import fails
+    with pytest.warns(UserWarning, match="numba does not import"):
+        got = likelihood.evaluate(theta, x, y, w, g, v, 2, active)
+    assert all(np.array_equal(a, b) for a, b in zip(got, expected, strict=True))
 
 
 def _samples(rng, sizes):

@@ -19,7 +19,7 @@ from .engine import run_parts
 from .fourplb import BuildingFits, SignalModel
 from .mixture import Cn0Moments, elevation_units
 from .offsets import levelled, sky_counts
-from .parts import Part
+from .parts import Part, _compact
 
 __all__ = [
     "HEIGHTS_COLUMNS",
@@ -358,9 +358,12 @@ def _columns(table: pd.DataFrame):
             fix="drop those rows or recompute their ray intersections",
         )
     cn0 = _cn0(table, "intersections")
-    signal = pd.factorize(table["signal"])[0] if "signal" in table.columns else None
-    order = _numeric(table, "order") if "order" in table.columns else None
-    return np.asarray(ids, dtype=object), codes.astype(np.intp), height, cn0, signal, order
+    signal = _compact(pd.factorize(table["signal"])[0]) if "signal" in table.columns else None
+    order = None
+    if "order" in table.columns:  # whole numbers as they are: a float copy is memory
+        whole = pd.api.types.is_integer_dtype(table["order"].dtype)
+        order = table["order"].to_numpy() if whole else _numeric(table, "order")
+    return np.asarray(ids, dtype=object), _compact(codes), height, cn0, signal, order
 
 
 def _cn0(table: pd.DataFrame, what: str) -> np.ndarray:
@@ -398,7 +401,8 @@ def _tracks(table) -> np.ndarray | None:
     if recording is None:
         return satellite
     # one int64 per (recording, satellite) pair: both codes are below the number of rows
-    return (pd.factorize(table[recording])[0] + 1) * (int(satellite.max(initial=0)) + 1) + satellite
+    pair = (pd.factorize(table[recording])[0] + 1) * (int(satellite.max(initial=0)) + 1)
+    return _compact(pair + satellite)
 
 
 def _height_sd(table) -> np.ndarray | None:

@@ -10,36 +10,53 @@ The sums are the numpy path's bit for bit, so a fit does not depend on whether n
 installed: every product and sum is taken in the same order (IEEE arithmetic rounds each the
 same way), each group's samples are added in order from zero as ``bincount`` adds them, and the
 only functions that are not exactly rounded, ``exp`` and ``log``, are numpy's own, called on
-whole arrays between the loops (:func:`likelihood_sums`). ``tests/test_fourpl_kernels.py`` holds the
-two paths to that.
+whole arrays between the loops (:func:`likelihood_sums`). ``tests/test_fourpl_kernels.py``
+holds the two paths to that.
 
 Without numba, :data:`COMPILED` is False and :mod:`.fourpl` sums in numpy.
 """
 
 from __future__ import annotations
 
-import numpy as np
+import importlib.util
+import threading
+import warnings
+from types import SimpleNamespace
 
-try:
-    import numba
-except ImportError:  # the optional ``fast`` extra is not installed
-    numba = None  # type: ignore[assignment]
+import numpy as np
 
 __all__ = ["COMPILED", "likelihood_sums"]
 
-#: Whether the compiled sums are available (numba is installed).
-COMPILED = numba is not None
+#: Whether numba is installed (the loops are compiled at the first fit: importing numba costs
+#: half a second and 60 MB that a run pays only when it fits).
+COMPILED = importlib.util.find_spec("numba") is not None
 
 #: pi / 8 of the probit approximation's slope shrinkage (:mod:`.fourpl`).
 _PROBIT = np.pi / 8.0
 
-
-def _compiled(func):
-    """``func`` compiled once per machine (numba's cache), releasing the GIL."""
-    return numba.njit(cache=True, nogil=True)(func) if COMPILED else func
+_LOCK = threading.Lock()
+_LOOPS: list[SimpleNamespace | None] = []
 
 
-@_compiled
+def _loops() -> SimpleNamespace | None:
+    """The loops below compiled (once per machine: numba's cache), releasing the GIL; None,
+    with a warning, where numba is installed but does not import."""
+    with _LOCK:  # the first fits may start in several threads at once
+        if not _LOOPS:
+            try:
+                import numba
+            except ImportError as error:
+                warnings.warn(
+                    f"numba does not import ({error}): the fits sum in numpy", stacklevel=2
+                )
+                _LOOPS.append(None)
+            else:
+                jit = numba.njit(cache=True, nogil=True)
+                loops = (_exponents, _probabilities, _log_likelihoods, _sums)
+                _LOOPS.append(SimpleNamespace(**{f.__name__[1:]: jit(f) for f in loops}))
+        return _LOOPS[0]
+
+
 def _exponents(x, v, g, b_g, c_g, kappa, out):
     """Each sample's slope shrinkage ``kappa`` and ``-b kappa (x - c)``, the logistic's
     exponent (a loop without branches: the compiler makes it vector instructions)."""
@@ -49,7 +66,6 @@ def _exponents(x, v, g, b_g, c_g, kappa, out):
         out[i] = -(b * kappa[i] * (x[i] - c_g[g[i]]))
 
 
-@_compiled
 def _probabilities(e, y, g, a_g, d_g, eps, s, p, q, chosen):
     """Each sample's logistic ``s = 1 / (1 + e)``, ``p = d + (a - d) s`` clipped to
     ``[eps, 1 - eps]``, ``q = 1 - p``, and the one its label ``y`` (0 or 1) picks (``p`` for 1,
@@ -66,7 +82,6 @@ def _probabilities(e, y, g, a_g, d_g, eps, s, p, q, chosen):
     return n_soft
 
 
-@_compiled
 def _log_likelihoods(y, w, g, sel, log_p, log_q, ll):
     """Add each selected sample's log-likelihood term to its group's, in the samples' order."""
     for i in range(y.size):
@@ -74,7 +89,6 @@ def _log_likelihoods(y, w, g, sel, log_p, log_q, ll):
             ll[g[i]] += w[i] * (y[i] * log_p[i] + (1 - y[i]) * log_q[i])
 
 
-@_compiled
 def _sums(x, y, w, g, sel, params, kappa, s, p, q, log_p, log_q, ll, grad, fisher):
     """Add each selected sample's log-likelihood term, gradient and Fisher information (in
     theta) to its group's, in the samples' order (sorted by group: a group's 15 sums stay in
@@ -143,23 +157,27 @@ def likelihood_sums(
     grad: np.ndarray,
     fisher: np.ndarray,
     ll_only: bool,
-) -> None:
+) -> bool:
     """Add the samples of the groups in ``sel`` to their groups' log-likelihoods ``ll`` (and,
     unless ``ll_only``, gradients ``grad`` and Fisher informations ``fisher``), as
-    :func:`~.likelihood._block_sums` sums them. ``per_group``: each group's ``(a, d, b, c, r)``
-    (:func:`~.likelihood.evaluate`); ``v``: the variances of ``x``; ``eps``: the clip of
-    probabilities."""
+    :func:`~.likelihood._block_sums` sums them; False (nothing added) where numba does not
+    import. ``per_group``: each group's ``(a, d, b, c, r)`` (:func:`~.likelihood.evaluate`);
+    ``v``: the variances of ``x``; ``eps``: the clip of probabilities."""
+    loops = _loops()
+    if loops is None:
+        return False
     a_g, d_g, b_g, c_g, r_g = per_group
     kappa, e = np.empty(x.size), np.empty(x.size)
-    _exponents(x, v, g, b_g, c_g, kappa, e)
+    loops.exponents(x, v, g, b_g, c_g, kappa, e)
     with np.errstate(over="ignore"):  # exp(large) = inf makes s = 0, as in numpy's path
         np.exp(e, out=e)
     s, p, q, chosen = np.empty(x.size), np.empty(x.size), np.empty(x.size), e  # e is done with
-    if _probabilities(e, y, g, a_g, d_g, eps, s, p, q, chosen):
+    if loops.probabilities(e, y, g, a_g, d_g, eps, s, p, q, chosen):
         log_p, log_q = np.log(p), np.log(q)
     else:  # labels 0 or 1: y log(p) + (1 - y) log(q) is the chosen one's log, to the bit
         log_p = log_q = np.log(chosen)  # (the other term is a signed zero)
     if ll_only:
-        _log_likelihoods(y, w, g, sel, log_p, log_q, ll)
+        loops.log_likelihoods(y, w, g, sel, log_p, log_q, ll)
     else:
-        _sums(x, y, w, g, sel, per_group, kappa, s, p, q, log_p, log_q, ll, grad, fisher)
+        loops.sums(x, y, w, g, sel, per_group, kappa, s, p, q, log_p, log_q, ll, grad, fisher)
+    return True

@@ -77,8 +77,8 @@ def evaluate(
         large = np.diff(np.searchsorted(g, np.arange(n_groups + 1))) > BLOCK
         small = active & ~large
         sums = (ll, grad, fisher, ll_only)
-        fourpl_kernels.likelihood_sums(x, y, w, v, g, small, per_group, EPS, *sums)
-        active = active & large
+        if fourpl_kernels.likelihood_sums(x, y, w, v, g, small, per_group, EPS, *sums):
+            active = active & large
     sel = active[g]
     if not sel.all():
         x, y, w, g, v = x[sel], y[sel], w[sel], g[sel], v[sel]

@@ -24,8 +24,8 @@ __all__ = ["footprint_entries"]
 
 #: Rays cast per batch, and (ray x footprint, edge) combinations per numpy chunk within a
 #: batch: they bound the memory of a large cast and keep its arrays in the CPU's cache.
-_RAYS = 1 << 12
-_CHUNK = 1 << 15
+_RAYS = 1 << 13
+_CHUNK = 1 << 16
 
 
 class _Shapes(NamedTuple):

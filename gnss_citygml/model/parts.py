@@ -214,18 +214,23 @@ class Part:
         if isinstance(model, Cn0Mixture):
             prior = np.full(self.h.size, 0.5) if self.prior is None else self.prior
             labels = model.row_labels(self.s, self.e, prior, self.sig)
-        else:
-            labels = model.label(self.s)
-        c_now = None if last is None else last.fit.c
-        looks = None if self.looks is None else self.looks[own]
-        weights = height_weights(
-            h, g, n_own, self.estimator.weighting, c=c_now, mask=seen, looks=looks
-        )
-        use = weights > 0  # rows left out weigh nothing: do not carry them through the fit
+        else:  # the rows the fits use, the own seen ones: the others stay closed, unused
+            labels = np.zeros(self.h.size, dtype=bool)
+            rows = np.flatnonzero(seen)
+            labels[rows] = model.label(self.s[rows])
+        weights = None  # the paper's MLE: every seen row counts once
+        use = seen
+        if self.estimator.weighting != "none":
+            c_now = None if last is None else last.fit.c
+            looks = None if self.looks is None else self.looks[own]
+            weights = height_weights(
+                h, g, n_own, self.estimator.weighting, c=c_now, mask=seen, looks=looks
+            )
+            use = weights > 0  # rows left out weigh nothing: do not carry them through the fit
         fit = fit_4pl(
             h[use],
             labels[own][use],
-            weights[use],
+            None if weights is None else weights[use],
             g[use],
             n_own,
             init=None if last is None else last.fit.params,
@@ -381,9 +386,10 @@ class Part:
 @dataclass(frozen=True)
 class LastFit:
     """A part's last fit of its own buildings (:meth:`Part.fitted`): the 4PLs, the rows they
-    used (``seen``, all the part's rows) and every row's label then, the share of each own
-    building's map labels (above ``c``) that changed from the fit before on the rows it used
-    (``change``; 1 at the first), and the signal ``model`` that labelled them."""
+    used (``seen``, all the part's rows) and the labels of the rows they used then (by the
+    paper's classifier, closed elsewhere), the share of each own building's map labels (above
+    ``c``) that changed from the fit before on the rows it used (``change``; 1 at the first),
+    and the signal ``model`` that labelled them."""
 
     fit: FourPLFit
     seen: np.ndarray

@@ -163,6 +163,16 @@ def test_visibility_model_ignores_signals_blocked_by_a_nearer_building(rng):
     assert seen.loc["B", "n_signals"] < (table["building"] == "B").sum()
 
 
+@pytest.mark.parametrize("dtype", ["int32", "Int64", "float64"])
+def test_the_order_along_the_ray_is_read_whatever_its_number_type(rng, dtype):
+    """A user's table may hold the order as numpy's or pandas' nullable integers (from
+    Parquet) or as floats: the same heights."""
+    table = occluded_pair(rng)
+    expected = estimate_heights(table)
+    table["order"] = table["order"].astype(dtype)
+    assert estimate_heights(table).equals(expected)
+
+
 def test_a_building_seen_only_behind_another_is_not_guessed(rng):
     table = occluded_pair(rng, alone=0.0)
     out = estimate_heights(table).set_index("id")

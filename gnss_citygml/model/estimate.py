@@ -360,8 +360,9 @@ def _columns(table: pd.DataFrame):
     cn0 = _cn0(table, "intersections")
     signal = _compact(pd.factorize(table["signal"])[0]) if "signal" in table.columns else None
     order = None
-    if "order" in table.columns:  # whole numbers as they are: a float copy is memory
-        whole = pd.api.types.is_integer_dtype(table["order"].dtype)
+    if "order" in table.columns:  # numpy's whole numbers as they are: a float copy is memory
+        dtype = table["order"].dtype  # (pandas' nullable ones may hold a missing value: floats)
+        whole = isinstance(dtype, np.dtype) and dtype.kind in "iu"
         order = table["order"].to_numpy() if whole else _numeric(table, "order")
     return np.asarray(ids, dtype=object), _compact(codes), height, cn0, signal, order
 

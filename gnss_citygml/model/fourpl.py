@@ -315,15 +315,7 @@ def c_interval(
     (numpy.ndarray, numpy.ndarray)
         Lower and upper ends per group (NaN for a group without a fit).
     """
-    x = np.asarray(x, dtype=float)
-    y = np.asarray(y, dtype=float)
-    g = np.asarray(groups, dtype=np.intp)
-    w = np.ones_like(x) if weights is None else np.asarray(weights, dtype=float)
-    v = np.zeros_like(x) if sd is None else np.asarray(sd, dtype=float) ** 2
-    n_groups = fit.c.size
-    if np.any(g[1:] < g[:-1]):
-        order = np.argsort(g, kind="stable")
-        x, y, w, g, v = x[order], y[order], w[order], g[order], v[order]
+    x, y, w, g, v, n_groups = _samples(x, y, weights, groups, fit.c.size, sd)
     theta = np.nan_to_num(_to_theta(fit.params))
     steps = _offsets(reach)
 

@@ -74,11 +74,15 @@ def evaluate(
     c_g = np.ascontiguousarray(theta[:, 2])
     per_group = (a_g, a_g * r_g, np.exp(theta[:, 1]), c_g, r_g)
     if fourpl_kernels.COMPILED:
-        large = np.diff(np.searchsorted(g, np.arange(n_groups + 1))) > BLOCK
+        large = np.zeros(n_groups, dtype=bool)  # groups of more than a block: numpy's products
+        if g.size > BLOCK:  # (none among fewer samples: the Levenberg-Marquardt tail's calls)
+            large = np.diff(np.searchsorted(g, np.arange(n_groups + 1))) > BLOCK
         small = active & ~large
         sums = (ll, grad, fisher, ll_only)
         if fourpl_kernels.likelihood_sums(x, y, w, v, g, small, per_group, EPS, *sums):
             active = active & large
+            if not active.any():  # (as a rule: a group of more than a block is rare)
+                return ll, grad, fisher
     sel = active[g]
     if not sel.all():
         x, y, w, g, v = x[sel], y[sel], w[sel], g[sel], v[sel]

@@ -92,10 +92,11 @@ def write_3dtiles(
 
     With ``validate``, the tileset is checked before the folder is renamed into place
     (:func:`gnss_citygml.validate.tiles3d.validate_tileset`: the 3D Tiles 1.1 JSON schemas in
-    ``schema_dir`` or its ``3dtiles-1.1`` folder, every GLB by Khronos' glTF validator, the
-    metadata extensions); an invalid tileset raises
-    :class:`~gnss_citygml.export.output.InvalidOutputError` and is not kept, and a missing
-    validator or schema folder is an :class:`InputError` saying how to install it."""
+    ``schema_dir`` or its ``3dtiles-1.1`` folder, else those bundled with the package; every
+    GLB by the package's own checks, and by Khronos' glTF validator when node is found; the
+    metadata extensions; the report's notes say which ran); an invalid tileset raises
+    :class:`~gnss_citygml.export.output.InvalidOutputError` and is not kept, and a schema
+    folder named that is not there is an :class:`InputError`."""
     path = Path(path)
     if path.name != TILESET:
         raise InputError(

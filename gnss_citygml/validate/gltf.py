@@ -6,8 +6,9 @@ compiled from Dart), not a command. The package ships a small node script,
 report per file; :func:`validate_gltf` runs it. The library is installed with npm into a cache
 folder of its own (:func:`node_folder`: ``$GNSS_CITYGML_NODE_DIR``, by default
 ``~/.cache/gnss-citygml/node``), at the version pinned here (:data:`GLTF_VALIDATOR_VERSION`),
-by :func:`install_gltf_validator`; nothing is installed behind the caller's back: validating
-without it is an :class:`~gnss_citygml.errors.InputError` saying what to run.
+by :func:`install_gltf_validator`. :func:`khronos_results` runs it with what the machine
+has: when node is found, installing the validator first if it is missing (npm, into that
+folder), and otherwise says why it did not run, for the report.
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ __all__ = [
     "GltfResult",
     "gltf_validator",
     "install_gltf_validator",
+    "khronos_results",
     "node_folder",
     "validate_gltf",
 ]
@@ -185,6 +187,36 @@ def validate_gltf(paths: Sequence[StrPath], *, node_dir: StrPath | None = None) 
         chunk = [Path(p) for p in paths[start : start + FILES_PER_RUN]]
         results.extend(_run(node, folder, chunk))
     return results
+
+
+def khronos_results(
+    paths: Sequence[StrPath], *, node_dir: StrPath | None = None, required: bool | None = None
+) -> tuple[list[GltfResult] | None, str]:
+    """Khronos' validator on ``paths`` if it can run, and the words a report names it by (its
+    version), or None and why it did not run.
+
+    ``required`` None: it runs when node is on the PATH, installed first into
+    :func:`node_folder` if missing; an install or a node that fails is said, not raised.
+    True: it must run (:func:`validate_gltf`'s errors are raised, nothing is installed).
+    False: it does not run."""
+    if required is False:
+        return None, "not asked for"
+    version = f"{GLTF_VALIDATOR_VERSION} (npm package gltf-validator, run by node)"
+    if required:
+        return validate_gltf(paths, node_dir=node_dir), version
+    if shutil.which("node") is None:
+        return None, "node not found"
+    folder = node_folder(node_dir)
+    if _installed_version(folder) != GLTF_VALIDATOR_VERSION:
+        try:
+            install_gltf_validator(folder)
+        except InputError as err:
+            return None, f"installing it with npm failed: {err.what}; {err.fix}"
+        version += f", installed now into {folder}"
+    try:
+        return validate_gltf(paths, node_dir=folder), version
+    except InputError as err:
+        return None, f"{err.what}; {err.fix}"
 
 
 def _run(node: str, folder: Path, paths: list[Path]) -> list[GltfResult]:

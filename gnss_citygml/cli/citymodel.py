@@ -75,8 +75,9 @@ def _run(job: Callable[..., ExportResult], output: Path, quiet: bool, **options)
         result = job(path, progress=told, **options)
     for building, reason in result.skipped.itertuples(index=False):
         click.echo(f"skipped {user_text(building)}: {reason}", err=True)
-    for note in result.report.notes if result.report is not None else []:
-        click.echo(f"note: {escape_controls(note)}", err=True)  # e.g. which validators ran
+    notes = result.report.notes if result.report is not None and not quiet else []
+    for note in notes:  # what the validation left out, which validators ran
+        click.echo(f"note: {escape_controls(note)}", err=True)
     to = "standard output" if output == STDOUT else str(output)
     click.echo(result.summary(to), err=output == STDOUT)
 

@@ -1,7 +1,8 @@
 """Validation of CityGML 2.0, CityJSON and CityJSONSeq files (schemas, structure, geometry),
-and of 3D Tiles 1.1 output.
+and of 3D Tiles 1.1 tilesets.
 
-:func:`validate_file` finds the format from the file's content and returns a :class:`Report`
+:func:`validate_file` finds the format from the file's content (a tileset: a JSON object with
+``asset.version`` and ``root``) and returns a :class:`Report`
 listing every error with the object it concerns and the rule it breaks. The checks live in the
 modules of this package:
 
@@ -13,15 +14,16 @@ modules of this package:
 - :mod:`.geometry`: the solids of both formats, with the matching val3dity error codes;
 - :mod:`.schemas`: where the official schemas are found;
 - :mod:`.tiles3d`: 3D Tiles 1.1, :func:`validate_tileset`: a ``tileset.json`` and its external
-  tilesets against the official JSON schemas, their content files there, the glTF content
-  through Khronos' glTF validator (:mod:`.gltf`, an npm package run by node, installed by
-  :func:`install_gltf_validator`) and its ``EXT_mesh_features`` and ``EXT_structural_metadata``,
-  which that validator does not know (:mod:`.gltf_metadata`).
+  tilesets against the official JSON schemas (bundled with the package), their content files
+  there, the glTF content by the package's own checks (:mod:`.gltf_structure`) and, when node
+  is found, Khronos' glTF validator (:mod:`.gltf`, an npm package run by node, installed by
+  :func:`install_gltf_validator`), and its ``EXT_mesh_features`` and
+  ``EXT_structural_metadata``, which that validator does not know (:mod:`.gltf_metadata`).
 
 A report is ``valid`` when it lists no error. A file that cannot be validated at all (missing,
-not CityGML or CityJSON, a CityGML version other than 2.0, a CityGML with a ``<!DOCTYPE>``,
-schemas not found) raises an :class:`~gnss_citygml.errors.InputError` instead: exit code 0
-valid, 1 invalid, 2 could not validate.
+not CityGML, CityJSON or a tileset, a CityGML version other than 2.0, a CityGML with a
+``<!DOCTYPE>``, schemas not found) raises an :class:`~gnss_citygml.errors.InputError`
+instead: exit code 0 valid, 1 invalid, 2 could not validate.
 
 Bad bytes are never valid: a file cut short or otherwise not well-formed XML or JSON is invalid
 (rule ``xml-syntax`` or ``json-syntax``, with the line and column of the first fatal error), as

@@ -42,6 +42,9 @@ GLTF_VALIDATOR_VERSION = "2.0.0-dev.3.10"
 NODE_DIR_ENV = "GNSS_CITYGML_NODE_DIR"
 #: The node script run (next to this module, shipped with the package).
 SCRIPT = Path(__file__).with_name("gltf_validate.mjs")
+#: Seconds an install on the fly (:func:`khronos_results`) may take: a machine with node and
+#: no network falls back to the package's own checks soon.
+AUTO_INSTALL_TIMEOUT = 120
 #: Files per node process: keeps the command line well under the system's limit.
 FILES_PER_RUN = 200
 #: Messages kept per file (errors first); the counts are always whole.
@@ -115,10 +118,11 @@ def gltf_validator(node_dir: StrPath | None = None) -> Path:
     )
 
 
-def install_gltf_validator(node_dir: StrPath | None = None) -> Path:
+def install_gltf_validator(node_dir: StrPath | None = None, *, timeout: float = 600) -> Path:
     """Install Khronos' glTF validator with npm into :func:`node_folder` unless it is there.
 
-    Runs ``npm install --prefix FOLDER gltf-validator@VERSION`` (the npm registry must be
+    Runs ``npm install --prefix FOLDER gltf-validator@VERSION``, stopped after ``timeout``
+    seconds (the npm registry must be
     reachable); returns the folder.
 
     Raises
@@ -144,7 +148,7 @@ def install_gltf_validator(node_dir: StrPath | None = None) -> Path:
             + [f"gltf-validator@{GLTF_VALIDATOR_VERSION}"],
             capture_output=True,
             text=True,
-            timeout=600,
+            timeout=timeout,
         )
         reason = first_line(RuntimeError(run.stderr.strip())) if run.returncode else ""
     except (OSError, subprocess.TimeoutExpired) as exc:
@@ -209,7 +213,7 @@ def khronos_results(
     folder = node_folder(node_dir)
     if _installed_version(folder) != GLTF_VALIDATOR_VERSION:
         try:
-            install_gltf_validator(folder)
+            install_gltf_validator(folder, timeout=AUTO_INSTALL_TIMEOUT)
         except InputError as err:
             return None, f"installing it with npm failed: {err.what}; {err.fix}"
         version += f", installed now into {folder}"

@@ -172,6 +172,14 @@ STRUCTURE = {
         lambda doc, b: doc["accessors"][0].pop("max"),
         "/accessors/0: a POSITION accessor without min and max",
     ),
+    "component type a list": (  # values of the wrong JSON type: errors, not a crash
+        lambda doc, b: doc["accessors"][1].update(componentType=[5126], count={}),
+        "/accessors/1: componentType, type or count (at least 1) is not one of glTF's",
+    ),
+    "view offset a string": (
+        lambda doc, b: doc["bufferViews"][0].update(byteOffset="0"),
+        "/bufferViews/0: byteOffset or byteLength is not a non-negative integer",
+    ),
     "no such accessor": (
         lambda doc, b: doc["meshes"][0]["primitives"][0]["attributes"].update(NORMAL=9),
         "attributes/NORMAL: accessor 9 does not exist",

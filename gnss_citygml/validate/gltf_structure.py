@@ -132,6 +132,13 @@ def _list(doc: dict, key: str) -> list:
     return value if isinstance(value, list) else []
 
 
+def _lookup(table: dict, item: dict, key: str):
+    """``table``'s entry for ``item[key]``; None if there is none (or it is not a key at all:
+    a list, say)."""
+    value = item.get(key)
+    return table.get(value) if isinstance(value, int | str) else None
+
+
 def _int(value: object) -> TypeGuard[int]:
     return isinstance(value, int) and not isinstance(value, bool) and value >= 0
 
@@ -193,10 +200,8 @@ class _Gltf:
 
     def _accessor(self, i: int, accessor: dict) -> Issues:
         at = f"/accessors/{i}"
-        dtype, width = (
-            COMPONENT_TYPES.get(accessor.get("componentType")),
-            TYPES.get(accessor.get("type")),
-        )
+        dtype = _lookup(COMPONENT_TYPES, accessor, "componentType")
+        width = _lookup(TYPES, accessor, "type")
         count = accessor.get("count")
         if dtype is None or width is None or not (_int(count) and count >= 1):
             yield at, "componentType, type or count (at least 1) is not one of glTF's"
@@ -236,7 +241,8 @@ class _Gltf:
             if not (_int(index) and index < len(self.accessors)):
                 yield f"{at}/attributes/{name}", f"accessor {index!r} does not exist"
                 continue
-            counts.add(self.accessors[index].get("count"))
+            count = self.accessors[index].get("count")
+            counts.add(count if _int(count) else None)
             if name == "POSITION" and not {"min", "max"} <= set(self.accessors[index]):
                 yield f"/accessors/{index}", "a POSITION accessor without min and max"
         if len(counts) > 1:
@@ -268,13 +274,16 @@ class _Gltf:
         if i not in self.sound or view_index is None or self.binary is None:
             return None
         view = self.views[view_index]
-        if view.get("buffer") != 0 or "uri" in self.buffers[0]:
+        if view.get("buffer") != 0 or not self.buffers or "uri" in self.buffers[0]:
             return None
         dtype, width = COMPONENT_TYPES[accessor["componentType"]], TYPES[accessor["type"]]
         if width != 1 and accessor["type"].startswith("MAT") and dtype.itemsize < 4:
             return None  # columns padded to 4 bytes: not read
-        start = view.get("byteOffset", 0) + accessor.get("byteOffset", 0)
+        offsets = view.get("byteOffset", 0), accessor.get("byteOffset", 0)
         stride = view.get("byteStride") or dtype.itemsize * width
+        if not (_int(offsets[0]) and _int(offsets[1]) and _int(stride)):
+            return None  # an error of the view or the accessor
+        start = offsets[0] + offsets[1]
         count = accessor["count"]
         if start + stride * (count - 1) + dtype.itemsize * width > len(self.binary):
             return None  # past the chunk: an error of the buffer

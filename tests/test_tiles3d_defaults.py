@@ -290,3 +290,21 @@ def test_the_validate_command_checks_a_tileset(tmp_path):
     done = _cli(["validate", bad], tmp_path, str(empty))
     assert done.returncode == 1, done.stdout + done.stderr
     assert "0.glb\tgltf-structure\t0.glb: /accessors/0: a POSITION accessor" in done.stdout
+
+
+@pytest.mark.parametrize(
+    "change",
+    [
+        lambda prop: prop.update(componentType={"not": "a name"}),
+        lambda prop: prop.update(type="ENUM", enumType=["a list"]),
+    ],
+)
+def test_metadata_of_the_wrong_json_type_is_an_error_not_a_crash(tmp_path, change):
+    doc, binary = buildings()
+    doc = copy.deepcopy(doc)
+    schema = doc["extensions"]["EXT_structural_metadata"]["schema"]
+    change(schema["classes"]["building"]["properties"]["height"])
+    path = write(tmp_path, {"tileset.json": tileset(tile("0.glb")), "0.glb": (doc, binary)})
+    report = validate_tileset(path, khronos=False)
+    assert {e.rule for e in report.errors} == {"gltf-metadata"}
+    assert any("/schema/classes/building/properties/height" in e.message for e in report.errors)

@@ -143,7 +143,8 @@ def write_3dtiles(
             f"{len(refused)} building(s)' height range not drawn: {listing(refused)} (a bound "
             "missing or not finite, the upper not above the lower, or more than "
             f"{MAX_HEIGHT_ABOVE_GROUND:.0f} m from the ground or tall: no structure in Great "
-            "Britain is; their height_lower and height_upper are in the tiles as they are)",
+            "Britain is; the tiles' properties keep their height_lower and height_upper, a "
+            "value that is not finite as no data)",
             stacklevel=2,
         )
     return plan.result(path, report)

@@ -239,3 +239,57 @@ def test_without_its_schemas_the_tileset_is_not_kept_and_the_error_says_what_to_
         write_3dtiles(buildings, tmp_path / "city" / "tileset.json", schema_dir=tmp_path / "none")
     assert "--no-validate" in caught.value.fix
     assert list(tmp_path.iterdir()) == []  # no folder, and nothing half-written beside it
+
+
+def _table_of(path):
+    """Every leaf's property table: {id: {property: value}} of the building rows, and the ids
+    of the range rows."""
+    doc = json.loads(path.read_text())
+    rows, ranged = {}, []
+    for leaf in leaves(doc["root"]):
+        gltf, binary = read_glb(path.parent / leaf["content"]["uri"])
+        table = gltf["extensions"]["EXT_structural_metadata"]["propertyTables"][0]
+        ids, part = strings(gltf, binary, table, "id"), strings(gltf, binary, table, "part")
+        measured = view(gltf, binary, table["properties"]["measured_height"]["values"], np.float64)
+        for k, (name, kind) in enumerate(zip(ids, part, strict=True)):
+            if kind == "range":
+                ranged.append(name)
+            else:
+                rows[name] = {"measured_height": float(measured[k])}
+    return rows, sorted(ranged)
+
+
+def test_ranges_no_building_can_have_are_not_drawn_and_said(buildings, tmp_path):
+    """A range beyond what a building can be (far taller than 400 m, infinite, deep below the
+    ground, half missing) is not drawn, with a warning naming the buildings; the others are."""
+    frame = buildings.copy()
+    frame["height_lower"] = [32.0, 30.0, 28.0, -2000.0, np.nan]
+    frame["height_upper"] = [2e7, np.inf, 30.5, 29.0, np.nan]
+    frame.loc[1, "height_lower"], frame.loc[1, "height_upper"] = 39.0, np.inf
+    path = tmp_path / "city" / "tileset.json"
+    with pytest.warns(UserWarning, match=r"3 building\(s\)' height range not drawn") as caught:
+        write_3dtiles(frame, path, ranges=True, grid_dir=BUNDLED_GRID_DIR, validate=False)
+    message = str(caught[0].message)
+    assert "box (32 to 2e+07 m)" in message and "yard (39 to inf m)" in message
+    assert "parts (-2000 to 29 m)" in message and "ell" not in message
+    assert _table_of(path)[1] == ["ell"]
+    frame["height_upper"] = [33.0, np.nan, 30.5, 29.0, np.nan]  # a bound missing
+    frame["height_lower"] = [32.0, 39.0, 28.0, 26.0, np.nan]
+    with pytest.warns(UserWarning, match=r"1 building\(s\)' height range not drawn: yard"):
+        write_3dtiles(frame, tmp_path / "b" / "tileset.json", ranges=True,
+                      grid_dir=BUNDLED_GRID_DIR, validate=False)  # fmt: skip
+
+
+@pytest.mark.parametrize("column", ["measured_height", "part"])
+def test_an_input_column_named_like_a_tiles_property_does_not_shadow_it(
+    buildings, tmp_path, column
+):
+    """The tiles' own properties (measured_height, which the viewer colours by, and part)
+    are the tool's: an input column of that name is left out, with a warning."""
+    frame = buildings.assign(**{column: "not this"})
+    path = tmp_path / "city" / "tileset.json"
+    with pytest.warns(UserWarning, match=f"the input's column {column} is left out"):
+        write_3dtiles(frame, path, grid_dir=BUNDLED_GRID_DIR, validate=False)
+    rows, _ = _table_of(path)
+    assert rows["box"]["measured_height"] == pytest.approx(33.25 - 21.5)
+    assert sorted(rows) == ["box", "ell", "parts", "yard"]

@@ -1,7 +1,8 @@
 """The wheel as a user gets it: built from the tree, installed into a clean venv, it holds the
-grids with their licence, the sample city, the contracts (schemas/) and the command, and runs
-`gnss-citygml demo` with no other file, no network and nothing of the developer's (no grid
-folder, no PROJ user grids).
+grids with their licence, the sample city, the contracts (schemas/), the 3D Tiles schemas with
+their licence and the command, and runs `gnss-citygml demo` and the README's 3D Tiles command
+with no other file, no network and nothing of the developer's (no grid folder, no PROJ user
+grids, none of the project's variables, no node unless a test puts it there).
 
 The clean venv gets the third-party packages through a ``.pth`` file naming the development
 venv's site-packages (installing them would need the network). ``.pth`` files inside a folder
@@ -27,6 +28,8 @@ from gnss_citygml.cli.demo import OUTPUTS, REPORT_OUTPUTS
 from gnss_citygml.contracts import SCHEMA_FOLDER
 from gnss_citygml.files.styles import heights_qml
 from gnss_citygml.geodesy.grids import BUNDLED_GRID_DIR, GRIDS
+from gnss_citygml.validate import GLTF_VALIDATOR_VERSION
+from gnss_citygml.validate.schemas import BUNDLED_TILES3D_SCHEMAS
 
 ROOT = Path(__file__).resolve().parents[1]
 CITY_FILES = ("observations.parquet", "footprints.gpkg", "dem.tif", "truth.csv")
@@ -94,9 +97,9 @@ def user_env(tmp_path_factory):
     variables, no virtualenv or path settings of the developer's."""
     home = tmp_path_factory.mktemp("home")
     env = dict(os.environ, HOME=str(home))
-    for name in ("GNSS_CITYGML_GRID_DIR", "GNSS_CITYGML_SHARED_DATA", "GNSS_CITYGML_SCHEMA_DIR",
-                 "PROJ_USER_WRITABLE_DIRECTORY", "XDG_DATA_HOME", "PYTHONPATH", "VIRTUAL_ENV",
-                 "PROJ_DATA", "PROJ_LIB"):  # fmt: skip
+    project = [name for name in env if name.startswith("GNSS_CITYGML_")]  # none of them
+    for name in ("PROJ_USER_WRITABLE_DIRECTORY", "XDG_DATA_HOME", "XDG_CACHE_HOME", "PYTHONPATH",
+                 "VIRTUAL_ENV", "PROJ_DATA", "PROJ_LIB", *project):  # fmt: skip
         env.pop(name, None)
     return env
 
@@ -117,6 +120,17 @@ def test_the_wheel_holds_the_grids_their_licence_the_city_and_the_command(wheel)
         for name in SCHEMA_FOLDER.iterdir():  # the contracts: JSON Schemas, CityJSON Extension
             assert archive.read("gnss_citygml/schemas/" + name.name) == name.read_bytes()
         assert "gnss_citygml/validate/gltf_validate.mjs" in names  # runs the glTF validator
+        for schema in BUNDLED_TILES3D_SCHEMAS.rglob("*"):  # the 3D Tiles 1.1 JSON schemas
+            if schema.is_file():
+                name = (
+                    "gnss_citygml/data/3dtiles-1.1/"
+                    + schema.relative_to(BUNDLED_TILES3D_SCHEMAS).as_posix()
+                )
+                assert archive.read(name) == schema.read_bytes(), name
+        assert (
+            "CC BY 4.0"
+            in archive.read(f"{info}/licenses/gnss_citygml/data/3dtiles-1.1/LICENSE").decode()
+        )
         assert f"{info}/licenses/LICENSE" in names
         notice = archive.read(f"{info}/licenses/gnss_citygml/data/grids/LICENSE").decode()
         assert "Ordnance Survey" in notice and "Redistribution and use" in notice
@@ -162,3 +176,36 @@ def test_the_installed_wheel_runs_the_demo_offline(clean_venv, user_env, tmp_pat
     args = ["convert", "OUT/heights.gpkg", "-o", "typed.city.json", "--typed-attributes"]
     typed = _run([command, *args], env=user_env, cwd=work)
     assert "extension" in typed.stdout.split("valid (")[1]
+
+    # 3D Tiles as the README writes them, with no node on the PATH: the schemas bundled with
+    # the package and its own checks of every GLB, which the output names
+    hidden = tmp_path / "path-without-node"
+    hidden.mkdir()
+    no_node = dict(user_env, PATH=str(hidden))
+    tiles = _run([command, "convert", "OUT/heights.gpkg", "-o", "t/tileset.json"], env=no_node,
+                 cwd=work)  # fmt: skip
+    assert "-> t/tileset.json, valid (json-schema, content, gltf-structure, gltf-metadata)" in (
+        tiles.stdout
+    )
+    assert "Khronos' glTF validator not run: node not found" in tiles.stderr
+    assert "(bundled with gnss-citygml)" in tiles.stderr
+    checked = _run([command, "validate", "t/tileset.json"], env=no_node, cwd=work)
+    assert ": 3D Tiles 1.1, " in checked.stdout and ": valid (" in checked.stdout
+
+
+def test_the_installed_wheel_runs_khronos_validator_when_node_is_there(
+    clean_venv, user_env, tmp_path, node_dir
+):
+    """node on the PATH and the validator installed where the package looks by default (in
+    the user's cache folder, as an earlier run installs it): it runs, named in the output."""
+    shutil.copytree(node_dir, Path(user_env["HOME"]) / ".cache" / "gnss-citygml" / "node")
+    command = clean_venv / "bin" / "gnss-citygml"
+    import geopandas as gpd
+
+    city = gpd.read_file(Path(gnss_citygml.__file__).parent / "data" / "city" / "footprints.gpkg")
+    city.assign(ground=20.0, height=31.5).to_file(tmp_path / "heights.gpkg")
+    args = ["convert", "heights.gpkg", "--ground-field", "ground", "-o", "t/tileset.json"]
+    tiles = _run([command, *args], env=user_env, cwd=tmp_path)
+    assert "valid (json-schema, content, gltf-structure, gltf, gltf-metadata)" in tiles.stdout
+    note = f"glTF: the package's own checks and Khronos' glTF validator {GLTF_VALIDATOR_VERSION}"
+    assert note in tiles.stderr

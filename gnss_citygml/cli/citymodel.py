@@ -75,6 +75,9 @@ def _run(job: Callable[..., ExportResult], output: Path, quiet: bool, **options)
         result = job(path, progress=told, **options)
     for building, reason in result.skipped.itertuples(index=False):
         click.echo(f"skipped {user_text(building)}: {reason}", err=True)
+    notes = result.report.notes if result.report is not None and not quiet else []
+    for note in notes:  # what the validation left out, which validators ran
+        click.echo(f"note: {escape_controls(note)}", err=True)
     to = "standard output" if output == STDOUT else str(output)
     click.echo(result.summary(to), err=output == STDOUT)
 
@@ -269,11 +272,14 @@ def export(
     help="Errors listed (all are counted).",
 )
 def validate(path, schema_dir, max_errors):
-    """Check a CityGML 2.0, CityJSON or CityJSONSeq file: exit 0 valid, 1 invalid, 2 error.
+    """Check a CityGML 2.0, CityJSON, CityJSONSeq file or 3D Tiles tileset.json: exit 0 valid,
+    1 invalid, 2 error.
 
-    One line per error: object id (- for the whole file), rule, message. A file cut short or
-    not well-formed is invalid (1); one that cannot be checked (missing, not a city model, a
-    CityGML with a <!DOCTYPE>, schemas missing) is an error (2)."""
+    One line per error: object id (- for the whole file; a tileset's file), rule, message. A
+    file cut short or not well-formed is invalid (1); one that cannot be checked (missing, not
+    a city model, a CityGML with a <!DOCTYPE>, schemas missing) is an error (2). A tileset is
+    checked against the 3D Tiles 1.1 schemas (bundled), its GLBs by the package's own checks
+    and, when node is found, Khronos' glTF validator (a note says which ran)."""
     from ..validate import validate_file
 
     report = validate_file(path, schema_dir=schema_dir)

@@ -121,7 +121,8 @@ SCHEMA_DIR = click.option(
     "--schema-dir",
     type=click.Path(file_okay=False, path_type=Path),
     envvar="GNSS_CITYGML_SCHEMA_DIR",
-    help="Official schemas (CityJSON JSON schemas; optionally a schemas.opengis.net tree).",
+    help="Official schemas (CityJSON JSON schemas; optionally a schemas.opengis.net tree, "
+    "3D Tiles 1.1 schemas in 3dtiles-1.1/, else those bundled).",
 )
 LAYER = click.option("--layer", help="Footprint layer (default: the only polygon layer).")
 ID_FIELD = click.option(

@@ -11,8 +11,11 @@ OSTN15/OSGM15) relative to the square's centre (the tile's ``transform``: float3
 then keep a tenth of a millimetre), each building one feature (``EXT_mesh_features``) with its
 row of a property table (``EXT_structural_metadata``): id, height (m ODN), ground, measured
 height, and, when the table has them, the interval (``height_lower``, ``height_upper``),
-``status``, ``n_signals``, ``method`` and ``height_source``. With ``ranges``, a second,
-translucent prism from ``height_lower`` to ``height_upper`` shows each height's uncertainty.
+``status``, ``n_signals``, ``method`` and ``height_source``; the measured height (roof above
+ground) and ``part`` are the tool's own (an input column of either name is left out, with a
+warning). With ``ranges``, a second, translucent prism from ``height_lower`` to
+``height_upper`` shows each height's uncertainty; a range no building can have (a bound
+missing or infinite, more than 400 m tall or from the ground) is not drawn, with a warning.
 
 The squares are written one at a time (:meth:`~gnss_citygml.export.plan.Plan.chunks` of their
 rows), so memory holds one square's buildings besides the table. The folder appears whole
@@ -22,6 +25,7 @@ or not at all (:func:`~gnss_citygml.files.paths.atomic_folder`).
 from __future__ import annotations
 
 import json
+import warnings
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -31,7 +35,7 @@ import numpy as np
 import pandas as pd
 import shapely
 
-from ..errors import InputError
+from ..errors import InputError, listing
 from ..files.paths import StrPath, atomic_folder
 from ..files.provenance import KEY
 from ..geodesy.grid_refs import tile_index, tile_names
@@ -39,7 +43,7 @@ from ..validate import Report
 from .glb import ELEMENT_ARRAY_BUFFER, Glb
 from .meshes import Mesh, prism_mesh
 from .output import ExportResult, Progress, checked
-from .plan import Plan, prepare_buildings
+from .plan import MAX_HEIGHT_ABOVE_GROUND, Plan, prepare_buildings
 
 __all__ = ["TILESET", "write_3dtiles"]
 
@@ -65,6 +69,11 @@ OPTIONAL = {
     "status": "STRING",
     "method": "STRING",
     "height_source": "STRING",
+}
+#: The tiles' own properties, made by the tool (an input column of that name is left out).
+OWN = {
+    "measured_height": "the roof's height above the ground, height - ground",
+    "part": "building or range",
 }
 
 
@@ -92,10 +101,11 @@ def write_3dtiles(
 
     With ``validate``, the tileset is checked before the folder is renamed into place
     (:func:`gnss_citygml.validate.tiles3d.validate_tileset`: the 3D Tiles 1.1 JSON schemas in
-    ``schema_dir`` or its ``3dtiles-1.1`` folder, every GLB by Khronos' glTF validator, the
-    metadata extensions); an invalid tileset raises
-    :class:`~gnss_citygml.export.output.InvalidOutputError` and is not kept, and a missing
-    validator or schema folder is an :class:`InputError` saying how to install it."""
+    ``schema_dir`` or its ``3dtiles-1.1`` folder, else those bundled with the package; every
+    GLB by the package's own checks, and by Khronos' glTF validator when node is found; the
+    metadata extensions; the report's notes say which ran); an invalid tileset raises
+    :class:`~gnss_citygml.export.output.InvalidOutputError` and is not kept, and a schema
+    folder named that is not there is an :class:`InputError`."""
     path = Path(path)
     if path.name != TILESET:
         raise InputError(
@@ -104,15 +114,18 @@ def write_3dtiles(
             fix=f"give -o FOLDER/{TILESET} (the folder is written whole)",
         )
     plan = prepare_buildings(buildings, strict=strict)
+    _warn_shadowed(buildings)
     squares = _squares(plan)
-    leaves = []
+    leaves, refused = [], []
     with atomic_folder(path.parent, overwrite=overwrite, mark=TILESET) as work:
         (work / "tiles").mkdir()
         for name, rows in squares:
             frame = _frame(plan, rows)
             if frame is None:
                 continue
-            leaves.append(_write_square(work, name, frame, ranges, grid_dir))
+            leaf, not_drawn = _write_square(work, name, frame, ranges, grid_dir)
+            leaves.append(leaf)
+            refused += not_drawn
             if progress is not None:
                 progress(len(frame))
         if not leaves:
@@ -125,7 +138,28 @@ def write_3dtiles(
         (work / TILESET).write_text(json.dumps(tileset, indent=1, allow_nan=False))
         (work / "viewer.html").write_text(_viewer())
         report = _validated(work, path, schema_dir) if validate else None
+    if refused:
+        warnings.warn(
+            f"{len(refused)} building(s)' height range not drawn: {listing(refused)} (a bound "
+            "missing or not finite, the upper not above the lower, or more than "
+            f"{MAX_HEIGHT_ABOVE_GROUND:.0f} m from the ground or tall: no structure in Great "
+            "Britain is; the tiles' properties keep their height_lower and height_upper, a "
+            "value that is not finite as no data)",
+            stacklevel=2,
+        )
     return plan.result(path, report)
+
+
+def _warn_shadowed(buildings: pd.DataFrame) -> None:
+    """Warn of input columns named like the tiles' own properties (:data:`OWN`), which are
+    left out: the tool's win."""
+    for column in OWN:
+        if column in buildings.columns:
+            warnings.warn(
+                f"the input's column {column} is left out of the tiles: their {column} is "
+                f"the tool's ({OWN[column]}); rename the column to keep it elsewhere",
+                stacklevel=3,
+            )
 
 
 def _validated(work: Path, path: Path, schema_dir: StrPath | None) -> Report:
@@ -160,15 +194,18 @@ def _frame(plan: Plan, rows: np.ndarray) -> gpd.GeoDataFrame | None:
     return pd.concat(frames, ignore_index=True) if frames else None
 
 
-def _write_square(work: Path, name: str, frame, ranges: bool, grid_dir) -> dict[str, Any]:
-    """Write one square's GLB; return its leaf of the tileset."""
+def _write_square(
+    work: Path, name: str, frame, ranges: bool, grid_dir
+) -> tuple[dict[str, Any], list[str]]:
+    """Write one square's GLB; return its leaf of the tileset and the buildings whose range
+    was not drawn (:func:`_band`)."""
     footprints = frame.geometry.to_numpy()
     mesh = prism_mesh(
         footprints, frame["ground"].to_numpy(float), frame["height"].to_numpy(float), grid_dir
     )
     centre = (mesh.ecef.min(axis=0) + mesh.ecef.max(axis=0)) / 2
     glb = Glb()
-    band, known = _band(frame, footprints, grid_dir) if ranges else (None, [])
+    band, known, refused = _band(frame, footprints, grid_dir) if ranges else (None, [], [])
     table = _property_table(glb, frame, known)
     building = _material(glb, BUILDING_COLOUR)
     primitives = [_primitive(glb, mesh, centre, len(frame), building)]
@@ -187,25 +224,38 @@ def _write_square(work: Path, name: str, frame, ranges: bool, grid_dir) -> dict[
     (work / "tiles" / f"{name}.glb").write_bytes(glb.to_bytes())
     lon, lat, h = np.concatenate(lon), np.concatenate(lat), np.concatenate(h)
     region = [lon.min(), lat.min(), lon.max(), lat.max(), h.min(), h.max()]
-    return {
+    leaf = {
         "name": name,
         "region": [float(v) for v in region],
         "transform": [1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, *map(float, centre), 1],
     }
+    return leaf, refused
 
 
-def _band(frame: pd.DataFrame, footprints: np.ndarray, grid_dir) -> tuple[Mesh | None, Any]:
+def _band(
+    frame: pd.DataFrame, footprints: np.ndarray, grid_dir
+) -> tuple[Mesh | None, Any, list[str]]:
     """The prisms from each building's ``height_lower`` to its ``height_upper``, their
-    features numbered after the buildings' (:func:`_property_table`), and the rows of the
-    buildings with an interval (None and none if no building has one)."""
+    features numbered after the buildings' (:func:`_property_table`), the rows of the
+    buildings with an interval drawn (None and none if no building has one), and the
+    buildings with an interval no building can have, not drawn (``id (lower to upper m)``):
+    a bound missing or not finite, the upper not above the lower, or more than
+    :data:`~.plan.MAX_HEIGHT_ABOVE_GROUND` tall or from the ground."""
     missing = pd.Series(np.nan, index=frame.index)
-    lower, upper = (frame.get(c, missing) for c in ("height_lower", "height_upper"))
-    known = np.flatnonzero(np.isfinite(lower) & np.isfinite(upper) & (upper > lower))
+    lower, upper = (frame.get(c, missing).to_numpy(float) for c in ("height_lower", "height_upper"))
+    ground, most = frame["ground"].to_numpy(float), MAX_HEIGHT_ABOVE_GROUND
+    with np.errstate(invalid="ignore"):
+        drawn = np.isfinite(lower) & np.isfinite(upper) & (upper > lower)
+        drawn &= (upper - lower <= most) & (upper <= ground + most) & (lower >= ground - most)
+    refused = [
+        f"{frame['id'].iloc[i]} ({lower[i]:g} to {upper[i]:g} m)"
+        for i in np.flatnonzero(~drawn & ~(np.isnan(lower) & np.isnan(upper)))
+    ]
+    known = np.flatnonzero(drawn)
     if not known.size:
-        return None, known
-    low, high = lower.iloc[known].to_numpy(float), upper.iloc[known].to_numpy(float)
-    mesh = prism_mesh(footprints[known], low, high, grid_dir)
-    return _renumbered(mesh, len(frame) + np.arange(known.size)), known
+        return None, known, refused
+    mesh = prism_mesh(footprints[known], lower[known], upper[known], grid_dir)
+    return _renumbered(mesh, len(frame) + np.arange(known.size)), known, refused
 
 
 def _renumbered(mesh: Mesh, rows: np.ndarray) -> Mesh:
@@ -270,9 +320,8 @@ def _property_table(glb: Glb, frame: pd.DataFrame, ranged: Any) -> dict[str, Any
             continue
         properties[column] = _schema_property(kind)
         values[column] = _values(glb, rows[column], kind)
-    if "measured_height" not in rows.columns and "ground" in rows.columns:
-        properties["measured_height"] = _schema_property("FLOAT64")
-        values["measured_height"] = _values(glb, rows["height"] - rows["ground"], "FLOAT64")
+    properties["measured_height"] = _schema_property("FLOAT64")  # (the input's: _warn_shadowed)
+    values["measured_height"] = _values(glb, rows["height"] - rows["ground"], "FLOAT64")
     properties["part"] = _schema_property("STRING")
     part = ["building"] * len(frame) + ["range"] * len(ranged)
     values["part"] = _values(glb, pd.Series(part), "STRING")

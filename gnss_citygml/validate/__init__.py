@@ -1,7 +1,8 @@
 """Validation of CityGML 2.0, CityJSON and CityJSONSeq files (schemas, structure, geometry),
-and of 3D Tiles 1.1 output.
+and of 3D Tiles 1.1 tilesets.
 
-:func:`validate_file` finds the format from the file's content and returns a :class:`Report`
+:func:`validate_file` finds the format from the file's content (a tileset: a JSON object with
+``asset.version`` and ``root``) and returns a :class:`Report`
 listing every error with the object it concerns and the rule it breaks. The checks live in the
 modules of this package:
 
@@ -13,15 +14,16 @@ modules of this package:
 - :mod:`.geometry`: the solids of both formats, with the matching val3dity error codes;
 - :mod:`.schemas`: where the official schemas are found;
 - :mod:`.tiles3d`: 3D Tiles 1.1, :func:`validate_tileset`: a ``tileset.json`` and its external
-  tilesets against the official JSON schemas, their content files there, the glTF content
-  through Khronos' glTF validator (:mod:`.gltf`, an npm package run by node, installed by
-  :func:`install_gltf_validator`) and its ``EXT_mesh_features`` and ``EXT_structural_metadata``,
-  which that validator does not know (:mod:`.gltf_metadata`).
+  tilesets against the official JSON schemas (bundled with the package), their content files
+  there, the glTF content by the package's own checks (:mod:`.gltf_structure`) and, when node
+  is found, Khronos' glTF validator (:mod:`.gltf`, an npm package run by node, installed by
+  :func:`install_gltf_validator`), and its ``EXT_mesh_features`` and
+  ``EXT_structural_metadata``, which that validator does not know (:mod:`.gltf_metadata`).
 
 A report is ``valid`` when it lists no error. A file that cannot be validated at all (missing,
-not CityGML or CityJSON, a CityGML version other than 2.0, a CityGML with a ``<!DOCTYPE>``,
-schemas not found) raises an :class:`~gnss_citygml.errors.InputError` instead: exit code 0
-valid, 1 invalid, 2 could not validate.
+not CityGML, CityJSON or a tileset, a CityGML version other than 2.0, a CityGML with a
+``<!DOCTYPE>``, schemas not found) raises an :class:`~gnss_citygml.errors.InputError`
+instead: exit code 0 valid, 1 invalid, 2 could not validate.
 
 Bad bytes are never valid: a file cut short or otherwise not well-formed XML or JSON is invalid
 (rule ``xml-syntax`` or ``json-syntax``, with the line and column of the first fatal error), as
@@ -33,10 +35,13 @@ passes. No DTD is read, no XML entity expanded, nothing fetched from the network
 
 from __future__ import annotations
 
+import re
+from pathlib import Path
+
 from ..errors import InputError
 from ..files.paths import StrPath, input_file
 from .citygml import validate_citygml
-from .cityjson import validate_cityjson
+from .cityjson import _load, _NotJson, validate_cityjson
 from .geometry import PLANARITY_TOLERANCE, SNAP_TOLERANCE
 from .gltf import GLTF_VALIDATOR_VERSION, install_gltf_validator
 from .report import Issue, Report
@@ -56,16 +61,24 @@ __all__ = [
     "validate_tileset",
 ]
 
+#: Bytes read to tell the formats apart.
+HEAD = 65536
+_TILESET_KEY = re.compile(rb'"(?:asset|root)"\s*:')
+_TILESET_ASSET = re.compile(rb'"asset"\s*:\s*\{[^{}]*"version"\s*:')
+_CITYJSON_TYPE = re.compile(rb'"type"\s*:\s*"CityJSON')
+
 
 def validate_file(path: StrPath, *, schema_dir: StrPath | None = None) -> Report:
-    """Validate a CityGML 2.0, CityJSON or CityJSONSeq file.
+    """Validate a CityGML 2.0, CityJSON or CityJSONSeq file, or a 3D Tiles tileset.
 
     Parameters
     ----------
     path
-        The file. Its format is found from its content: XML is CityGML; a JSON document is
-        CityJSON (or a lone CityJSONFeature); JSON objects one per line, the first a CityJSON
-        header, are CityJSONSeq.
+        The file. Its format is found from its content: XML is CityGML; a JSON object with
+        ``asset.version`` and ``root`` is a 3D Tiles tileset (:func:`validate_tileset`, with
+        Khronos' glTF validator when node is found); another JSON document is CityJSON (or a
+        lone CityJSONFeature); JSON objects one per line, the first a CityJSON header, are
+        CityJSONSeq.
     schema_dir
         Folder of the official schemas (default ``$GNSS_CITYGML_SCHEMA_DIR``): the CityJSON JSON
         schemas (``cityjson.min.schema.json`` in it or in a version sub-folder, also under
@@ -108,17 +121,36 @@ def validate_file(path: StrPath, *, schema_dir: StrPath | None = None) -> Report
     schema_dir = schema_folder(schema_dir)
     try:
         with open(path, "rb") as f:
-            head = f.read(4096).lstrip(b"\xef\xbb\xbf \t\r\n")
+            head = f.read(HEAD).lstrip(b"\xef\xbb\xbf \t\r\n")
     except OSError as exc:
         raise InputError(
             f"cannot read the file ({exc.strerror})", where=str(path), fix="check it"
         ) from None
     if head.startswith(b"<"):
         return validate_citygml(path, schema_dir)
+    if head.startswith(b"{") and _is_tileset(path, head):
+        return validate_tileset(path, schema_dir=schema_dir)
     if head.startswith(b"{"):
         return validate_cityjson(path, schema_dir)
     raise InputError(
-        "not a CityGML (XML) or CityJSON (JSON) file",
+        "not a CityGML (XML), CityJSON (JSON) or 3D Tiles (tileset.json) file",
         where=str(path),
-        fix="give a .gml, .city.json or .city.jsonl file",
+        fix="give a .gml, .city.json, .city.jsonl or tileset.json file",
     )
+
+
+def _is_tileset(path: Path, head: bytes) -> bool:
+    """Whether the JSON file ``path`` starting with ``head`` is a 3D Tiles tileset: an object
+    with ``asset.version`` and ``root``. Read whole only when its start names ``asset`` or
+    ``root`` and not the type CityJSON; bytes that are not JSON are a tileset when their start
+    has an ``asset`` with a ``version`` (then the tileset's check says what is wrong)."""
+    if not _TILESET_KEY.search(head) or _CITYJSON_TYPE.search(head):
+        return False
+    try:
+        doc = _load(path.read_bytes())
+    except _NotJson:
+        return _TILESET_ASSET.search(head) is not None
+    except OSError:
+        return False
+    asset = doc.get("asset") if isinstance(doc, dict) else None
+    return isinstance(asset, dict) and "version" in asset and "root" in doc

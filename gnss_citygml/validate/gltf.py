@@ -6,8 +6,9 @@ compiled from Dart), not a command. The package ships a small node script,
 report per file; :func:`validate_gltf` runs it. The library is installed with npm into a cache
 folder of its own (:func:`node_folder`: ``$GNSS_CITYGML_NODE_DIR``, by default
 ``~/.cache/gnss-citygml/node``), at the version pinned here (:data:`GLTF_VALIDATOR_VERSION`),
-by :func:`install_gltf_validator`; nothing is installed behind the caller's back: validating
-without it is an :class:`~gnss_citygml.errors.InputError` saying what to run.
+by :func:`install_gltf_validator`. :func:`khronos_results` runs it with what the machine
+has: when node is found, installing the validator first if it is missing (npm, into that
+folder), and otherwise says why it did not run, for the report.
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ __all__ = [
     "GltfResult",
     "gltf_validator",
     "install_gltf_validator",
+    "khronos_results",
     "node_folder",
     "validate_gltf",
 ]
@@ -40,6 +42,9 @@ GLTF_VALIDATOR_VERSION = "2.0.0-dev.3.10"
 NODE_DIR_ENV = "GNSS_CITYGML_NODE_DIR"
 #: The node script run (next to this module, shipped with the package).
 SCRIPT = Path(__file__).with_name("gltf_validate.mjs")
+#: Seconds an install on the fly (:func:`khronos_results`) may take: a machine with node and
+#: no network falls back to the package's own checks soon.
+AUTO_INSTALL_TIMEOUT = 120
 #: Files per node process: keeps the command line well under the system's limit.
 FILES_PER_RUN = 200
 #: Messages kept per file (errors first); the counts are always whole.
@@ -113,10 +118,11 @@ def gltf_validator(node_dir: StrPath | None = None) -> Path:
     )
 
 
-def install_gltf_validator(node_dir: StrPath | None = None) -> Path:
+def install_gltf_validator(node_dir: StrPath | None = None, *, timeout: float = 600) -> Path:
     """Install Khronos' glTF validator with npm into :func:`node_folder` unless it is there.
 
-    Runs ``npm install --prefix FOLDER gltf-validator@VERSION`` (the npm registry must be
+    Runs ``npm install --prefix FOLDER gltf-validator@VERSION``, stopped after ``timeout``
+    seconds (the npm registry must be
     reachable); returns the folder.
 
     Raises
@@ -142,7 +148,7 @@ def install_gltf_validator(node_dir: StrPath | None = None) -> Path:
             + [f"gltf-validator@{GLTF_VALIDATOR_VERSION}"],
             capture_output=True,
             text=True,
-            timeout=600,
+            timeout=timeout,
         )
         reason = first_line(RuntimeError(run.stderr.strip())) if run.returncode else ""
     except (OSError, subprocess.TimeoutExpired) as exc:
@@ -185,6 +191,36 @@ def validate_gltf(paths: Sequence[StrPath], *, node_dir: StrPath | None = None) 
         chunk = [Path(p) for p in paths[start : start + FILES_PER_RUN]]
         results.extend(_run(node, folder, chunk))
     return results
+
+
+def khronos_results(
+    paths: Sequence[StrPath], *, node_dir: StrPath | None = None, required: bool | None = None
+) -> tuple[list[GltfResult] | None, str]:
+    """Khronos' validator on ``paths`` if it can run, and the words a report names it by (its
+    version), or None and why it did not run.
+
+    ``required`` None: it runs when node is on the PATH, installed first into
+    :func:`node_folder` if missing; an install or a node that fails is said, not raised.
+    True: it must run (:func:`validate_gltf`'s errors are raised, nothing is installed).
+    False: it does not run."""
+    if required is False:
+        return None, "not asked for"
+    version = f"{GLTF_VALIDATOR_VERSION} (npm package gltf-validator, run by node)"
+    if required:
+        return validate_gltf(paths, node_dir=node_dir), version
+    if shutil.which("node") is None:
+        return None, "node not found"
+    folder = node_folder(node_dir)
+    if _installed_version(folder) != GLTF_VALIDATOR_VERSION:
+        try:
+            install_gltf_validator(folder, timeout=AUTO_INSTALL_TIMEOUT)
+        except InputError as err:
+            return None, f"installing it with npm failed: {err.what}; {err.fix}"
+        version += f", installed now into {folder}"
+    try:
+        return validate_gltf(paths, node_dir=folder), version
+    except InputError as err:
+        return None, f"{err.what}; {err.fix}"
 
 
 def _run(node: str, folder: Path, paths: list[Path]) -> list[GltfResult]:

@@ -191,12 +191,14 @@ def _class_types(schema: dict) -> Iterator[tuple[str, str]]:
             kind, component = prop.get("type"), prop.get("componentType")
             if kind not in (*COMPONENTS, "STRING", "BOOLEAN", "ENUM"):
                 yield f"{at}/type", f"{kind!r} is not a type of the 3D Metadata Specification"
-            elif kind in COMPONENTS and component not in SIZES:
+            elif kind in COMPONENTS and not (isinstance(component, str) and component in SIZES):
                 yield (
                     f"{at}/componentType",
                     f"{component!r} is not a component type of the 3D Metadata Specification",
                 )
-            elif kind == "ENUM" and prop.get("enumType") not in enums:
+            elif kind == "ENUM" and not (
+                isinstance(prop.get("enumType"), str) and prop["enumType"] in enums
+            ):
                 yield f"{at}/enumType", f"{prop.get('enumType')!r} is not an enum of the schema"
 
 
@@ -243,9 +245,9 @@ def _column(prop: dict, storage: dict, count: int, binaries: _Bytes, enums: dict
     elif kind == "BOOLEAN":
         yield from binaries.check(storage["values"], "values", -(-n // 8), 1)
     elif kind == "ENUM":
-        enum = _dict(enums.get(prop.get("enumType")))
+        enum = _dict(enums.get(str(prop.get("enumType"))))
         yield from binaries.check(
-            storage["values"], "values", n, SIZES.get(enum.get("valueType", "UINT16"), 2)
+            storage["values"], "values", n, SIZES.get(str(enum.get("valueType", "UINT16")), 2)
         )
     else:
         n *= COMPONENTS[kind]

@@ -1,5 +1,5 @@
 """Where the official schemas are: the schema folder, the CityGML 2.0 tree, CityJSON's files,
-the 3D Tiles 1.1 folder."""
+the 3D Tiles 1.1 folder (by default the copy bundled with the package)."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ from ..errors import InputError
 from ..files.paths import StrPath
 
 __all__ = [
+    "BUNDLED_TILES3D_SCHEMAS",
     "SCHEMA_DIR_ENV",
     "TILES3D_SCHEMA_DIR_ENV",
     "TILES3D_SCHEMA_SUBFOLDER",
@@ -18,6 +19,7 @@ __all__ = [
     "cityjson_schema_file",
     "schema_folder",
     "tiles3d_schema_folder",
+    "tiles3d_schema_source",
 ]
 
 #: Environment variable naming the folder of the official schemas.
@@ -27,6 +29,9 @@ SCHEMA_DIR_ENV = "GNSS_CITYGML_SCHEMA_DIR"
 TILES3D_SCHEMA_DIR_ENV = "GNSS_CITYGML_3DTILES_SCHEMA_DIR"
 #: Where the 3D Tiles 1.1 JSON schemas are by default: this sub-folder of the schema folder.
 TILES3D_SCHEMA_SUBFOLDER = "3dtiles-1.1"
+#: The 3D Tiles 1.1 JSON schemas shipped with the package (the files validation needs, with
+#: their licence and source: README.md there).
+BUNDLED_TILES3D_SCHEMAS = Path(__file__).resolve().parents[1] / "data" / TILES3D_SCHEMA_SUBFOLDER
 
 
 def schema_folder(schema_dir: StrPath | None) -> Path | None:
@@ -83,30 +88,38 @@ def cityjson_schema_file(folder: Path, version: str | None, kind: str) -> Path |
 def tiles3d_schema_folder(schema_dir: StrPath | None = None) -> Path:
     """The folder of the 3D Tiles 1.1 JSON schemas, the one holding ``tileset.schema.json``.
 
-    ``schema_dir`` (or its sub-folder ``3dtiles-1.1``) if given, else
-    ``$GNSS_CITYGML_3DTILES_SCHEMA_DIR``, else the sub-folder
-    ``3dtiles-1.1`` of the schema folder ``$GNSS_CITYGML_SCHEMA_DIR`` (as laid out in the
-    project's shared data, ``../shared/data/schemas``); an :class:`InputError` naming the
-    folders looked at if none holds the schemas.
+    A folder named for them must hold them: ``$GNSS_CITYGML_3DTILES_SCHEMA_DIR``, or a
+    ``schema_dir`` that does not exist (an :class:`InputError` naming the folders looked at).
+    A general schema folder, ``schema_dir`` (the ``--schema-dir`` of the command line) else
+    ``$GNSS_CITYGML_SCHEMA_DIR``, is used when it holds them, itself or its sub-folder
+    ``3dtiles-1.1``; otherwise (it holds the CityJSON schemas only, say) and by default, the
+    copy bundled with the package, :data:`BUNDLED_TILES3D_SCHEMAS`.
     """
     if schema_dir is not None:  # the folder itself, or the schema folder holding it
         tried = [Path(schema_dir), Path(schema_dir) / TILES3D_SCHEMA_SUBFOLDER]
+        required = not Path(schema_dir).is_dir()
     elif os.environ.get(TILES3D_SCHEMA_DIR_ENV):
-        tried = [Path(os.environ[TILES3D_SCHEMA_DIR_ENV])]
+        tried, required = [Path(os.environ[TILES3D_SCHEMA_DIR_ENV])], True
     else:
         base = os.environ.get(SCHEMA_DIR_ENV)
-        tried = [Path(base) / TILES3D_SCHEMA_SUBFOLDER] if base else []
+        tried, required = ([Path(base) / TILES3D_SCHEMA_SUBFOLDER] if base else []), False
     for folder in tried:
         if (folder / "tileset.schema.json").is_file():
             return folder
-    where = (
-        ", ".join(map(str, tried)) or f"neither ${TILES3D_SCHEMA_DIR_ENV} nor ${SCHEMA_DIR_ENV} set"
-    )
+    if not required:
+        return BUNDLED_TILES3D_SCHEMAS
     raise InputError(
         "the 3D Tiles 1.1 JSON schemas (tileset.schema.json and the files it refers to) "
         "are not found",
-        where=where,
-        fix=f"give their folder (schema_dir=, ${TILES3D_SCHEMA_DIR_ENV}) or put it as "
-        f"{TILES3D_SCHEMA_SUBFOLDER}/ in the schema folder (${SCHEMA_DIR_ENV}); it is the "
-        "folder specification/schema of github.com/CesiumGS/3d-tiles (version 1.1)",
+        where=", ".join(map(str, tried)),
+        fix=f"give their folder (--schema-dir, ${TILES3D_SCHEMA_DIR_ENV}), the folder "
+        "specification/schema of github.com/CesiumGS/3d-tiles (version 1.1), or leave both "
+        "unset to use the copy bundled with gnss-citygml",
     )
+
+
+def tiles3d_schema_source(folder: Path) -> str:
+    """How a report names the schema folder in use: the folder, and whether it is the copy
+    bundled with the package."""
+    bundled = folder.resolve() == BUNDLED_TILES3D_SCHEMAS.resolve()
+    return f"{folder} (bundled with gnss-citygml)" if bundled else str(folder)

@@ -5,15 +5,19 @@ the file it concerns, relative to the tileset's folder):
 
 - every tileset file (the root one and each external tileset its tiles refer to, recursively)
   against the official 3D Tiles 1.1 JSON schemas (draft 2020-12), their ``$ref`` resolved
-  between the local files (:func:`~.schemas.tiles3d_schema_folder`), never over the network:
+  between the local files (:func:`~.schemas.tiles3d_schema_folder`: by default the copy
+  bundled with the package), never over the network:
   rule ``json-schema``; bytes that are not JSON, rule ``json-syntax`` (or ``json-nesting``);
 - every content ``uri`` (``content`` and ``contents`` of every tile, relative to the tileset
   that names it) is a file that exists: rule ``content-missing``; an external tileset that
   refers back to one of the tilesets above it: rule ``tileset-cycle``;
-- every ``.glb`` and ``.gltf`` content with Khronos' glTF validator (:mod:`.gltf`, all in one
-  node process): each of its errors is an issue, rule ``gltf``, whose message names the file,
+- every ``.glb`` and ``.gltf`` content by the package's own checks of its structure
+  (:mod:`.gltf_structure`, always): rule ``gltf-structure``;
+- the same files with Khronos' glTF validator (:mod:`.gltf`, all in one node process) when
+  node is found: each of its errors is an issue, rule ``gltf``, whose message names the file,
   the validator's code, the JSON pointer and the validator's message. Its warnings, infos and
-  hints are not errors: the report's notes count them, by code;
+  hints are not errors: the report's notes count them, by code. A note says which of the two
+  ran, and why Khronos' did not;
 - the ``EXT_mesh_features`` and ``EXT_structural_metadata`` of that content, which the
   validator does not know (:mod:`.gltf_metadata`): rule ``gltf-metadata``.
 
@@ -34,11 +38,12 @@ from urllib.parse import unquote, urlsplit
 from ..errors import listing, user_text
 from ..files.paths import StrPath, input_file
 from .cityjson import _load, _NotJson
-from .gltf import GltfResult, validate_gltf
+from .gltf import GltfResult, khronos_results
 from .gltf_metadata import MetadataRules, read_gltf
+from .gltf_structure import structure_issues
 from .json_schema import _schema_message
 from .report import Issue, Report
-from .schemas import tiles3d_schema_folder
+from .schemas import tiles3d_schema_folder, tiles3d_schema_source
 
 __all__ = ["validate_tileset"]
 
@@ -47,7 +52,11 @@ GLTF_SUFFIXES = (".glb", ".gltf")
 
 
 def validate_tileset(
-    path: StrPath, *, schema_dir: StrPath | None = None, node_dir: StrPath | None = None
+    path: StrPath,
+    *,
+    schema_dir: StrPath | None = None,
+    node_dir: StrPath | None = None,
+    khronos: bool | None = None,
 ) -> Report:
     """Validate a 3D Tiles 1.1 tileset: its JSON, its external tilesets, its glTF content.
 
@@ -56,43 +65,64 @@ def validate_tileset(
     path
         The ``tileset.json``.
     schema_dir
-        Folder of the 3D Tiles 1.1 JSON schemas (default ``$GNSS_CITYGML_3DTILES_SCHEMA_DIR``,
-        else ``3dtiles-1.1`` in ``$GNSS_CITYGML_SCHEMA_DIR``).
+        Folder of the 3D Tiles 1.1 JSON schemas, or a schema folder holding them as
+        ``3dtiles-1.1`` (default ``$GNSS_CITYGML_3DTILES_SCHEMA_DIR``, else ``3dtiles-1.1`` in
+        ``$GNSS_CITYGML_SCHEMA_DIR``, else the copy bundled with the package:
+        :func:`~.schemas.tiles3d_schema_folder`).
     node_dir
         Folder Khronos' glTF validator is installed in (default ``$GNSS_CITYGML_NODE_DIR``, else
         ``~/.cache/gnss-citygml/node``; :func:`~.gltf.install_gltf_validator` installs it).
+    khronos
+        Whether Khronos' glTF validator runs besides the package's own checks of every glTF
+        (:mod:`.gltf_structure`): None (default) when node is found, installing it with npm
+        if missing (a note says why it did not run); True: it must (an error if it cannot);
+        False: it does not.
 
     Returns
     -------
     Report
         Valid when no error was found. Its ``n_objects`` counts the tiles, its notes the
-        validator's warnings and what was not checked.
+        schemas and glTF validators used, the validator's warnings and what was not checked.
 
     Raises
     ------
     InputError
-        The tileset file is missing or unreadable, the schemas are not found, or the tileset
-        has glTF content and the validator is not installed (or node fails).
+        The tileset file is missing or unreadable, a schema folder named is not there, or
+        ``khronos`` is True and Khronos' validator cannot run.
     """
     path = input_file(path, "tileset")
-    schemas = _schemas(tiles3d_schema_folder(schema_dir).resolve())
+    folder = tiles3d_schema_folder(schema_dir).resolve()
+    schemas = _schemas(folder)
     walk = _Walk(path, schemas["tileset"])
     report = walk.report
-    report.checks.append("gltf")
-    results = validate_gltf(list(walk.gltf), node_dir=node_dir)
-    for result in results:
-        report.errors.extend(_gltf_issues(result, walk.gltf[result.path]))
-    report.notes.extend(_gltf_notes(results))
-    if results:
-        report.checks.append("gltf-metadata")
-        rules = MetadataRules(schemas["schema"], schemas["table"])
+    report.notes.insert(0, f"3D Tiles JSON schemas: {tiles3d_schema_source(folder)}")
+    if not walk.gltf:
+        return report
+    report.checks.append("gltf-structure")
+    for file, name in walk.gltf.items():
+        for pointer, problem in structure_issues(file):
+            report.errors.append(Issue(name, "gltf-structure", f"{name}: {pointer}: {problem}"))
+    results, khronos_name = khronos_results(list(walk.gltf), node_dir=node_dir, required=khronos)
+    if results is None:
+        report.notes.append(
+            f"glTF: the package's own checks; Khronos' glTF validator not run: {khronos_name}"
+        )
+    else:
+        report.checks.append("gltf")
+        report.notes.append(
+            f"glTF: the package's own checks and Khronos' glTF validator {khronos_name}"
+        )
         for result in results:
-            content = read_gltf(result.path) if not result.failure else None
-            if content is None:
-                continue
-            name = walk.gltf[result.path]
-            for pointer, problem in rules.issues(*content):
-                report.errors.append(Issue(name, "gltf-metadata", f"{name}: {pointer}: {problem}"))
+            report.errors.extend(_gltf_issues(result, walk.gltf[result.path]))
+        report.notes.extend(_gltf_notes(results))
+    report.checks.append("gltf-metadata")
+    rules = MetadataRules(schemas["schema"], schemas["table"])
+    for file, name in walk.gltf.items():
+        content = read_gltf(file)
+        if content is None:
+            continue
+        for pointer, problem in rules.issues(*content):
+            report.errors.append(Issue(name, "gltf-metadata", f"{name}: {pointer}: {problem}"))
     return report
 
 

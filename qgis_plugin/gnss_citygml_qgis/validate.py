@@ -1,4 +1,5 @@
-"""``gnsscitygml:validate``: a CityGML / CityJSON file -> a table of its errors.
+"""``gnsscitygml:validate``: a CityGML / CityJSON file or 3D Tiles tileset -> a table of its
+errors.
 
 The same check as ``gnss-citygml validate`` (:func:`gnss_citygml.validate.validate_file`).
 """
@@ -26,7 +27,9 @@ SHOWN = 50
 
 HELP = """Checks a CityGML 2.0, CityJSON 2.0 or CityJSONSeq file: the schema (CityGML XSD or \
 CityJSON JSON Schema, with the Extensions the file declares), the rules of the format and the \
-geometry of the solids.
+geometry of the solids. A 3D Tiles 1.1 <i>tileset.json</i> is checked as a tileset: the 3D \
+Tiles JSON schemas (bundled), its content files, its GLBs (the package's own checks, and \
+Khronos' glTF validator when Node.js is installed; the log says which ran) and their metadata.
 
 The <b>errors</b> table has one row per error: the object's id (empty for the whole file), the \
 rule and the message. The log ends with a summary. A file that cannot be checked at all (not a \
@@ -41,7 +44,7 @@ class ValidateAlgorithm(Algorithm):
         return "validate"
 
     def displayName(self):  # noqa: N802 (the name QGIS calls)
-        return "Validate a CityGML / CityJSON file"
+        return "Validate a CityGML / CityJSON file or 3D Tiles tileset"
 
     def shortHelpString(self):  # noqa: N802 (the name QGIS calls)
         return HELP
@@ -51,7 +54,7 @@ class ValidateAlgorithm(Algorithm):
             QgsProcessingParameterFile(
                 "INPUT",
                 "City model",
-                fileFilter="City models (*.json *.jsonl *.gml *.xml);;All files (*)",
+                fileFilter="City models, 3D Tiles (*.json *.jsonl *.gml *.xml);;All files (*)",
             )
         )
         self.addParameter(folder("SCHEMA_DIR", "Folder with the official schemas"))

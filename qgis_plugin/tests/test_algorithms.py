@@ -3,6 +3,7 @@ logs: the plugin's observations, heights and reports are the command line's, its
 validate, its errors are the command line's one-line messages, Cancel stops it without an
 output, its layer opens styled and its report page in the browser."""
 
+import json
 import shutil
 from pathlib import Path
 
@@ -124,6 +125,29 @@ def test_validate_lists_the_errors_of_a_broken_model(plugin, processing_framewor
     rows = [f.attributes()[1:] for f in checked["ERRORS"].getFeatures()]
     assert rows == [[i.rule, i.message] for i in validate_file(broken).errors]
     assert cli("validate", broken, check=False).returncode == 1
+
+
+def test_validate_checks_a_tileset_as_one(plugin, processing_framework, tmp_path):
+    """A tileset.json (here without content, so no GLB) is a tileset, not a bad CityJSON."""
+    box = [0, 0, 0, 10, 0, 0, 0, 10, 0, 0, 0, 10]
+    root = {"boundingVolume": {"box": box}, "geometricError": 0}
+    good = {"asset": {"version": "1.1"}, "geometricError": 1, "root": root}
+    bad = {"asset": {"version": "1.1"}, "root": {"boundingVolume": {"box": box}}}
+    for name, doc in (("good", good), ("bad", bad)):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "tileset.json").write_text(json.dumps(doc))
+    checked = processing_framework.run(
+        "gnsscitygml:validate", {"INPUT": str(tmp_path / "good" / "tileset.json")}
+    )
+    assert checked["VALID"] and "3D Tiles 1.1" in checked["SUMMARY"]
+    broken = tmp_path / "bad" / "tileset.json"
+    checked = processing_framework.run(
+        "gnsscitygml:validate", {"INPUT": str(broken), "ERRORS": "TEMPORARY_OUTPUT"}
+    )
+    assert not checked["VALID"] and "3D Tiles 1.1" in checked["SUMMARY"]
+    rows = [f.attributes()[1:] for f in checked["ERRORS"].getFeatures()]
+    assert rows == [[i.rule, i.message] for i in validate_file(broken).errors]
+    assert {rule for rule, _ in rows} == {"json-schema"}
 
 
 def test_errors_are_the_clis_one_line_messages(plugin, processing_framework, scene, tmp_path):

@@ -27,23 +27,27 @@ HEIGHTS = ["height", "relative_height", "height_lower", "height_upper", "height_
 
 
 @pytest.fixture(scope="module")
-def batches(tmp_path_factory):
-    """The sample city's observations in two batches (the first four walkers, the others)."""
-    folder = tmp_path_factory.mktemp("batches")
+def halves(tmp_path_factory):
+    """The sample city's observations in two batches: the first half of the walk, the rest."""
+    folder = tmp_path_factory.mktemp("halves")
     obs = pd.read_parquet(CITY / "observations.parquet")
-    first = obs["receiver"].isin(sorted(obs["receiver"].unique())[:4])
-    obs[first].to_parquet(folder / "a.parquet")
-    obs[~first].to_parquet(folder / "b.parquet")
-    return folder / "a.parquet", folder / "b.parquet"
+    time = pd.to_datetime(obs["time_utc"])
+    early = (time < time.min() + (time.max() - time.min()) / 2).to_numpy()
+    return _saved(obs[early], folder / "a.parquet"), _saved(obs[~early], folder / "b.parquet")
+
+
+def _saved(table: pd.DataFrame, path: Path) -> Path:
+    table.to_parquet(path)
+    return path
 
 
 @pytest.fixture(scope="module")
-def estimated(tmp_path_factory, batches, grid_args):
+def estimated(tmp_path_factory, halves, grid_args):
     """`estimate`'s heights layer of the first batch, and that of both batches at once."""
     folder = tmp_path_factory.mktemp("estimated")
-    both = folder / "both.parquet"
-    pd.concat([pd.read_parquet(b) for b in batches], ignore_index=True).to_parquet(both)
-    for name, obs in (("first.gpkg", batches[0]), ("both.gpkg", both)):
+    both = _saved(pd.concat([pd.read_parquet(b) for b in halves], ignore_index=True),
+                  folder / "both.parquet")  # fmt: skip
+    for name, obs in (("first.gpkg", halves[0]), ("both.gpkg", both)):
         args = ["estimate", str(obs), str(CITY / "footprints.gpkg"), "--dem", DEM]
         with pytest.raises(SystemExit) as exc:
             main([*args, "-o", str(folder / name), *grid_args, "-q"])
@@ -64,19 +68,19 @@ def check_rows_agree(layer: pd.DataFrame, status: str, heights: list[str]) -> No
         assert layer.loc[~converged, column].isna().all(), column
 
 
-def test_estimates_own_layer_is_updated_whole(estimated, batches, grid_dir, tmp_path):
+def test_estimates_own_layer_is_updated_whole(estimated, halves, grid_dir, tmp_path):
     first, both = estimated
     path = tmp_path / "heights.gpkg"
     shutil.copyfile(first, path)
     before = table(path)
     # estimate's layer has no evidence: the first batch is given again, with the second
-    update_map(path, list(batches), DEM, grid_dir=grid_dir)
+    update_map(path, list(halves), DEM, grid_dir=grid_dir)
     after, full = table(path), table(both).loc[table(path).index]
     check_rows_agree(after, "status", HEIGHTS)
     check_rows_agree(after, "status_gnss", ["height_gnss"])
     was, now = before["converged"].astype(bool), after["converged"].astype(bool)
     assert (was & ~now).any() and (~was & now).any()  # rows lost and gained an estimate
-    # the layer is that of one run over both batches, estimate's columns and the update's
+    # the layer is that of one run over both halves, estimate's columns and the update's
     assert (now == full["converged"].astype(bool)).all()
     assert (after["status"] == full["status"]).all()
     for column in [*HEIGHTS, "a", "b", "c", "d", "iterations", "n_signals"]:
@@ -86,11 +90,11 @@ def test_estimates_own_layer_is_updated_whole(estimated, batches, grid_dir, tmp_
 
 
 def test_convert_after_an_update_writes_only_the_new_heights(
-    estimated, batches, grid_dir, tmp_path, capsys
+    estimated, halves, grid_dir, tmp_path, capsys
 ):
     path = tmp_path / "heights.gpkg"
     shutil.copyfile(estimated[0], path)
-    update_map(path, [batches[1]], DEM, grid_dir=grid_dir)
+    update_map(path, [halves[1]], DEM, grid_dir=grid_dir)
     after = table(path)
     out = tmp_path / "city.city.json"
     code, _, err = run(["convert", str(path), "-o", str(out)], capsys)
@@ -101,23 +105,23 @@ def test_convert_after_an_update_writes_only_the_new_heights(
     assert heights == pytest.approx(converged["height_gnss"].to_dict(), abs=1e-9)
 
 
-def test_updates_one_after_another_keep_the_rows_agreeing(estimated, batches, grid_dir, tmp_path):
+def test_updates_one_after_another_keep_the_rows_agreeing(estimated, halves, grid_dir, tmp_path):
     """Updated with the second batch alone (which the change report says replaces the layer's
     heights from before), then with the first: the rows agree after each, and the same data
     again writes nothing."""
     path = tmp_path / "heights.gpkg"
     shutil.copyfile(estimated[0], path)
-    result = update_map(path, [batches[1]], DEM, grid_dir=grid_dir)
+    result = update_map(path, [halves[1]], DEM, grid_dir=grid_dir)
     assert any("no evidence" in note for note in result.notes)
     check_rows_agree(table(path), "status", HEIGHTS)
-    result = update_map(path, [batches[0]], DEM, grid_dir=grid_dir)
+    result = update_map(path, [halves[0]], DEM, grid_dir=grid_dir)
     assert result.written and not any("no evidence" in note for note in result.notes)
     check_rows_agree(table(path), "status", HEIGHTS)
-    again = update_map(path, list(batches), DEM, grid_dir=grid_dir)
+    again = update_map(path, list(halves), DEM, grid_dir=grid_dir)
     assert not again.written and again.updated.empty
 
 
-def test_a_map_of_the_users_columns_gets_only_the_updates(batches, grid_dir, tmp_path):
+def test_a_map_of_the_users_columns_gets_only_the_updates(halves, grid_dir, tmp_path):
     """A map whose columns named like estimate's are the user's own (no relative_height or
     status beside them): the update writes its columns and leaves those alone; its own rows
     agree with themselves."""
@@ -126,14 +130,14 @@ def test_a_map_of_the_users_columns_gets_only_the_updates(batches, grid_dir, tmp
     footprints["height"] = 7.5  # the user's, say from a survey
     footprints["c"] = "block C"
     pyogrio.write_dataframe(footprints, path, layer="buildings")
-    for batch in batches:
+    for batch in halves:
         update_map(path, [batch], DEM, layer="buildings", grid_dir=grid_dir)
         layer = pyogrio.read_dataframe(path, layer="buildings", read_geometry=False)
         assert (layer["height"] == 7.5).all() and (layer["c"] == "block C").all()
         check_rows_agree(layer, "status_gnss", ["height_gnss", "height_lower", "height_upper"])
 
 
-def test_estimates_column_of_another_type_is_refused(estimated, batches, grid_dir, tmp_path):
+def test_estimates_column_of_another_type_is_refused(estimated, halves, grid_dir, tmp_path):
     """Estimate's layer whose status is a number: refused before any work, not half written."""
     path = tmp_path / "heights.gpkg"
     shutil.copyfile(estimated[0], path)
@@ -141,4 +145,4 @@ def test_estimates_column_of_another_type_is_refused(estimated, batches, grid_di
         db.execute("ALTER TABLE heights DROP COLUMN iterations")
         db.execute("ALTER TABLE heights ADD COLUMN iterations TEXT")
     with pytest.raises(InputError, match="iterations"):
-        update_map(path, [batches[1]], DEM, grid_dir=grid_dir)
+        update_map(path, [halves[1]], DEM, grid_dir=grid_dir)

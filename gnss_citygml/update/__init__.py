@@ -185,7 +185,7 @@ def update_map(
     values, table = new_values(estimate, here.current, min_signals)
     touched = frozenset(cast.fresh["building"].astype(str))
     result = UpdateResult(cast.n_new, len(cast.fresh), table, threshold, touched)
-    unseen = before.intersections.empty and here.current["converged"].notna().any()
+    unseen = bool(before.intersections.empty and here.current["converged"].notna().any())
     result.notes += _notes(gone, before.outlines, here.outlines, unseen)
     if report is not None:
         say("report", 0.6)

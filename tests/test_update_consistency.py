@@ -74,12 +74,14 @@ def test_estimates_own_layer_is_updated_whole(estimated, halves, grid_dir, tmp_p
     shutil.copyfile(first, path)
     before = table(path)
     # estimate's layer has no evidence: the first batch is given again, with the second
-    update_map(path, list(halves), DEM, grid_dir=grid_dir)
+    result = update_map(path, list(halves), DEM, grid_dir=grid_dir)
     after, full = table(path), table(both).loc[table(path).index]
     check_rows_agree(after, "status", HEIGHTS)
     check_rows_agree(after, "status_gnss", ["height_gnss"])
     was, now = before["converged"].astype(bool), after["converged"].astype(bool)
     assert (was & ~now).any() and (~was & now).any()  # rows lost and gained an estimate
+    counts = f"{(~was & now).sum()} with a first height, {(was & ~now).sum()} without one now"
+    assert counts in result.lines()[0]
     # the layer is that of one run over both halves, estimate's columns and the update's
     assert (now == full["converged"].astype(bool)).all()
     assert (after["status"] == full["status"]).all()

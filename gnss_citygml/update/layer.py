@@ -172,7 +172,9 @@ def new_values(
     stamp = now.strftime("%Y-%m-%dT%H:%M:%S.") + f"{now.microsecond // 1000:03d}Z"  # GeoPackage
     new["updated_utc"] = np.where(changed, stamp, old["updated_utc"].to_numpy(dtype=object))
     skipped = np.where(enough, "", f"fewer than {min_signals} signals")
-    before = pd.to_numeric(old["height_gnss"], errors="coerce").to_numpy(float)
+    # estimate's layer had its heights in height before an update added height_gnss
+    was = old["height"] if "height" in old.columns else old["height_gnss"]
+    before = pd.to_numeric(was, errors="coerce").to_numpy(float)
     after = np.where(changed, new["height_gnss"].to_numpy(float), before)
     table = pd.DataFrame(
         {"id": ids, "before": before, "after": after, "changed": changed, "skipped": skipped}

@@ -114,6 +114,7 @@ def test_each_fields_reference_is_its_own():
     )
     assert out["height"].tolist() == [28.39, 21.0 + 9.0, 22.0 + 7.25]
     assert out["height_source"].tolist() == ["gnss", "relh2", "relh2"]
+    assert out["method"].tolist() == ["4PL-B"] + ["attribute relh2 + ground"] * 2
     # the other way round: a relative height field, an absolute GNSS fallback
     out = buildings_with_heights(
         updated_map(), "relh2", relative=True, fallback_field="height_gnss"
@@ -172,6 +173,7 @@ def test_a_gnss_fit_does_not_decide_for_another_field():
     plan = prepare_buildings(out)
     assert dict(plan.skipped) == {"b": "no height"}
     assert out["height_source"].tolist() == ["abshmax"] * 3
+    assert out["method"].tolist() == ["attribute abshmax"] * 3  # not the fit's 4PL-B
     assert out["height_lower"].isna().all() and out["height_upper"].isna().all()
 
 

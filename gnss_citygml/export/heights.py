@@ -148,9 +148,10 @@ def buildings_with_heights(
     -------
     geopandas.GeoDataFrame
         A copy with ``ground`` and ``height`` (absolute roof height, m ODN; the input field is
-        kept under its own name) and, unless present, ``method`` saying where the height came
-        from (e.g. ``attribute relh2 + ground``); ``height_source`` with a fallback, or for a
-        field that is not a GNSS fit's on a layer that has one.
+        kept under its own name) and ``method`` saying where each height came from: the
+        layer's own for a fit's heights, else e.g. ``attribute relh2 + ground``;
+        ``height_source`` with a fallback, or for a field that is not a GNSS fit's on a layer
+        that has one.
 
     Raises
     ------
@@ -182,20 +183,37 @@ def buildings_with_heights(
     if ground_field not in (None, "ground"):
         out = out.drop(columns=[ground_field])
     if "method" not in out.columns and height_field != "height":
-        out["method"] = f"attribute {height_field}" + (" + ground" if relative else "")
+        out["method"] = _attribute(height_field, relative)
     source = "gnss" if height_field in fits else height_field
+    labels = {height_field: _attribute(height_field, relative)}
     if fallback_field is not None:
         above = _relative(fits, fallback_field, fallback_relative, "--fallback-relative")
+        labels[fallback_field] = _attribute(fallback_field, above)
         out = _fallback(out, fallback_field, above, source, fallback_field in fits)
     elif source != "gnss" and "converged" in columns:  # the fit does not judge this field
         out["height_source"] = source
     if "height_source" in out.columns:
-        owner = "gnss" if "height_lower" in fits else source  # whose interval the columns hold
-        other = out["height_source"].to_numpy() != owner
-        for column in ("height_lower", "height_upper"):
-            if column in out.columns:
-                out.loc[other, column] = np.nan
+        _by_source(out, "gnss" if "height_lower" in fits else source, labels)
     return out
+
+
+def _attribute(field: str, relative: bool) -> str:
+    """The ``method`` of a height taken from the attribute ``field``."""
+    return f"attribute {field}" + (" + ground" if relative else "")
+
+
+def _by_source(out: gpd.GeoDataFrame, owner: str, labels: dict[str, str]) -> None:
+    """Make ``method`` say where each height came from (a fit's method stays with its
+    heights; a field's height gets its label, ``labels`` by field) and keep the interval
+    (``height_lower``, ``height_upper``) only with the heights from its ``owner``."""
+    source = out["height_source"].to_numpy()
+    if "method" not in out.columns:
+        out["method"] = None
+    for field, label in labels.items():
+        out.loc[source == field, "method"] = label
+    for column in ("height_lower", "height_upper"):
+        if column in out.columns:
+            out.loc[source != owner, column] = np.nan
 
 
 def _relative(fits: dict[str, bool], field: str, said: bool, switch: str) -> bool:

@@ -124,43 +124,39 @@ def buildings_with_heights(
     Parameters
     ----------
     frame
-        Footprints (``id``, ``geometry``) with a height attribute, e.g. the ``heights`` layer of
-        ``estimate``, a map ``update`` wrote into, or OS Building Height Attribute fields
-        (``abshmax``, ``relh2``). The ground comes from ``ground_field`` or from a ``ground``
-        column (e.g. added from a DEM by :func:`gnss_citygml.terrain.building_ground`).
+        Footprints (``id``, ``geometry``) with a height attribute: ``estimate``'s heights
+        layer, a map ``update`` wrote into, OS's ``abshmax`` or ``relh2``..., and a ``ground``
+        column (e.g. :func:`gnss_citygml.terrain.building_ground`'s) or ``ground_field``.
     height_field
         The column with the roof height (m): absolute (ODN) unless ``relative``, or as the
         heights layer says (:func:`gnss_fields`).
     relative
-        The height field is the height above the ground (m); the roof is ground + height.
-        Refused for a field the layer says is absolute.
+        The height field is above the ground (the roof is ground + height); refused for a
+        field the layer says is absolute.
     ground_field
         The column with the ground height (m ODN), moved to ``ground``.
     fallback_field
         A column whose height the buildings without a usable height get (none, or a GNSS fit
-        that did not converge). The table then says where each height came from in
-        ``height_source``: ``gnss`` (a GNSS fit's field), the height field's name or the
-        fallback field's; a height not from the fit has none of its interval.
+        that did not converge); ``height_source`` then says whose each height is: ``gnss``
+        (a fit's field) or the field's name. A height not from the fit has no interval.
     fallback_relative
-        The fallback field is the height above the ground, as ``relative`` for the height field.
+        The fallback field is above the ground: ``relative`` for the fallback field.
 
     Returns
     -------
     geopandas.GeoDataFrame
-        A copy with ``ground`` and ``height`` (absolute roof height, m ODN; the input field is
-        kept under its own name) and ``method`` saying where each height came from: the
-        layer's own for a fit's heights, else e.g. ``attribute relh2 + ground``;
-        ``height_source`` with a fallback, or for a field that is not a GNSS fit's on a layer
-        that has one.
+        A copy with ``ground``, ``height`` (absolute roof height, m ODN; the field is kept
+        under its own name) and ``method`` saying where each height came from (the layer's
+        for a fit's, else e.g. ``attribute relh2 + ground``); ``height_source`` with a
+        fallback, or for a field that is not a fit's on a layer that has one.
 
     Raises
     ------
     MissingColumnError
         The height, ground or fallback field is missing.
     InputError
-        A field is not numeric, is said relative where the layer says it is absolute, or is
-        both the height and the fallback field; the layer already has other
-        ``height``/``ground`` columns.
+        A field is not numeric, or said relative where the layer says it is absolute; the
+        fallback is the height field; other ``height``/``ground`` columns.
 
     Examples
     --------

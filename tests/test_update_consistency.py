@@ -148,3 +148,22 @@ def test_estimates_column_of_another_type_is_refused(estimated, halves, grid_dir
         db.execute("ALTER TABLE heights ADD COLUMN iterations TEXT")
     with pytest.raises(InputError, match="iterations"):
         update_map(path, [halves[1]], DEM, grid_dir=grid_dir)
+
+
+def test_the_ground_is_that_of_the_heights_after_an_update(estimated, halves, grid_dir, tmp_path):
+    """Estimate's layer updated with another DEM (the ground 1 m higher): its ground is the
+    one the new heights stand on, and relative_height is height - ground on every row."""
+    import rasterio
+
+    with rasterio.open(DEM) as src:
+        profile, data = src.profile, src.read(1)
+    dem = tmp_path / "dem.tif"
+    with rasterio.open(dem, "w", **profile) as dst:
+        dst.write(data + np.asarray(1.0, dtype=data.dtype), 1)
+    path = tmp_path / "heights.gpkg"
+    shutil.copyfile(estimated[0], path)
+    before = table(path)
+    update_map(path, list(halves), str(dem), grid_dir=grid_dir)
+    after = table(path)
+    np.testing.assert_allclose(after["ground"], before["ground"] + 1.0)
+    np.testing.assert_allclose(after["relative_height"], after["height"] - after["ground"])

@@ -48,10 +48,12 @@ _FROM = {
 }
 
 #: The columns of ``estimate``'s heights layer that come from the fit besides :data:`COLUMNS`
-#: (each from the estimate's column of its name), with their GeoPackage types. On that layer
+#: (each from the estimate's column of its name; ``ground`` the DEM's the heights stand on),
+#: with their GeoPackage types. On that layer
 #: an update writes them too: left as they were, a row would say ``converged`` 0 beside
 #: ``status`` ok and an old height, which the layer's style colours by and ``convert`` writes.
 ESTIMATE_COLUMNS = {
+    "ground": "REAL",
     "height": "REAL",
     "relative_height": "REAL",
     "a": "REAL",

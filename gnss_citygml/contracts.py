@@ -9,7 +9,7 @@ the published contract and the checks cannot drift apart:
   :func:`~gnss_citygml.observations.check_observations` takes its columns, required columns,
   types, constellation letters and ranges from it;
 - :data:`HEIGHTS`, a row of the heights table: the export's join
-  (:func:`~gnss_citygml.export.plan.footprints_with_heights`) takes its required columns from it;
+  (:func:`~gnss_citygml.export.heights.footprints_with_heights`) takes its required columns from it;
 - :data:`EXTENSION`, the CityJSON Extension typing the toolkit's attributes (``+height``, ...):
   the CityJSON writers' ``typed_attributes`` option writes them, and the validator checks a file
   that declares it (:mod:`gnss_citygml.validate.extensions`).

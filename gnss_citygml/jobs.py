@@ -401,6 +401,7 @@ def convert_file(
     relative: bool = False,
     ground_field: str | None = None,
     fallback_field: str | None = None,
+    fallback_relative: bool = False,
     dem: StrPath | None = None,
     dem_crs: str | None = None,
     grid_dir: StrPath | None = None,
@@ -416,11 +417,12 @@ def convert_file(
     """Turn a polygon layer with a height field into a validated LOD1 city model (or 3D Tiles,
     ``output`` a folder's ``tileset.json``; ``ranges`` draws each height's interval there).
 
-    The height is absolute (m ODN) unless ``relative``; the ground comes from
-    ``ground_field`` or from the ``dem`` (one of the two, or the layer's ``ground`` column as
-    the heights layer of :func:`estimate_file` has). The buildings without a usable height
-    take ``fallback_field``'s, if given, and every building says where its height came from
-    (``height_source``: :func:`~gnss_citygml.export.plan.buildings_with_heights`)."""
+    The height is absolute (m ODN) unless ``relative`` (a heights layer says it of its own
+    fields); the ground comes from ``ground_field`` or from the ``dem`` (one of the two, or the
+    layer's ``ground`` column as the heights layer of :func:`estimate_file` has). The
+    buildings without a usable height take ``fallback_field``'s, if given (above the ground
+    if ``fallback_relative``), and every building says where its height came from
+    (``height_source``: :func:`~gnss_citygml.export.heights.buildings_with_heights`)."""
     from .export import buildings_with_heights
 
     if ground_field is not None and dem is not None:
@@ -440,6 +442,7 @@ def convert_file(
             relative=relative,
             ground_field=ground_field,
             fallback_field=fallback_field,
+            fallback_relative=fallback_relative,
         )
 
     writer = _model_writer(
@@ -449,7 +452,8 @@ def convert_file(
     made = _provenance(
         "convert",
         {"height_field": height_field, "relative": relative, "ground_field": ground_field,
-         "fallback_field": fallback_field, "layer": layer, "id_field": id_field,
+         "fallback_field": fallback_field, "fallback_relative": fallback_relative,
+         "layer": layer, "id_field": id_field,
          "dem_crs": dem_crs, "strict": strict, "ranges": ranges},
         source=source, dem=dem,
     )  # fmt: skip

@@ -5,10 +5,12 @@ import json
 
 import geopandas as gpd
 import numpy as np
+import pytest
 import shapely
 from test_cli import run
 
-from gnss_citygml.export.plan import buildings_with_heights
+from gnss_citygml.errors import InputError
+from gnss_citygml.export import buildings_with_heights, prepare_buildings
 
 
 def heights_layer():
@@ -33,7 +35,7 @@ def heights_layer():
 
 
 def test_the_fallback_fills_only_the_buildings_without_an_estimate():
-    out = buildings_with_heights(heights_layer(), fallback_field="relh2", relative=True)
+    out = buildings_with_heights(heights_layer(), fallback_field="relh2", fallback_relative=True)
     assert out["height_source"].tolist() == ["gnss", "gnss", "relh2", "gnss"]
     assert out["height"].tolist()[:3] == [32.0, 30.5, 22.0 + 7.25]
     assert np.isnan(out.loc[2, "height_lower"]) and out.loc[0, "height_lower"] == 31.0
@@ -53,14 +55,14 @@ def test_relative_is_refused_for_the_absolute_heights_of_a_heights_layer(tmp_pat
     code, _, err = run(
         ["convert", str(layer), "--relative", "-o", str(tmp_path / "c.json")], capsys
     )
-    assert code == 2 and "the heights layer's heights are absolute" in err
-    assert not (tmp_path / "c.json").exists()
+    assert code == 2 and "'height' holds absolute heights (m ODN)" in err
+    assert "--fallback-relative" in err and not (tmp_path / "c.json").exists()
 
 
 def test_every_output_carries_each_height_source(tmp_path, capsys):
     layer = tmp_path / "h.gpkg"
     heights_layer().to_file(layer, layer="heights")
-    options = ["--fallback-field", "relh2", "--relative"]
+    options = ["--fallback-field", "relh2", "--fallback-relative"]
     code, _, err = run(["convert", str(layer), *options, "-o", str(tmp_path / "c.city.json")],
                        capsys)  # fmt: skip
     assert code == 0, err
@@ -79,3 +81,127 @@ def test_every_output_carries_each_height_source(tmp_path, capsys):
     table = json.loads(glb[20 : 20 + int.from_bytes(glb[12:16], "little")])
     schema = table["extensions"]["EXT_structural_metadata"]["schema"]
     assert schema["classes"]["building"]["properties"]["height_source"] == {"type": "STRING"}
+
+
+def updated_map():
+    """An OS map that `update` wrote into (height_gnss, absolute, and its converged), with OS's
+    relh2 (relative) and abshmax (absolute): a converged GNSS roof at 28.39 m ODN, one fit that
+    did not converge, one building without any GNSS estimate."""
+    return gpd.GeoDataFrame(
+        {
+            "id": ["a", "b", "c"],
+            "ground": [20.0, 21.0, 22.0],
+            "relh2": [np.nan, 9.0, 7.25],
+            "abshmax": [29.0, np.nan, 30.0],
+            "height_gnss": [28.39, np.nan, np.nan],
+            "height_lower": [27.5, np.nan, np.nan],
+            "height_upper": [29.5, np.nan, np.nan],
+            "c_gnss": [28.1, 35.0, np.nan],
+            "converged": [True, False, None],
+            "status_gnss": ["ok", "flat likelihood", None],
+            "method": ["4PL-B", "4PL-B", None],
+        },
+        geometry=[shapely.box(529000 + 20 * k, 181000, 529010 + 20 * k, 181010) for k in range(3)],
+        crs="EPSG:27700",
+    )
+
+
+def test_each_fields_reference_is_its_own():
+    """The GNSS height is absolute and the fallback relative: only the fallback gets the ground
+    added (the GNSS roof at 28.39 m ODN was written at 48.39 m)."""
+    out = buildings_with_heights(
+        updated_map(), "height_gnss", fallback_field="relh2", fallback_relative=True
+    )
+    assert out["height"].tolist() == [28.39, 21.0 + 9.0, 22.0 + 7.25]
+    assert out["height_source"].tolist() == ["gnss", "relh2", "relh2"]
+    assert out["method"].tolist() == ["4PL-B"] + ["attribute relh2 + ground"] * 2
+    # the other way round: a relative height field, an absolute GNSS fallback
+    out = buildings_with_heights(
+        updated_map(), "relh2", relative=True, fallback_field="height_gnss"
+    )
+    assert out["height"].tolist()[0] == 28.39 and out["height_source"][0] == "height_gnss"
+    # the heights layer's relative_height is above the ground, said or not
+    out = buildings_with_heights(heights_layer().drop(columns="height"), "relative_height")
+    assert out["height"].tolist()[:2] == [32.0, 30.5]
+
+
+def fits_only():
+    """The heights layer without its height column (so that another field can be the height
+    field)."""
+    return heights_layer().drop(columns="height")
+
+
+@pytest.mark.parametrize(
+    ("layer", "field", "options", "switch"),
+    [
+        (updated_map, "height_gnss", {"relative": True, "fallback_field": "relh2"}, "--relative"),
+        (updated_map, "relh2", {"relative": True, "fallback_field": "c_gnss",
+                                "fallback_relative": True}, "--fallback-relative"),
+        (heights_layer, "height", {"relative": True}, "--relative"),
+        (fits_only, "relh2", {"relative": True, "fallback_field": "height_upper",
+                              "fallback_relative": True}, "--fallback-relative"),
+        (lambda: fits_only().assign(c=30.0), "c", {"relative": True}, "--relative"),
+    ],
+)  # fmt: skip
+def test_a_field_said_relative_that_the_layer_says_is_absolute_is_refused(
+    layer, field, options, switch
+):
+    with pytest.raises(InputError, match="holds absolute heights") as caught:
+        buildings_with_heights(layer(), field, **options)
+    assert caught.value.fix.startswith(f"leave out {switch} ")
+
+
+def test_an_unconverged_fit_never_comes_back_through_the_fallback():
+    """A fit parameter taken as the height (c), with a fallback that has nothing for the
+    building whose fit did not converge: that building is left out as it is without the
+    fallback; nor does a GNSS field as the fallback bring an unconverged fit back."""
+    layer = fits_only().assign(c=[32.5, 30.0, 51.0, 44.0], relh2=np.nan)
+    without = prepare_buildings(buildings_with_heights(layer, "c"))
+    with_empty = prepare_buildings(buildings_with_heights(layer, "c", fallback_field="relh2"))
+    assert dict(with_empty.skipped) == dict(without.skipped)
+    assert set(dict(without.skipped)) == {"c", "d"}
+    empty = updated_map().assign(relh2=np.nan, abshmax=np.nan)
+    for field, fallback in (("c_gnss", "relh2"), ("abshmax", "c_gnss"), ("relh2", "c_gnss")):
+        plan = prepare_buildings(buildings_with_heights(empty, field, fallback_field=fallback))
+        assert "b" in dict(plan.skipped) and plan.frame["id"][plan.rows].tolist() == ["a"]
+
+
+def test_a_gnss_fit_does_not_decide_for_another_field():
+    """abshmax on a map that update wrote into: a building whose GNSS fit did not converge
+    still has its abshmax, and no GNSS interval is drawn around it."""
+    out = buildings_with_heights(updated_map(), "abshmax")
+    plan = prepare_buildings(out)
+    assert dict(plan.skipped) == {"b": "no height"}
+    assert out["height_source"].tolist() == ["abshmax"] * 3
+    assert out["method"].tolist() == ["attribute abshmax"] * 3  # not the fit's 4PL-B
+    assert out["height_lower"].isna().all() and out["height_upper"].isna().all()
+
+
+@pytest.mark.parametrize("field", ["gnss", "Height", "height "])
+def test_a_fallback_field_that_is_not_there_is_named(field, tmp_path, capsys):
+    layer = tmp_path / "h.gpkg"
+    heights_layer().to_file(layer, layer="heights")
+    out = tmp_path / "c.city.json"
+    code, _, err = run(["convert", str(layer), "--fallback-field", field, "-o", str(out)], capsys)
+    assert code == 2 and repr(field) in err and "relh2" in err and not out.exists()
+
+
+def test_the_height_field_as_its_own_fallback_is_refused():
+    with pytest.raises(InputError, match="the fallback field is the height field"):
+        buildings_with_heights(updated_map(), "relh2", relative=True, fallback_field="relh2")
+
+
+def test_the_command_line_says_each_fields_reference(tmp_path, capsys):
+    """convert --relative with an absolute height field and a relative fallback: refused,
+    naming --fallback-relative; with it, the GNSS roof stays at 28.39 m."""
+    layer = tmp_path / "map.gpkg"
+    updated_map().to_file(layer, layer="buildings")
+    out = tmp_path / "c.city.json"
+    common = ["convert", str(layer), "--height-field", "height_gnss", "--fallback-field", "relh2"]
+    code, _, err = run([*common, "--relative", "-o", str(out)], capsys)
+    assert code == 2 and "--fallback-relative" in err and not out.exists()
+    code, _, err = run([*common, "--fallback-relative", "-o", str(out)], capsys)
+    assert code == 0, err
+    objects = json.loads(out.read_text())["CityObjects"]
+    assert objects["a"]["attributes"]["height"] == 28.39
+    assert objects["b"]["attributes"]["height"] == 30.0

@@ -293,3 +293,17 @@ def test_an_input_column_named_like_a_tiles_property_does_not_shadow_it(
     rows, _ = _table_of(path)
     assert rows["box"]["measured_height"] == pytest.approx(33.25 - 21.5)
     assert sorted(rows) == ["box", "ell", "parts", "yard"]
+
+
+@pytest.mark.parametrize("count", [-5, 2.5, 4_294_967_295, "many"])
+def test_a_count_that_is_no_unsigned_number_is_refused_not_wrapped(buildings, count, tmp_path):
+    """n_signals is an unsigned 32-bit property: -5 would be 4294967291, 2.5 would be 2 and
+    4294967295 the no-data value; each is an error naming the building, and nothing is
+    written."""
+    counts = buildings["n_signals"].astype(object)
+    counts[2] = count
+    with pytest.raises(InputError, match=r"n_signals.*\bell\b") as caught:
+        write_3dtiles(buildings.assign(n_signals=counts), tmp_path / "c" / "tileset.json",
+                      validate=False, grid_dir=BUNDLED_GRID_DIR)  # fmt: skip
+    assert "0 or more" in caught.value.what
+    assert list(tmp_path.iterdir()) == []

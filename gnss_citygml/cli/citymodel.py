@@ -164,13 +164,19 @@ def _stdout_gone(stream) -> None:
 @click.option(
     "--relative",
     is_flag=True,
-    help="The height field (for estimate's heights layer: the fallback field) is above the ground.",
+    help="The height field is above the ground (a heights layer says it of its own fields: "
+    "relative_height is, height and height_gnss are not).",
 )
 @click.option("--ground-field", help="Field with the ground height (m ODN).")
 @click.option(
     "--fallback-field",
     help="Field whose height the buildings without a usable height get (e.g. OS's relh2, with "
-    "--relative); each building's height_source says where its height came from.",
+    "--fallback-relative); each building's height_source says where its height came from.",
+)
+@click.option(
+    "--fallback-relative",
+    is_flag=True,
+    help="The fallback field is above the ground (as --relative is for the height field).",
 )
 @dem_file("DEM for the ground under each footprint (instead of --ground-field).")
 @DEM_CRS
@@ -184,6 +190,7 @@ def convert(
     relative,
     ground_field,
     fallback_field,
+    fallback_relative,
     dem,
     dem_crs,
     grid_dir,
@@ -200,7 +207,8 @@ def convert(
     """Turn footprints with a height attribute into CityJSON, CityJSONSeq, CityGML LOD1 or 3D Tiles.
 
     INPUT is the heights layer of `estimate` or any polygon source with a height field (e.g.
-    OS Building Height Attribute's abshmax, or relh2 with --relative). The heights a run in
+    OS Building Height Attribute's abshmax, or relh2 with --relative; the heights of estimate
+    with OS's relh2 for the rest: --fallback-field relh2 --fallback-relative). The heights a run in
     tiles wrote into a folder are read as GeoParquet: FOLDER/heights for all of them,
     FOLDER/heights/tile=TQ2982 for one tile.
     """
@@ -213,6 +221,7 @@ def convert(
         relative=relative,
         ground_field=ground_field,
         fallback_field=fallback_field,
+        fallback_relative=fallback_relative,
     )
     options = _options(
         layer, id_field, dem, dem_crs, grid_dir, overwrite, strict, no_validate, schema_dir,

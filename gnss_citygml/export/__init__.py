@@ -9,8 +9,9 @@ renames it into place.
 
 from .citygml import gml_ids, write_citygml
 from .cityjson import write_cityjson, write_cityjsonseq
+from .heights import buildings_with_heights, footprints_with_heights
 from .output import ExportResult, InvalidOutputError
-from .plan import buildings_with_heights, footprints_with_heights, prepare_buildings
+from .plan import prepare_buildings
 from .prisms import Prisms, extrude, snap_footprints
 from .tiles3d import write_3dtiles
 

@@ -1,9 +1,8 @@
 """The plan of an export: which buildings go out, and why the others do not.
 
 The writers take the *buildings* table with heights: ``id``, ``geometry``, ``ground`` and
-``height`` (the absolute roof height, m ODN). :func:`footprints_with_heights` joins a heights
-table (from ``gnss-citygml heights``) to the footprints and :func:`buildings_with_heights` turns
-any footprint layer with a height attribute into that table. :func:`prepare_buildings` checks
+``height`` (the absolute roof height, m ODN), made by :mod:`.heights` from a heights table or
+any footprint layer with a height attribute. :func:`prepare_buildings` checks
 it and returns a :class:`Plan`, which hands the usable buildings out a chunk at a time, their
 footprints snapped to the millimetre grid (:func:`~gnss_citygml.export.prisms.snap_footprints`),
 and lists the others with their reason.
@@ -31,9 +30,8 @@ import numpy as np
 import pandas as pd
 import shapely
 
-from ..contracts import HEIGHTS, load
 from ..errors import InputError, MissingColumnError, listing
-from ..files.ids import id_field, id_named, missing_ids, with_id_field
+from ..files.ids import id_field, id_named, missing_ids
 from ..files.paths import StrPath
 from ..geodesy import check_bng
 from ..validate import Report
@@ -48,10 +46,9 @@ __all__ = [
     "MAX_HEIGHT_ABOVE_GROUND",
     "Plan",
     "booleans",
-    "buildings_with_heights",
     "chunks",
-    "footprints_with_heights",
     "hash_texts",
+    "numeric",
     "prepare_buildings",
     "repeated_positions",
 ]
@@ -82,162 +79,8 @@ _TRUE = {"true", "t", "yes", "y", "1", "1.0"}
 _FALSE = {"false", "f", "no", "n", "0", "0.0"}
 
 
-def footprints_with_heights(
-    footprints: gpd.GeoDataFrame, heights: pd.DataFrame, *, where: str = "heights table"
-) -> gpd.GeoDataFrame:
-    """The footprints joined with a heights table (the ids and the heights columns), e.g. one
-    written by ``gnss-citygml heights``. The table's ids are in ``id`` or in a column named
-    like the footprints' id field (e.g. ``toid``, as ``estimate`` writes them; see
-    :mod:`gnss_citygml.files.ids`), and the result keeps that name for the outputs. Footprints
-    without a row keep empty heights (the writers skip and list them); a ``ground`` already on
-    the footprints (from a DEM) wins over the table's. Heights of ids that are not among the
-    footprints are an error, as is a table without the columns the heights schema requires
-    (``schemas/heights.schema.json``: the id, ``height``)."""
-    name, columns = id_field(footprints), list(heights.columns)
-    footprints, heights = id_named(footprints), id_named(heights, name, where=where)
-    required = load(HEIGHTS)["required"]
-    missing = [name if c == "id" else c for c in required if c not in heights.columns]
-    if missing:
-        raise MissingColumnError(missing, where=where, have=columns)
-    table = heights.assign(id=heights["id"].astype(str))
-    repeated = pd.unique(table["id"][table["id"].duplicated()])
-    if repeated.size:
-        raise InputError(
-            f"{repeated.size} building id(s) with more than one height: {listing(repeated)}",
-            where=where,
-            fix="keep one row per building",
-        )
-    if "ground" in footprints.columns:
-        table = table.drop(columns=["ground"], errors="ignore")
-    # a table with its own geometry (estimate's GeoParquet layer): the footprints' is the one
-    table = pd.DataFrame(table).drop(
-        columns=["geometry", footprints.geometry.name], errors="ignore"
-    )
-    unknown = ~table["id"].isin(footprints["id"])
-    if unknown.any():
-        raise InputError(
-            f"{int(unknown.sum())} height(s) for buildings not among the footprints: "
-            + listing(table["id"][unknown]),
-            where=where,
-            fix="give the footprints the heights were estimated for",
-        )
-    return with_id_field(footprints.merge(table, on="id", how="left"), name)
-
-
-def buildings_with_heights(
-    frame: gpd.GeoDataFrame,
-    height_field: str = "height",
-    *,
-    relative: bool = False,
-    ground_field: str | None = None,
-    fallback_field: str | None = None,
-) -> gpd.GeoDataFrame:
-    """Any footprint layer with a height attribute as the buildings table the writers take.
-
-    Parameters
-    ----------
-    frame
-        Footprints (``id``, ``geometry``) with a height attribute, e.g. the ``heights`` layer of
-        ``estimate`` or OS Building Height Attribute fields (``abshmax``, ``relh2``). The ground
-        comes from ``ground_field`` or from a ``ground`` column (e.g. added from a DEM by
-        :func:`gnss_citygml.terrain.building_ground`).
-    height_field
-        The column with the roof height (m): absolute (ODN) by default.
-    relative
-        The height field is the height above the ground (m); the roof is ground + height.
-    ground_field
-        The column with the ground height (m ODN), moved to ``ground``.
-    fallback_field
-        A column whose height the buildings without a usable height get (not converged, or
-        none): relative to the ground with ``relative``. The table then says where each
-        height came from in ``height_source``: ``gnss`` (or the height field's name, for a
-        layer that is not ``estimate``'s) or the fallback field's name; a fallback height has
-        no interval. A heights layer of ``estimate`` (with ``converged`` and
-        ``relative_height``) has absolute heights: ``relative`` is then the fallback's.
-
-    Returns
-    -------
-    geopandas.GeoDataFrame
-        A copy with ``ground`` and ``height`` (absolute roof height, m ODN; the input field is
-        kept under its own name) and, unless present, ``method`` saying where the height came
-        from (e.g. ``attribute relh2 + ground``).
-
-    Raises
-    ------
-    MissingColumnError
-        The height or ground field is missing.
-    InputError
-        A field is not numeric, or the layer already has other ``height``/``ground`` columns.
-
-    Examples
-    --------
-    >>> frame = gpd.GeoDataFrame({"id": ["a"], "relh2": [9.5], "base": [12.0]},
-    ...                          geometry=[shapely.box(0, 0, 5, 5)], crs="EPSG:27700")
-    >>> out = buildings_with_heights(frame, "relh2", relative=True, ground_field="base")
-    >>> out[["ground", "height", "method"]].values.tolist()
-    [[12.0, 21.5, 'attribute relh2 + ground']]
-    """
-    columns = list(frame.columns)
-    _check_fields(columns, height_field, ground_field, fallback_field)
-    estimated = height_field == "height" and {"converged", "relative_height"} <= set(columns)
-    if relative and estimated and fallback_field is None:
-        raise InputError(
-            "the heights layer's heights are absolute (its relative_height is beside them)",
-            where="footprint layer",
-            fix="leave out --relative, or give the --fallback-field it is for",
-        )
-    out = frame.copy()
-    ground = _numeric(out, ground_field or "ground")
-    height = _numeric(out, height_field)
-    out["ground"] = ground
-    out["height"] = ground + height if relative and not estimated else height
-    if ground_field not in (None, "ground"):
-        out = out.drop(columns=[ground_field])
-    if "method" not in out.columns and height_field != "height":
-        out["method"] = f"attribute {height_field}" + (" + ground" if relative else "")
-    if fallback_field is not None:
-        out = _fallback(out, fallback_field, relative, "gnss" if estimated else height_field)
-    return out
-
-
-def _check_fields(columns: list, height_field: str, ground_field, fallback_field) -> None:
-    """Refuse fields the layer lacks, a layer without a ground, and a field that would be
-    renamed over another column (:func:`buildings_with_heights`)."""
-    for name in (height_field, ground_field, fallback_field):
-        if name is not None and name not in columns:
-            raise MissingColumnError([name], where="footprint layer", have=columns)
-    if ground_field is None and "ground" not in columns:
-        raise MissingColumnError(
-            ["ground"], where="footprint layer (give a ground field or a DEM)", have=columns
-        )
-    for target, name in (("ground", ground_field), ("height", height_field)):
-        if name is not None and name != target and target in columns:
-            raise InputError(
-                f"the layer has a column {target!r} besides the {target} field {name!r}",
-                where="footprint layer",
-                fix=f"rename or drop the column {target!r}",
-            )
-
-
-def _fallback(frame: gpd.GeoDataFrame, field: str, relative: bool, source: str):
-    """``frame`` whose buildings without a usable height take ``field``'s, with
-    ``height_source`` (:func:`buildings_with_heights`)."""
-    height = frame["height"].to_numpy(dtype=float)
-    usable = np.isfinite(height)
-    if "converged" in frame.columns:
-        usable &= booleans(frame["converged"], "converged", frame).fillna(False).to_numpy(bool)
-    other = _numeric(frame, field) + (frame["ground"].to_numpy(dtype=float) if relative else 0.0)
-    taken = ~usable & np.isfinite(other)
-    out = frame.copy()
-    out["height"] = np.where(taken, other, height)
-    for column in ("height_lower", "height_upper"):
-        if column in out.columns:
-            out.loc[taken, column] = np.nan
-    out["height_source"] = np.where(taken, field, source)
-    return out
-
-
-def _numeric(frame: pd.DataFrame, name: str) -> np.ndarray:
+def numeric(frame: pd.DataFrame, name: str) -> np.ndarray:
+    """The column ``name`` as floats (NaN where empty); text is an error naming the buildings."""
     try:
         return pd.to_numeric(frame[name], errors="raise").to_numpy(dtype=float, na_value=np.nan)
     except (ValueError, TypeError):
@@ -414,7 +257,7 @@ class _Checks:
             sizes = [len(group) for group in groups]
             self.part_rows.append(np.repeat(np.flatnonzero(multi) + first, sizes))
         try:
-            ground, height = _numeric(frame, "ground"), _numeric(frame, "height")
+            ground, height = numeric(frame, "ground"), numeric(frame, "height")
         except InputError:  # reported for the whole table by raise_errors
             self.numeric = False
             return
@@ -459,7 +302,7 @@ class _Checks:
             parts = np.concatenate(self.part_hashes), np.concatenate(self.part_rows)
             _check_part_ids(buildings, self.hashes, *parts)
         if not self.numeric:
-            _numeric(buildings, "ground"), _numeric(buildings, "height")  # raises
+            numeric(buildings, "ground"), numeric(buildings, "height")  # raises
 
 
 def _reasons(frame: gpd.GeoDataFrame, ground: np.ndarray, height: np.ndarray) -> np.ndarray:
@@ -483,7 +326,7 @@ def _reasons(frame: gpd.GeoDataFrame, ground: np.ndarray, height: np.ndarray) ->
     if "converged" in frame.columns:
         converged = booleans(frame["converged"], "converged", frame)  # missing: no estimate
         failed = (~converged).fillna(False).to_numpy(dtype=bool)
-        if "height_source" in frame.columns:  # a fallback's height is not an estimate's
+        if "height_source" in frame.columns:  # another field's height is not the fit's
             failed &= frame["height_source"].astype(str).to_numpy() == "gnss"
         status = frame["status"].astype(str).to_numpy() if "status" in frame else None
         reason[failed] = [

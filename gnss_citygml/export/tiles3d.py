@@ -115,6 +115,7 @@ def write_3dtiles(
         )
     plan = prepare_buildings(buildings, strict=strict)
     _warn_shadowed(buildings)
+    _check_numbers(plan)
     squares = _squares(plan)
     leaves, refused = [], []
     with atomic_folder(path.parent, overwrite=overwrite, mark=TILESET) as work:
@@ -186,6 +187,31 @@ def _squares(plan: Plan) -> Iterator[tuple[str, np.ndarray]]:
     groups = pd.Series(plan.rows).groupby(names, sort=True)
     for name, rows in groups:
         yield str(name), rows.to_numpy()
+
+
+def _check_numbers(plan: Plan) -> None:
+    """Refuse a numeric property of a building to write that its type cannot hold, rather
+    than write another number: text, or a count (``UINT32``) below 0, not whole, infinite or
+    not below the no-data value (-5 would be 4294967291, 2.5 would be 2)."""
+    for column, kind in OPTIONAL.items():
+        if kind == "STRING" or column not in plan.frame.columns:
+            continue
+        values = plan.frame[column].iloc[plan.rows]
+        numbers = pd.to_numeric(values, errors="coerce").to_numpy(dtype=float, na_value=np.nan)
+        bad = np.isnan(numbers) & values.notna().to_numpy()
+        what = "a number"
+        if kind == "UINT32":
+            with np.errstate(invalid="ignore"):
+                bad |= np.isinf(numbers) | (numbers % 1 != 0) & np.isfinite(numbers)
+                bad |= (numbers < 0) | (numbers >= NO_DATA[kind])
+            what = f"a whole number, 0 or more and below {NO_DATA[kind]}"
+        if bad.any():
+            ids = plan.frame["id"].iloc[plan.rows][bad].astype(str).tolist()
+            raise InputError(
+                f"column {column!r} is not {what} (buildings {listing(ids)})",
+                where="buildings",
+                fix=f"give {column} so, or drop the column",
+            )
 
 
 def _frame(plan: Plan, rows: np.ndarray) -> gpd.GeoDataFrame | None:

@@ -185,7 +185,8 @@ def update_map(
     values, table = new_values(estimate, here.current, min_signals)
     touched = frozenset(cast.fresh["building"].astype(str))
     result = UpdateResult(cast.n_new, len(cast.fresh), table, threshold, touched)
-    result.notes += _notes(gone, before.outlines, here.outlines)
+    unseen = bool(before.intersections.empty and here.current["converged"].notna().any())
+    result.notes += _notes(gone, before.outlines, here.outlines, unseen)
     if report is not None:
         say("report", 0.6)
         _write_report(report, true, estimate, here, everything, model, evidence, classifier)
@@ -367,9 +368,17 @@ def _fit_input(evidence, buildings, everything) -> tuple[pd.DataFrame, pd.DataFr
     return model, everything[~everything["signal_key"].isin(evidence["signal_key"])]
 
 
-def _notes(gone: int, outlines_before: str | None, outlines: str) -> list[str]:
-    """What the change report says of the evidence: some left out, outlines changed."""
+def _notes(gone: int, outlines_before: str | None, outlines: str, unseen: bool) -> list[str]:
+    """What the change report says of the evidence: some left out, outlines changed, none
+    behind the layer's estimates (``unseen``: ``estimate``'s layer, whose observations an
+    update has not seen)."""
     notes = []
+    if unseen:
+        notes.append(
+            "the layer's estimates came with no evidence (estimate's output?): they are "
+            "replaced by the fit of these observations alone (to keep what the earlier ones "
+            "saw, give them too)"
+        )
     if gone:
         notes.append(f"{gone} intersections with footprints no longer in the layer left out")
     if outlines_before not in (None, outlines):

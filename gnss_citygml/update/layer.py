@@ -1,5 +1,6 @@
 """The map's footprint layer as SQL sees it: its table's name, the column of building ids, the
-estimate columns (:data:`COLUMNS`) as they are and as they will be written, by building id.
+estimate columns (:data:`COLUMNS`, and on ``estimate``'s heights layer its own of
+:data:`ESTIMATE_COLUMNS`) as they are and as they will be written, by building id.
 The columns are written with SQL on the layer's own table, so every other column, feature and
 style stays, and the feature ids do not change."""
 
@@ -46,6 +47,29 @@ _FROM = {
     "status_gnss": "status",
 }
 
+#: The columns of ``estimate``'s heights layer that come from the fit besides :data:`COLUMNS`
+#: (each from the estimate's column of its name; ``ground`` the DEM's the heights stand on),
+#: with their GeoPackage types. On that layer
+#: an update writes them too: left as they were, a row would say ``converged`` 0 beside
+#: ``status`` ok and an old height, which the layer's style colours by and ``convert`` writes.
+ESTIMATE_COLUMNS = {
+    "ground": "REAL",
+    "height": "REAL",
+    "relative_height": "REAL",
+    "a": "REAL",
+    "b": "REAL",
+    "c": "REAL",
+    "d": "REAL",
+    "iterations": "INTEGER",
+    "status": "TEXT",
+}
+
+#: The columns that together make a layer ``estimate``'s heights layer (on a map, columns of
+#: these names one by one may be the user's own, and are left alone).
+ESTIMATE_LAYER = ("converged", "height", "relative_height", "status")
+
+_KINDS = {**COLUMNS, **ESTIMATE_COLUMNS}
+
 
 def layer_name(path: Path, layer: str | None) -> str:
     """The footprint layer's table: ``layer`` as the database names it (SQLite's names are
@@ -69,9 +93,9 @@ def layer_name(path: Path, layer: str | None) -> str:
 
 def _column_types(db: sqlite3.Connection, layer: str) -> dict[str, str]:
     """The layer's columns (lower case, as SQLite compares them) and their types; a column of
-    ours that is there with another type is a one-line error."""
+    ours (:func:`_written`) that is there with another type is a one-line error."""
     info = {row[1].lower(): row[2] for row in db.execute(f"PRAGMA table_info({quoted(layer)})")}
-    for column, kind in COLUMNS.items():
+    for column, kind in _written(info).items():
         if column in info and info[column].upper() != kind:
             raise InputError(
                 f"the layer has a column {column!r} of type {info[column]}, not {kind}",
@@ -81,16 +105,27 @@ def _column_types(db: sqlite3.Connection, layer: str) -> dict[str, str]:
     return info
 
 
+def _written(info: dict[str, str]) -> dict[str, str]:
+    """The columns an update writes on a layer of columns ``info``: :data:`COLUMNS`, and on
+    ``estimate``'s heights layer (:data:`ESTIMATE_LAYER`) those of :data:`ESTIMATE_COLUMNS`
+    it has, so that every row agrees with itself."""
+    if not set(ESTIMATE_LAYER) <= set(info):
+        return dict(COLUMNS)
+    return {**COLUMNS, **{c: kind for c, kind in ESTIMATE_COLUMNS.items() if c in info}}
+
+
 def current_values(path: Path, layer: str, key: str, ids: pd.Series) -> pd.DataFrame:
-    """The layer's estimate columns now, by building id (NaN/None where absent)."""
+    """The columns the update writes on the layer (:func:`_written`) as they are now, by
+    building id (NaN/None where absent)."""
     with contextlib.closing(sqlite3.connect(path)) as db:
         have = _column_types(db, layer)
-        present = [c for c in COLUMNS if c in have]
+        written = list(_written(have))
+        present = [c for c in written if c in have]
         query = ", ".join(quoted(c) for c in [key, *present])
         rows = db.execute(f"SELECT {query} FROM {quoted(layer)}").fetchall()
     table = pd.DataFrame(rows, columns=["id", *present])
     table["id"] = id_text(pd.Series(table["id"].tolist()))
-    return table.set_index("id").reindex(ids.astype(str), columns=list(COLUMNS))
+    return table.set_index("id").reindex(ids.astype(str), columns=written)
 
 
 def key_column(path: Path, layer: str, candidates: list, ids: pd.Series) -> tuple[str, pd.Series]:
@@ -124,21 +159,24 @@ def key_column(path: Path, layer: str, candidates: list, ids: pd.Series) -> tupl
 def new_values(
     estimate: pd.DataFrame, current: pd.DataFrame, min_signals: int
 ) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """The values to write (every column of :data:`COLUMNS`, by id) and the per-building
-    table of :class:`~gnss_citygml.update.UpdateResult`."""
+    """The values to write (every column of ``current``, :func:`current_values`'s, by id) and
+    the per-building table of :class:`~gnss_citygml.update.UpdateResult`."""
     ids = estimate["id"].astype(str).to_numpy()
-    new = pd.DataFrame({col: estimate[src].to_numpy() for col, src in _FROM.items()}, index=ids)
+    fitted = [c for c in current.columns if c != "updated_utc"]
+    new = pd.DataFrame({c: estimate[_FROM.get(c, c)].to_numpy() for c in fitted}, index=ids)
     enough = new["n_signals"].to_numpy() >= min_signals
     old = current.reindex(pd.Index(ids))
     same = np.ones(len(ids), dtype=bool)
-    for column in _FROM:
+    for column in fitted:
         same &= _equal(old[column].to_numpy(), new[column].to_numpy(), column)
     changed = enough & ~same
     now = dt.datetime.now(dt.UTC)
     stamp = now.strftime("%Y-%m-%dT%H:%M:%S.") + f"{now.microsecond // 1000:03d}Z"  # GeoPackage
     new["updated_utc"] = np.where(changed, stamp, old["updated_utc"].to_numpy(dtype=object))
     skipped = np.where(enough, "", f"fewer than {min_signals} signals")
-    before = pd.to_numeric(old["height_gnss"], errors="coerce").to_numpy(float)
+    # estimate's layer had its heights in height before an update added height_gnss
+    was = old["height"] if "height" in old.columns else old["height_gnss"]
+    before = pd.to_numeric(was, errors="coerce").to_numpy(float)
     after = np.where(changed, new["height_gnss"].to_numpy(float), before)
     table = pd.DataFrame(
         {"id": ids, "before": before, "after": after, "changed": changed, "skipped": skipped}
@@ -148,7 +186,7 @@ def new_values(
 
 def _equal(old: np.ndarray, new: np.ndarray, column: str) -> np.ndarray:
     """Element-wise: the layer's value equals the new one (NaN/None equal to each other)."""
-    kind = COLUMNS[column]
+    kind = _KINDS[column]
     if kind == "REAL":
         a, b = pd.to_numeric(old, errors="coerce").astype(float), new.astype(float)
         return (a == b) | (np.isnan(a) & np.isnan(b))
@@ -159,13 +197,14 @@ def _equal(old: np.ndarray, new: np.ndarray, column: str) -> np.ndarray:
 
 
 def write_columns(path: Path, layer: str, key: str, values: pd.DataFrame) -> None:
-    """Add the missing columns to the layer's table and write ``values`` by building id."""
+    """Add the missing columns of :data:`COLUMNS` to the layer's table and write ``values``
+    (:func:`new_values`'s) by building id."""
     with contextlib.closing(connect(path)) as db, db:
         info = _column_types(db, layer)
         for column, kind in COLUMNS.items():
             if column not in info:
                 db.execute(f"ALTER TABLE {quoted(layer)} ADD COLUMN {quoted(column)} {kind}")
-        columns = list(COLUMNS)
+        columns = list(_written(info))
         assignments = ", ".join(f"{quoted(c)} = ?" for c in columns)
         rows = [
             [_sql(row[c]) for c in columns] + [_sql(row["id"])] for row in values.to_dict("records")

@@ -27,8 +27,10 @@ HELP = (
     """Keeps the building heights of a GeoPackage map up to date as new GNSS observations \
 arrive: adds or updates the columns height_gnss, height_lower, height_upper, height_paper, \
 c_gnss, n_signals, converged, method, status_gnss and updated_utc of the map layer, for the \
-buildings with enough signals. Every other column, feature, layer and style of the \
-GeoPackage is kept, and so are the feature ids.
+buildings with enough signals; on the heights layer of "Estimate building heights from \
+GNSS", its own height, relative_height, ground, status, a, b, c, d and iterations too, so that \
+no row keeps an old height beside a fit that no longer converges. Every other column, feature, \
+layer and style of the GeoPackage is kept, and so are the feature ids.
 
 The evidence (every intersection cast so far) is kept in the GeoPackage: an update casts only \
 the new observations and refits on all of them, so it equals one run over all the data, and \

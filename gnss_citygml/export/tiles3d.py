@@ -16,7 +16,7 @@ translucent prism from ``height_lower`` to ``height_upper`` shows each height's 
 
 The squares are written one at a time (:meth:`~gnss_citygml.export.plan.Plan.chunks` of their
 rows), so memory holds one square's buildings besides the table. The folder appears whole
-or not at all (:func:`~gnss_citygml.files.paths.atomic_folder`).
+or not at all (:func:`~gnss_citygml.files.folders.atomic_folder`).
 """
 
 from __future__ import annotations
@@ -32,7 +32,8 @@ import pandas as pd
 import shapely
 
 from ..errors import InputError
-from ..files.paths import StrPath, atomic_folder
+from ..files.folders import atomic_folder
+from ..files.paths import StrPath
 from ..files.provenance import KEY
 from ..geodesy.grid_refs import tile_index, tile_names
 from ..validate import Report

@@ -39,7 +39,8 @@ import numpy as np
 import pandas as pd
 
 from ..errors import InputError, listing, user_text
-from ..files.paths import StrPath, atomic_folder, check_not_input, file_digest
+from ..files.folders import atomic_folder
+from ..files.paths import StrPath, check_not_input, file_digest
 from ..files.provenance import PARTITION_INDEX
 from ..observations import read_observations, repeated_signals
 from ..settings import (

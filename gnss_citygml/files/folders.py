@@ -93,7 +93,7 @@ def atomic_folder(folder: StrPath, *, overwrite: bool = False, mark: str) -> Ite
     only an output of this kind: :func:`check_new_folder`) only once the new one is complete,
     keeping the files in it that the old output did not write (:func:`_keep_theirs`)."""
     folder = check_new_folder(folder, overwrite=overwrite, mark=mark)
-    work = folder.with_name(f".{folder.name}.part-{_HOST}-{os.getpid()}-{secrets.token_hex(4)}")
+    work = _hidden(folder, "part")
     try:
         work.mkdir()
     except OSError as exc:
@@ -213,7 +213,7 @@ def _swap(work: Path, folder: Path) -> Path:
     leaves it there, and :func:`recover` puts it back)."""
     if _exchange(work, folder):
         return work
-    aside = folder.with_name(f".{folder.name}.old-{_HOST}-{os.getpid()}-{secrets.token_hex(4)}")
+    aside = _hidden(folder, "old")
     os.rename(folder, aside)
     os.rename(work, folder)
     return aside
@@ -246,14 +246,24 @@ def _exchange(a: Path, b: Path) -> bool:
 def recover(folder: StrPath) -> None:
     """Put right what killed runs of the output ``folder`` on this machine left: an old
     folder renamed aside with none in its place goes back (the newest, if several), and the
-    other hidden folders of dead processes (``.NAME.part-*``, ``.NAME.old-*``) go."""
+    other hidden folders of dead processes (``.NAME.part-*``, ``.NAME.old-*``) go: each is
+    renamed as this process's first, so that a kill while it is removed leaves it to the next
+    run again, not for ever."""
     folder = Path(folder)
     aside = sorted(stale_parts(folder, kind="old"), key=lambda p: p.lstat().st_ctime_ns)
     if aside and not os.path.lexists(folder):
         with contextlib.suppress(OSError):
             os.rename(aside.pop(), folder)
     for stale in [*aside, *stale_parts(folder)]:
-        _remove(stale)
+        with contextlib.suppress(OSError):  # (taken over first: killed meanwhile, ours is left)
+            os.rename(stale, taken := _hidden(folder, "part"))
+            _remove(taken)
+
+
+def _hidden(folder: Path, kind: str) -> Path:
+    """A new hidden name beside ``folder`` that says which host and process made it, so that
+    a later run can tell a dead process's (:func:`~gnss_citygml.files.paths.stale_parts`)."""
+    return folder.with_name(f".{folder.name}.{kind}-{_HOST}-{os.getpid()}-{secrets.token_hex(4)}")
 
 
 def _remove(path: Path) -> None:

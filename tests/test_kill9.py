@@ -81,22 +81,24 @@ class Writer:
         return [*args, *extra, *overwrite]
 
 
+#: ``estimate`` on the example city, quietly, up to its output.
+ESTIMATE = (
+    "estimate",
+    "{example}/observations.parquet",
+    "{example}/footprints.gpkg",
+    "--dem",
+    "{example}/dem.tif",
+    "-q",
+    "-o",
+)
+
 WRITERS = {
     w.name: w
     for w in [
         Writer(
             "estimate",
             ("heights.gpkg",),
-            (
-                "estimate",
-                "{example}/observations.parquet",
-                "{example}/footprints.gpkg",
-                "--dem",
-                "{example}/dem.tif",
-                "-o",
-                "{out}/heights.gpkg",
-                "-q",
-            ),
+            (*ESTIMATE, "{out}/heights.gpkg"),
             previous=("--min-elevation", "10"),
             new=("--min-elevation", "15"),
         ),
@@ -157,9 +159,9 @@ WRITERS = {
                 "{example}/observations.parquet",
                 "--dem",
                 "{example}/dem.tif",
+                "-q",
                 "-o",
                 "{out}/part",
-                "-q",
             ),  # fmt: skip
             previous=("--min-elevation", "10"),
             new=("--min-elevation", "15"),
@@ -167,20 +169,7 @@ WRITERS = {
         Writer(
             "tiles",
             ("heights",),
-            (
-                "estimate",
-                "{example}/observations.parquet",
-                "{example}/footprints.gpkg",
-                "--dem",
-                "{example}/dem.tif",
-                "-o",
-                "{out}/heights",
-                "--scheduler",
-                "local",
-                "--workers",
-                "1",
-                "-q",
-            ),  # fmt: skip
+            (*ESTIMATE, "{out}/heights", "--scheduler", "local", "--workers", "1"),
             previous=("--min-elevation", "10"),
             new=("--min-elevation", "15"),
         ),

@@ -216,10 +216,6 @@ def test_a_trigger_on_the_provenance_or_style_tables_is_refused(name, tmp_path, 
     assert code == 0, err
     sql(path, WRITE_TRIGGERS[name])
     before = digest(path)
-    code, _, err = run(estimate(path, grid_args, "--overwrite", "--min-elevation", "15"), capsys)
-    assert code == 2, f"exit {code}: {err}"
-    lines = [line for line in err.strip().splitlines() if not line.startswith("warning: ")]
-    assert len(lines) == 1 and "internal error" not in err, err
-    assert "trigger" in err, err
+    one_line(capsys, estimate(path, grid_args, "--overwrite", "--min-elevation", "15"), "trigger")
     assert digest(path) == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["map.gpkg"]

@@ -85,9 +85,10 @@ def write_3dtiles(
 ) -> ExportResult:
     """Write the buildings (as :func:`~gnss_citygml.export.cityjson.write_cityjson` takes
     them) as a 3D Tiles 1.1 tileset: ``path`` is the tileset's ``tileset.json`` in a folder of
-    its own, written whole (``overwrite`` replaces only a folder holding a tileset). ``ranges``
-    adds each height's interval as a translucent prism; ``grid_dir`` is where the OSTN15 and
-    OSGM15 grids are (default: as :func:`gnss_citygml.geodesy.from_osgb` finds them);
+    its own, written whole (``overwrite`` replaces only a tileset this toolkit wrote, and keeps
+    the files of the user's in its folder). ``ranges`` adds each height's interval as a
+    translucent prism; ``grid_dir`` is where the OSTN15 and OSGM15 grids are (default: as
+    :func:`gnss_citygml.geodesy.from_osgb` finds them);
     ``title`` and ``provenance`` (:func:`gnss_citygml.files.provenance.provenance`) go in the
     tileset's ``asset.extras``.
 

@@ -60,21 +60,28 @@ def check_new_folder(folder: StrPath, *, overwrite: bool, mark: str) -> Path:
         raise InputError(
             "output exists", where=str(folder), fix="give another folder, or --overwrite"
         )
+    refusal = _not_replaced(folder, mark)
+    if refusal is not None:
+        raise InputError(refusal[0], where=str(folder), fix=refusal[1])
+    return folder
+
+
+def _not_replaced(folder: Path, mark: str) -> tuple[str, str] | None:
+    """Why ``--overwrite`` may not replace ``folder`` (no output of this kind, or one that
+    does not list what it wrote), and the fix; None if it may."""
     if not (folder / mark).is_file():
-        raise InputError(
+        return (
             f"the folder holds files this output did not write (it has no {mark}), and "
             "--overwrite replaces only such an output",
-            where=str(folder),
-            fix="give a new folder, or empty this one",
+            "give a new folder, or empty this one",
         )
     if not (folder / MANIFEST).is_file():
-        raise InputError(
+        return (
             f"the folder has no list of the files its output wrote ({MANIFEST}: another "
             "program's, or an older version's), so what in it is yours cannot be told",
-            where=str(folder),
-            fix="move what you want to keep out of it and remove it, or give a new folder",
+            "move what you want to keep out of it and remove it, or give a new folder",
         )
-    return folder
+    return None
 
 
 def _empty(folder: Path) -> bool:

@@ -55,7 +55,7 @@ HEIGHTS = "heights"
 
 def check_tile_folder(folder: StrPath, tiling: Tiling, *, overwrite: bool) -> Path:
     """Refuse, before any work, a folder of tiles that cannot be written: in a run that is not
-    in tiles (``tiling``), or a file, an existing folder without ``overwrite``, one that is
+    in tiles (``tiling``), or a file, a folder that is not empty without ``overwrite``, one that is
     not a folder of tiles (no :data:`INDEX`: it is never replaced), a missing parent
     (:func:`~gnss_citygml.files.folders.check_new_folder`). Returns it as an absolute path."""
     if not tiling.on:

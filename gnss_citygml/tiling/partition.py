@@ -104,7 +104,8 @@ def partition_observations(
     then needs nothing but the folder. Returns the index (also ``folder/partition.json``).
 
     The folder appears whole or not at all: it is written beside, under another name, and
-    renamed into place at the end (replacing an old one only with ``overwrite``).
+    renamed into place at the end (replacing an old one only with ``overwrite``, keeping the
+    files of the user's in it: :func:`~gnss_citygml.files.folders.atomic_folder`).
     The ``settings`` (:class:`~gnss_citygml.settings.RunSettings`, and their parts by name in
     ``changes``) the partition applies are the elevation mask, the receiver heights (with the
     grids and the DEM's CRS) and the position error's window or distance, which decides the

@@ -138,6 +138,26 @@ def test_an_output_without_its_list_of_files_is_not_replaced(tmp_path):
     assert sorted(p.name for p in out.iterdir()) == ["index", "index.html"]
 
 
+def test_a_read_only_output_or_a_broken_link_is_refused(tmp_path):
+    """--overwrite on a folder output made read-only (as a read-only file is refused), and a
+    broken link named as the folder: one line, nothing changed (a read-only old folder could
+    not be removed after the swap: left for ever)."""
+    out = tmp_path / "tiles"
+    with atomic_folder(out, mark="index") as work:
+        (work / "index").write_text("old")
+    out.chmod(0o555)
+    try:
+        with pytest.raises(InputError, match="read-only"):
+            check_new_folder(out, overwrite=True, mark="index")
+    finally:
+        out.chmod(0o755)
+    os.symlink(tmp_path / "gone", tmp_path / "link")
+    with pytest.raises(InputError, match="broken link"):
+        with atomic_folder(tmp_path / "link", mark="index"):
+            pytest.fail("the block must not run")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["link", "tiles"]
+
+
 #: A process that writes a folder output over an old one and dies (os._exit) at a moment of
 #: the swap: ``between`` the renames (where no atomic exchange is), ``after`` the exchange.
 DIE = """

@@ -48,8 +48,10 @@ def check_new_folder(folder: StrPath, *, overwrite: bool, mark: str) -> Path:
     if folder.is_symlink() and folder.is_dir():
         folder = Path(os.path.realpath(folder))
     recover(folder)
-    if folder.exists() and not folder.is_dir():
-        raise InputError("the output folder is a file", where=str(folder), fix="give a folder")
+    if os.path.lexists(folder) and not folder.is_dir():
+        raise InputError(
+            "the output folder is a file (or a broken link)", where=str(folder), fix="give a folder"
+        )
     if not folder.parent.is_dir():
         raise InputError(
             "output folder does not exist", where=str(folder.parent), fix="create it first"
@@ -80,6 +82,11 @@ def _not_replaced(folder: Path, mark: str) -> tuple[str, str] | None:
             f"the folder has no list of the files its output wrote ({MANIFEST}: another "
             "program's, or an older version's), so what in it is yours cannot be told",
             "move what you want to keep out of it and remove it, or give a new folder",
+        )
+    if not os.access(folder, os.W_OK) or not folder.stat().st_mode & 0o222:  # (root: the bits)
+        return (
+            "the output folder is read-only",
+            "make it writable (chmod u+w) if it may be replaced, or give a new folder",
         )
     return None
 

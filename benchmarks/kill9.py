@@ -1,18 +1,21 @@
 """Kill -9 at random moments during every writer: the previous output or a complete new one.
 
 For each writer of ``tests/test_kill9.py`` (``estimate``, ``convert``, ``export``,
-``observe``, ``simulate``, with the same inputs and the same checks), a complete run is timed,
-then ``--kills`` runs over the previous output are killed with SIGKILL after delays drawn
-between 0 and that duration (one in each of N equal slices). Printed per writer: how often
-the previous output was kept byte for byte, how often the new one was complete and valid,
-how often a site was left mixed (some files previous, some new: ``simulate`` writes five),
-how often anything was broken (must be 0), and the hidden temporary files the killed runs
-left (runs that left some, files in all). Then two kills at chosen moments: as the output
-folder first changes (the start of writing) and as the first output is replaced (a rename):
-what each left, and how many temporary files.
+``observe``, ``simulate``, and the folder outputs ``tileset``, ``partition`` and ``tiles``, a
+run's folder from ``estimate -o FOLDER --scheduler local``; with the same inputs and the same
+checks), a complete run is timed, then ``--kills`` runs over the previous output are killed
+with SIGKILL after delays drawn between 0 and that duration (one in each of N equal slices).
+Printed per writer: how often the previous output was kept byte for byte, how often the new
+one was complete and valid, how often a site was left mixed (some files previous, some new:
+``simulate`` writes five), how often anything was broken (must be 0), and the hidden
+temporary files the killed runs left (runs that left some, files in all; a folder output's
+hidden folders count as files). Then two kills at chosen moments: as the output folder first
+changes (the start of writing) and as the first output is replaced (a rename): what each
+left, and how many temporary files.
 
     python benchmarks/kill9.py                     # 50 kills per writer
     python benchmarks/kill9.py --kills 10 --writers estimate observe
+    python benchmarks/kill9.py --kills 10 --writers tileset partition tiles
 """
 
 from __future__ import annotations

@@ -330,7 +330,8 @@ def _model_writer(
     typed already; ``ranges`` are drawn in 3D Tiles only)."""
     from .export import write_citygml, write_cityjson, write_cityjsonseq
     from .export.tiles3d import TILESET, write_3dtiles
-    from .files.paths import check_new_folder, check_not_input, check_output
+    from .files.folders import check_new_folder
+    from .files.paths import check_not_input, check_output
 
     if Path(output).name == TILESET:
         folder = check_new_folder(Path(output).parent, overwrite=overwrite, mark=TILESET)

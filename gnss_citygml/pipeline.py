@@ -24,8 +24,9 @@ import pandas as pd
 
 from .calibrate import calibrate_receivers, check_map_heights
 from .errors import InputError
+from .files.folders import atomic_folder
 from .files.ids import id_field
-from .files.paths import StrPath, atomic_folder
+from .files.paths import StrPath
 from .geodesy import check_bng
 from .model.estimate import heights_and_signal_model
 from .model.fourplb import SignalModel

@@ -1,23 +1,30 @@
-"""Kill -9 at random moments during every writer (issue 10): nothing is lost or half-written.
+"""Kill -9 at random moments during every writer (issues 10, 45): nothing is lost or half-written.
 
 Each writer (``estimate``, ``convert``, ``export``, ``observe`` and ``simulate``, which writes
-a site of five files) first makes its output completely (the *previous* output). Then the same
-command with other options (so that its output differs) is run as a real process with
-``--overwrite`` and killed with SIGKILL: at the moment its output folder first changes (the
-start of writing, which a random delay seldom hits) and after a delay drawn between 0 and the
-duration of a complete run. Afterwards every output file must be byte-identical to the previous
-one or a complete, valid new one (the same layers and features, objects or rows as a complete
-run of the new command), and the only other files allowed are the hidden temporary files of
-the killed run. The rule holds per file: a site killed between two files is left mixed, some
-files previous and some new (``benchmarks/kill9.py``, which runs many kills with this same
-machinery, counts those).
+a site of five files; and the folder outputs: a 3D Tiles ``tileset`` from ``convert``, a
+``partition``, and a run's folder of ``tiles`` from ``estimate -o FOLDER``) first makes its
+output completely (the *previous* output). Then the same command with other options (so that
+its output differs) is run as a real process with ``--overwrite`` and killed with SIGKILL: at
+the moment its output folder first changes (the start of writing, which a random delay seldom
+hits) and after a delay drawn between 0 and the duration of a complete run. Afterwards every
+output file must be byte-identical to the previous one or a complete, valid new one (the same
+layers and features, objects or rows as a complete run of the new command), and the only
+other files allowed are the hidden temporary files of the killed run (a folder output's:
+``.NAME.part-…`` and ``.NAME.old-…`` folders). A folder output is compared whole: the
+previous one byte for byte, or a new one holding every file its list
+(:data:`~gnss_citygml.files.folders.MANIFEST`) names, each readable as a complete run's. The
+rule holds per file: a site killed between two files is left mixed, some files previous and
+some new (``benchmarks/kill9.py``, which runs many kills with this same machinery, counts
+those).
 """
 
 from __future__ import annotations
 
 import contextlib
 import io
+import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -33,6 +40,7 @@ import pytest
 import rasterio
 
 from gnss_citygml.cli import cli, main
+from gnss_citygml.files.folders import MANIFEST
 from gnss_citygml.files.tables import read_table
 from gnss_citygml.observations import read_observations
 from gnss_citygml.validate import validate_file
@@ -73,22 +81,24 @@ class Writer:
         return [*args, *extra, *overwrite]
 
 
+#: ``estimate`` on the example city, quietly, up to its output.
+ESTIMATE = (
+    "estimate",
+    "{example}/observations.parquet",
+    "{example}/footprints.gpkg",
+    "--dem",
+    "{example}/dem.tif",
+    "-q",
+    "-o",
+)
+
 WRITERS = {
     w.name: w
     for w in [
         Writer(
             "estimate",
             ("heights.gpkg",),
-            (
-                "estimate",
-                "{example}/observations.parquet",
-                "{example}/footprints.gpkg",
-                "--dem",
-                "{example}/dem.tif",
-                "-o",
-                "{out}/heights.gpkg",
-                "-q",
-            ),
+            (*ESTIMATE, "{out}/heights.gpkg"),
             previous=("--min-elevation", "10"),
             new=("--min-elevation", "15"),
         ),
@@ -134,6 +144,35 @@ WRITERS = {
             previous=("--seed", "0"),
             new=("--seed", "1"),
         ),
+        Writer(
+            "tileset",
+            ("tiles",),
+            ("convert", "{inputs}/heights_{variant}.gpkg", "-o", "{out}/tiles/tileset.json", "-q"),
+            previous=("--no-validate",),
+            new=("--no-validate",),
+        ),
+        Writer(
+            "partition",
+            ("part",),
+            (
+                "partition",
+                "{example}/observations.parquet",
+                "--dem",
+                "{example}/dem.tif",
+                "-q",
+                "-o",
+                "{out}/part",
+            ),  # fmt: skip
+            previous=("--min-elevation", "10"),
+            new=("--min-elevation", "15"),
+        ),
+        Writer(
+            "tiles",
+            ("heights",),
+            (*ESTIMATE, "{out}/heights", "--scheduler", "local", "--workers", "1"),
+            previous=("--min-elevation", "10"),
+            new=("--min-elevation", "15"),
+        ),
     ]
 }
 
@@ -169,9 +208,12 @@ def prepare_inputs(inputs: Path) -> None:
 
 def content(path: Path):
     """What a complete, valid output holds, to compare with a complete run's: the layers and
-    their feature counts (GeoPackage), the objects (CityGML, CityJSON), the rows (tables) or
-    the cells (GeoTIFF). Raises if the file is not readable or not valid."""
+    their feature counts (GeoPackage), the objects (CityGML, CityJSON), the rows (tables),
+    the cells (GeoTIFF), or a folder's files (:func:`folder_content`). Raises if the file is
+    not readable or not valid."""
     name = path.name
+    if path.is_dir():
+        return folder_content(path)
     if name.endswith((".gml", ".city.json", ".city.jsonl")):
         report = validate_file(path)
         if not report.valid:
@@ -188,6 +230,51 @@ def content(path: Path):
         return dataset.crs.to_epsg(), cells.shape, float(np.nansum(cells))
     table = read_observations(path) if name.startswith("observations") else read_table(path)
     return list(table.columns), len(table)
+
+
+def folder_content(folder: Path) -> list:
+    """A folder output's files with what each holds (a table's rows, a GeoPackage's layers, a
+    JSON file's keys; any other file: its size). Raises if a file its list names is missing."""
+    listed = json.loads((folder / MANIFEST).read_text())["written"]
+    missing = [n for n in listed if not n.endswith("/") and not (folder / n).is_file()]
+    if missing:
+        raise ValueError(f"missing {missing[:3]}")
+    found = []
+    for path in sorted(p for p in folder.rglob("*") if p.is_file() and p.name != MANIFEST):
+        if path.suffix in (".parquet", ".gpkg"):
+            held = content(path)
+        elif path.suffix == ".json":
+            held = sorted(json.loads(path.read_text()))
+        else:
+            held = path.stat().st_size
+        found.append((path.relative_to(folder).as_posix(), held))
+    return found
+
+
+def read_output(path: Path) -> bytes | dict[str, bytes]:
+    """A file's bytes, or a folder's files' bytes by relative path."""
+    if not path.is_dir():
+        return path.read_bytes()
+    return {p.relative_to(path).as_posix(): p.read_bytes() for p in path.rglob("*") if p.is_file()}
+
+
+def put_back(path: Path, data: bytes | dict[str, bytes]) -> None:
+    """Write ``path`` (a file, or a folder whole) as :func:`read_output` read it."""
+    remove(path)
+    if isinstance(data, bytes):
+        path.write_bytes(data)
+        return
+    for name, held in data.items():
+        (path / name).parent.mkdir(parents=True, exist_ok=True)
+        (path / name).write_bytes(held)
+
+
+def remove(path: Path) -> None:
+    """Remove a file or a folder, if there is one."""
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path)
+    elif os.path.lexists(path):
+        os.unlink(path)
 
 
 OK = ("previous", "new", "alike")  # the states an output may be left in
@@ -223,8 +310,9 @@ class Kill:
 def is_temp(name: str, outputs) -> bool:
     """Whether ``name`` is a hidden temporary file of one of ``outputs``: ``.NAME.….part…``
     (``.NAME.part-HOST-PID-RANDOM.SUFFIX``, see :mod:`gnss_citygml.files.paths`), with the journal
-    file SQLite may leave beside a GeoPackage."""
-    return any(name.startswith(f".{o}.") and ".part" in name for o in outputs)
+    file SQLite may leave beside a GeoPackage, or a folder output's old folder renamed aside
+    (``.NAME.old-HOST-PID-RANDOM``, :mod:`gnss_citygml.files.folders`)."""
+    return any(name.startswith(f".{o}.") and (".part" in name or ".old-" in name) for o in outputs)
 
 
 class Trials:
@@ -243,9 +331,9 @@ class Trials:
         self.duration = time.perf_counter() - start
         self.expected = {name: content(reference / name) for name in writer.outputs}
         run_in_process(writer.argv("previous", self.run, self.where))
-        self.previous = {name: (self.run / name).read_bytes() for name in writer.outputs}
+        self.previous = {name: read_output(self.run / name) for name in writer.outputs}
         # files both variants write alike (simulate's footprints, DEM and truth of one scene)
-        self.alike = {n for n in writer.outputs if (reference / n).read_bytes() == self.previous[n]}
+        self.alike = {n for n in writer.outputs if read_output(reference / n) == self.previous[n]}
 
     def command(self, variant: str, out: Path) -> list[str]:
         return [sys.executable, "-m", "gnss_citygml", *self.writer.argv(variant, out, self.where)]
@@ -255,16 +343,19 @@ class Trials:
         temporary files with ``keep_temps``)."""
         for name in os.listdir(self.run):
             if name not in self.previous and not (keep_temps and is_temp(name, self.previous)):
-                os.unlink(self.run / name)
+                remove(self.run / name)
         for name, data in self.previous.items():
-            if (self.run / name).read_bytes() != data:
-                (self.run / name).write_bytes(data)
+            if not os.path.lexists(self.run / name) or read_output(self.run / name) != data:
+                put_back(self.run / name, data)
 
     def start(self, *, keep_temps: bool = False) -> subprocess.Popen:
         """Restore the previous output and start the new command over it."""
         self.restore(keep_temps=keep_temps)
         return subprocess.Popen(
-            self.command("new", self.run), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+            self.command("new", self.run),
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            start_new_session=True,  # (its group is killed: a cluster's workers too)
         )
 
     def kill(self, delay: float) -> Kill:
@@ -274,9 +365,8 @@ class Trials:
             process.wait(timeout=delay)
             ended = True
         except subprocess.TimeoutExpired:
-            process.send_signal(signal.SIGKILL)
-            process.wait()
             ended = False
+        stop(process)
         return self.inspect(delay, ended)
 
     def kill_when_writing(
@@ -294,8 +384,7 @@ class Trials:
             while process.poll() is None and not self.changed(before, replaced):
                 time.sleep(0.001)
             ended = process.poll() is not None
-            process.send_signal(signal.SIGKILL)  # nothing if it has ended
-            process.wait()
+            stop(process)  # its group (nothing if it has ended)
             if not ended:
                 break
         return self.inspect(time.perf_counter() - started, ended)
@@ -332,7 +421,7 @@ class Trials:
         path = self.run / name
         if not path.exists():
             return "broken: missing"
-        if path.read_bytes() == self.previous[name]:
+        if read_output(path) == self.previous[name]:
             return "alike" if name in self.alike else "previous"
         try:
             found = content(path)
@@ -346,6 +435,14 @@ class Trials:
         """``n`` delays between 0 and a complete run's duration, one in each of ``n`` equal
         slices (stratified: a few kills still cover the start, the work and the writing)."""
         return (np.arange(n) + rng.random(n)) * self.duration / n
+
+
+def stop(process: subprocess.Popen) -> None:
+    """SIGKILL a process started in a session of its own, with every process of its group
+    (a local cluster's workers), and wait for it."""
+    with contextlib.suppress(ProcessLookupError):
+        os.killpg(process.pid, signal.SIGKILL)
+    process.wait()
 
 
 @pytest.fixture(scope="module")
@@ -385,9 +482,11 @@ def test_kill9_keeps_the_previous_output_or_writes_a_complete_one(name, trials_o
         check(trials.kill(delay), f"{name} killed after {delay:.2f} s of {trials.duration:.2f} s")
 
 
-def test_a_later_run_removes_the_temporary_files_of_killed_runs(trials_of):
-    """Two runs killed while writing, then a complete run of the same command."""
-    trials = trials_of("export")
+@pytest.mark.parametrize("name", ["export", "tileset", "partition"])
+def test_a_later_run_removes_the_temporary_files_of_killed_runs(name, trials_of):
+    """Two runs killed while writing, then a complete run of the same command (a file, and
+    folder outputs: their hidden folders of killed runs were left for ever)."""
+    trials = trials_of(name)
     first = trials.kill_when_writing()
     second = trials.kill_when_writing(keep_temps=True)
     if first.ended or second.ended or not first.temps():
@@ -397,6 +496,6 @@ def test_a_later_run_removes_the_temporary_files_of_killed_runs(trials_of):
     assert not set(second.temps()) & set(first.temps()), "a killed run's files outlive the next"
     trials.complete_run()
     left = trials.inspect(0.0, True)
-    if left.outputs != {"city.city.json": "new"}:
+    if left.outputs != {output: "new" for output in trials.writer.outputs}:
         pytest.fail(f"a complete run did not write a complete output: {left.outputs}")
     assert not left.left, f"a complete run leaves the files of killed runs: {left.left}"

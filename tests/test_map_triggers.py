@@ -172,3 +172,50 @@ def test_a_map_that_is_no_sqlite_database_is_one_line(
         one_line(capsys, estimate(path, grid_args, "--overwrite"), message)
     assert path.read_bytes() == content
     assert sorted(p.name for p in tmp_path.iterdir()) == ["map.gpkg"]
+
+
+#: Triggers on the tables a layer's write fills besides the layer (its provenance in
+#: gpkg_metadata and gpkg_metadata_reference, its style in layer_styles) that abort the write,
+#: drop the row silently or delete it: some named as the standard's checks of
+#: gpkg_metadata_reference (RAISE allowed), one of them conditional on what is always true.
+WRITE_TRIGGERS = {
+    "abort on the reference": "CREATE TRIGGER gpkg_metadata_reference_stop BEFORE INSERT ON "
+    "gpkg_metadata_reference BEGIN SELECT RAISE(ABORT, 'no'); END",
+    "ignore the reference": "CREATE TRIGGER gpkg_metadata_reference_quiet BEFORE INSERT ON "
+    "gpkg_metadata_reference BEGIN SELECT RAISE(IGNORE); END",
+    "roll back the reference": "CREATE TRIGGER gpkg_metadata_reference_scope_insert BEFORE "
+    "INSERT ON gpkg_metadata_reference FOR EACH ROW BEGIN SELECT RAISE(ROLLBACK, 'x') "
+    "WHERE NEW.reference_scope NOT IN ('geopackage'); END",
+    "abort when always true": "CREATE TRIGGER gpkg_metadata_reference_scope_insert BEFORE "
+    "INSERT ON gpkg_metadata_reference FOR EACH ROW BEGIN SELECT RAISE(ABORT, 'insert on "
+    "table gpkg_metadata_reference violates constraint') WHERE NEW.table_name NOT NULL; END",
+    "delete the reference": "CREATE TRIGGER gpkg_metadata_reference_gone AFTER INSERT ON "
+    "gpkg_metadata_reference BEGIN DELETE FROM gpkg_metadata_reference; END",
+    "abort on the metadata": "CREATE TRIGGER gpkg_metadata_reference_m BEFORE INSERT ON "
+    "gpkg_metadata BEGIN SELECT RAISE(ABORT, 'no'); END",
+    "ignore the metadata": "CREATE TRIGGER gpkg_metadata_quiet BEFORE INSERT ON "
+    "gpkg_metadata BEGIN SELECT RAISE(IGNORE); END",
+    "delete the metadata": "CREATE TRIGGER gpkg_metadata_gone AFTER INSERT ON gpkg_metadata "
+    "BEGIN DELETE FROM gpkg_metadata WHERE id = NEW.id; END",
+    "abort on the style": "CREATE TRIGGER layer_styles_stop BEFORE INSERT ON layer_styles "
+    "BEGIN SELECT RAISE(ABORT, 'no'); END",
+    "ignore the style": "CREATE TRIGGER rtree_layer_styles_x BEFORE INSERT ON layer_styles "
+    "BEGIN SELECT RAISE(IGNORE); END",
+    "delete the style": "CREATE TRIGGER rtree_layer_styles_y AFTER INSERT ON layer_styles "
+    "BEGIN DELETE FROM layer_styles; END",
+}
+
+
+@pytest.mark.parametrize("name", WRITE_TRIGGERS)
+def test_a_trigger_on_the_provenance_or_style_tables_is_refused(name, tmp_path, grid_args, capsys):
+    """estimate --overwrite into a map of heights (which has the metadata and style tables)
+    with a trigger that would abort, drop or delete the provenance or the style: one line,
+    the map as it was (was exit 0 and a map without its provenance)."""
+    path = tmp_path / "map.gpkg"
+    code, _, err = run(estimate(path, grid_args), capsys)
+    assert code == 0, err
+    sql(path, WRITE_TRIGGERS[name])
+    before = digest(path)
+    one_line(capsys, estimate(path, grid_args, "--overwrite", "--min-elevation", "15"), "trigger")
+    assert digest(path) == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["map.gpkg"]

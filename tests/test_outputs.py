@@ -16,7 +16,8 @@ import shapely
 from test_cli import run
 
 from gnss_citygml.errors import InputError
-from gnss_citygml.files.paths import _HOST, atomic_folder, atomic_path, stale_parts
+from gnss_citygml.files.folders import MANIFEST, atomic_folder
+from gnss_citygml.files.paths import _HOST, atomic_path, stale_parts
 from gnss_citygml.simulate.files import check_site
 from gnss_citygml.validate import validate_file
 
@@ -335,7 +336,7 @@ def test_a_folder_output_appears_whole_or_not_at_all(tmp_path):
     with atomic_folder(out, overwrite=True, mark="a.parquet") as work:
         (work / "b.parquet").write_text("new")
     assert [p.name for p in tmp_path.iterdir()] == ["tiles"]
-    assert [p.name for p in out.iterdir()] == ["b.parquet"]
+    assert sorted(p.name for p in out.iterdir()) == [MANIFEST, "b.parquet"]
     (tmp_path / "file").write_text("x")
     with pytest.raises(InputError, match="is a file"):
         with atomic_folder(tmp_path / "file", overwrite=True, mark="a.parquet"):
@@ -362,7 +363,7 @@ def test_overwrite_replaces_only_a_folder_the_output_wrote(tmp_path, monkeypatch
     for folder in (empty, empty):  # empty, then one it wrote
         with atomic_folder(folder, overwrite=True, mark="tiles.gpkg") as work:
             (work / "tiles.gpkg").write_text("index")
-        assert [p.name for p in folder.iterdir()] == ["tiles.gpkg"]
+        assert sorted(p.name for p in folder.iterdir()) == [MANIFEST, "tiles.gpkg"]
     monkeypatch.chdir(mine)  # "-o ." names the folder one is in
     with pytest.raises(InputError, match="has no tiles.gpkg"):
         with atomic_folder(".", overwrite=True, mark="tiles.gpkg"):

@@ -19,7 +19,7 @@ missing or infinite, more than 400 m tall or from the ground) is not drawn, with
 
 The squares are written one at a time (:meth:`~gnss_citygml.export.plan.Plan.chunks` of their
 rows), so memory holds one square's buildings besides the table. The folder appears whole
-or not at all (:func:`~gnss_citygml.files.paths.atomic_folder`).
+or not at all (:func:`~gnss_citygml.files.folders.atomic_folder`).
 """
 
 from __future__ import annotations
@@ -36,7 +36,8 @@ import pandas as pd
 import shapely
 
 from ..errors import InputError, listing
-from ..files.paths import StrPath, atomic_folder
+from ..files.folders import atomic_folder
+from ..files.paths import StrPath
 from ..files.provenance import KEY
 from ..geodesy.grid_refs import tile_index, tile_names
 from ..validate import Report
@@ -93,9 +94,10 @@ def write_3dtiles(
 ) -> ExportResult:
     """Write the buildings (as :func:`~gnss_citygml.export.cityjson.write_cityjson` takes
     them) as a 3D Tiles 1.1 tileset: ``path`` is the tileset's ``tileset.json`` in a folder of
-    its own, written whole (``overwrite`` replaces only a folder holding a tileset). ``ranges``
-    adds each height's interval as a translucent prism; ``grid_dir`` is where the OSTN15 and
-    OSGM15 grids are (default: as :func:`gnss_citygml.geodesy.from_osgb` finds them);
+    its own, written whole (``overwrite`` replaces only a tileset this toolkit wrote, and keeps
+    the files of the user's in its folder). ``ranges`` adds each height's interval as a
+    translucent prism; ``grid_dir`` is where the OSTN15 and OSGM15 grids are (default: as
+    :func:`gnss_citygml.geodesy.from_osgb` finds them);
     ``title`` and ``provenance`` (:func:`gnss_citygml.files.provenance.provenance`) go in the
     tileset's ``asset.extras``.
 

@@ -39,6 +39,8 @@ _TOKENS = re.compile(
 )
 #: The GeoPackage tables whose constraints the standard checks with RAISE-only triggers.
 _CHECKED = {"gpkg_tile_matrix", "gpkg_metadata_reference"}
+#: The body of such a check (its strings read as ``'_'``): one RAISE(ABORT) on a condition.
+_CHECK = re.compile(r"\s*SELECT\s+RAISE\s*\(\s*ABORT\s*,\s*'_'\s*\)\s*WHERE\b[^;]+;\s*END\s*", re.I)
 
 
 #: The first bytes of every SQLite database (and so of every GeoPackage).
@@ -67,7 +69,10 @@ def check_no_triggers(path: StrPath) -> None:
     Known triggers are told by what they do, not only by their name (which anyone can
     give): an R-tree index's (``rtree_T_...``) writes only an R-tree table of its table T;
     GDAL's feature count (``trigger_..._feature_count_T``) only ``gpkg_ogr_contents``; the
-    standard's checks on ``gpkg_tile_matrix`` and ``gpkg_metadata_reference`` write nothing.
+    standard's checks on ``gpkg_tile_matrix`` and ``gpkg_metadata_reference`` write nothing
+    and are one ``SELECT RAISE(ABORT, '...') WHERE ...`` (a RAISE(IGNORE) would drop a row
+    silently, one without a condition every row). What no reading of SQL can tell (a check
+    whose condition is always true) the writer finds by reading back what it wrote.
     """
     check_geopackage(path)
     with contextlib.closing(sqlite3.connect(path)) as db:
@@ -97,7 +102,7 @@ def _known(name: str, table: str, sql: str) -> bool:
         return not raises and all(t.startswith(f"rtree_{table}_") for t in written)
     if name in (f"trigger_insert_feature_count_{table}", f"trigger_delete_feature_count_{table}"):
         return not raises and written <= {"gpkg_ogr_contents"}
-    return table in _CHECKED and name.startswith(table) and not written
+    return table in _CHECKED and name.startswith(table) and bool(_CHECK.fullmatch(body))
 
 
 def _token(match: re.Match) -> str:

@@ -27,10 +27,8 @@ from ..errors import InputError
 
 __all__ = [
     "StrPath",
-    "atomic_folder",
     "atomic_path",
     "check_output",
-    "check_new_folder",
     "check_output_folder",
     "file_digest",
     "gunzipped",
@@ -317,14 +315,15 @@ def _part_prefix(path: Path) -> str:
     return f".{path.name}.part-"
 
 
-def stale_parts(path: StrPath) -> list[Path]:
+def stale_parts(path: StrPath, kind: str = "part") -> list[Path]:
     """Temporary files of ``path`` left by killed runs of this machine whose process is gone.
 
     A temporary file is named ``.NAME.part-HOST-PID-RANDOM.SUFFIX`` so that a later run can
     tell whether its writer still runs: files of another host are never touched (the folder
-    may be shared), nor those of a live process."""
+    may be shared), nor those of a live process. ``kind``: ``old`` for the old folders a
+    folder output renames aside (:mod:`gnss_citygml.files.folders`)."""
     path = Path(path)
-    prefix = _part_prefix(path)
+    prefix = f".{path.name}.{kind}-"
     pattern = re.compile(re.escape(prefix) + re.escape(_HOST) + r"-(\d+)-[0-9a-f]+")
     stale = []
     with contextlib.suppress(OSError):
@@ -378,65 +377,6 @@ def make_folder(folder: StrPath) -> Path:
             fix=f"check the path and its permissions ({exc.strerror})",
         ) from None
     return folder
-
-
-def check_new_folder(folder: StrPath, *, overwrite: bool, mark: str) -> Path:
-    """Refuse, before any work, a folder output (written whole by :func:`atomic_folder`) that
-    is a file, or exists without ``overwrite``, or whose parent is missing; return it as an
-    absolute path. ``overwrite`` replaces only a folder an output of this kind wrote (it holds
-    the file ``mark``, e.g. its index) or an empty one: a folder name given by mistake (``-o
-    Documents``) must not take the user's files with it."""
-    folder = Path(folder).absolute()
-    if folder.exists() and not folder.is_dir():
-        raise InputError("the output folder is a file", where=str(folder), fix="give a folder")
-    if folder.exists() and not overwrite:
-        raise InputError(
-            "output exists", where=str(folder), fix="give another folder, or --overwrite"
-        )
-    if folder.exists() and not (folder / mark).is_file() and any(folder.iterdir()):
-        raise InputError(
-            f"the folder holds files this output did not write (it has no {mark}), and "
-            "--overwrite replaces only such an output",
-            where=str(folder),
-            fix="give a new folder, or empty this one",
-        )
-    if not folder.parent.is_dir():
-        raise InputError(
-            "output folder does not exist", where=str(folder.parent), fix="create it first"
-        )
-    return folder
-
-
-@contextlib.contextmanager
-def atomic_folder(folder: StrPath, *, overwrite: bool = False, mark: str) -> Iterator[Path]:
-    """Yield a new folder beside ``folder`` to fill; rename it to ``folder`` if the block
-    succeeds, else remove it. An old ``folder`` is replaced (with ``overwrite``, and only one
-    that holds ``mark``: :func:`check_new_folder`) only once the new one is complete: it is
-    renamed aside first (a rename cannot replace a non-empty folder) and removed after."""
-    folder = check_new_folder(folder, overwrite=overwrite, mark=mark)
-    work = folder.with_name(f".{folder.name}.part-{secrets.token_hex(4)}")
-    try:
-        work.mkdir()
-    except OSError as exc:
-        raise InputError(
-            "cannot write to the output folder",
-            where=str(folder.parent),
-            fix=f"check its permissions and free space ({exc.strerror})",
-        ) from None
-    try:
-        with _write_errors(folder, work):
-            yield work
-        old = None
-        if folder.exists():
-            if not overwrite:
-                raise InputError("output exists", where=str(folder), fix="give --overwrite")
-            old = folder.with_name(f".{folder.name}.old-{secrets.token_hex(4)}")
-            os.rename(folder, old)
-        os.rename(work, folder)
-        if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
-    finally:
-        shutil.rmtree(work, ignore_errors=True)
 
 
 @contextlib.contextmanager

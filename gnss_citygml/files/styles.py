@@ -19,7 +19,7 @@ import pandas as pd
 
 from .geopackage import has_table
 
-__all__ = ["HEIGHTS_STYLE", "heights_qml", "save_default_style"]
+__all__ = ["HEIGHTS_STYLE", "heights_qml", "save_default_style", "style_saved"]
 
 #: The style of the heights layer (QGIS QML).
 HEIGHTS_STYLE = files("gnss_citygml") / "data" / "styles" / "heights.qml"
@@ -77,3 +77,15 @@ def save_default_style(path: Path, layer: str, qml: str, *, description: str = "
     pyogrio.write_dataframe(
         row, path, layer="layer_styles", driver="GPKG", append=True, layer_options={"FID": "id"}
     )
+
+
+def style_saved(path: Path, layer: str, qml: str) -> bool:
+    """Whether the GeoPackage ``path`` holds ``qml`` as the toolkit's style of ``layer``."""
+    with contextlib.closing(sqlite3.connect(path)) as db:
+        if not has_table(db, "layer_styles"):
+            return False
+        query = (
+            "SELECT count(*) FROM layer_styles "
+            "WHERE f_table_name = ? AND styleName = ? AND styleQML = ?"
+        )
+        return bool(db.execute(query, (layer, STYLE_NAME, qml)).fetchone()[0])

@@ -21,7 +21,7 @@ from .geopackage import check_no_triggers
 from .ids import source_named
 from .paths import StrPath, atomic_path, check_not_input, check_output, input_file, same_file
 from .provenance import KEY, summary
-from .styles import save_default_style
+from .styles import save_default_style, style_saved
 
 if TYPE_CHECKING:
     import geopandas as gpd
@@ -261,5 +261,33 @@ def write_layer(
             out.to_file(tmp, layer=layer, driver=driver, dataset_options=version, **made)
             if style is not None:
                 save_default_style(tmp, layer, style)
+            _check_kept(tmp, layer, len(out), made, style, path)
         else:
             out.to_file(tmp, layer=layer, driver=driver)
+
+
+def _check_kept(
+    tmp: Path, layer: str, rows: int, made: dict[str, Any], style: str | None, path: Path
+) -> None:
+    """Read back what :func:`write_layer` put in the GeoPackage ``tmp`` (to be ``path``): the
+    layer's rows, its provenance and its style. A trigger of the user's that no reading of its
+    SQL can judge (a check of the standard's shape whose condition always holds) may abort
+    or drop a row that GDAL writes, and GDAL only logs it: the file would go out without its
+    provenance, exit 0."""
+    import pyogrio
+
+    info = pyogrio.read_info(tmp, layer=layer)
+    lost = [] if info["features"] == rows else [f"the rows ({info['features']} of {rows})"]
+    wanted = made.get("layer_metadata", {}).get(KEY)
+    if wanted is not None and (info.get("layer_metadata") or {}).get(KEY) != wanted:
+        lost.append("the provenance (gpkg_metadata, gpkg_metadata_reference)")
+    if style is not None and not style_saved(tmp, layer, style):
+        lost.append("the style (layer_styles)")
+    if lost:
+        raise InputError(
+            f"the GeoPackage did not keep {' nor '.join(lost)} of the layer "
+            f"{user_text(layer)!r} written: a trigger of its own?",
+            where=str(path),
+            fix="drop the GeoPackage's triggers on those tables (DROP TRIGGER name, e.g. in "
+            "sqlite3 or QGIS's DB Manager) in a copy, or write to another file",
+        )

@@ -12,7 +12,7 @@ layout that GeoPandas, Dask, pyarrow, DuckDB and GDAL read whole or tile by tile
 tile index has one square per tile that owns a building: its name, ``buildings``,
 ``with_height`` (converged), ``failed`` (why its cast failed, empty if it did not) and
 ``location`` (its file, relative to the folder: a GDAL tile index). The folder appears
-whole or not at all (:func:`~gnss_citygml.files.paths.atomic_folder`); on a cluster of several
+whole or not at all (:func:`~gnss_citygml.files.folders.atomic_folder`); on a cluster of several
 machines it must be on a file system every worker writes to, as a partition folder must be
 one every worker reads.
 """
@@ -29,7 +29,8 @@ import pandas as pd
 import shapely
 
 from ..errors import InputError
-from ..files.paths import StrPath, check_new_folder
+from ..files.folders import check_new_folder
+from ..files.paths import StrPath
 from ..files.tables import write_layer
 from ..model.estimate import no_heights
 from ..settings import Tiling
@@ -54,9 +55,9 @@ HEIGHTS = "heights"
 
 def check_tile_folder(folder: StrPath, tiling: Tiling, *, overwrite: bool) -> Path:
     """Refuse, before any work, a folder of tiles that cannot be written: in a run that is not
-    in tiles (``tiling``), or a file, an existing folder without ``overwrite``, one that is
+    in tiles (``tiling``), or a file, a folder that is not empty without ``overwrite``, one that is
     not a folder of tiles (no :data:`INDEX`: it is never replaced), a missing parent
-    (:func:`~gnss_citygml.files.paths.check_new_folder`). Returns it as an absolute path."""
+    (:func:`~gnss_citygml.files.folders.check_new_folder`). Returns it as an absolute path."""
     if not tiling.on:
         raise InputError(
             "an output without a suffix is a folder of tiles, which only a run in tiles writes",

@@ -39,7 +39,8 @@ import numpy as np
 import pandas as pd
 
 from ..errors import InputError, listing, user_text
-from ..files.paths import StrPath, atomic_folder, check_not_input, file_digest
+from ..files.folders import atomic_folder
+from ..files.paths import StrPath, check_not_input, file_digest
 from ..files.provenance import PARTITION_INDEX
 from ..observations import read_observations, repeated_signals
 from ..settings import (
@@ -103,7 +104,8 @@ def partition_observations(
     then needs nothing but the folder. Returns the index (also ``folder/partition.json``).
 
     The folder appears whole or not at all: it is written beside, under another name, and
-    renamed into place at the end (replacing an old one only with ``overwrite``).
+    renamed into place at the end (replacing an old one only with ``overwrite``, keeping the
+    files of the user's in it: :func:`~gnss_citygml.files.folders.atomic_folder`).
     The ``settings`` (:class:`~gnss_citygml.settings.RunSettings`, and their parts by name in
     ``changes``) the partition applies are the elevation mask, the receiver heights (with the
     grids and the DEM's CRS) and the position error's window or distance, which decides the

@@ -68,6 +68,7 @@ from .buildings import (
     read_buildings,
     refuse_shared,
 )
+from .dem_probes import check_dem, dem_probes
 from .grid import check_reach, check_tile_count, tile_index, tile_names
 
 __all__ = [
@@ -138,7 +139,7 @@ def partition_observations(
             say(str(path))
             signals += _write_receivers(work, k, path, dem, settings, tile_size, tiles, signals)
         _refuse_repeats(work, tiles, observations)
-        index = {
+        index: dict[str, Any] = {
             "format": "gnss-citygml partition",
             "version": VERSION,
             "crs": "EPSG:27700",
@@ -158,6 +159,10 @@ def partition_observations(
             index[BUILDINGS] = partition_buildings(
                 footprints, work, dem, tile_size, settings.grid_dir, settings.dem_crs, say
             )
+        if dem is not None:  # (what a run given a DEM checks it against)
+            built = index[BUILDINGS]["tiles"] if BUILDINGS in index else {}
+            tops = [(work / RECEIVERS, index["tiles"]), (work / BUILDINGS, built)]
+            index["dem"] = dem_probes(tops, dem, settings.dem_crs)
         index = json.loads(json.dumps(index))  # (as it is read back: its digest is of that)
         index["sha256"] = _index_digest(index)
         (work / INDEX).write_text(json.dumps(index, indent=1))
@@ -490,11 +495,17 @@ def check_partition(
     rays: Rays,
     position_error: PositionError,
     receiver_heights: ReceiverHeights | None = None,
+    dem: Dem | None = None,
+    dem_crs: Any = None,
 ) -> None:
     """Refuse a run whose elevation mask, position-error groups (window or distance) or (if
-    given) receiver heights are not the partition's: they were applied when it was written;
+    given) receiver heights or DEM are not the partition's: they were applied when it was
+    written (the DEM gave the receivers' heights and the buildings' ground: one given again
+    must give the same heights where it did, :func:`~gnss_citygml.terrain.check_same_ground`);
     and tiles too small for the run's rays (:func:`~gnss_citygml.tiling.grid.check_reach`)."""
     check_reach(index["tile_size"], rays.max_range)
+    if dem is not None and "dem" in index:
+        check_dem(index["dem"], dem, dem_crs)
     mask = index["rays"]
     if (mask["min_elevation"], mask["max_elevation"]) != (rays.min_elevation, rays.max_elevation):
         raise InputError(

@@ -71,6 +71,14 @@ def _mask_changed(folder, index):
     index["rays"]["min_elevation"] = 20.0
 
 
+def _rows_recounted(folder, index):
+    """A file's rows said otherwise, its tile's and the signals' with them."""
+    spec = next(iter(index["tiles"].values()))
+    next(iter(spec["files"].values()))["rows"] += 7
+    spec["rows"] += 7
+    index["signals"] += 7
+
+
 def _ids_renamed(folder, index):
     index["buildings"]["id_field"] = "toid"
 
@@ -88,6 +96,7 @@ EDITS = {
     "a file moved to another tile": _file_moved,
     "a tile dropped with its folder": _tile_dropped,
     "the elevation mask": _mask_changed,
+    "a file's rows, with the sums": _rows_recounted,
     "the id field's name": _ids_renamed,
     "a tile's square": _square_moved,
 }

@@ -311,7 +311,9 @@ def _partitioned(folder, footprints, dem, settings, say, *, held=False):
     return in_tiles, buildings, float(index["tile_size"]), name
 
 
-def _check_one_set(folder: StrPath, index: dict[str, Any], footprints) -> None:
+def _check_one_set(
+    folder: StrPath, index: dict[str, Any], footprints: gpd.GeoDataFrame | None
+) -> None:
     """Refuse footprints given to a run from a partition that holds its own: two sets of
     buildings, and no telling which the user meant."""
     if footprints is not None and BUILDINGS in index:

@@ -303,13 +303,13 @@ def read_buildings(
 ) -> gpd.GeoDataFrame:
     """The footprints in EPSG:27700 (through the OSTN15/OSGM15 grids in ``grid_dir`` when in
     another CRS), with their ground from the DEM when one is given. A folder of heights a run
-    in tiles wrote (:mod:`gnss_citygml.tiling.output`) is read whole, every tile's."""
+    in tiles wrote (:mod:`gnss_citygml.tiling.output`) is read whole, every tile's (or its
+    ``heights`` folder, or one tile's folder), checked against its tile index first."""
     from .footprints import read_footprints
     from .terrain import building_ground
-    from .tiling.output import HEIGHTS, INDEX
+    from .tiling.output import run_folder_heights
 
-    if (Path(path) / INDEX).is_file() and (Path(path) / HEIGHTS).is_dir():
-        path = Path(path) / HEIGHTS  # (its tile index beside them is no footprint layer)
+    path = run_folder_heights(path) or path  # a folder of tiles: as its tile index lists it
     frame = read_footprints(path, layer=layer, id_field=id_field, grid_dir=grid_dir)
     return frame if dem is None else building_ground(frame, dem, assume_crs=dem_crs)
 

@@ -283,18 +283,22 @@ def _partitioned(folder, footprints, dem, settings, say, *, held=False):
     heights written per tile, never joined here) left where they are, each tile's worker
     reading its own (the buildings returned are None)."""
     index = partition_run(folder, settings.tiling)
-    if footprints is None and not held:
+    _check_one_set(folder, index, footprints)
+    check_partition(index, settings.rays, settings.position_error, settings.receiver_heights,
+                    dem, settings.dem_crs)  # fmt: skip
+    own = footprints is None  # the partition's own buildings, with their ground
+    if own and not held:
         footprints = partition_footprints(folder, index)
     if footprints is not None:
         check_bng(footprints, "footprints")
     say(STAGES[0])
-    check_partition(index, settings.rays, settings.position_error, settings.receiver_heights)
     say(STAGES[1])  # the partition holds the receivers
     say(STAGES[2])
     if footprints is None:
         buildings, name = None, _held_ids(folder, index)
     else:
-        buildings, name = _grounded(footprints, dem, settings.dem_crs), id_field(footprints)
+        buildings = footprints if own else _grounded(footprints, dem, settings.dem_crs)
+        name = id_field(footprints)
     say(STAGES[3])
     in_tiles = functools.partial(
         partitioned_heights,
@@ -306,6 +310,20 @@ def _partitioned(folder, footprints, dem, settings, say, *, held=False):
         progress=say,
     )
     return in_tiles, buildings, float(index["tile_size"]), name
+
+
+def _check_one_set(
+    folder: StrPath, index: dict[str, Any], footprints: gpd.GeoDataFrame | None
+) -> None:
+    """Refuse footprints given to a run from a partition that holds its own: two sets of
+    buildings, and no telling which the user meant."""
+    if footprints is not None and BUILDINGS in index:
+        raise InputError(
+            "the partition holds its own footprints (partition --footprints), and footprints "
+            "were given too",
+            where=str(folder),
+            fix="leave out the footprints (and --dem), or partition again without --footprints",
+        )
 
 
 def _held_ids(folder: StrPath, index: dict[str, Any]) -> str:

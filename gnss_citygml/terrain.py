@@ -55,6 +55,7 @@ __all__ = [
     "Dem",
     "DemCoverageError",
     "building_ground",
+    "check_same_ground",
     "sample_ground",
 ]
 
@@ -381,6 +382,35 @@ def sample_ground(
                 fix="fill the DEM's gaps (e.g. gdal_fillnodata) or drop those observations",
             )
     return heights
+
+
+def check_same_ground(
+    e: npt.ArrayLike,
+    n: npt.ArrayLike,
+    ground: npt.ArrayLike,
+    dem: Dem,
+    *,
+    assume_crs: CrsInput | None = None,
+    what: str,
+    fix: str,
+) -> None:
+    """Refuse a DEM that gives other heights than ``ground`` at the points (``e``, ``n``): not
+    the DEM something was made on (``what`` says so: "the DEM is not the one ..."), another
+    one or the same edited. Each point is sampled again (once); one off the DEM counts as
+    other."""
+    ground = np.asarray(ground, dtype=float).ravel()
+    now = np.full(ground.size, np.nan)
+    with contextlib.suppress(InputError):  # (off the DEM: other heights, said so below)
+        now = sample_ground(dem, e, n, assume_crs=assume_crs) if ground.size else now
+    off = ~(np.abs(now - ground) <= 1e-6)
+    if off.any():
+        worst = np.nanmax(np.abs(now - ground)) if np.isfinite(now - ground).any() else np.nan
+        by = f", by up to {worst:.2f} m" if np.isfinite(worst) else " (off the DEM)"
+        raise InputError(
+            f"{what}: it gives other heights at {int(off.sum())} of {ground.size} positions{by}",
+            where=str(dem),
+            fix=fix,
+        )
 
 
 def building_ground(

@@ -38,10 +38,13 @@ __all__ = [
     "BUILDINGS",
     "Footprints",
     "building_files",
+    "files_shared_id",
     "partition_buildings",
     "read_building_files",
     "read_building_ids",
     "read_buildings",
+    "refuse_shared",
+    "shared_id",
 ]
 
 #: The folder of the buildings' partitions, in the partition's folder.
@@ -154,18 +157,56 @@ class _Ids:
         try:
             for b in sorted(self.writers):
                 frame = pd.read_parquet(self.folder / f"{b:02d}.parquet")
-                repeated = frame[frame["id"].duplicated(keep=False)]
-                if not repeated.empty:
-                    first = repeated[repeated["id"] == repeated["id"].iloc[0]]
-                    raise InputError(
-                        f"{repeated['id'].nunique()} building id(s) held by two footprints, e.g. "
-                        f"{user_text(first['id'].iloc[0])} in tiles {first['tile'].iloc[0]} and "
-                        f"{first['tile'].iloc[1]}",
-                        where=where,
-                        fix="give each footprint its own id, or choose another --id-field",
-                    )
+                refuse_shared(
+                    shared_id(frame["id"], frame["tile"]),
+                    "footprints",
+                    where,
+                    "give each footprint its own id, or choose another --id-field",
+                )
         finally:
             shutil.rmtree(self.folder, ignore_errors=True)
+
+
+def shared_id(ids: Any, tiles: Any) -> tuple[int, str, str, str] | None:
+    """How many ``ids`` are held by two buildings, with the first of them and its two
+    ``tiles``; None if every id is unique."""
+    frame = pd.DataFrame({"id": np.asarray(ids, dtype=object), "tile": np.asarray(tiles)})
+    repeated = frame[frame["id"].duplicated(keep=False)]
+    if repeated.empty:
+        return None
+    first = repeated[repeated["id"] == repeated["id"].iloc[0]]
+    return (
+        int(repeated["id"].nunique()),
+        str(first["id"].iloc[0]),
+        str(first["tile"].iloc[0]),
+        str(first["tile"].iloc[1]),
+    )
+
+
+def refuse_shared(found: tuple[int, str, str, str] | None, held: str, where: str, fix: str) -> None:
+    """Refuse ids :func:`shared_id` found held by two ``held`` (footprints, buildings of a
+    partition), naming the first with both its tiles."""
+    if found is not None:
+        count, building, a, b = found
+        raise InputError(
+            f"{count} building id(s) held by two {held}, e.g. {user_text(building)} in tiles "
+            f"{a} and {b}",
+            where=where,
+            fix=fix,
+        )
+
+
+def files_shared_id(files: list[Path]) -> tuple[int, str, str, str] | None:
+    """:func:`shared_id` of the buildings in some of a partition's ``files`` (their tiles
+    named by their folders): run by a tile's worker on its own files and its halo's."""
+    if not files:
+        return None
+    ids = [read_building_ids([f]) for f in files]
+    tiles = [
+        np.full(len(i), f.parent.name.removeprefix("tile="))
+        for i, f in zip(ids, files, strict=True)
+    ]
+    return shared_id(np.concatenate(ids), np.concatenate(tiles))
 
 
 def building_files(folder: StrPath, index: dict[str, Any]) -> dict[str, list[Path]]:

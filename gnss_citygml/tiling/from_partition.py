@@ -28,7 +28,13 @@ from ..model.mixture import Cn0Moments
 from ..model.offsets import SkyCounts, sky_counts
 from ..model.parts import Part
 from ..settings import Estimator, PositionError, Rays
-from .buildings import BUILDINGS, building_files, read_building_files, read_building_ids
+from .buildings import (
+    BUILDINGS,
+    building_files,
+    files_shared_id,
+    read_building_files,
+    read_building_ids,
+)
 from .grid import Tile, building_tiles, receiver_tiles
 from .output import TileFolder
 from .partition import (
@@ -38,6 +44,7 @@ from .partition import (
     read_index,
     read_receivers,
     refuse_changed,
+    refuse_shared_ids,
     tile_files,
 )
 from .run import Signals, TilePlan, TileRun, held_plan, run_tiles, signal_moments, tile_part
@@ -90,6 +97,7 @@ def partitioned_heights(
     task = (size, estimator, rays, position_error)
     if buildings is None:
         plan, casts = _partition_plan(index, held, near, task)
+        _check_ids(engine, folder, plan.names, casts)
     else:
         plan, casts = _held_plan(buildings, near, task)
     say(f"tile plan: {len(plan.names)} tiles of {size:g} m from {len(squares)} partitions")
@@ -111,6 +119,20 @@ def _check_digests(engine: Engine, index: dict[str, Any], files: dict[str, list[
         ),
     )
     refuse_changed([f for found in bad for f in found])
+
+
+def _check_ids(engine: Engine, folder: StrPath, names: list[str], casts: list) -> None:
+    """Refuse a partition whose buildings share an id within a tile's reach (its own and its
+    halo's, read by its worker before any tile is cast): that tile would hold one building
+    twice (and fail), its neighbours with it."""
+    found = in_windows(
+        engine,
+        (
+            (f"ids-{name}-{uuid.uuid4().hex[:8]}", files_shared_id, [*cast[2], *cast[3]])
+            for name, cast in zip(names, casts, strict=True)
+        ),
+    )
+    refuse_shared_ids(folder, next((f for f in found if f is not None), None))
 
 
 def _signals(engine: Engine, parts: dict[str, list[Path]], estimator: Estimator) -> Signals:

@@ -21,10 +21,15 @@ or replaced, a tile folder renamed or added, or an index edited by hand is refus
 never read as other data: the folder's listing and each file's size are checked on the
 client before any work (a few ``stat`` calls per tile), each file's SHA-256 by the workers
 before any tile is cast (:func:`check_digests`: each file is read once more, where it is).
+The index is sealed by the SHA-256 of its own content (``"sha256"``): every part of it decides
+what a worker reads or how its rows were made (a tile's square or extent, its files, the
+elevation mask, the ids' name), so an edit that keeps its sums and the folder in agreement (a
+file moved to another tile with its entry, a tile's bounds) is refused too.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import re
@@ -55,7 +60,16 @@ from ..settings import (
 from ..settings.checks import finite
 from ..stages import in_mask, recordings, run_receivers
 from ..terrain import Dem
-from .buildings import BUILDINGS, Footprints, building_files, partition_buildings, read_buildings
+from .buildings import (
+    BUILDINGS,
+    Footprints,
+    building_files,
+    files_shared_id,
+    partition_buildings,
+    read_buildings,
+    refuse_shared,
+)
+from .dem_probes import check_dem, dem_probes
 from .grid import check_reach, check_tile_count, tile_index, tile_names
 
 __all__ = [
@@ -71,6 +85,7 @@ __all__ = [
     "read_index",
     "read_receivers",
     "refuse_changed",
+    "refuse_shared_ids",
     "tile_files",
 ]
 
@@ -78,8 +93,9 @@ __all__ = [
 INDEX = PARTITION_INDEX
 #: The folder of the receivers' partitions, in the partition's folder.
 RECEIVERS = "receivers"
-#: The index's format version: 2 lists each tile's files (with rows, size and SHA-256).
-VERSION = 2
+#: The index's format version: 2 lists each tile's files (with rows, size and SHA-256), 3 seals
+#: the index with its own digest.
+VERSION = 3
 #: The name of a tile's file: its observation file's number.
 _PART = re.compile(r"part-\d{5}\.parquet")
 #: How to mend a partition that does not match its index.
@@ -125,7 +141,7 @@ def partition_observations(
             say(str(path))
             signals += _write_receivers(work, k, path, dem, settings, tile_size, tiles, signals)
         _refuse_repeats(work, tiles, observations)
-        index = {
+        index: dict[str, Any] = {
             "format": "gnss-citygml partition",
             "version": VERSION,
             "crs": "EPSG:27700",
@@ -145,8 +161,21 @@ def partition_observations(
             index[BUILDINGS] = partition_buildings(
                 footprints, work, dem, tile_size, settings.grid_dir, settings.dem_crs, say
             )
+        if dem is not None:  # (what a run given a DEM checks it against)
+            built = index[BUILDINGS]["tiles"] if BUILDINGS in index else {}
+            tops = [(work / RECEIVERS, index["tiles"]), (work / BUILDINGS, built)]
+            index["dem"] = dem_probes(tops, dem, settings.dem_crs)
+        index = json.loads(json.dumps(index))  # (as it is read back: its digest is of that)
+        index["sha256"] = _index_digest(index)
         (work / INDEX).write_text(json.dumps(index, indent=1))
     return index
+
+
+def _index_digest(index: dict[str, Any]) -> str:
+    """The SHA-256 of an index's content (all but its ``"sha256"``), in a canonical form."""
+    content = {key: value for key, value in index.items() if key != "sha256"}
+    text = json.dumps(content, sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(text.encode()).hexdigest()
 
 
 def _write_receivers(work, k, path, dem, settings, tile_size, tiles, signals) -> int:
@@ -249,6 +278,13 @@ def read_index(folder: StrPath) -> dict[str, Any]:
     problem = _index_problem(index)
     if problem:
         raise InputError(f"damaged {INDEX}: {problem}", where=str(path), fix=_AGAIN)
+    if index.get("sha256") != _index_digest(index):
+        raise InputError(
+            f"damaged partition: {INDEX} is not the index partition wrote (its content's "
+            "SHA-256 differs from the one it records: edited after it was written?)",
+            where=str(path),
+            fix=_AGAIN,
+        )
     _check_files(Path(folder), index)
     return index
 
@@ -461,11 +497,17 @@ def check_partition(
     rays: Rays,
     position_error: PositionError,
     receiver_heights: ReceiverHeights | None = None,
+    dem: Dem | None = None,
+    dem_crs: Any = None,
 ) -> None:
     """Refuse a run whose elevation mask, position-error groups (window or distance) or (if
-    given) receiver heights are not the partition's: they were applied when it was written;
+    given) receiver heights or DEM are not the partition's: they were applied when it was
+    written (the DEM gave the receivers' heights and the buildings' ground: one given again
+    must give the same heights where it did, :func:`~gnss_citygml.terrain.check_same_ground`);
     and tiles too small for the run's rays (:func:`~gnss_citygml.tiling.grid.check_reach`)."""
     check_reach(index["tile_size"], rays.max_range)
+    if dem is not None and "dem" in index:
+        check_dem(index["dem"], dem, dem_crs)
     mask = index["rays"]
     if (mask["min_elevation"], mask["max_elevation"]) != (rays.min_elevation, rays.max_elevation):
         raise InputError(
@@ -530,7 +572,19 @@ def partition_footprints(folder: StrPath, index: dict[str, Any]) -> gpd.GeoDataF
     check_holds_buildings(folder, index)
     files = [f for tile in building_files(folder, index).values() for f in tile]
     refuse_changed(check_digests([(f, listed_sha256(index, f)) for f in files]))
+    refuse_shared_ids(folder, files_shared_id(files))
     return read_buildings(folder, index[BUILDINGS])
+
+
+def refuse_shared_ids(folder: StrPath, found: tuple[int, str, str, str] | None) -> None:
+    """Refuse a partition whose buildings share an id (:func:`~.buildings.shared_id`), naming
+    it with both its tiles: its run would hold one building twice."""
+    refuse_shared(
+        found,
+        "buildings of the partition",
+        str(Path(folder) / BUILDINGS),
+        f"{_AGAIN}, from footprints whose ids are unique",
+    )
 
 
 def read_receivers(files: Sequence[StrPath]) -> pd.DataFrame:

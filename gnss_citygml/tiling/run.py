@@ -216,6 +216,7 @@ def run_tiles(
         own = plan.own_ids(k)
         parts[k] = FailedTile(plan.names[k], own, why)
         failed[plan.names[k]] = (why, own.size)
+    _refuse_all_failed(failed, len(plan.names))
     open_sky = None
     if failed:
         say(
@@ -264,6 +265,18 @@ def run_tiles(
         ),
     )
     return TileRun(tile_index_frame(rows, size), classifier, lost)
+
+
+def _refuse_all_failed(failed: dict[str, tuple[str, int]], tiles: int) -> None:
+    """Refuse a run whose every tile failed: it has no estimate to give, and its failures
+    share a cause (bad rows everywhere, an input the tiles cannot read) that one tile names."""
+    if failed and len(failed) == tiles:
+        name, (why, _) = min(failed.items())
+        raise InputError(
+            f"every one of the {tiles} tiles failed, e.g. tile {name}: {why}",
+            where=f"tile {name}",
+            fix="mend what the tile's error names, then run again",
+        )
 
 
 def tile_part(

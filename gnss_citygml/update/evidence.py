@@ -288,32 +288,23 @@ def check_receiver_heights(
     """Refuse a DEM that gives other antenna heights than the evidence was cast from (another
     DEM, or the same one edited): the signals cast before would keep the old heights, the new
     ones get the new, and the fit would mix them silently. Each position cast from is sampled
-    again (once)."""
-    from ..terrain import sample_ground
+    again (once; :func:`~gnss_citygml.terrain.check_same_ground`)."""
+    from ..terrain import check_same_ground
 
     if heights.source != "dem":
         return
     known = cast.dropna(subset=["e", "n", "z"]).drop_duplicates(["e", "n"])
-    if known.empty:
-        return
     e, n, z = (known[c].to_numpy(float) for c in ("e", "n", "z"))
-    try:
-        now = sample_ground(dem, e, n, assume_crs=dem_crs) + heights.antenna_height
-    except InputError as exc:
-        now, outside = np.full(len(z), np.nan), str(exc)
-    else:
-        outside = ""
-    off = ~(np.abs(now - z) <= 1e-6)
-    if off.any():
-        worst = np.nanmax(np.abs(now - z)) if np.isfinite(now - z).any() else np.nan
-        by = f", by up to {worst:.2f} m" if np.isfinite(worst) else f" ({outside})"
-        raise InputError(
-            f"the DEM is not the one the evidence in the map was cast with: it gives other "
-            f"receiver heights at {int(off.sum())} of {len(z)} positions{by}",
-            where=str(dem),
-            fix="give the DEM of the earlier updates, or delete the table "
-            f"{EVIDENCE} from the map and update again with all the observations",
-        )
+    check_same_ground(
+        e,
+        n,
+        z - heights.antenna_height,
+        dem,
+        assume_crs=dem_crs,
+        what="the DEM is not the one the evidence in the map was cast with",
+        fix="give the DEM of the earlier updates, or delete the table "
+        f"{EVIDENCE} from the map and update again with all the observations",
+    )
 
 
 def append_evidence(

@@ -28,6 +28,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "LAYER_FORMATS",
+    "TEXT_COLUMNS",
     "check_layer_output",
     "check_text",
     "check_table_output",
@@ -40,18 +41,42 @@ __all__ = [
 LAYER_FORMATS = {".gpkg": "GPKG", ".fgb": "FlatGeobuf", ".parquet": "GeoParquet"}
 
 
-def read_table(path: StrPath) -> pd.DataFrame:
-    """Read a CSV or Parquet table, with a one-line error for a missing or unreadable file."""
+#: The columns of the toolkit's tables that hold ids or names: ``id`` (buildings, heights,
+#: truth), ``building`` (intersections), ``receiver`` (observations).
+TEXT_COLUMNS = ("id", "building", "receiver")
+
+
+def read_table(path: StrPath, *, text: Iterable[str] = ()) -> pd.DataFrame:
+    """Read a CSV or Parquet table, with a one-line error for a missing or unreadable file.
+
+    The ids and names of a CSV file (:data:`TEXT_COLUMNS` and the columns ``text`` names, e.g.
+    the footprints' id field) are read as the text they are: a number parser would make
+    ``008`` the building ``8`` and ``1e3`` ``1000.0``, and pandas' missing values would make
+    the building ``NA`` no building. Only an empty field is a missing id there."""
     path = input_file(path)
     suffix = _suffix(path)
     try:
-        return pd.read_csv(path) if suffix == ".csv" else _read_parquet(path)
+        if suffix == ".csv":
+            return _read_csv(path, {*TEXT_COLUMNS, *text})
+        return _read_parquet(path)
     except (ValueError, OSError, pd.errors.ParserError) as exc:
         raise InputError(
             f"cannot read the table: {first_line(exc)}",
             where=str(path),
             fix="give a well-formed CSV (with a header row) or Parquet file",
         ) from None
+
+
+def _read_csv(path: Path, text: set[str]) -> pd.DataFrame:
+    """A CSV table as pandas reads it, the columns named in ``text`` read again as text
+    (missing only where empty: pandas has no public list of its missing values to keep for
+    the other columns of one read)."""
+    table = pd.read_csv(path)
+    ids = [name for name in table.columns if name in text]
+    if ids:
+        as_text = pd.read_csv(path, usecols=ids, dtype=str, keep_default_na=False, na_values=[""])
+        table[ids] = as_text[ids]
+    return table
 
 
 def check_text(frame: pd.DataFrame, where: str) -> pd.DataFrame:

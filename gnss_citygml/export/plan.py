@@ -33,7 +33,7 @@ import shapely
 
 from ..contracts import HEIGHTS, load
 from ..errors import InputError, MissingColumnError, listing
-from ..files.ids import id_field, id_named, id_text, missing_ids, with_id_field
+from ..files.ids import check_ids_given, id_field, id_named, id_text, missing_ids, with_id_field
 from ..files.paths import StrPath
 from ..geodesy import check_bng
 from ..validate import Report
@@ -99,13 +99,7 @@ def footprints_with_heights(
     missing = [name if c == "id" else c for c in required if c not in heights.columns]
     if missing:
         raise MissingColumnError(missing, where=where, have=columns)
-    blank = np.flatnonzero(missing_ids(heights["id"]))
-    if blank.size:
-        raise InputError(
-            f"{blank.size} row(s) without a building id (the first: data row {blank[0] + 1})",
-            where=where,
-            fix="give each row its building's id, or remove the row",
-        )
+    check_ids_given(heights["id"], where)
     table = heights.assign(id=id_text(heights["id"]))  # (a Parquet table's may be numbers)
     repeated = pd.unique(table["id"][table["id"].duplicated()])
     if repeated.size:

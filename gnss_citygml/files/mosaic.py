@@ -22,6 +22,7 @@ import numpy as np
 from affine import Affine
 
 from ..errors import InputError, user_text
+from .names import native_name, os_text
 
 __all__ = ["MOSAIC_FOLDER", "SUFFIXES", "TileGrid", "mosaic_vrt", "raster_tiles"]
 
@@ -92,7 +93,7 @@ def mosaic_vrt(tiles: list[TileGrid], folder: str, band: int) -> str:
     return (
         f'<VRTDataset rasterXSize="{width}" rasterYSize="{height}">{srs}'
         f"<GeoTransform>{x0!r}, {a!r}, 0, {y0!r}, 0, {e!r}</GeoTransform>"
-        f'<Metadata><MDI key="{MOSAIC_FOLDER}">{escape(folder)}</MDI></Metadata>'
+        f'<Metadata><MDI key="{MOSAIC_FOLDER}">{escape(os_text(folder))}</MDI></Metadata>'
         f'<VRTRasterBand dataType="{_GDAL_TYPES[first.dtype]}" band="1">'
         f"<NoDataValue>{nodata!r}</NoDataValue><UnitType>{escape(first.unit)}</UnitType>"
         f"<Offset>{first.offset!r}</Offset><Scale>{first.scale!r}</Scale>"
@@ -173,7 +174,7 @@ def _source(tile: TileGrid, x0: float, y0: float, band: int) -> str:
     size = f'xSize="{tile.width}" ySize="{tile.height}"'
     nodata = "" if tile.nodata is None else f"<NODATA>{tile.nodata!r}</NODATA>"
     return (
-        f'<ComplexSource><SourceFilename relativeToVRT="0">{escape(tile.path)}'
+        f'<ComplexSource><SourceFilename relativeToVRT="0">{escape(native_name(tile.path))}'
         f"</SourceFilename><SourceBand>{band}</SourceBand>"
         f'<SrcRect xOff="0" yOff="0" {size}/><DstRect xOff="{col}" yOff="{row}" {size}/>'
         f"{nodata}</ComplexSource>"

@@ -19,7 +19,15 @@ import pandas as pd
 from ..errors import InputError, first_line, user_text
 from .geopackage import check_no_triggers
 from .ids import source_named
-from .paths import StrPath, atomic_path, check_not_input, check_output, input_file, same_file
+from .names import check_utf8_name, native_name
+from .paths import (
+    StrPath,
+    atomic_path,
+    check_not_input,
+    check_output,
+    input_file,
+    same_file,
+)
 from .provenance import KEY, summary
 from .styles import save_default_style
 
@@ -118,7 +126,7 @@ def _read_parquet(path: Path) -> pd.DataFrame:
     """A Parquet table (:func:`check_text`); pyarrow's errors on damaged pandas metadata as an
     InputError."""
     try:
-        return check_text(pd.read_parquet(path), str(path))
+        return check_text(pd.read_parquet(native_name(path)), str(path))
     except (KeyError, TypeError, IndexError, AttributeError) as exc:
         # pyarrow rebuilding the pandas columns from a Parquet file's damaged pandas metadata
         raise InputError(
@@ -144,7 +152,8 @@ def check_table_output(path: StrPath, *, overwrite: bool, inputs: Iterable[objec
     """Check, before the work starts, that a table can be written to ``path`` (CSV, Parquet)
     and that it is none of the command's ``inputs``
     (:func:`~gnss_citygml.files.paths.check_not_input`)."""
-    _suffix(Path(path))
+    if _suffix(Path(path)) == ".parquet":
+        check_utf8_name(path, "output")
     path = check_output(path, overwrite=overwrite)
     check_not_input(path, inputs, folders=False)  # (a table is made of files)
     return path
@@ -189,6 +198,7 @@ def check_layer_output(
             where=str(path),
             fix="write .gpkg, .fgb or .parquet (ogr2ogr converts them to a Shapefile)",
         )
+    check_utf8_name(path, "output")
     gpkg = path.suffix.lower() == ".gpkg"
     check_output(path, overwrite=overwrite, suffixes=tuple(LAYER_FORMATS), exists_ok=gpkg)
     if gpkg and path.exists():

@@ -488,13 +488,14 @@ def export_file(
     Parquet) for the footprints it was estimated for; the ground from the table's ``ground``
     column or from the ``dem``."""
     from .export import footprints_with_heights
+    from .files.ids import id_field as field_of
     from .files.tables import read_table
 
     def buildings() -> gpd.GeoDataFrame:
-        table = read_table(heights)
         frame = read_buildings(
             footprints, layer=layer, id_field=id_field, dem=dem, dem_crs=dem_crs, grid_dir=grid_dir
         )
+        table = read_table(heights, text=[field_of(frame)])  # (the ids as text, by any name)
         return footprints_with_heights(frame, table, where=str(heights))
 
     writer = _model_writer(

@@ -46,6 +46,7 @@ from rasterio.windows import Window
 
 from .errors import InputError, MissingColumnError, first_line, listing, user_text
 from .files.mosaic import MOSAIC_FOLDER, TileGrid, mosaic_vrt, raster_tiles
+from .files.names import given_name, native_name
 from .files.paths import StrPath
 from .footprints import check_polygonal
 from .geodesy import CrsInput, check_bng, is_bng
@@ -114,7 +115,9 @@ def _open_dem(dem, assume_crs, band: int) -> Iterator[tuple[DatasetReader, int]]
     name = os.fspath(dem)
     folder = os.path.isdir(name)
     try:
-        dataset = rasterio.open(_mosaic(Path(name), assume_crs, band) if folder else name)
+        dataset = rasterio.open(
+            _mosaic(Path(name), assume_crs, band) if folder else native_name(name)
+        )
     except rasterio.errors.RasterioIOError as exc:
         raise InputError(
             f"cannot open the DEM: {first_line(exc)}",
@@ -153,7 +156,7 @@ def _mosaic(folder: Path, assume_crs, band: int) -> str:
 
 def _where(ds: DatasetReader) -> str:
     """The DEM's name for a message: its file, or the folder of a mosaic of tiles."""
-    return ds.tags().get(MOSAIC_FOLDER, ds.name)
+    return ds.tags().get(MOSAIC_FOLDER) or given_name(ds.name)
 
 
 def _check_dem(ds: DatasetReader, assume_crs, band: int) -> None:
@@ -395,9 +398,8 @@ def check_same_ground(
     fix: str,
 ) -> None:
     """Refuse a DEM that gives other heights than ``ground`` at the points (``e``, ``n``): not
-    the DEM something was made on (``what`` says so: "the DEM is not the one ..."), another
-    one or the same edited. Each point is sampled again (once); one off the DEM counts as
-    other."""
+    the DEM something was made on (``what`` says so), another one or the same edited. Each
+    point is sampled again (once); one off the DEM counts as other."""
     ground = np.asarray(ground, dtype=float).ravel()
     now = np.full(ground.size, np.nan)
     with contextlib.suppress(InputError):  # (off the DEM: other heights, said so below)

@@ -1,6 +1,7 @@
 """A DEM given as a folder of tiles (as OS Terrain 5 ships): read as their mosaic, with the
 heights of the whole raster, and tiles that cannot be mosaicked without resampling refused."""
 
+import shutil
 from pathlib import Path
 
 import geopandas as gpd
@@ -151,3 +152,80 @@ def test_estimate_with_the_dem_as_a_folder_of_tiles(tmp_path, grid_args, capsys)
         out[name] = gpd.read_file(tmp_path / f"{name}.gpkg", layer="heights")
     assert out["file"]["converged"].sum() >= 10
     pd.testing.assert_frame_equal(out["tiles"], out["file"])
+
+
+def tile(dem: Path, path: Path, cols: tuple[int, int], rows: tuple[int, int], add=0.0) -> None:
+    """The cells ``cols`` x ``rows`` (first, end) of ``dem`` as the tile ``path``, ``add``
+    metres higher (an older survey of the same ground)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    window = Window(cols[0], rows[0], cols[1] - cols[0], rows[1] - rows[0])
+    with rasterio.open(dem) as src:
+        profile = src.profile | {
+            "width": window.width,
+            "height": window.height,
+            "transform": src.window_transform(window),
+        }
+        z = src.read(1, window=window) + add
+    with rasterio.open(path, "w", **profile) as out:
+        out.write(z, 1)
+
+
+@pytest.mark.parametrize(
+    ("tiles", "pair", "cells"),
+    [
+        # the same tile twice (an older copy beside it)
+        ({"t1.tif": ((0, 250), (0, 400)), "t1_old.tif": ((0, 250), (0, 400)),
+          "t2.tif": ((250, 500), (0, 400))}, ("t1.tif", "t1_old.tif"), "250 x 400"),
+        # partly, offset by whole cells
+        ({"a.tif": ((0, 260), (0, 400)), "b.tif": ((250, 500), (0, 400))},
+         ("a.tif", "b.tif"), "10 x 400"),
+        # one inside another (in a sub-folder)
+        ({"all.tif": ((0, 500), (0, 400)), "old/patch.tif": ((100, 120), (50, 80))},
+         ("all.tif", "old/patch.tif"), "20 x 30"),
+        # three tiles: two side by side, the third across their seam
+        ({"w.tif": ((0, 250), (0, 400)), "e.tif": ((250, 500), (0, 400)),
+          "x.tif": ((240, 260), (0, 10))}, ("e.tif", "x.tif"), "10 x 10"),
+    ],
+)  # fmt: skip
+def test_overlapping_tiles_are_refused_naming_both(dem, tmp_path, tiles, pair, cells):
+    """Which tile's heights a cell gets would depend on the files' names: an overlap is
+    refused, naming the two files and the cells they share."""
+    folder = tmp_path / "dem"
+    for k, (name, (cols, rows)) in enumerate(tiles.items()):
+        tile(dem, folder / name, cols, rows, add=float(k))
+    with pytest.raises(InputError, match="the DEM's tiles overlap") as caught:
+        sample_ground(folder, [WEST + 10.0], [NORTH - 10.0])
+    assert caught.value.where == f"{folder}: {pair[0]} and {pair[1]}"
+    assert f"{cells} cells" in caught.value.what and "remove" in caught.value.fix
+
+
+def test_tiles_sharing_an_edge_or_a_corner_do_not_overlap(dem, tmp_path, rng):
+    folder = tmp_path / "dem"
+    tile(dem, folder / "nw.tif", (0, 250), (0, 200))
+    tile(dem, folder / "se.tif", (250, 500), (200, 400))  # its corner on nw's
+    tile(dem, folder / "ne.tif", (250, 500), (0, 200))
+    e = rng.uniform(WEST + 1, WEST + 999, 200)
+    n = rng.uniform(NORTH - 399, NORTH - 1, 200)
+    assert sample_ground(folder, e, n) == pytest.approx(plane(e, n), abs=1e-9)
+
+
+@pytest.mark.parametrize("command", ["estimate", "partition", "update"])
+def test_every_command_refuses_overlapping_tiles(tmp_path, grid_args, capsys, command):
+    """estimate, partition and update read the DEM alike: the error, no output (update's map
+    untouched)."""
+    folder = tmp_path / "dem"
+    tile(CITY / "dem.tif", folder / "a.tif", (0, 95), (0, 83))
+    tile(CITY / "dem.tif", folder / "a_old.tif", (0, 95), (0, 83), add=2.0)
+    observations, footprints = str(CITY / "observations.parquet"), CITY / "footprints.gpkg"
+    city_map = tmp_path / "map.gpkg"
+    shutil.copy(footprints, city_map)
+    out = tmp_path / "out"
+    args = {
+        "estimate": [observations, str(footprints), "-o", f"{out}.gpkg"],
+        "partition": [observations, "--footprints", str(footprints), "-o", str(out)],
+        "update": [str(city_map), "--observations", observations],
+    }[command]
+    code, _, err = run([command, *args, "--dem", str(folder), *grid_args], capsys)
+    assert code == 2 and "the DEM's tiles overlap" in err and "a.tif and a_old.tif" in err, err
+    assert not list(tmp_path.glob("out*"))
+    assert city_map.read_bytes() == footprints.read_bytes()

@@ -1,5 +1,6 @@
 """The compiled sums of the 4PL likelihood (numba) against numpy's: the same bits."""
 
+import os
 import subprocess
 import sys
 
@@ -30,7 +31,7 @@ def test_a_numba_that_does_not_import_leaves_the_fits_to_numpy(rng, monkeypatch)
     expected = likelihood.evaluate(theta, x, y, w, g, v, 2, active)
     monkeypatch.setattr(fourpl_kernels, "_LOOPS", [])  # not loaded yet
     monkeypatch.setitem(sys.modules, "numba", None)  # its import fails
-    with pytest.warns(UserWarning, match="numba does not import"):
+    with pytest.warns(UserWarning, match="numba does not work"):
         got = likelihood.evaluate(theta, x, y, w, g, v, 2, active)
     assert all(np.array_equal(a, b) for a, b in zip(got, expected, strict=True))
 
@@ -107,3 +108,74 @@ def test_without_numba_the_fit_runs_in_numpy():
         "assert fit.converged[0] and abs(fit.c[0] - 30) < 1, fit\n"
     )
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+_FIT = (
+    "import warnings\n"
+    "import numpy as np\n"
+    "from gnss_citygml.model.fourpl import fit_4pl\n"
+    "x = np.linspace(0, 60, 400)\n"
+    "with warnings.catch_warnings(record=True) as seen:\n"
+    "    warnings.simplefilter('always')\n"
+    "    for _ in range(2):\n"
+    "        fit = fit_4pl(x, (x > 30) ^ (np.arange(400) % 7 == 0))\n"
+    "assert fit.converged[0] and abs(fit.c[0] - 30) < 1, fit\n"
+    "print('|'.join(str(w.message) for w in seen if 'numpy' in str(w.message)))\n"
+)
+
+
+@pytest.mark.parametrize(
+    "error",
+    [
+        "OSError('libllvmlite.so: cannot open shared object file')",  # llvmlite's
+        "RuntimeError('llvmlite: LLVM version mismatch')",
+        "ValueError('Number of threads specified must be > 0.')",
+    ],
+)
+def test_a_numba_that_fails_otherwise_than_importerror_leaves_the_fits_to_numpy(tmp_path, error):
+    """A numba package that raises another error than ImportError on import (llvmlite's
+    OSError or RuntimeError, numba's ValueError on a bad NUMBA_NUM_THREADS): one warning naming
+    the error, and the fits in numpy."""
+    fake = tmp_path / "numba"
+    fake.mkdir()
+    (fake / "__init__.py").write_text(f"raise {error}\n")
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), *sys.path])}
+    run = subprocess.run(
+        [sys.executable, "-c", _FIT], env=env, capture_output=True, text=True, check=True
+    )
+    message = error.split("(")[0]
+    warned = run.stdout.strip().split("|")
+    assert len(warned) == 1 and message in warned[0], run.stdout + run.stderr
+
+
+def test_a_numba_that_fails_to_compile_leaves_the_fits_to_numpy(tmp_path):
+    """A numba that imports but cannot compile (numba's own errors at the first call): one
+    warning, and numpy's sums."""
+    fake = tmp_path / "numba"
+    fake.mkdir()
+    (fake / "__init__.py").write_text(
+        "class NumbaError(Exception): pass\n"
+        "def njit(**options):\n"
+        "    def jit(function):\n"
+        "        def compiled(*args):\n"
+        "            raise NumbaError('Failed in nopython mode pipeline')\n"
+        "        return compiled\n"
+        "    return jit\n"
+    )
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), *sys.path])}
+    run = subprocess.run(
+        [sys.executable, "-c", _FIT], env=env, capture_output=True, text=True, check=True
+    )
+    warned = run.stdout.strip().split("|")
+    assert len(warned) == 1 and "NumbaError" in warned[0], run.stdout + run.stderr
+
+
+@pytest.mark.parametrize("value", ["0", "-1", "abc"])
+def test_a_bad_numba_num_threads_is_no_internal_error(value):
+    """The real numba under a NUMBA_NUM_THREADS it refuses (0, negative: ValueError on import)
+    or cannot parse: the fits run (in numpy, with a warning, where numba does not import)."""
+    env = {**os.environ, "NUMBA_NUM_THREADS": value}
+    run = subprocess.run([sys.executable, "-c", _FIT], env=env, capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    if value != "abc":  # (numba takes an unparsable value as unset, with its own warning)
+        assert "NUMBA_NUM_THREADS" in run.stdout or "threads" in run.stdout, run.stdout

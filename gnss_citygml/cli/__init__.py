@@ -24,7 +24,14 @@ from typing import NoReturn
 
 import click
 
-from ..errors import GnssCityGMLError, broken_install, escape_controls, internal_error
+from ..errors import (
+    GnssCityGMLError,
+    broken_install,
+    escape_controls,
+    internal_error,
+    user_text,
+)
+from ..files.names import os_text
 
 __all__ = ["COMMANDS", "LazyGroup", "cli", "main"]
 
@@ -83,6 +90,31 @@ COMMANDS = {
 }
 
 
+class Utf8Text(click.ParamType):
+    """Text given on the command line that UTF-8 can hold. A byte of another encoding (a
+    Latin-1 ``é`` typed in such a terminal), which Python holds as a surrogate escape, is an
+    error naming the option: every text option ends in a UTF-8 file (a title, a layer or
+    field name), where it cannot be written. Paths are not text: a file named in Latin-1 is
+    read as it is."""
+
+    name = "text"
+
+    def convert(self, value, param, ctx):
+        text = str(value)
+        if os_text(text) != text:
+            self.fail(
+                f"'{user_text(os_text(text))}' is not UTF-8 text (a byte of another encoding, "
+                "e.g. Latin-1): give it in UTF-8",
+                param,
+                ctx,
+            )
+        return text
+
+
+#: The type of every text option.
+UTF8_TEXT = Utf8Text()
+
+
 class LazyGroup(click.Group):
     """A click group whose subcommands (:data:`COMMANDS`) are imported when first asked for."""
 
@@ -90,10 +122,16 @@ class LazyGroup(click.Group):
         return sorted(COMMANDS)
 
     def get_command(self, ctx: click.Context | None, cmd_name: str) -> click.Command | None:
+        """The subcommand, its text options (not the paths) taking UTF-8 text only
+        (:class:`Utf8Text`)."""
         if cmd_name not in COMMANDS:
             return None
         module = import_module(f".{COMMANDS[cmd_name][0]}", __name__)
-        return getattr(module, cmd_name)
+        command: click.Command = getattr(module, cmd_name)
+        for param in command.params:
+            if type(param.type) is click.types.StringParamType:
+                param.type = UTF8_TEXT
+        return command
 
     def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
         """The list of commands with their short help, as click writes it, from the table."""

@@ -43,11 +43,11 @@ import numpy as np
 import pandas as pd
 from lxml import etree
 
-from ..errors import InputError, listing
+from ..errors import InputError, listing, user_text
 from ..files.paths import StrPath, atomic_path
 from ..files.provenance import summary
 from .attributes import attribute_columns, attribute_values, creation_date, measured_heights
-from .output import ExportResult, Progress, validated_output
+from .output import ExportResult, Progress, check_title, validated_output
 from .plan import CHECK_CHUNK, Plan, chunks, hash_texts, prepare_buildings, repeated_positions
 from .prisms import Prisms, extrude, part_ids
 
@@ -162,6 +162,7 @@ def write_citygml(
     >>> out.report.valid, tree.findtext(".//{*}measuredHeight")
     (True, '12.5')
     """
+    check_title(title)
     plan = prepare_buildings(buildings, strict=strict)
     date = creation_date(date)
     _check_unique(plan)
@@ -169,6 +170,12 @@ def write_citygml(
         replaced = _write_model(tmp, plan, date, (title, provenance), progress)
         result = plan.result(path, None)  # raises if nothing was written
         result.report = validated_output(tmp, path, validate, schema_dir)
+    if title is not None and _NOT_XML_CHAR.search(title):
+        warnings.warn(
+            f"the title '{user_text(title)}' has characters that XML cannot hold (control "
+            "characters), written with U+FFFD in their place (CityJSON keeps them as they are)",
+            stacklevel=2,
+        )
     if replaced:
         warnings.warn(
             f"{len(replaced)} building(s) have text that XML cannot hold (control characters), "
@@ -193,10 +200,11 @@ def _write_model(tmp, plan, date: str, about, progress) -> list[str]:
             with xf.element(root, location, nsmap=_NS):
                 if provenance is not None:  # (GML: description, name, then boundedBy)
                     with xf.element(etree.QName(_NS["gml"], "description")):
-                        xf.write(f"{summary(provenance)}\n{json.dumps(provenance)}")
+                        about = f"{summary(provenance)}\n{json.dumps(provenance)}"
+                        xf.write(_NOT_XML_CHAR.sub("\ufffd", about))  # (file names' controls)
                 if title is not None:
                     with xf.element(etree.QName(_NS["gml"], "name")):
-                        xf.write(title)
+                        xf.write(_NOT_XML_CHAR.sub("\ufffd", title))
                 _envelope(xf, plan.bounds_mm())
                 for rows in plan.chunks():
                     replaced.extend(_unwritable(rows))

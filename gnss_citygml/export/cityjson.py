@@ -44,7 +44,7 @@ from ..errors import InputError, listing
 from ..files.paths import atomic_path
 from ..files.provenance import KEY
 from .attributes import attribute_columns, attribute_values, creation_date, measured_heights
-from .output import ExportResult, Progress, validated_output
+from .output import ExportResult, Progress, check_title, validated_output
 from .plan import CHUNK, booleans, chunks, prepare_buildings
 from .prisms import SCALE, SURFACES, Prisms, extrude, part_ids
 
@@ -146,6 +146,7 @@ def write_cityjson(
     >>> model["CityObjects"]["osgb1"]["attributes"]
     {'measuredHeight': 12.5, 'creationDate': '2024-05-01', 'ground': 20.0, 'height': 32.5}
     """
+    check_title(title)
     plan = prepare_buildings(buildings, strict=strict)
     date = creation_date(date)
     header, translate = _header(plan.bounds_mm(), date, title, typed_attributes, provenance)
@@ -217,6 +218,7 @@ def write_cityjsonseq(
     >>> [line["type"] for line in lines], lines[2]["vertices"][:2]
     (['CityJSON', 'CityJSONFeature', 'CityJSONFeature'], [[20000, 0, 1000], [20000, 0, 10000]])
     """
+    check_title(title)
     plan = prepare_buildings(buildings, strict=strict)
     date = creation_date(date)
     header, translate = _header(plan.bounds_mm(), date, title, typed_attributes, provenance)

@@ -20,7 +20,7 @@ import pandas as pd
 
 from ..contracts import HEIGHTS, load
 from ..errors import InputError, MissingColumnError, listing, user_text
-from ..files.ids import id_field, id_named, with_id_field
+from ..files.ids import check_ids_given, id_field, id_named, id_text, with_id_field
 from .plan import booleans, numeric
 
 __all__ = ["buildings_with_heights", "footprints_with_heights", "gnss_fields"]
@@ -64,7 +64,8 @@ def footprints_with_heights(
     missing = [name if c == "id" else c for c in required if c not in heights.columns]
     if missing:
         raise MissingColumnError(missing, where=where, have=columns)
-    table = heights.assign(id=heights["id"].astype(str))
+    check_ids_given(heights["id"], where)
+    table = heights.assign(id=id_text(heights["id"]))  # (a Parquet table's may be numbers)
     repeated = pd.unique(table["id"][table["id"].duplicated()])
     if repeated.size:
         raise InputError(

@@ -15,11 +15,19 @@ from dataclasses import dataclass
 
 import pandas as pd
 
-from ..errors import GnssCityGMLError
+from ..errors import GnssCityGMLError, InputError
+from ..files.names import os_text
 from ..files.paths import StrPath
 from ..validate import Report, validate_file
 
-__all__ = ["ExportResult", "InvalidOutputError", "Progress", "checked", "validated_output"]
+__all__ = [
+    "ExportResult",
+    "InvalidOutputError",
+    "Progress",
+    "check_title",
+    "checked",
+    "validated_output",
+]
 
 
 class InvalidOutputError(GnssCityGMLError):
@@ -82,3 +90,15 @@ def checked(report: Report, path: StrPath, what: str) -> Report:
 
 #: A callback told how many more buildings were written.
 Progress = Callable[[int], object]  # what it returns is ignored
+
+
+def check_title(title: str | None) -> None:
+    """Refuse a model's title that UTF-8 cannot hold: a lone surrogate, as Python holds a
+    byte of another encoding (a Latin-1 ``é`` read from a command line or a file name). The
+    command line refuses it already (naming ``--title``)."""
+    if title is not None and os_text(title) != title:
+        raise InputError(
+            f"the title '{os_text(title)}' is not UTF-8 text (a byte of another encoding)",
+            where="title",
+            fix="give the title in UTF-8",
+        )

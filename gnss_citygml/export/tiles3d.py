@@ -43,7 +43,7 @@ from ..geodesy.grid_refs import tile_index, tile_names
 from ..validate import Report
 from .glb import ELEMENT_ARRAY_BUFFER, Glb
 from .meshes import Mesh, prism_mesh
-from .output import ExportResult, Progress, checked
+from .output import ExportResult, Progress, check_title, checked
 from .plan import MAX_HEIGHT_ABOVE_GROUND, Plan, prepare_buildings
 
 __all__ = ["TILESET", "write_3dtiles"]
@@ -115,6 +115,7 @@ def write_3dtiles(
             where=str(path),
             fix=f"give -o FOLDER/{TILESET} (the folder is written whole)",
         )
+    check_title(title)
     plan = prepare_buildings(buildings, strict=strict)
     _warn_shadowed(buildings)
     _check_numbers(plan)

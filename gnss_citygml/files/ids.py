@@ -28,6 +28,7 @@ from ..errors import InputError
 
 __all__ = [
     "ID_FIELD",
+    "check_ids_given",
     "id_field",
     "id_named",
     "id_text",
@@ -55,6 +56,17 @@ def missing_ids(ids: pd.Series) -> np.ndarray:
     text = ids[~missing].astype(str)
     missing[~missing] = (text.str.strip().eq("") | text.str.contains("\0", regex=False)).to_numpy()
     return missing
+
+
+def check_ids_given(ids: pd.Series, where: str) -> None:
+    """Refuse a table with rows without a usable id (:func:`missing_ids`), naming the first."""
+    blank = np.flatnonzero(missing_ids(ids))
+    if blank.size:
+        raise InputError(
+            f"{blank.size} row(s) without a building id (the first: data row {blank[0] + 1})",
+            where=where,
+            fix="give each row its building's id, or remove the row",
+        )
 
 
 def id_text(ids: pd.Series) -> pd.Series:

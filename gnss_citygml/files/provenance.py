@@ -26,12 +26,14 @@ import enum
 import hashlib
 import json
 import math
+import os
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
 from ..errors import InputError
 from .geopackage import check_geopackage
+from .names import native_name, os_text
 from .paths import StrPath, file_digest
 
 __all__ = ["KEY", "PARTITION_INDEX", "digest_input", "provenance", "read_provenance", "summary"]
@@ -70,10 +72,10 @@ def digest_input(path: StrPath) -> dict[str, Any]:
     """``name``, ``bytes`` and ``sha256`` of an input file, or of a folder's files."""
     path = Path(path)
     if (path / PARTITION_INDEX).is_file():  # a partition: its index lists its files' SHA-256
-        return {"name": path.name + "/", **digest_input(path / PARTITION_INDEX)}
+        return {"name": os_text(path.name) + "/", **digest_input(path / PARTITION_INDEX)}
     if path.is_file():
         size, sha = file_digest(path)
-        return {"name": path.name, "bytes": size, "sha256": sha}
+        return {"name": os_text(path.name), "bytes": size, "sha256": sha}
     if not path.is_dir():
         raise InputError("an input is gone", where=str(path), fix="give the file again")
     lines, total = [], 0
@@ -81,8 +83,8 @@ def digest_input(path: StrPath) -> dict[str, Any]:
         size, sha = file_digest(file)
         total += size
         lines.append(f"{file.relative_to(path).as_posix()} {sha}\n")
-    sha = hashlib.sha256("".join(lines).encode()).hexdigest()
-    return {"name": path.name + "/", "bytes": total, "sha256": sha}
+    sha = hashlib.sha256(os.fsencode("".join(lines))).hexdigest()  # (the names' own bytes)
+    return {"name": os_text(path.name) + "/", "bytes": total, "sha256": sha}
 
 
 def summary(record: dict[str, Any]) -> str:
@@ -104,8 +106,8 @@ def _plain(value: Any) -> Any:
         return [_plain(v) for v in value]
     if isinstance(value, enum.Enum):
         return value.value
-    if isinstance(value, Path):
-        return str(value)
+    if isinstance(value, str | Path):  # (a name the OS gave may hold bytes that are not UTF-8)
+        return os_text(str(value))
     if isinstance(value, float) and not math.isfinite(value):
         return str(value)  # (JSON has no NaN nor infinity)
     return value
@@ -162,7 +164,7 @@ def _from_citygml(path: Path) -> Any:
     """The JSON after the summary line of the model's ``gml:description``."""
     from lxml import etree
 
-    for _, element in etree.iterparse(str(path), events=("end",), resolve_entities=False):
+    for _, element in etree.iterparse(native_name(path), events=("end",), resolve_entities=False):
         if etree.QName(element).localname == "description":
             text = (element.text or "").split("\n", 1)
             return json.loads(text[1]) if len(text) == 2 else None
@@ -186,12 +188,12 @@ def _from_geopackage(path: Path, layer: str | None) -> Any:
     import pyogrio
 
     check_geopackage(path, empty_ok=False)
-    layers = [str(name) for name, _ in pyogrio.list_layers(path)]
+    layers = [str(name) for name, _ in pyogrio.list_layers(native_name(path))]
     if layer is None:
         layer = "heights" if "heights" in layers else (layers[0] if len(layers) == 1 else None)
     if layer is None or layer not in layers:
         raise InputError(
             f"which layer? it has {', '.join(layers)}", where=str(path), fix="give --layer"
         )
-    text = (pyogrio.read_info(path, layer=layer).get("layer_metadata") or {}).get(KEY)
+    text = (pyogrio.read_info(native_name(path), layer=layer).get("layer_metadata") or {}).get(KEY)
     return json.loads(text) if text else None

@@ -30,6 +30,7 @@ import pyogrio
 import shapely
 
 from ..errors import InputError, first_line, listing
+from .names import native_name
 from .paths import StrPath, gunzipped, input_file
 from .tables import check_text
 
@@ -186,7 +187,7 @@ def _polygon_layer(path: str, kind: str | None) -> str | None:
     if kind:  # listing a GML file's layers would write a .gfs sidecar beside it
         return None
     try:
-        layers = pyogrio.list_layers(path)
+        layers = pyogrio.list_layers(native_name(path))
     except pyogrio.errors.DataSourceError as exc:
         raise _unreadable(exc, path) from None
     if len(layers) == 1:
@@ -222,7 +223,11 @@ def _read_layer(path, layer: str | None, where: str, options: dict) -> gpd.GeoDa
     source without layers or a geometry GEOS cannot build (e.g. an unclosed ring)."""
     try:
         frame = pyogrio.read_dataframe(
-            path, layer=0 if layer is None else layer, force_2d=True, fid_as_index=True, **options
+            native_name(path),
+            layer=0 if layer is None else layer,
+            force_2d=True,
+            fid_as_index=True,
+            **options,
         )
     except _GDAL_ERRORS as exc:
         raise _unreadable(exc, where) from None
@@ -236,7 +241,7 @@ def _layer_batches(path, layer, where: str, options: dict, size: int) -> Iterato
     pass over the source), indexed by their feature ids; errors as :func:`_read_layer`'s."""
     try:
         with pyogrio.open_arrow(
-            path,
+            native_name(path),
             layer=0 if layer is None else layer,
             batch_size=size,
             return_fids=True,
@@ -262,7 +267,7 @@ def _geoparquet_batches(path: Path, size: int) -> Iterator[gpd.GeoDataFrame]:
     import pyarrow.dataset as ds
 
     _check_geoparquet(path)
-    data = ds.dataset(path, format="parquet", partitioning="hive")
+    data = ds.dataset(native_name(path), format="parquet", partitioning="hive")
     geo = json.loads(data.schema.metadata[b"geo"])
     column = geo["primary_column"]
     if geo["columns"][column].get("encoding") != "WKB":
@@ -301,7 +306,7 @@ def _geoarrow_batches(path: Path, size: int) -> Iterator[gpd.GeoDataFrame]:
     a time, indexed by row in the source."""
     start = 0
     for file in _parquet_files(path):
-        frame = gpd.read_parquet(file)
+        frame = gpd.read_parquet(native_name(file))
         for part in file.relative_to(path).parent.parts if path.is_dir() else ():
             key, equals, value = part.partition("=")
             if equals:
@@ -328,7 +333,7 @@ def _read_geoparquet(path: Path) -> gpd.GeoDataFrame:
     GeoPandas's own errors on a metadata it does not expect are not one line)."""
     _check_geoparquet(path)
     try:
-        frame = gpd.read_parquet(path)
+        frame = gpd.read_parquet(native_name(path))
     except (OSError, ValueError, TypeError, shapely.errors.GEOSException) as exc:
         # pyarrow's errors are these too; GEOS's: WKB it cannot parse
         raise InputError(
@@ -367,7 +372,7 @@ def _check_geoparquet(path: Path) -> None:
     fix = "write it as GeoParquet (geopandas' to_parquet, or ogr2ogr with Arrow), or a GeoPackage"
     for file in _parquet_files(path):
         try:
-            schema = pq.read_schema(file)
+            schema = pq.read_schema(native_name(file))
         except (OSError, pa.ArrowException) as exc:
             raise InputError(
                 f"cannot read the footprints as GeoParquet: not a Parquet file ({first_line(exc)})",

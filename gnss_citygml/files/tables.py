@@ -19,7 +19,15 @@ import pandas as pd
 from ..errors import InputError, first_line, user_text
 from .geopackage import check_no_triggers
 from .ids import source_named
-from .paths import StrPath, atomic_path, check_not_input, check_output, input_file, same_file
+from .names import check_utf8_name, native_name
+from .paths import (
+    StrPath,
+    atomic_path,
+    check_not_input,
+    check_output,
+    input_file,
+    same_file,
+)
 from .provenance import KEY, summary
 from .styles import save_default_style, style_saved
 
@@ -28,6 +36,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "LAYER_FORMATS",
+    "TEXT_COLUMNS",
     "check_layer_output",
     "check_text",
     "check_table_output",
@@ -40,18 +49,42 @@ __all__ = [
 LAYER_FORMATS = {".gpkg": "GPKG", ".fgb": "FlatGeobuf", ".parquet": "GeoParquet"}
 
 
-def read_table(path: StrPath) -> pd.DataFrame:
-    """Read a CSV or Parquet table, with a one-line error for a missing or unreadable file."""
+#: The columns of the toolkit's tables that hold ids or names: ``id`` (buildings, heights,
+#: truth), ``building`` (intersections), ``receiver`` (observations).
+TEXT_COLUMNS = ("id", "building", "receiver")
+
+
+def read_table(path: StrPath, *, text: Iterable[str] = ()) -> pd.DataFrame:
+    """Read a CSV or Parquet table, with a one-line error for a missing or unreadable file.
+
+    The ids and names of a CSV file (:data:`TEXT_COLUMNS` and the columns ``text`` names, e.g.
+    the footprints' id field) are read as the text they are: a number parser would make
+    ``008`` the building ``8`` and ``1e3`` ``1000.0``, and pandas' missing values would make
+    the building ``NA`` no building. Only an empty field is a missing id there."""
     path = input_file(path)
     suffix = _suffix(path)
     try:
-        return pd.read_csv(path) if suffix == ".csv" else _read_parquet(path)
+        if suffix == ".csv":
+            return _read_csv(path, {*TEXT_COLUMNS, *text})
+        return _read_parquet(path)
     except (ValueError, OSError, pd.errors.ParserError) as exc:
         raise InputError(
             f"cannot read the table: {first_line(exc)}",
             where=str(path),
             fix="give a well-formed CSV (with a header row) or Parquet file",
         ) from None
+
+
+def _read_csv(path: Path, text: set[str]) -> pd.DataFrame:
+    """A CSV table as pandas reads it, the columns named in ``text`` read again as text
+    (missing only where empty: pandas has no public list of its missing values to keep for
+    the other columns of one read)."""
+    table = pd.read_csv(path)
+    ids = [name for name in table.columns if name in text]
+    if ids:
+        as_text = pd.read_csv(path, usecols=ids, dtype=str, keep_default_na=False, na_values=[""])
+        table[ids] = as_text[ids]
+    return table
 
 
 def check_text(frame: pd.DataFrame, where: str) -> pd.DataFrame:
@@ -93,7 +126,7 @@ def _read_parquet(path: Path) -> pd.DataFrame:
     """A Parquet table (:func:`check_text`); pyarrow's errors on damaged pandas metadata as an
     InputError."""
     try:
-        return check_text(pd.read_parquet(path), str(path))
+        return check_text(pd.read_parquet(native_name(path)), str(path))
     except (KeyError, TypeError, IndexError, AttributeError) as exc:
         # pyarrow rebuilding the pandas columns from a Parquet file's damaged pandas metadata
         raise InputError(
@@ -119,7 +152,8 @@ def check_table_output(path: StrPath, *, overwrite: bool, inputs: Iterable[objec
     """Check, before the work starts, that a table can be written to ``path`` (CSV, Parquet)
     and that it is none of the command's ``inputs``
     (:func:`~gnss_citygml.files.paths.check_not_input`)."""
-    _suffix(Path(path))
+    if _suffix(Path(path)) == ".parquet":
+        check_utf8_name(path, "output")
     path = check_output(path, overwrite=overwrite)
     check_not_input(path, inputs, folders=False)  # (a table is made of files)
     return path
@@ -164,6 +198,7 @@ def check_layer_output(
             where=str(path),
             fix="write .gpkg, .fgb or .parquet (ogr2ogr converts them to a Shapefile)",
         )
+    check_utf8_name(path, "output")
     gpkg = path.suffix.lower() == ".gpkg"
     check_output(path, overwrite=overwrite, suffixes=tuple(LAYER_FORMATS), exists_ok=gpkg)
     if gpkg and path.exists():

@@ -13,7 +13,8 @@ only functions that are not exactly rounded, ``exp`` and ``log``, are numpy's ow
 whole arrays between the loops (:func:`likelihood_sums`). ``tests/test_fourpl_kernels.py``
 holds the two paths to that.
 
-Without numba, :data:`COMPILED` is False and :mod:`.fourpl` sums in numpy.
+Without numba, :data:`COMPILED` is False and :mod:`.fourpl` sums in numpy; so it does where
+numba is installed but does not work (:func:`_compiled`).
 """
 
 from __future__ import annotations
@@ -24,6 +25,8 @@ import warnings
 from types import SimpleNamespace
 
 import numpy as np
+
+from ..errors import first_line
 
 __all__ = ["COMPILED", "likelihood_sums"]
 
@@ -40,21 +43,46 @@ _LOOPS: list[SimpleNamespace | None] = []
 
 def _loops() -> SimpleNamespace | None:
     """The loops below compiled (once per machine: numba's cache), releasing the GIL; None,
-    with a warning, where numba is installed but does not import."""
+    with one warning, where numba is installed but does not work (:func:`_compiled`)."""
     with _LOCK:  # the first fits may start in several threads at once
         if not _LOOPS:
-            try:
-                import numba
-            except ImportError as error:
-                warnings.warn(
-                    f"numba does not import ({error}): the fits sum in numpy", stacklevel=2
-                )
-                _LOOPS.append(None)
-            else:
-                jit = numba.njit(cache=True, nogil=True)
-                loops = (_exponents, _probabilities, _log_likelihoods, _sums)
-                _LOOPS.append(SimpleNamespace(**{f.__name__[1:]: jit(f) for f in loops}))
+            _LOOPS.append(_compiled())
         return _LOOPS[0]
+
+
+def _compiled() -> SimpleNamespace | None:
+    """The loops compiled and run once on a few samples of the fits' types, or None with a
+    warning naming the error. A numba that is installed but broken fails in many ways:
+    ImportError (built for another numpy), llvmlite's OSError or RuntimeError (its LLVM
+    library missing or of another version), numba's ValueError on a ``NUMBA_NUM_THREADS`` it
+    refuses, numba's own errors when it compiles. The numpy path gives the same bits, so
+    each of them leaves the fits to it rather than stop a run."""
+    try:
+        import numba
+
+        jit = numba.njit(cache=True, nogil=True)
+        funcs = (_exponents, _probabilities, _log_likelihoods, _sums)
+        loops = SimpleNamespace(**{f.__name__[1:]: jit(f) for f in funcs})
+        _trial(loops)
+    except Exception as error:  # (whatever a broken install raises: see above)
+        warnings.warn(
+            f"numba does not work ({type(error).__name__}: {first_line(error)}): the fits "
+            "sum in numpy",
+            stacklevel=4,
+        )
+        return None
+    return loops
+
+
+def _trial(loops: SimpleNamespace) -> None:
+    """Run (so compile) each loop on two samples of the types :func:`likelihood_sums` gets."""
+    x = np.array([1.0, 2.0])
+    g = np.zeros(2, dtype=np.intp)
+    one = np.ones(1)
+    per_group = (one * 0.9, one * 0.1, one, one, one * 0.5)
+    sums = (np.zeros(1), np.zeros((1, 4)), np.zeros((1, 4, 4)))
+    for ll_only in (True, False):
+        _run(loops, x, x * 0 + 1, x, x, g, np.ones(1, dtype=bool), per_group, 1e-9, *sums, ll_only)
 
 
 def _exponents(x, v, g, b_g, c_g, kappa, out):
@@ -161,11 +189,18 @@ def likelihood_sums(
     """Add the samples of the groups in ``sel`` to their groups' log-likelihoods ``ll`` (and,
     unless ``ll_only``, gradients ``grad`` and Fisher informations ``fisher``), as
     :func:`~.likelihood._block_sums` sums them; False (nothing added) where numba does not
-    import. ``per_group``: each group's ``(a, d, b, c, r)`` (:func:`~.likelihood.evaluate`);
-    ``v``: the variances of ``x``; ``eps``: the clip of probabilities."""
+    work (:func:`_compiled`). ``per_group``: each group's ``(a, d, b, c, r)``
+    (:func:`~.likelihood.evaluate`); ``v``: the variances of ``x``; ``eps``: the clip of
+    probabilities."""
     loops = _loops()
     if loops is None:
         return False
+    _run(loops, x, y, w, v, g, sel, per_group, eps, ll, grad, fisher, ll_only)
+    return True
+
+
+def _run(loops, x, y, w, v, g, sel, per_group, eps, ll, grad, fisher, ll_only) -> None:
+    """:func:`likelihood_sums` with the compiled ``loops``."""
     a_g, d_g, b_g, c_g, r_g = per_group
     kappa, e = np.empty(x.size), np.empty(x.size)
     loops.exponents(x, v, g, b_g, c_g, kappa, e)
@@ -180,4 +215,3 @@ def likelihood_sums(
         loops.log_likelihoods(y, w, g, sel, log_p, log_q, ll)
     else:
         loops.sums(x, y, w, g, sel, per_group, kappa, s, p, q, log_p, log_q, ll, grad, fisher)
-    return True

@@ -35,6 +35,7 @@ import shapely
 
 from ..errors import InputError, user_text
 from ..files.folders import check_new_folder
+from ..files.names import check_utf8_name
 from ..files.paths import StrPath, file_digest
 from ..files.tables import write_layer
 from ..model.estimate import no_heights
@@ -76,6 +77,7 @@ def check_tile_folder(folder: StrPath, tiling: Tiling, *, overwrite: bool) -> Pa
             fix="give --scheduler local (or a scheduler's address), or name the output .gpkg, "
             ".fgb or .parquet",
         )
+    check_utf8_name(folder, "output folder")  # (GDAL and Arrow write its files)
     return check_new_folder(folder, overwrite=overwrite, mark=INDEX)
 
 

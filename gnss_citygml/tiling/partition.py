@@ -45,6 +45,7 @@ import pandas as pd
 
 from ..errors import InputError, listing, user_text
 from ..files.folders import atomic_folder
+from ..files.names import check_utf8_name
 from ..files.paths import StrPath, check_not_input, file_digest
 from ..files.provenance import PARTITION_INDEX
 from ..observations import read_observations, repeated_signals
@@ -133,6 +134,7 @@ def partition_observations(
     check_tile_size(tile_size)
     given = [] if footprints is None else [footprints.path]
     check_not_input(folder, [*observations, dem, *given])  # (it is replaced whole)
+    check_utf8_name(folder, "partition folder")  # (Arrow writes its files)
     say = progress or (lambda text: None)
     tiles: dict[str, dict[str, Any]] = {}
     signals = 0

@@ -43,6 +43,7 @@ import pandas as pd
 
 from ..errors import InputError
 from ..files.geopackage import check_geopackage, check_no_triggers, check_table_layer, refused
+from ..files.names import check_utf8_name
 from ..files.paths import StrPath, atomic_path, check_not_input, input_file
 from ..settings import PositionError, RunSettings
 from ..tiling.output import INDEX as TILE_INDEX
@@ -421,6 +422,7 @@ def _check_map(path: StrPath) -> Path:
             "new observations together, then estimate PARTITION -o FOLDER --scheduler ...",
         )
     path = Path(os.path.realpath(input_file(path, "map")))
+    check_utf8_name(path, "map")  # (GDAL writes it)
     if path.suffix.lower() != ".gpkg":
         raise InputError(
             "the map must be a GeoPackage (.gpkg): only there can the evidence and the columns "

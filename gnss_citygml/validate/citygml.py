@@ -19,6 +19,7 @@ from pathlib import Path
 from lxml import etree
 
 from ..errors import InputError, first_line
+from ..files.names import native_name
 from .geometry import BATCH, Shells
 from .gml import GML, GML_ID, gml_solids
 from .report import Issue, Report
@@ -120,7 +121,7 @@ def validate_citygml(path: Path, schema_dir: Path | None) -> Report:
     report.errors = _syntax_errors(path)
     if report.errors:  # not well-formed: invalid, whatever it was meant to be
         return report
-    _, root = next(etree.iterparse(str(path), events=("start",), **_xml_parser_options()))
+    _, root = next(etree.iterparse(native_name(path), events=("start",), **_xml_parser_options()))
     namespace = etree.QName(root).namespace
     if namespace in _OTHER_CITYGML:
         raise InputError(
@@ -138,7 +139,7 @@ def validate_citygml(path: Path, schema_dir: Path | None) -> Report:
     shells, errors = Shells(closed=True), []
     try:
         for _, member in etree.iterparse(
-            str(path), events=("end",), tag=_MEMBERS, schema=schema, **_xml_parser_options()
+            native_name(path), events=("end",), tag=_MEMBERS, schema=schema, **_xml_parser_options()
         ):
             report.n_objects += 1
             errors.extend(gml_solids(member, shells))
@@ -185,7 +186,7 @@ def _syntax_errors(path: Path) -> list[Issue]:
     # types-lxml wants a target with every method of its ParserTarget; lxml calls those it has
     parser = etree.XMLParser(target=_NoTree(), **_xml_parser_options())  # type: ignore[call-overload]
     try:
-        etree.parse(str(path), parser)
+        etree.parse(native_name(path), parser)
         fatal = None
     except _DocumentType:
         raise InputError(
@@ -211,7 +212,7 @@ def _syntax_errors(path: Path) -> list[Issue]:
 
 def _validate_citygml_tree(path: Path, schema: etree.XMLSchema, report: Report) -> Report:
     """The report of a well-formed file with schema errors, each with the city object it is in."""
-    tree = etree.parse(str(path), etree.XMLParser(**_xml_parser_options()))
+    tree = etree.parse(native_name(path), etree.XMLParser(**_xml_parser_options()))
     members = [m for tag in _MEMBERS for m in tree.getroot().iter(tag)]
     members.sort(key=lambda m: m.sourceline)
     errors = []

@@ -164,19 +164,32 @@ def read_provenance(path: StrPath, layer: str | None = None) -> dict[str, Any]:
 
 
 #: The fields of a record and of each of its inputs, by the type the toolkit writes them as.
-_FIELDS = {"software": str, "created": str, "command": str, "settings": dict, "inputs": list}
-_INPUT_FIELDS = {"role": str, "name": str, "sha256": str, "bytes": int}
+_FIELDS: dict[str, type] = {
+    "software": str,
+    "created": str,
+    "command": str,
+    "settings": dict,
+    "inputs": list,
+}
+_INPUT_FIELDS: dict[str, type] = {"role": str, "name": str, "sha256": str, "bytes": int}
 #: The types of JSON values, as a message names them.
-_KINDS = {str: "text", dict: "an object", list: "a list", int: "a whole number", float: "a number"}
+_KINDS: dict[type, str] = {
+    str: "text",
+    dict: "an object",
+    list: "a list",
+    int: "a whole number",
+    float: "a number",
+}
 
 
 def _wrong_field(record: dict[str, Any]) -> str | None:
     """What is wrong with the first field of ``record`` not of the type the toolkit writes
     (``inputs[0].bytes is text, not a whole number``), None if none is."""
-    fields = [(key, record[key], kind) for key, kind in _FIELDS.items() if key in record]
-    for n, item in enumerate(
-        record.get("inputs") if isinstance(record.get("inputs"), list) else []
-    ):
+    fields: list[tuple[str, Any, type]] = [
+        (key, record[key], kind) for key, kind in _FIELDS.items() if key in record
+    ]
+    inputs = record.get("inputs")
+    for n, item in enumerate(inputs if isinstance(inputs, list) else []):
         if not isinstance(item, dict):
             fields.append((f"inputs[{n}]", item, dict))
             continue
@@ -187,7 +200,7 @@ def _wrong_field(record: dict[str, Any]) -> str | None:
         if type(value) is not kind:
             found = "null" if value is None else _KINDS.get(type(value), "true or false")
             return f"{name} is {found}, not {_KINDS[kind]}"
-        if kind is int and not 0 <= value < 2**63:
+        if type(value) is int and not 0 <= value < 2**63:
             return f"{name} is {user_text(value)}, not a size in bytes"
     return None
 

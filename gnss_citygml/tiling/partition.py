@@ -41,6 +41,7 @@ import pandas as pd
 from ..errors import InputError, listing, user_text
 from ..files.paths import StrPath, atomic_folder, check_not_input, file_digest
 from ..files.provenance import PARTITION_INDEX
+from ..files.userjson import parse_json
 from ..observations import read_observations, repeated_signals
 from ..settings import (
     DEFAULT_TILE_SIZE,
@@ -224,7 +225,7 @@ def read_index(folder: StrPath) -> dict[str, Any]:
     where they are read (:func:`check_digests`)."""
     path = Path(folder) / INDEX
     try:
-        index = json.loads(path.read_text())
+        index = parse_json(path.read_bytes())
     except (OSError, ValueError) as exc:
         raise InputError(
             f"not a partition folder: cannot read {INDEX} ({type(exc).__name__})",

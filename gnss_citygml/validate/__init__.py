@@ -25,7 +25,7 @@ valid, 1 invalid, 2 could not validate.
 
 Bad bytes are never valid: a file cut short or otherwise not well-formed XML or JSON is invalid
 (rule ``xml-syntax`` or ``json-syntax``, with the line and column of the first fatal error), as
-is JSON nested deeper than the reader goes (``json-nesting``), and coordinates that are NaN,
+is JSON nested deeper than 128 levels (``json-nesting``), and coordinates that are NaN,
 infinite or beyond ±1e12 (``coordinate-range``, also after a CityJSON transform). Only a
 CityJSONSeq cut exactly at the end of a line, which nothing tells from a shorter sequence,
 passes. No DTD is read, no XML entity expanded, nothing fetched from the network.

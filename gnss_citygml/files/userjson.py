@@ -90,7 +90,8 @@ def _depth(data: bytes) -> int:
     ``replace`` pairs them), the brackets outside strings counted."""
     kept = data.replace(b"\\\\", b"").replace(b'\\"', b"").translate(None, _NOT_STRUCTURE)
     chars = np.frombuffer(kept, np.uint8)
-    inside = (np.cumsum(chars == ord('"'), dtype=np.int64) & 1).astype(bool)
+    quotes = np.cumsum(chars == ord('"'), dtype=np.int32)  # (its parity survives an overflow)
+    inside = (quotes & 1).astype(bool)
     opens = (chars == ord("[")) | (chars == ord("{"))
     step = opens.astype(np.int32) - ((chars == ord("]")) | (chars == ord("}")))
     step[inside] = 0

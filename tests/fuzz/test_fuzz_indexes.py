@@ -11,7 +11,6 @@ must end as an index, a report, or one line of error, never another exception.
 from __future__ import annotations
 
 import json
-import tempfile
 from pathlib import Path
 
 import geopandas as gpd
@@ -31,21 +30,15 @@ CITY = Path(__file__).resolve().parents[2] / "examples" / "city"
 
 
 @pytest.fixture(scope="module")
-def folder():
-    with tempfile.TemporaryDirectory(prefix="fuzz-indexes-") as name:
-        yield Path(name)
-
-
-@pytest.fixture(scope="module")
-def partition(folder) -> Path:
+def partition(module_folder) -> Path:
     """The sample city's observations partitioned in tiles of 100 m."""
-    path = folder / "partition"
+    path = module_folder / "partition"
     partition_observations([CITY / "observations.parquet"], path, CITY / "dem.tif", tile_size=100.0)
     return path
 
 
 @pytest.fixture(scope="module")
-def tileset(folder) -> bytes:
+def tileset(module_folder) -> bytes:
     """The tileset.json the toolkit writes for three buildings."""
     e, n = 529500.0, 182300.0
     buildings = gpd.GeoDataFrame(
@@ -53,7 +46,7 @@ def tileset(folder) -> bytes:
         geometry=[shapely.box(e + 20 * k, n, e + 20 * k + 10, n + 8) for k in range(3)],
         crs="EPSG:27700",
     )
-    path = folder / "written" / "tileset.json"
+    path = module_folder / "written" / "tileset.json"
     write_3dtiles(buildings, path, validate=False, title="T")
     return path.read_bytes()
 
@@ -94,7 +87,7 @@ SUB = {
 
 
 @given(data=st.data())
-def test_tileset(data, tileset, folder, tiles3d_schema_dir, clean):
+def test_tileset(data, tileset, module_folder, tiles3d_schema_dir, clean):
     doc = json.loads(tileset)
     doc["root"].setdefault("children", []).append(
         {
@@ -104,7 +97,7 @@ def test_tileset(data, tileset, folder, tiles3d_schema_dir, clean):
         }
     )
     seed = json.dumps(doc, indent=1).encode()
-    case = folder / "case"
+    case = module_folder / "case"
     case.mkdir(exist_ok=True)
     (case / "sub.json").write_bytes(data.draw(variants(json.dumps(SUB).encode()), label="sub"))
     (case / "tileset.json").write_bytes(data.draw(variants(seed), label="tileset"))

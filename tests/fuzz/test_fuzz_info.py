@@ -13,8 +13,6 @@ from __future__ import annotations
 
 import json
 import re
-import tempfile
-from pathlib import Path
 
 import pytest
 from click.testing import CliRunner
@@ -87,22 +85,16 @@ def record_texts(draw) -> str:
     )
 
 
-@pytest.fixture(scope="module")
-def folder():
-    with tempfile.TemporaryDirectory(prefix="fuzz-info-") as name:
-        yield Path(name)
-
-
 #: What no line ``info`` prints may hold: controls (but the line end), bidi and line separators.
 _UNSAFE = re.compile("[\x00-\x09\x0b-\x1f\x7f-\x9f\u2028\u2029\u202a-\u202e\u2066-\u2069]")
 
 
 @pytest.mark.parametrize("name", CONTAINERS)
 @given(text=record_texts())
-def test_info(name, text, folder):
-    path = folder / name
+def test_info(name, text, module_folder):
+    path = module_folder / name
     path.unlink(missing_ok=True)
-    holding(folder, name, text)
+    holding(module_folder, name, text)
     printed = CliRunner().invoke(info, [str(path)])
     as_json = CliRunner().invoke(info, [str(path), "--json"])
     if printed.exception is not None:

@@ -549,7 +549,7 @@ def _geoparquet_variants(folder):
         ("polygon_said_of_wkb", "encoded as 'polygon' and holds binary"),
         ("no_geo", "has no GeoParquet metadata"),
         ("geo_not_an_object", "names no geometry column"),
-        ("geo_not_json", "has no GeoParquet metadata"),
+        ("geo_not_json", "its geo metadata cannot be read: not valid JSON"),
         ("crs_not_a_crs", "has a CRS that is not one"),
         ("primary_not_a_column", "names no geometry column"),
         ("not_parquet", "not a Parquet file"),

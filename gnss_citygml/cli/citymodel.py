@@ -314,20 +314,26 @@ def info(path, layer, as_json):
     tileset (its tileset.json or folder) or a report page."""
     import json
 
-    from ..files.provenance import read_provenance
+    from ..files.provenance import plain, read_provenance
 
-    record = read_provenance(path, layer=layer)
+    record = plain(read_provenance(path, layer=layer))  # (1e999 is JSON, infinity is not)
     if as_json:
-        click.echo(json.dumps(record, indent=1))
+        click.echo(json.dumps(record, indent=1, allow_nan=False))
         return
     for key in ("software", "created", "command"):
-        click.echo(f"{key + ':':<10}{user_text(str(record.get(key)))}")
+        click.echo(f"{key + ':':<10}{_shown(record.get(key))}")
     click.echo("inputs:")
     for item in record.get("inputs", []):
+        size = item.get("bytes")
         click.echo(
-            f"  {item.get('role', ''):<13}{user_text(str(item.get('name'))):<32}"
-            f"{item.get('bytes', 0):>14,} B  sha256 {item.get('sha256')}"
+            f"  {_shown(item.get('role')):<13}{_shown(item.get('name')):<32}"
+            f"{'-' if size is None else f'{size:,}':>14} B  sha256 {_shown(item.get('sha256'))}"
         )
     click.echo("settings:")
     for line in json.dumps(record.get("settings", {}), indent=1).splitlines()[1:-1]:
-        click.echo(f" {line}")
+        click.echo(f" {line}")  # (json.dumps escapes every control and non-ASCII character)
+
+
+def _shown(value: str | None) -> str:
+    """A record's value as ``info`` prints it: escaped and cut (a SHA-256 whole), - if missing."""
+    return "-" if value is None else user_text(value, 64)

@@ -14,7 +14,6 @@ the *buildings* table are :mod:`gnss_citygml.footprints`'.
 from __future__ import annotations
 
 import contextlib
-import json
 import os
 import tempfile
 import xml.parsers.expat
@@ -32,7 +31,8 @@ import shapely
 from ..errors import InputError, first_line, listing
 from .names import native_name
 from .paths import StrPath, gunzipped, input_file
-from .tables import check_text
+from .tables import check_parquet_metadata, check_text
+from .userjson import parse_json
 
 __all__ = ["Source"]
 
@@ -268,7 +268,7 @@ def _geoparquet_batches(path: Path, size: int) -> Iterator[gpd.GeoDataFrame]:
 
     _check_geoparquet(path)
     data = ds.dataset(native_name(path), format="parquet", partitioning="hive")
-    geo = json.loads(data.schema.metadata[b"geo"])
+    geo = parse_json(data.schema.metadata[b"geo"], allow_nan=True)  # (checked above)
     column = geo["primary_column"]
     if geo["columns"][column].get("encoding") != "WKB":
         yield from _geoarrow_batches(path, size)
@@ -334,8 +334,12 @@ def _read_geoparquet(path: Path) -> gpd.GeoDataFrame:
     _check_geoparquet(path)
     try:
         frame = gpd.read_parquet(native_name(path))
-    except (OSError, ValueError, TypeError, shapely.errors.GEOSException) as exc:
-        # pyarrow's errors are these too; GEOS's: WKB it cannot parse
+    except (
+        OSError, ValueError, TypeError, KeyError, AttributeError, IndexError,
+        shapely.errors.GEOSException,
+    ) as exc:  # fmt: skip
+        # pyarrow's errors are these too (KeyError, AttributeError, IndexError: pandas
+        # metadata of another shape); GEOS's: WKB it cannot parse
         raise InputError(
             f"cannot read the footprints as GeoParquet ({first_line(exc)})",
             where=str(path),
@@ -379,15 +383,15 @@ def _check_geoparquet(path: Path) -> None:
                 where=str(file),
                 fix="give a GeoParquet file, or a GeoPackage",
             ) from None
-        try:
-            geo = json.loads((schema.metadata or {})[b"geo"])
-        except (KeyError, ValueError):
+        metadata = schema.metadata or {}
+        if b"geo" not in metadata:
             raise InputError(
                 "the footprints' Parquet has no GeoParquet metadata ('geo'): which column is "
                 "the geometry, in which CRS, is not said",
                 where=str(file),
                 fix=fix,
-            ) from None
+            )
+        geo = check_parquet_metadata(metadata, str(file))[b"geo"]
         columns = geo.get("columns") if isinstance(geo, dict) else None
         primary = geo.get("primary_column") if isinstance(geo, dict) else None
         if not (isinstance(columns, dict) and primary in columns and primary in schema.names):

@@ -30,6 +30,7 @@ from .paths import (
 )
 from .provenance import KEY, summary
 from .styles import save_default_style, style_saved
+from .userjson import NotJSON, parse_json
 
 if TYPE_CHECKING:
     import geopandas as gpd
@@ -38,6 +39,7 @@ __all__ = [
     "LAYER_FORMATS",
     "TEXT_COLUMNS",
     "check_layer_output",
+    "check_parquet_metadata",
     "check_text",
     "check_table_output",
     "read_table",
@@ -122,9 +124,36 @@ def _first_undecodable(column: pd.Series) -> int:
     return 0
 
 
+#: The metadata of a Parquet file that pyarrow (``pandas``) and GeoPandas (``geo``) read as JSON.
+JSON_METADATA = (b"pandas", b"geo")
+
+
+def check_parquet_metadata(metadata: dict[bytes, bytes] | None, where: str) -> dict[bytes, Any]:
+    """The JSON metadata of a Parquet file (:data:`JSON_METADATA`, those it has) parsed by
+    :func:`~.userjson.parse_json`, before pyarrow or GeoPandas parse it with no bound on its
+    depth; an :class:`InputError` naming the one that is not JSON."""
+    metadata, parsed = metadata or {}, {}
+    for key in JSON_METADATA:
+        if key not in metadata:
+            continue
+        try:
+            parsed[key] = parse_json(metadata[key], allow_nan=True)
+        except NotJSON as exc:
+            raise InputError(
+                f"its {key.decode()} metadata cannot be read: {exc}",
+                where=where,
+                fix="write the file again (pandas' or GeoPandas' to_parquet)",
+            ) from None
+    return parsed
+
+
 def _read_parquet(path: Path) -> pd.DataFrame:
-    """A Parquet table (:func:`check_text`); pyarrow's errors on damaged pandas metadata as an
+    """A Parquet table (:func:`check_text`), its JSON metadata checked first
+    (:func:`check_parquet_metadata`); pyarrow's errors on damaged pandas metadata as an
     InputError."""
+    import pyarrow.parquet as pq
+
+    check_parquet_metadata(pq.read_schema(path).metadata, str(path))
     try:
         return check_text(pd.read_parquet(native_name(path)), str(path))
     except (KeyError, TypeError, IndexError, AttributeError) as exc:

@@ -43,11 +43,12 @@ import geopandas as gpd
 import numpy as np
 import pandas as pd
 
-from ..errors import InputError, listing, user_text
+from ..errors import InputError, first_line, listing, user_text
 from ..files.folders import atomic_folder
 from ..files.names import check_utf8_name
 from ..files.paths import StrPath, check_not_input, file_digest
 from ..files.provenance import PARTITION_INDEX
+from ..files.userjson import parse_json
 from ..observations import read_observations, repeated_signals
 from ..settings import (
     DEFAULT_TILE_SIZE,
@@ -257,10 +258,10 @@ def read_index(folder: StrPath) -> dict[str, Any]:
     where they are read (:func:`check_digests`)."""
     path = Path(folder) / INDEX
     try:
-        index = json.loads(path.read_text())
+        index = parse_json(path.read_bytes())
     except (OSError, ValueError) as exc:
         raise InputError(
-            f"not a partition folder: cannot read {INDEX} ({type(exc).__name__})",
+            f"not a partition folder: cannot read {INDEX} ({user_text(first_line(exc))})",
             where=str(folder),
             fix="give a folder written by gnss-citygml partition",
         ) from None

@@ -20,8 +20,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ..errors import InputError
+from ..errors import InputError, user_text
 from ..files.paths import StrPath
+from ..files.tables import check_parquet_metadata
+from ..files.userjson import parse_json
 from ..settings import Rays, ReceiverHeights
 
 __all__ = [
@@ -195,6 +197,7 @@ def _parquet_rows(path: Path, blob, columns: list[str], n_rows) -> pd.DataFrame:
     try:
         file = pq.ParquetFile(pa.BufferReader(blob))
         names = file.schema_arrow.names
+        check_parquet_metadata(file.schema_arrow.metadata, str(path))
         table = file.read(columns=[c for c in columns if c in names])
     except (pa.ArrowException, OSError, ValueError) as exc:
         raise _damaged(path, f"a row's data is not Parquet ({exc})") from None
@@ -263,11 +266,13 @@ def check_cast_with(path: Path, before: Stored, settings: str) -> None:
     if before.cast_with is None or before.cast_with == settings:
         return
     try:
-        old = json.loads(before.cast_with)
+        old = parse_json(before.cast_with)
         if not isinstance(old, dict):
             raise ValueError(before.cast_with)
-    except ValueError:
-        raise _damaged(path, f"its cast settings are not readable ({before.cast_with!r})") from None
+    except ValueError:  # (NotJSON is a ValueError)
+        raise _damaged(
+            path, f"its cast settings are not readable ({user_text(before.cast_with)})"
+        ) from None
     new = json.loads(settings)
     changed = [
         f"{k} {old.get(k, 'unset')} (the evidence) vs {new.get(k, 'unset')} (now)"

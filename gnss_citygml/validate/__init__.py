@@ -27,7 +27,7 @@ instead: exit code 0 valid, 1 invalid, 2 could not validate.
 
 Bad bytes are never valid: a file cut short or otherwise not well-formed XML or JSON is invalid
 (rule ``xml-syntax`` or ``json-syntax``, with the line and column of the first fatal error), as
-is JSON nested deeper than the reader goes (``json-nesting``), and coordinates that are NaN,
+is JSON nested deeper than 128 levels (``json-nesting``), and coordinates that are NaN,
 infinite or beyond ±1e12 (``coordinate-range``, also after a CityJSON transform). Only a
 CityJSONSeq cut exactly at the end of a line, which nothing tells from a shorter sequence,
 passes. No DTD is read, no XML entity expanded, nothing fetched from the network.
@@ -40,8 +40,9 @@ from pathlib import Path
 
 from ..errors import InputError
 from ..files.paths import StrPath, input_file
+from ..files.userjson import NotJSON, parse_json
 from .citygml import validate_citygml
-from .cityjson import _load, _NotJson, validate_cityjson
+from .cityjson import validate_cityjson
 from .geometry import PLANARITY_TOLERANCE, SNAP_TOLERANCE
 from .gltf import GLTF_VALIDATOR_VERSION, install_gltf_validator
 from .report import Issue, Report
@@ -147,8 +148,8 @@ def _is_tileset(path: Path, head: bytes) -> bool:
     if not _TILESET_KEY.search(head) or _CITYJSON_TYPE.search(head):
         return False
     try:
-        doc = _load(path.read_bytes())
-    except _NotJson:
+        doc = parse_json(path.read_bytes())
+    except NotJSON:
         return _TILESET_ASSET.search(head) is not None
     except OSError:
         return False

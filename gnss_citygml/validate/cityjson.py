@@ -12,18 +12,15 @@ with one sub-folder per version such as ``2.0.1/``), JSON Schema validation with
 
 from __future__ import annotations
 
-import contextlib
-import gc
-import json
-import sys
 from pathlib import Path
 
+from ..files.userjson import TOO_DEEP, NotJSON, parse_json
 from .cityjson_rules import CityJSONRules
 from .geometry import BATCH, Shells
 from .json_schema import json_schema
 from .report import Issue, Report
 
-__all__ = ["validate_cityjson"]
+__all__ = ["not_json_issue", "validate_cityjson"]
 
 
 def validate_cityjson(path: Path, schema_dir: Path | None) -> Report:
@@ -36,11 +33,11 @@ def validate_cityjson(path: Path, schema_dir: Path | None) -> Report:
     report = Report(str(path), "CityJSON", checks=["json", "structure"])
     with open(path, "rb") as f:
         try:
-            header = _load(f.readline())
+            header = parse_json(f.readline())
             rest = f.read(1)
             while rest and rest.isspace():
                 rest = f.read(1)
-        except _NotJson:
+        except NotJSON:
             header, rest = None, b""
         if rest and isinstance(header, dict):
             f.seek(0)
@@ -48,14 +45,14 @@ def validate_cityjson(path: Path, schema_dir: Path | None) -> Report:
         if header is None:  # a JSON document over several lines
             f.seek(0)
             try:
-                header = _load(f.read())
-            except _NotJson as exc:
-                report.errors.append(exc.issue())
+                header = parse_json(f.read())
+            except NotJSON as exc:
+                report.errors.append(not_json_issue(exc))
                 return report
     try:
         _validate_document(header, report, schema_dir)
     except RecursionError:  # a check going as deep as the JSON does
-        report.errors.append(Issue(None, "json-nesting", _TOO_DEEP))
+        report.errors.append(Issue(None, "json-nesting", TOO_DEEP))
     return report
 
 
@@ -87,68 +84,18 @@ def _validate_document(doc, report: Report, schema_dir: Path | None) -> None:
     report.errors.extend(shells.check())
 
 
-_TOO_DEEP = (
-    f"arrays and objects nested too deep to read (deeper than about {sys.getrecursionlimit()} "
-    "levels; CityJSON needs fewer than 10)"
-)
-
-
-class _NotJson(ValueError):
-    """Bytes that are not a JSON document: the rule, the reason, where (0: not known)."""
-
-    def __init__(self, rule: str, reason: str, line: int = 0, column: int = 0):
-        super().__init__(reason)
-        self.rule, self.reason, self.line, self.column = rule, reason, line, column
-
-    def issue(self, line: int = 0) -> Issue:
-        """The report's error; ``line``: the CityJSONSeq line of the document read."""
-        line = line or self.line
-        where = f"line {line}" if line else ""
-        where += f", column {self.column}" if line and self.column else ""
-        return Issue(None, self.rule, f"{where}: {self.reason}" if where else self.reason)
-
-
-def _load(data: bytes):
-    """The JSON document in ``data`` (UTF-8, a BOM allowed); :class:`_NotJson` if there is none.
-
-    Stricter than :func:`json.loads`: ``NaN`` and ``Infinity`` are not JSON."""
-    try:
-        text = data.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        line = data.count(b"\n", 0, exc.start) + 1
-        column = exc.start - data.rfind(b"\n", 0, exc.start)
-        raise _NotJson("json-syntax", "not UTF-8 text", line, column) from None
-    try:
-        with _collector_paused():
-            return json.loads(text, parse_constant=_not_a_number)
-    except json.JSONDecodeError as exc:
-        raise _NotJson("json-syntax", f"not valid JSON: {exc.msg}", exc.lineno, exc.colno) from None
-    except RecursionError:
-        raise _NotJson("json-nesting", _TOO_DEEP) from None
-    except ValueError as exc:  # NaN, Infinity; an integer of more than 4300 digits
-        raise _NotJson("json-syntax", f"not valid JSON: {str(exc).split(';')[0]}") from None
+def not_json_issue(exc: NotJSON, line: int = 0) -> Issue:
+    """The report's error for a document that is not JSON; ``line``: the CityJSONSeq line of
+    the document read."""
+    line = line or exc.line
+    where = f"line {line}" if line else ""
+    where += f", column {exc.column}" if line and exc.column else ""
+    return Issue(None, exc.rule, f"{where}: {exc.reason}" if where else exc.reason)
 
 
 def _n_objects(doc: dict) -> int:
     objects = doc.get("CityObjects")
     return len(objects) if isinstance(objects, dict) else 0
-
-
-def _not_a_number(name: str):
-    raise ValueError(f"{name} is not a JSON number")
-
-
-@contextlib.contextmanager
-def _collector_paused():
-    """Pause Python's cyclic garbage collector, which slows json.loads of millions of lists
-    fourfold (it scans them again and again while they are built)."""
-    enabled = gc.isenabled()
-    gc.disable()
-    try:
-        yield
-    finally:
-        if enabled:
-            gc.enable()
 
 
 def _validate_seq(lines, report: Report, schema_dir: Path | None) -> Report:
@@ -158,9 +105,9 @@ def _validate_seq(lines, report: Report, schema_dir: Path | None) -> Report:
         if not line.strip():
             continue
         try:
-            doc = _load(line)
-        except _NotJson as exc:
-            errors.append(exc.issue(number))
+            doc = parse_json(line)
+        except NotJSON as exc:
+            errors.append(not_json_issue(exc, number))
             continue
         where = f"line {number}: "
         if not isinstance(doc, dict):
@@ -179,7 +126,7 @@ def _validate_seq(lines, report: Report, schema_dir: Path | None) -> Report:
             if schema is not None:
                 errors.extend(schema.errors(doc, where))
         except RecursionError:  # a check going as deep as the JSON does
-            errors.append(Issue(None, "json-nesting", where + _TOO_DEEP))
+            errors.append(Issue(None, "json-nesting", where + TOO_DEEP))
         if len(shells) >= BATCH:
             errors.extend(shells.check())
             shells = Shells(closed=False)

@@ -21,13 +21,14 @@ checked for their offsets only.
 
 from __future__ import annotations
 
-import json
 import struct
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from ..files.userjson import parse_json
 
 __all__ = ["MetadataRules", "read_gltf"]
 
@@ -61,14 +62,14 @@ def read_gltf(path: Path) -> tuple[dict, bytes | None] | None:
             length, kind = struct.unpack_from("<I4s", data, 12)
             if kind != b"JSON":
                 return None
-            doc = json.loads(data[20 : 20 + length])
+            doc = parse_json(data[20 : 20 + length])
             at = 20 + length
             if len(data) >= at + 8:
                 size, kind = struct.unpack_from("<I4s", data, at)
                 binary = data[at + 8 : at + 8 + size] if kind == b"BIN\x00" else None
         else:
-            doc = json.loads(data)
-    except (OSError, ValueError, struct.error, RecursionError):
+            doc = parse_json(data)
+    except (OSError, ValueError, struct.error):  # (NotJSON is a ValueError)
         return None
     return (doc, binary) if isinstance(doc, dict) else None
 

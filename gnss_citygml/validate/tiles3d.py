@@ -37,7 +37,8 @@ from urllib.parse import unquote, urlsplit
 
 from ..errors import listing, user_text
 from ..files.paths import StrPath, input_file
-from .cityjson import _load, _NotJson
+from ..files.userjson import NotJSON, parse_json
+from .cityjson import not_json_issue
 from .gltf import GltfResult, khronos_results
 from .gltf_metadata import MetadataRules, read_gltf
 from .gltf_structure import structure_issues
@@ -181,9 +182,9 @@ class _Walk:
         self.tilesets.add(path.resolve())
         name, errors = self.name(path), self.report.errors
         try:
-            doc = _load(path.read_bytes())
-        except _NotJson as exc:
-            errors.append(Issue(name, exc.rule, f"{name}: {exc.issue().message}"))
+            doc = parse_json(path.read_bytes())
+        except NotJSON as exc:
+            errors.append(Issue(name, exc.rule, f"{name}: {not_json_issue(exc).message}"))
             return
         except OSError as exc:
             errors.append(Issue(name, "content-missing", f"{name}: cannot read ({exc.strerror})"))

@@ -59,6 +59,12 @@ def one_line_or_result(call, *args, **kwargs):
         return None
 
 
+@pytest.fixture(scope="module")
+def module_folder(tmp_path_factory):
+    """One folder for the fuzz cases of a module (hypothesis reuses it across examples)."""
+    return tmp_path_factory.mktemp("fuzz")
+
+
 @pytest.fixture
 def clean():
     """:func:`one_line_or_result` as a fixture."""

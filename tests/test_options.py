@@ -5,7 +5,7 @@ ranges are those the settings' checks enforce (the QGIS side: qgis_plugin/tests)
 import click
 import pytest
 
-from gnss_citygml.cli import COMMANDS, cli
+from gnss_citygml.cli import COMMANDS, UTF8_TEXT, cli
 from gnss_citygml.errors import InputError
 from gnss_citygml.options import OPTIONS, SETTINGS, Option, settings_arguments
 from gnss_citygml.settings import Estimator, PositionError, Rays
@@ -37,7 +37,7 @@ def test_every_command_line_option_of_a_setting_is_its_declaration():
         elif spec.kind == "switch":
             assert param.is_flag and param.secondary_opts, where
         elif spec.kind == "field":
-            assert param.type is click.STRING, where
+            assert param.type is UTF8_TEXT, where  # text: refused if not UTF-8
         else:
             assert param.type is click.FLOAT, where
     assert seen == set(OPTIONS)  # every declaration is offered by some command

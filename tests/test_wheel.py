@@ -136,7 +136,7 @@ def test_the_wheel_holds_the_grids_their_licence_the_city_and_the_command(wheel)
         assert "Ordnance Survey" in notice and "Redistribution and use" in notice
         assert "MIT License" in archive.read(f"{info}/licenses/LICENSE").decode()
         metadata = archive.read(f"{info}/METADATA").decode()
-        assert "License-Expression: MIT" in metadata
+        assert "License-Expression: MIT AND BSD-2-Clause AND CC-BY-4.0" in metadata
         entry_points = archive.read(f"{info}/entry_points.txt").decode()
         assert "gnss-citygml = gnss_citygml.cli:main" in entry_points
         assert not any("__pycache__" in n or n.startswith(("tests/", "benchmarks/")) for n in names)

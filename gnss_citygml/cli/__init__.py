@@ -85,7 +85,8 @@ COMMANDS = {
     ),
     "validate": (
         "citymodel",
-        "Check a CityGML 2.0, CityJSON or CityJSONSeq file: exit 0 valid, 1 invalid, 2 error.",
+        "Check a CityGML 2.0, CityJSON, CityJSONSeq file or 3D Tiles tileset.json: exit 0 valid, "
+        "1 invalid, 2 error.",
     ),
 }
 

@@ -153,7 +153,7 @@ def _read_parquet(path: Path) -> pd.DataFrame:
     InputError."""
     import pyarrow.parquet as pq
 
-    check_parquet_metadata(pq.read_schema(path).metadata, str(path))
+    check_parquet_metadata(pq.read_schema(native_name(path)).metadata, str(path))
     try:
         return check_text(pd.read_parquet(native_name(path)), str(path))
     except (KeyError, TypeError, IndexError, AttributeError) as exc:

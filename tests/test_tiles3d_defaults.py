@@ -239,6 +239,12 @@ def test_with_node_but_no_validator_installable_the_own_checks_run(tmp_path, mon
     assert "Khronos' glTF validator not run: installing it with npm failed" in note
     assert f"npm install --prefix {tmp_path / 'n'} gltf-validator@" in note
     assert "gltf" not in report.checks
+    # the next run does not wait for npm again: a failed install is not retried for a day
+    monkeypatch.setattr(shutil, "which", lambda name, _which=shutil.which: (
+        None if name == "npm" else _which(name)))  # fmt: skip
+    again = validate_tileset(valid_tileset(tmp_path / "u"), node_dir=tmp_path / "n")
+    (note,) = [n for n in again.notes if n.startswith("glTF:")]
+    assert "failed in the last day" in note and "npm install --prefix" in note
 
 
 # --- validate: a tileset is checked as one ------------------------------------------------------

@@ -13,10 +13,12 @@ folder), and otherwise says why it did not run, for the report.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
 import subprocess
+import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import NamedTuple
@@ -45,6 +47,10 @@ SCRIPT = Path(__file__).with_name("gltf_validate.mjs")
 #: Seconds an install on the fly (:func:`khronos_results`) may take: a machine with node and
 #: no network falls back to the package's own checks soon.
 AUTO_INSTALL_TIMEOUT = 120
+#: Seconds after an install on the fly failed during which no other is tried (a machine with
+#: node and no network would otherwise wait for npm at every run); the file that says when.
+AUTO_INSTALL_RETRY = 24 * 3600
+INSTALL_FAILED = ".install-failed"
 #: Files per node process: keeps the command line well under the system's limit.
 FILES_PER_RUN = 200
 #: Messages kept per file (errors first); the counts are always whole.
@@ -212,10 +218,21 @@ def khronos_results(
         return None, "node not found"
     folder = node_folder(node_dir)
     if _installed_version(folder) != GLTF_VALIDATOR_VERSION:
+        failed = folder / INSTALL_FAILED
+        with contextlib.suppress(OSError):
+            if time.time() - failed.stat().st_mtime < AUTO_INSTALL_RETRY:
+                return None, (
+                    f"installing it with npm failed in the last day ({user_text(failed)}); "
+                    f"run: {_install_command(folder)}"
+                )
         try:
             install_gltf_validator(folder, timeout=AUTO_INSTALL_TIMEOUT)
         except InputError as err:
+            with contextlib.suppress(OSError):
+                failed.parent.mkdir(parents=True, exist_ok=True)
+                failed.write_text(f"{err.what}\n", encoding="utf-8")
             return None, f"installing it with npm failed: {err.what}; {err.fix}"
+        failed.unlink(missing_ok=True)
         version += f", installed now into {folder}"
     try:
         return validate_gltf(paths, node_dir=folder), version

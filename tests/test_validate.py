@@ -72,13 +72,20 @@ def test_official_samples(reference_data, name, rules):
 
 def test_sample_details(shared_data):
     folder = shared_data / "citymodels"
-    typo = validate_file(folder / "cityjson/invalid/cjval_cube_20_typo_GnericCityObject.city.jsonl")
+    name = "cityjson/invalid/cjval_cube_20_typo_GnericCityObject.city.jsonl"
+    typo = validate_file(folder / name, bundled_schemas=False)  # (the structure's rules)
     assert [(e.object_id, e.rule, e.message) for e in typo.errors] == [
         ("id-1", "cityobject-type", "line 2: unknown CityObject type 'GnericCityObject'"),
         (None, "cityjson-type", "line 5: type is 'CityJSONFeatur', not 'CityJSONFeature'"),
     ]
     assert typo.format == "CityJSONSeq 2.0" and typo.n_objects == 5
     assert any("JSON Schema check left out" in note for note in typo.notes)
+    schema = validate_file(folder / name)  # and the schemas bundled with the package too
+    assert [e.message for e in schema.errors if e.rule == "json-schema"] == [
+        "line 2: (root): a 'GnericCityObject' matches none of the schemas allowed here",
+        "line 5: type: 'CityJSONFeature' was expected",
+    ]
+    assert "JSON Schema: CityJSON 2.0.2's, bundled with gnss-citygml" in schema.notes
     overlap = validate_file(folder / "citygml2/invalid/val3dity_geometry_502.gml")
     assert overlap.errors[0].object_id == "GenericCityObject (line 6)"
     xsd = validate_file(folder / "citygml2/invalid/val3dity_invalid_citygml_1.gml")
@@ -110,7 +117,8 @@ def test_cannot_validate(tmp_path, shared_data):
 
 def test_schema_folder_from_the_environment(monkeypatch, repo_data):
     cube = repo_data / "citymodels/cityjson/cjval_cube.city.json"
-    assert "json-schema" not in validate_file(cube).checks
+    assert "json-schema" not in validate_file(cube, bundled_schemas=False).checks
+    assert "json-schema" in validate_file(cube).checks  # the bundled CityJSON 2.0.2 schema
     monkeypatch.setenv(SCHEMA_DIR_ENV, str(repo_data / "schemas"))
     assert "json-schema" in validate_file(cube).checks
 
@@ -145,7 +153,7 @@ def cube(faces=FACES, vertices=VERTICES, **geometry):
 def rules_of(tmp_path, document) -> set:
     path = tmp_path / "c.city.json"
     path.write_text(json.dumps(document))
-    return {issue.rule for issue in validate_file(path).errors}
+    return {issue.rule for issue in validate_file(path, bundled_schemas=False).errors}
 
 
 def test_a_valid_cube(tmp_path):
@@ -233,7 +241,7 @@ def test_cityjsonseq_rules(tmp_path):
     lines = [header, feature, other]
     path = tmp_path / "s.city.jsonl"
     path.write_text("\n".join(json.dumps(line) for line in lines) + "\n")
-    report = validate_file(path)
+    report = validate_file(path, bundled_schemas=False)
     assert [(e.object_id, e.rule) for e in report.errors] == [("d", "feature-id")]
     assert report.errors[0].message.startswith("line 3: ")
     assert report.summary().endswith("INVALID, 1 error(s) (checks: json, structure, geometry)")
@@ -484,11 +492,14 @@ def test_every_error_is_one_line(three, tmp_path, capsys):
     assert lines == [
         "b\\n\\t\\x01\tcityobject-type\tunknown CityObject type 'Nope'",
         "c\tcityobject-type\tunknown CityObject type 'Nope'",
-        f"{path}: CityJSON 2.0, 3 object(s): INVALID, 2 error(s) "
-        "(checks: json, structure, geometry)",
+        "b\\n\\t\\x01\tjson-schema\t(root): a 'Nope' matches none of the schemas allowed here",
+        "c\tjson-schema\t(root): a 'Nope' matches none of the schemas allowed here",
+        f"{path}: CityJSON 2.0, 3 object(s): INVALID, 4 error(s) "
+        "(checks: json, structure, json-schema, geometry)",
     ]
     code, out, _ = run(["validate", str(path), "--max-errors", "1"], capsys)
     assert code == 1
-    assert out.splitlines() == [lines[0], "... 1 more (cityobject-type 2)", lines[2]]
+    more = "... 3 more (cityobject-type 2, json-schema 2)"
+    assert out.splitlines() == [lines[0], more, lines[4]]
     code, _, err = run(["validate", str(path), "--max-errors", "-1"], capsys)
     assert code == 2 and "Invalid value for '--max-errors'" in err

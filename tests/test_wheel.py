@@ -29,7 +29,7 @@ from gnss_citygml.contracts import SCHEMA_FOLDER
 from gnss_citygml.files.styles import heights_qml
 from gnss_citygml.geodesy.grids import BUNDLED_GRID_DIR, GRIDS
 from gnss_citygml.validate import GLTF_VALIDATOR_VERSION
-from gnss_citygml.validate.schemas import BUNDLED_TILES3D_SCHEMAS
+from gnss_citygml.validate.schemas import BUNDLED_CITYJSON_SCHEMAS, BUNDLED_TILES3D_SCHEMAS
 
 ROOT = Path(__file__).resolve().parents[1]
 CITY_FILES = ("observations.parquet", "footprints.gpkg", "dem.tif", "truth.csv")
@@ -120,6 +120,8 @@ def test_the_wheel_holds_the_grids_their_licence_the_city_and_the_command(wheel)
         for name in SCHEMA_FOLDER.iterdir():  # the contracts: JSON Schemas, CityJSON Extension
             assert archive.read("gnss_citygml/schemas/" + name.name) == name.read_bytes()
         assert "gnss_citygml/validate/gltf_validate.mjs" in names  # runs the glTF validator
+        for schema in BUNDLED_CITYJSON_SCHEMAS.iterdir():  # CityJSON 2.0.2's (CC0)
+            assert archive.read(f"{data}cityjson-2.0.2/{schema.name}") == schema.read_bytes()
         for schema in BUNDLED_TILES3D_SCHEMAS.rglob("*"):  # the 3D Tiles 1.1 JSON schemas
             if schema.is_file():
                 name = (
@@ -176,6 +178,9 @@ def test_the_installed_wheel_runs_the_demo_offline(clean_venv, user_env, tmp_pat
     args = ["convert", "OUT/heights.gpkg", "-o", "typed.city.json", "--typed-attributes"]
     typed = _run([command, *args], env=user_env, cwd=work)
     assert "extension" in typed.stdout.split("valid (")[1]
+    # validate checks it against the CityJSON 2.0.2 schema bundled with the package
+    schema = _run([command, "validate", "typed.city.json"], env=user_env, cwd=work)
+    assert "json-schema" in schema.stdout.split("valid (checks: ")[1], schema.stdout
 
     # 3D Tiles as the README writes them, with no node on the PATH: the schemas bundled with
     # the package and its own checks of every GLB, which the output names

@@ -70,7 +70,8 @@ def validated_output(
     """The validation report of a file just written to ``tmp``; raise if it is invalid."""
     if not validate:
         return None
-    return checked(validate_file(tmp, schema_dir=schema_dir), path, "file")
+    report = validate_file(tmp, schema_dir=schema_dir, bundled_schemas=False)
+    return checked(report, path, "file")
 
 
 def checked(report: Report, path: StrPath, what: str) -> Report:

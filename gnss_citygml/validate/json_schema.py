@@ -116,7 +116,10 @@ def json_schema(
 ) -> _JsonSchema | None:
     """The schema of this CityJSON version found under ``schema_dir`` (None: a note says why)."""
     if schema_dir is None:
-        report.notes.append(f"JSON Schema check left out: no schema folder (${SCHEMA_DIR_ENV})")
+        report.notes.append(
+            f"JSON Schema check left out: no schema folder (--schema-dir, ${SCHEMA_DIR_ENV}); "
+            "`gnss-citygml validate FILE` checks it against the schemas bundled with the package"
+        )
         return None
     path = cityjson_schema_file(schema_dir, None if version is None else str(version), kind)
     if path is None:

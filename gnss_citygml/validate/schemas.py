@@ -1,5 +1,6 @@
-"""Where the official schemas are: the schema folder, the CityGML 2.0 tree, CityJSON's files,
-the 3D Tiles 1.1 folder (by default the copy bundled with the package)."""
+"""Where the official schemas are: the schema folder, the CityGML 2.0 tree, CityJSON's files
+(CityJSON 2.0's by default the copy bundled with the package), the 3D Tiles 1.1 folder (by
+default the copy bundled with the package)."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ from ..errors import InputError
 from ..files.paths import StrPath
 
 __all__ = [
+    "BUNDLED_CITYJSON_SCHEMAS",
     "BUNDLED_TILES3D_SCHEMAS",
     "SCHEMA_DIR_ENV",
     "TILES3D_SCHEMA_DIR_ENV",
@@ -32,6 +34,9 @@ TILES3D_SCHEMA_SUBFOLDER = "3dtiles-1.1"
 #: The 3D Tiles 1.1 JSON schemas shipped with the package (the files validation needs, with
 #: their licence and source: README.md there).
 BUNDLED_TILES3D_SCHEMAS = Path(__file__).resolve().parents[1] / "data" / TILES3D_SCHEMA_SUBFOLDER
+#: The CityJSON 2.0.2 and CityJSONFeature 2.0.2 schemas shipped with the package, each one file
+#: with its references inlined (CC0; README.md there): the CityJSON 2.0 files' default.
+BUNDLED_CITYJSON_SCHEMAS = Path(__file__).resolve().parents[1] / "data" / "cityjson-2.0.2"
 
 
 def schema_folder(schema_dir: StrPath | None) -> Path | None:

@@ -30,7 +30,9 @@ tolerance (:func:`classify`, first that applies):
 ``flat``
     the last gain within 100 x the tolerance, parameters still moving;
 ``other``
-    none of these.
+    none of these;
+``no data``
+    no rows fitted (a building the fits leave out).
 
 Then runs again with the height fit's cap ten times higher (``fit_max_iter`` 2000), and with
 both caps ten times higher (``max_iter`` 100 too), and counts, per class of the default run's

@@ -31,6 +31,8 @@ from .settings.checks import (
     ANTENNA_HEIGHTS,
     CN0S,
     ELEVATIONS,
+    FIT_ITERATIONS,
+    ITERATIONS,
     MAX_RANGES,
     POSITION_DISTANCES,
     POSITION_SDS,
@@ -49,9 +51,10 @@ SETTINGS = {
     "calibration": Calibration,
 }
 
-#: The kinds of option: a number, one of some choices, a switch (on or off), a field of the
-#: footprints (its name; in QGIS chosen from the footprints layer's numeric fields).
-KINDS = ("number", "choice", "switch", "field")
+#: The kinds of option: a number, a count (a whole number), one of some choices, a switch (on
+#: or off), a field of the footprints (its name; in QGIS chosen from the footprints layer's
+#: numeric fields).
+KINDS = ("number", "count", "choice", "switch", "field")
 
 
 @dataclass(frozen=True)
@@ -183,6 +186,25 @@ _OPTIONS = (
         "Put every phone's C/N0 on one level before the signals are classified, each "
         "phone's offset learnt from its signals that cross no footprint (phones differ by a few "
         "dB-Hz; method 4PL-B). --no-level-phones: the C/N0 as recorded, as in the paper.",
+    ),
+    Option(
+        ("estimator", "max_iter"),
+        "--max-iter",
+        "count",
+        "Most iterations of 4PL-B's loop",
+        "Most iterations of 4PL-B's loop (each relabels the signals and refits every "
+        "building): a run that has not settled by then stops there.",
+        ITERATIONS,
+    ),
+    Option(
+        ("estimator", "fit_max_iter"),
+        "--fit-max-iter",
+        "count",
+        "Most iterations of a height fit (Levenberg-Marquardt)",
+        "Most Levenberg-Marquardt iterations of one building's height fit (each 4PL-B "
+        "iteration): a fit that has not met its tolerance by then stops where it is. Raise it "
+        "(with --max-iter) to check that the heights do not depend on the caps.",
+        FIT_ITERATIONS,
     ),
     Option(
         ("rays", "max_range"),

@@ -326,3 +326,25 @@ def test_a_range_too_wide_from_the_positions_says_so(rng):
     )
     # without the shared error the same rows give a height
     assert estimate_heights(table.drop(columns="height_sd")).iloc[0]["converged"]
+
+
+def test_the_height_fits_iteration_cap_is_the_estimators(rng):
+    """``fit_max_iter`` is the cap of every height fit's Levenberg-Marquardt iterations: the
+    default is the cap the fits always had (the same bits), and a cap too small to reach the
+    tolerance changes the fits (the setting is used, not only checked)."""
+    table = pd.concat(
+        [
+            synthetic_intersections(rng, 45.0, building="a"),
+            synthetic_intersections(rng, 30.0, n=600, building="b", noise=3.0),
+        ]
+    )
+    default = estimate_heights(table)
+    pd.testing.assert_frame_equal(estimate_heights(table, Estimator(fit_max_iter=200)), default)
+    for cap in (1, 3):
+        cut = estimate_heights(table, Estimator(fit_max_iter=cap))
+        assert not np.array_equal(cut[["a", "b", "c", "d"]], default[["a", "b", "c", "d"]])
+    one_shot = Estimator(method="4PL", fit_max_iter=2)
+    assert not np.array_equal(
+        estimate_heights(table, one_shot)["c"],
+        estimate_heights(table, Estimator(method="4PL"))["c"],
+    )

@@ -203,3 +203,28 @@ def test_group_range_is_the_same_on_rows_sorted_by_group(rng):
     np.testing.assert_array_equal(shuffled[0], in_runs[0])
     np.testing.assert_array_equal(shuffled[1], in_runs[1])
     assert shuffled[0][7] == shuffled[1][41] == 0.0
+
+
+def test_a_fit_can_say_how_it_stopped_without_changing_a_bit(rng):
+    """``stops=True`` records how each group's fit stopped (a diagnostic of fits that do not
+    settle) and changes nothing of the fits themselves: an ordinary group converges with a
+    small last gain and nothing on a bound, a separable one ends with b on its upper bound, and
+    a fit cut by its cap says how far its parameters were still moving."""
+    x0, y0 = draw_4pl(rng, 3000, 0.9, 0.8, 30.0, 0.1)
+    x1 = np.linspace(0.0, 10.0, 60)
+    x, y = np.r_[x0, x1], np.r_[y0, x1 > 5.0].astype(float)
+    g = np.r_[np.zeros(x0.size, int), np.ones(x1.size, int)]
+    for cap in (200, 3):
+        plain = fit_4pl(x, y, groups=g, max_iter=cap)
+        told = fit_4pl(x, y, groups=g, max_iter=cap, stops=True)
+        assert plain.stops is None
+        for name in ("a", "b", "c", "d", "loglik", "converged", "n_iter", "separable"):
+            np.testing.assert_array_equal(getattr(told, name), getattr(plain, name), name)
+    told = fit_4pl(x, y, groups=g, stops=True)
+    stops = told.stops
+    assert told.converged[0] and stops.accepted[0] and abs(stops.gain[0]) <= 1e-9
+    assert not stops.at_lower[0].any() and not stops.at_upper[0].any()
+    assert told.separable[1] and stops.at_upper[1, 1]  # log b on its bound
+    cut = fit_4pl(x0, y0, max_iter=4, init=[[0.6, 0.05, 20.0, 0.4]], stops=True)
+    assert not cut.converged[0] and cut.n_iter[0] == 4
+    assert np.abs(cut.stops.drift[0]).max() > 0.0  # still moving in its last two iterations

@@ -38,6 +38,8 @@ def test_every_command_line_option_of_a_setting_is_its_declaration():
             assert param.is_flag and param.secondary_opts, where
         elif spec.kind == "field":
             assert param.type is UTF8_TEXT, where  # text: refused if not UTF-8
+        elif spec.kind == "count":
+            assert param.type is click.INT, where
         else:
             assert param.type is click.FLOAT, where
     assert seen == set(OPTIONS)  # every declaration is offered by some command
@@ -50,12 +52,13 @@ def test_the_default_is_the_settings_objects(spec):
 
 
 @pytest.mark.parametrize(
-    "spec", [s for s in OPTIONS.values() if s.kind == "number"], ids=lambda s: s.name
+    "spec", [s for s in OPTIONS.values() if s.kind in ("number", "count")], ids=lambda s: s.name
 )
 def test_the_range_is_the_one_the_settings_enforce(spec):
     settings, field = spec.setting
     low, high = spec.bounds
-    for outside in (low - 1.0, high + 1.0):
+    step = 1 if spec.kind == "count" else 1.0  # a count's ends are whole numbers
+    for outside in (low - step, high + step):
         with pytest.raises(InputError):
             make(settings, field, outside)
     make(settings, field, low if field == "min_elevation" else high)  # an end is in
@@ -99,3 +102,28 @@ def test_a_commands_options_become_the_settings_objects():
     assert settings["estimator"] == Estimator(method="4PL")
     assert settings["position_error"] == PositionError()
     assert set(settings) == {"rays", "estimator", "position_error"}
+
+
+def test_the_caps_of_the_fits_are_options_of_every_command_that_fits(tmp_path, capsys):
+    """``--max-iter`` and ``--fit-max-iter`` reach the estimator: whole numbers in their
+    ranges, refused in one line outside them or as fractions."""
+    from test_cli import run
+
+    from gnss_citygml.cli.options import chosen_settings
+
+    for command in ("estimate", "report", "update", "heights"):
+        flags = {p.opts[0] for _, p in command_options() if _ == command}
+        assert {"--max-iter", "--fit-max-iter"} <= flags, command
+    chosen = {"max_iter": 100, "fit_max_iter": 2000}
+    assert chosen_settings(chosen)["estimator"] == Estimator(max_iter=100, fit_max_iter=2000)
+    table = tmp_path / "in.csv"
+    table.write_text("building,height,cn0\na,10,\na,30,40\n")
+    out = tmp_path / "out.csv"
+    for flags, message in (
+        (["--fit-max-iter", "0"], "fit_max_iter must be a whole number, 1 to 10000, not 0"),
+        (["--max-iter", "1001"], "max_iter must be a whole number, 1 to 1000, not 1001"),
+        (["--fit-max-iter", "2.5"], "'2.5' is not a valid integer"),
+    ):
+        code, _, err = run(["heights", str(table), "-o", str(out), *flags], capsys)
+        assert code == 2 and message in err, err
+        assert not out.exists()

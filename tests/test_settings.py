@@ -51,6 +51,10 @@ def test_settings_are_frozen():
         (lambda: Calibration(prior_sd=5.0, rounds=0), "calibration rounds"),
         (lambda: Estimator(init_threshold=float("nan")), "init_threshold"),
         (lambda: Estimator(max_iter=0), "max_iter"),
+        (lambda: Estimator(fit_max_iter=0), "fit_max_iter"),
+        (lambda: Estimator(fit_max_iter=-200), "fit_max_iter"),
+        (lambda: Estimator(method="hinge", fit_max_iter=50), "fit_max_iter not used by method"),
+        (lambda: Estimator(method="bayes", max_iter=5), "max_iter not used by method bayes"),
         (lambda: Acceptance(min_signals=2.5), "min_signals"),
         (lambda: Acceptance(label_tol=-0.1), "label_tol"),
         (lambda: Acceptance(min_separation=2.0), "min_separation"),
@@ -82,6 +86,12 @@ NAN, INF = float("nan"), float("inf")
         (lambda: Estimator(init_threshold=INF), "init_threshold"),
         (lambda: Estimator(max_iter=10**9), "max_iter must be a whole number, 1 to 1000"),
         (lambda: Estimator(max_iter=2.5), "max_iter"),
+        (lambda: Estimator(fit_max_iter=10**6), "fit_max_iter must be a whole number, 1 to 10000"),
+        (lambda: Estimator(fit_max_iter=200.0), "fit_max_iter"),
+        (lambda: Estimator(fit_max_iter=NAN), "fit_max_iter"),
+        (lambda: Estimator(fit_max_iter=True), "fit_max_iter"),
+        (lambda: Estimator(max_iter=True), "max_iter"),
+        (lambda: Acceptance(min_signals=True), "min_signals"),
         (lambda: Acceptance(max_uncertainty=1e9), "max_uncertainty"),
         (lambda: Acceptance(max_uncertainty=NAN), "max_uncertainty"),
         (lambda: Acceptance(label_tol=NAN), "label_tol"),
@@ -112,7 +122,8 @@ def test_options_at_the_ends_of_their_ranges_are_taken():
     ReceiverHeights(antenna_height=0.0)
     ReceiverHeights(antenna_height=500.0)
     Rays(max_range=10_000.0, min_elevation=-90.0, max_elevation=90.0)
-    Estimator(init_threshold=0.0, max_iter=1000)
+    Estimator(init_threshold=0.0, max_iter=1000, fit_max_iter=10_000)
+    Estimator(max_iter=1, fit_max_iter=1)
     PositionError(sd=1000.0, window=86_400.0)
     Calibration(prior_sd=1000.0, window=86_400.0, rounds=100)
 

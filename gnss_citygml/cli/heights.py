@@ -7,7 +7,16 @@ from pathlib import Path
 import click
 
 from ..settings import WEIGHTINGS, Estimator
-from .options import HEIGHT_RULE, METHOD, OVERWRITE, SIGNAL_MODEL, THRESHOLD, output_file
+from .options import (
+    FIT_MAX_ITER,
+    HEIGHT_RULE,
+    MAX_ITER,
+    METHOD,
+    OVERWRITE,
+    SIGNAL_MODEL,
+    THRESHOLD,
+    output_file,
+)
 
 
 @click.command()
@@ -24,9 +33,20 @@ from .options import HEIGHT_RULE, METHOD, OVERWRITE, SIGNAL_MODEL, THRESHOLD, ou
 )
 @HEIGHT_RULE
 @SIGNAL_MODEL
+@MAX_ITER
+@FIT_MAX_ITER
 @OVERWRITE
 def heights(
-    intersections, output, method, init_threshold, weighting, height_rule, signal_model, overwrite
+    intersections,
+    output,
+    method,
+    init_threshold,
+    weighting,
+    height_rule,
+    signal_model,
+    max_iter,
+    fit_max_iter,
+    overwrite,
 ):
     """Estimate building heights from an intersections table (CSV or Parquet)."""
     from ..files.tables import check_table_output, read_table, write_table
@@ -38,6 +58,8 @@ def heights(
         weighting=weighting,
         height_rule=height_rule,
         signal_model=signal_model,
+        max_iter=max_iter,
+        fit_max_iter=fit_max_iter,
     )
     check_table_output(output, overwrite=overwrite, inputs=[intersections])
     out = estimate_heights(read_table(intersections), estimator)

@@ -23,12 +23,14 @@ __all__ = [
     "ANTENNA_HEIGHT",
     "DEM_CRS",
     "DEM_HELP",
+    "FIT_MAX_ITER",
     "GRID_DIR",
     "ID_FIELD",
     "LAYER",
     "LEVEL_PHONES",
     "HEIGHT_RULE",
     "MAX_ELEVATION",
+    "MAX_ITER",
     "METHOD",
     "MIN_ELEVATION",
     "MODEL_OUTPUT",
@@ -77,7 +79,8 @@ def option(name: str) -> Callable[[FC], FC]:
     if spec.kind == "switch":
         flags = f"{spec.flag}/--no-{spec.flag.removeprefix('--')}"
         return click.option(flags, default=spec.default, show_default=True, help=spec.help)
-    kind = {"choice": click.Choice(list(spec.choices)), "field": str}.get(spec.kind, float)
+    kinds = {"choice": click.Choice(list(spec.choices)), "field": str, "count": int}
+    kind = kinds.get(spec.kind, float)
     return click.option(
         spec.flag, type=kind, default=spec.default, show_default=not spec.optional, help=spec.help
     )
@@ -101,6 +104,8 @@ METHOD = option("METHOD")
 HEIGHT_RULE = option("HEIGHT_RULE")
 SIGNAL_MODEL = option("SIGNAL_MODEL")
 LEVEL_PHONES = option("LEVEL_PHONES")
+MAX_ITER = option("MAX_ITER")
+FIT_MAX_ITER = option("FIT_MAX_ITER")
 POSITION_DISTANCE = option("POSITION_DISTANCE")
 POSITION_WINDOW = option("POSITION_WINDOW")
 

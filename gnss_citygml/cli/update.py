@@ -10,11 +10,13 @@ from ..settings import RunSettings
 from .options import (
     DEM_CRS,
     DEM_HELP,
+    FIT_MAX_ITER,
     GRID_DIR,
     HEIGHT_RULE,
     ID_FIELD,
     LAYER,
     LEVEL_PHONES,
+    MAX_ITER,
     METHOD,
     QUIET,
     REPORT,
@@ -63,6 +65,8 @@ from .options import (
 @HEIGHT_RULE
 @SIGNAL_MODEL
 @LEVEL_PHONES
+@MAX_ITER
+@FIT_MAX_ITER
 @DEM_CRS
 @GRID_DIR
 @QUIET

@@ -39,7 +39,15 @@ from scipy.special import expit
 from .group_threads import by_groups
 from .likelihood import EPS, evaluate
 
-__all__ = ["B_BOUNDS", "FourPLFit", "c_interval", "fit_4pl", "log_likelihood", "logistic4"]
+__all__ = [
+    "B_BOUNDS",
+    "FitStops",
+    "FourPLFit",
+    "c_interval",
+    "fit_4pl",
+    "log_likelihood",
+    "logistic4",
+]
 
 #: Default bounds of the slope b (1/unit of x): the upper bound is where separable data stop
 #: (a transition 3/b = 3 cm wide for heights in metres), the lower where a curve is flat.
@@ -121,11 +129,39 @@ class FourPLFit:
     n_iter: np.ndarray
     #: True where ``b`` ended on its upper bound (the data are separable at the fitted c).
     separable: np.ndarray
+    #: How each fit stopped (:class:`FitStops`), where :func:`fit_4pl` was asked (``stops``).
+    stops: FitStops | None = None
 
     @property
     def params(self) -> np.ndarray:
         """The parameters as an ``(n_groups, 4)`` array of ``(a, b, c, d)``."""
         return np.column_stack([self.a, self.b, self.c, self.d])
+
+
+@dataclass(frozen=True)
+class FitStops:
+    """How each group's fit of :func:`fit_4pl` stopped, to tell why a fit did not meet its
+    tolerance (arrays of length ``n_groups``; ``(n_groups, 4)`` for the parameters ``theta``:
+    the logits of ``a`` and ``d / a``, ``log b`` and ``c``)."""
+
+    #: The last step's log-likelihood gain, relative to ``1 + |loglik|`` (the tolerance's
+    #: scale), and whether it was accepted.
+    gain: np.ndarray
+    accepted: np.ndarray
+    #: Steps rejected in the last :data:`STOPS_WINDOW` iterations of the cap, and in all.
+    rejected_late: np.ndarray
+    rejected: np.ndarray
+    #: The damping at the end.
+    lam: np.ndarray
+    #: The parameters on their box's lower and upper end at the end.
+    at_lower: np.ndarray
+    at_upper: np.ndarray
+    #: How far each parameter moved over the second half of the cap's iterations.
+    drift: np.ndarray
+
+
+#: The last iterations of the cap over which :class:`FitStops` counts rejected steps.
+STOPS_WINDOW = 20
 
 
 def fit_4pl(
@@ -140,6 +176,7 @@ def fit_4pl(
     b_bounds: tuple[float, float] = B_BOUNDS,
     max_iter: int = 200,
     tol: float = 1e-9,
+    stops: bool = False,
 ) -> FourPLFit:
     """Maximum-likelihood 4PL fit, independently for every group.
 
@@ -164,6 +201,9 @@ def fit_4pl(
         Bounds of the slope ``b`` in units of 1/x (default :data:`B_BOUNDS`).
     max_iter, tol
         Iteration cap and relative log-likelihood tolerance.
+    stops
+        Also record how each fit stopped (:class:`FitStops`, the result's ``stops``): the
+        same fits, a little slower (a diagnostic: ``benchmarks/fit_settling.py``).
 
     Returns
     -------
@@ -187,13 +227,16 @@ def fit_4pl(
         start = None if init is None else init[own]
         n_own = own.stop - own.start
         samples = (x[rows], y[rows], w[rows], g[rows] - own.start, v[rows])
-        return _fit(*samples, n_own, start, b_bounds, max_iter, tol)
+        return _fit(*samples, n_own, start, b_bounds, max_iter, tol, stops)
 
-    return FourPLFit(*by_groups(g, n_groups, fit))
+    a, b, c, d, ll, converged, n_iter, separable, *how = by_groups(g, n_groups, fit)
+    record = FitStops(*how) if stops else None
+    return FourPLFit(a, b, c, d, ll, converged, n_iter, separable, record)
 
 
-def _fit(x, y, w, g, v, n_groups, init, b_bounds, max_iter, tol) -> tuple[np.ndarray, ...]:
-    """:func:`fit_4pl` of samples sorted by group: its :class:`FourPLFit`'s fields."""
+def _fit(x, y, w, g, v, n_groups, init, b_bounds, max_iter, tol, stops) -> tuple[np.ndarray, ...]:
+    """:func:`fit_4pl` of samples sorted by group: its :class:`FourPLFit`'s fields (and, with
+    ``stops``, its :class:`FitStops`')."""
     counts = np.bincount(g, weights=(w > 0).astype(float), minlength=n_groups)
     lo, hi = group_range(x, g, n_groups)
     span = np.maximum(hi - lo, 1e-6)
@@ -202,15 +245,17 @@ def _fit(x, y, w, g, v, n_groups, init, b_bounds, max_iter, tol) -> tuple[np.nda
     theta = np.clip(np.nan_to_num(theta0), box_lo, box_hi)
     active = counts > 0
     data = _ActiveRows(x, y, w, g, v, active)
+    trace = _Trace(theta, max_iter) if stops else None
     theta, ll, converged, n_iter = _levenberg_marquardt(
-        theta, data, active, box_lo, box_hi, n_groups, max_iter, tol
+        theta, data, active, box_lo, box_hi, n_groups, max_iter, tol, trace
     )
     a, b, c, d = _from_theta(theta).T
     empty = counts == 0
     for v in (a, b, c, d, ll):
         v[empty] = np.nan
     separable = ~empty & (theta[:, 1] >= box_hi[:, 1] - 1e-9)
-    return a, b, c, d, ll, converged & ~empty, n_iter, separable
+    fields = (a, b, c, d, ll, converged & ~empty, n_iter, separable)
+    return fields if trace is None else fields + trace.stops(theta, box_lo, box_hi)
 
 
 def _samples(x, y, weights, groups, n_groups, sd):
@@ -250,11 +295,19 @@ def _box(lo, hi, span, b_bounds, n_groups) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _levenberg_marquardt(
-    theta, data: _ActiveRows, active, box_lo, box_hi, n_groups: int, max_iter: int, tol: float
+    theta,
+    data: _ActiveRows,
+    active,
+    box_lo,
+    box_hi,
+    n_groups: int,
+    max_iter: int,
+    tol: float,
+    trace: _Trace | None = None,
 ):
     """Damped (projected) Newton steps on the Fisher information of every active group at
     once, until each converges or ``max_iter``: the parameters, log-likelihoods, convergence
-    flags and iteration counts."""
+    flags and iteration counts (``trace``: told each iteration's steps)."""
     ll, grad, fisher = evaluate(theta, *data.arrays, n_groups, active)
     lam = np.full(n_groups, 1e-3)
     converged = np.zeros(n_groups, dtype=bool)
@@ -281,10 +334,42 @@ def _levenberg_marquardt(
         lam[acc] = np.maximum(lam[acc] / 4.0, 1e-9)
         lam[idx[~accept]] *= 8.0
         small = np.abs(gain) <= tol * (1.0 + np.abs(ll[idx]))
+        if trace is not None:
+            trace.step(idx, gain / (1.0 + np.abs(ll[idx])), accept, lam, theta)
         done = (accept & (small | (moved < 1e-10))) | (lam[idx] > 1e12)
         converged[idx[done]] = True
         active[idx[done]] = False
     return theta, ll, converged, n_iter
+
+
+class _Trace:
+    """What :class:`FitStops` records, told each iteration's steps by
+    :func:`_levenberg_marquardt`."""
+
+    def __init__(self, theta: np.ndarray, max_iter: int):
+        n = theta.shape[0]
+        self.max_iter, self.k = max_iter, 0
+        self.gain, self.accepted = np.zeros(n), np.ones(n, dtype=bool)
+        self.rejected_late, self.rejected = np.zeros(n, dtype=int), np.zeros(n, dtype=int)
+        self.lam, self.half = np.zeros(n), theta.copy()
+
+    def step(self, idx, gain, accept, lam, theta) -> None:
+        """Iteration ``k``'s steps of the groups ``idx`` (their relative gains, whether
+        accepted), the damping after it and the parameters."""
+        self.k += 1
+        self.gain[idx], self.accepted[idx] = gain, accept
+        self.rejected[idx[~accept]] += 1
+        if self.k > self.max_iter - STOPS_WINDOW:
+            self.rejected_late[idx[~accept]] += 1
+        self.lam[idx] = lam[idx]
+        if self.k == self.max_iter // 2:
+            self.half = theta.copy()
+
+    def stops(self, theta, box_lo, box_hi) -> tuple[np.ndarray, ...]:
+        """:class:`FitStops`' fields at the end, given the final parameters and the box."""
+        at_lower, at_upper = theta <= box_lo + 1e-9, theta >= box_hi - 1e-9
+        own = (self.gain, self.accepted, self.rejected_late, self.rejected, self.lam)
+        return (*own, at_lower, at_upper, theta - self.half)
 
 
 def c_interval(

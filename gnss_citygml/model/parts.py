@@ -235,6 +235,7 @@ class Part:
             n_own,
             init=None if last is None else last.fit.params,
             sd=None if self.sd is None else self.sd[own][use],
+            max_iter=self.estimator.fit_max_iter,
         )
         change = np.ones(n_own)
         if last is not None:  # the seen rows' map labels (above c) by this fit and the last

@@ -32,6 +32,7 @@ from .checks import (
     ANTENNA_HEIGHTS,
     CN0S,
     ELEVATIONS,
+    FIT_ITERATIONS,
     ITERATIONS,
     MAX_RANGES,
     POSITION_SDS,
@@ -247,6 +248,11 @@ class Estimator:
         the current estimates is left out for this one.
     max_iter
         Most iterations of 4PL-B's loop.
+    fit_max_iter
+        Most Levenberg-Marquardt iterations of one height fit (a building's 4PL, each of 4PL-B's
+        iterations): a fit that has not met its tolerance by then stops where it is
+        (:func:`~gnss_citygml.model.fourpl.fit_4pl`). With ``max_iter``, it lets anyone check
+        that the heights do not depend on where a cap cut the fits.
     height_rule
         How the height is read off a building's 4PL, one of :data:`HEIGHT_RULES`:
         ``inflection`` (default), its inflection point ``c``, where the chance that a signal is
@@ -274,6 +280,7 @@ class Estimator:
     weighting: str = "none"
     visibility: bool = True
     max_iter: int = 10
+    fit_max_iter: int = 200
     height_rule: str = "inflection"
     signal_model: str = "paper"
     level_phones: bool = True
@@ -309,17 +316,28 @@ class Estimator:
                 f"not {self.init_threshold}",
                 fix="give --init-threshold in dB-Hz, e.g. 30",
             )
-        if not count_within(self.max_iter, ITERATIONS):
-            raise InputError(
-                f"max_iter must be a whole number, {ITERATIONS[0]} to {ITERATIONS[1]}, "
-                f"not {self.max_iter}",
-                fix="e.g. 10",
-            )
+        for name, bounds, example in (
+            ("max_iter", ITERATIONS, 10),
+            ("fit_max_iter", FIT_ITERATIONS, 200),
+        ):
+            if not count_within(getattr(self, name), bounds):
+                raise InputError(
+                    f"{name} must be a whole number, {bounds[0]} to {bounds[1]}, "
+                    f"not {getattr(self, name)}",
+                    fix=f"e.g. {example}",
+                )
         if not self.fourpl:
             plain = Estimator(acceptance=Acceptance(min_signals=self.acceptance.min_signals))
             unused = [
                 name
-                for name in ("weighting", "visibility", "max_iter", "height_rule", "acceptance")
+                for name in (
+                    "weighting",
+                    "visibility",
+                    "max_iter",
+                    "fit_max_iter",
+                    "height_rule",
+                    "acceptance",
+                )
                 if getattr(self, name) != getattr(plain, name)
             ]
             if unused:

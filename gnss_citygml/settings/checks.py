@@ -15,8 +15,8 @@ def finite(value) -> bool:
 
 
 def count(value) -> bool:
-    """A whole number, 1 or more."""
-    return isinstance(value, numbers.Integral) and int(value) >= 1
+    """A whole number, 1 or more (not a bool: ``True`` is no count)."""
+    return isinstance(value, numbers.Integral) and not isinstance(value, bool) and int(value) >= 1
 
 
 def within(value, bounds: tuple[float, float], *, above: bool = False) -> bool:
@@ -43,6 +43,8 @@ UNCERTAINTIES = (0.0, 1000.0)
 #: 4PL-B's iterations and the calibration's rounds: each is a full fit of every building.
 ITERATIONS = (1, 1000)
 ROUNDS = (1, 100)
+#: A height fit's Levenberg-Marquardt iterations: each is a pass over its building's signals.
+FIT_ITERATIONS = (1, 10_000)
 
 
 def positive(value, bounds: tuple[float, float], what: str, unit: str, fix: str) -> None:

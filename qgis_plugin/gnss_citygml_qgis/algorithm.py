@@ -192,6 +192,8 @@ class Algorithm(Grouped):
                 values[name] = self.chosen(parameters, name, spec.choices, context)
             elif spec.kind == "field":
                 values[name] = self.optional_text(parameters, name, context)
+            elif spec.kind == "count":
+                values[name] = self.parameterAsInt(parameters, name, context)
             elif spec.optional:
                 values[name] = self.optional_number(parameters, name, context)
             else:
@@ -239,10 +241,11 @@ def option(name):
             optional=True,
         )
     low, high = spec.bounds
+    whole = spec.kind == "count"
     return QgsProcessingParameterNumber(
         name,
         spec.label,
-        QgsProcessingParameterNumber.Double,
+        QgsProcessingParameterNumber.Integer if whole else QgsProcessingParameterNumber.Double,
         spec.default,
         optional=spec.optional,
         minValue=low,

@@ -32,6 +32,8 @@ _OPTIONS = (
     "HEIGHT_RULE",
     "SIGNAL_MODEL",
     "LEVEL_PHONES",
+    "MAX_ITER",
+    "FIT_MAX_ITER",
     "MAX_RANGE",
     "POSITION_SD",
     "POSITION_DISTANCE",

@@ -21,7 +21,15 @@ from qgis.core import (
 from .algorithm import SIGNAL_MODEL_HELP, Algorithm, advanced, folder, option
 
 #: The library's options (``gnss_citygml.options``) the algorithm offers (advanced), in order.
-_OPTIONS = ("METHOD", "HEIGHT_RULE", "SIGNAL_MODEL", "LEVEL_PHONES", "INIT_THRESHOLD")
+_OPTIONS = (
+    "METHOD",
+    "HEIGHT_RULE",
+    "SIGNAL_MODEL",
+    "LEVEL_PHONES",
+    "INIT_THRESHOLD",
+    "MAX_ITER",
+    "FIT_MAX_ITER",
+)
 
 HELP = (
     """Keeps the building heights of a GeoPackage map up to date as new GNSS observations \

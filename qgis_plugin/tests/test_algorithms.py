@@ -61,6 +61,7 @@ OPTIONS = {
         },
     ),
     "mixture": (["--signal-model", "mixture"], {"SIGNAL_MODEL": 1}),
+    "caps": (["--max-iter", "3", "--fit-max-iter", "20"], {"MAX_ITER": 3, "FIT_MAX_ITER": 20}),
 }
 
 

@@ -183,6 +183,8 @@ def test_qgis_and_the_command_line_cannot_disagree(plugin, name):
         else:
             assert parameter.defaultValue() == spec.default
             assert (parameter.minimum(), parameter.maximum()) == spec.bounds
+            whole = parameter.dataType() == parameter.Integer
+            assert whole == (spec.kind == "count"), parameter.name()
             assert bool(parameter.flags() & parameter.FlagOptional) == spec.optional
 
 

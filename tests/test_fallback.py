@@ -205,3 +205,39 @@ def test_the_command_line_says_each_fields_reference(tmp_path, capsys):
     objects = json.loads(out.read_text())["CityObjects"]
     assert objects["a"]["attributes"]["height"] == 28.39
     assert objects["b"]["attributes"]["height"] == 30.0
+
+
+def _flat_dem(path, level: float):
+    """A flat DEM at ``level`` m ODN under heights_layer's footprints."""
+    import rasterio
+    from rasterio.transform import from_origin
+
+    profile = dict(driver="GTiff", width=40, height=10, count=1, dtype="float32",
+                   crs="EPSG:27700", transform=from_origin(528950, 181030, 5, 5))  # fmt: skip
+    with rasterio.open(path, "w", **profile) as dst:
+        dst.write(np.full((1, 10, 40), level, dtype="float32"))
+    return path
+
+
+def test_a_dem_beside_the_heights_own_ground_is_refused(tmp_path, capsys):
+    """The heights stand on their ground column (estimate's DEM's): another DEM's ground
+    would change each building's height above it and leave relative_height saying the old one
+    (found at the command line: measuredHeight 3.39 beside relative_height 8.39). Convert of a
+    heights layer and export of a heights table alike refuse a DEM then, and take it without
+    the column."""
+    layer, dem = tmp_path / "heights.gpkg", _flat_dem(tmp_path / "dem.tif", 25.0)
+    heights_layer().to_file(layer, layer="heights")
+    table = tmp_path / "heights.csv"
+    heights_layer().drop(columns="geometry").to_csv(table, index=False)
+    footprints = tmp_path / "footprints.gpkg"
+    heights_layer()[["id", "geometry"]].to_file(footprints, layer="footprints")
+    out = tmp_path / "c.city.json"
+    for args in (["convert", str(layer)], ["export", str(table), "--footprints", str(footprints)]):
+        code, _, err = run([*args, "--dem", str(dem), "-o", str(out)], capsys)
+        assert code == 2 and "the ground is given twice" in err and not out.exists(), err
+    heights_layer().drop(columns=["ground", "relative_height"]).to_csv(table, index=False)
+    code, _, err = run([*args, "--dem", str(dem), "-o", str(out)], capsys)
+    assert code == 0, err
+    objects = json.loads(out.read_text())["CityObjects"]
+    assert objects["a"]["attributes"]["ground"] == 25.0
+    assert objects["a"]["attributes"]["measuredHeight"] == 7.0

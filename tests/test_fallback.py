@@ -241,3 +241,17 @@ def test_a_dem_beside_the_heights_own_ground_is_refused(tmp_path, capsys):
     objects = json.loads(out.read_text())["CityObjects"]
     assert objects["a"]["attributes"]["ground"] == 25.0
     assert objects["a"]["attributes"]["measuredHeight"] == 7.0
+
+
+@pytest.mark.parametrize("column", ["height_source", "method"])
+def test_a_users_column_named_like_the_sources_is_not_overwritten(column):
+    """A layer with a column of its own named height_source or method (a survey's, say), given
+    a fallback: the tool's height_source and method (where each height came from) would
+    overwrite it, so it is refused naming the column (found at the command line: 'survey
+    2019' and 'lidar' became 'height' and 'attribute height')."""
+    frame = heights_layer().drop(columns=["converged", "status", "relative_height"])
+    frame[column] = "survey 2019"
+    with pytest.raises(InputError, match=f"the layer has a column '{column}'"):
+        buildings_with_heights(frame, "height", fallback_field="relh2", fallback_relative=True)
+    kept = buildings_with_heights(frame, "height")  # (no fallback: nothing to say, kept)
+    assert (kept[column] == "survey 2019").all()

@@ -183,15 +183,33 @@ def buildings_with_heights(
         out["method"] = _attribute(height_field, relative)
     source = "gnss" if height_field in fits else height_field
     labels = {height_field: _attribute(height_field, relative)}
+    # the fit does not judge a field beside it, which so gets a source of its own
+    sourced = fallback_field is not None or (source != "gnss" and "converged" in columns)
+    if not sourced:
+        return out
+    _check_not_the_users(columns)
     if fallback_field is not None:
         above = _relative(fits, fallback_field, fallback_relative, "--fallback-relative")
         labels[fallback_field] = _attribute(fallback_field, above)
         out = _fallback(out, fallback_field, above, source, fallback_field in fits)
-    elif source != "gnss" and "converged" in columns:  # the fit does not judge this field
+    else:
         out["height_source"] = source
-    if "height_source" in out.columns:
-        _by_source(out, "gnss" if "height_lower" in fits else source, labels)
+    _by_source(out, "gnss" if "height_lower" in fits else source, labels)
     return out
+
+
+def _check_not_the_users(columns: list) -> None:
+    """Refuse a layer whose column ``height_source``, or ``method`` where no fit wrote it (no
+    ``converged`` beside it), is the user's own: where each height came from is written
+    there (:func:`_by_source`), over the user's values."""
+    for column in ("height_source", "method"):
+        if column in columns and (column == "height_source" or "converged" not in columns):
+            raise InputError(
+                f"the layer has a column {column!r} of its own, where the heights' "
+                "source would be written",
+                where="footprint layer",
+                fix=f"rename or drop the column {column!r}",
+            )
 
 
 def _attribute(field: str, relative: bool) -> str:

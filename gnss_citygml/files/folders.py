@@ -30,6 +30,7 @@ from pathlib import Path
 
 from ..errors import InputError, user_text
 from .paths import _HOST, StrPath, _write_errors, stale_parts
+from .userjson import parse_json
 
 __all__ = ["MANIFEST", "atomic_folder", "check_new_folder", "recover"]
 
@@ -163,9 +164,12 @@ def _write_manifest(work: Path, mark: str) -> None:
 def _written(folder: Path) -> set[str]:
     """What the output in ``folder`` wrote, as its :data:`MANIFEST` lists it."""
     try:
-        record = json.loads((folder / MANIFEST).read_text(encoding="utf-8"))
-        return {str(name) for name in record["written"]}
-    except (OSError, ValueError, KeyError, TypeError) as exc:
+        record = parse_json((folder / MANIFEST).read_bytes())
+        names = record["written"] if isinstance(record, dict) else None
+        if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+            raise ValueError("not a list of names under 'written'")
+        return set(names)
+    except (OSError, ValueError, KeyError) as exc:  # (NotJSON is a ValueError)
         raise InputError(
             f"cannot read the folder's list of the files its output wrote ({exc})",
             where=str(folder / MANIFEST),

@@ -32,7 +32,7 @@ from ..errors import InputError, user_text
 from .paths import _HOST, StrPath, _write_errors, stale_parts
 from .userjson import parse_json
 
-__all__ = ["MANIFEST", "atomic_folder", "check_new_folder", "recover"]
+__all__ = ["MANIFEST", "atomic_folder", "check_new_folder", "recover", "written_files"]
 
 #: The list of the files a folder output wrote, in the folder (hidden).
 MANIFEST = ".gnss-citygml-files.json"
@@ -159,6 +159,13 @@ def _write_manifest(work: Path, mark: str) -> None:
         names += [(here / f).as_posix() for f in files]
     record = {"format": "gnss-citygml folder", "mark": mark, "written": sorted(names)}
     (work / MANIFEST).write_text(json.dumps(record, indent=0))
+
+
+def written_files(folder: StrPath) -> set[str] | None:
+    """What the output in ``folder`` wrote, as its :data:`MANIFEST` lists it (None: the folder
+    has no such list, an older version's output)."""
+    folder = Path(folder)
+    return _written(folder) if (folder / MANIFEST).is_file() else None
 
 
 def _written(folder: Path) -> set[str]:

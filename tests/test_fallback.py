@@ -255,3 +255,20 @@ def test_a_users_column_named_like_the_sources_is_not_overwritten(column):
         buildings_with_heights(frame, "height", fallback_field="relh2", fallback_relative=True)
     kept = buildings_with_heights(frame, "height")  # (no fallback: nothing to say, kept)
     assert (kept[column] == "survey 2019").all()
+
+
+@pytest.mark.parametrize("column", ["ground", "height", "status"])
+def test_footprints_with_a_column_of_the_heights_table_are_refused(tmp_path, capsys, column):
+    """Footprints with a column of their own named like one of the heights table's: their
+    ground won silently over the table's (found at the command line: ground 0 and
+    measuredHeight 28.39 beside relative_height 8.39), their height made height_x and height_y
+    and a message naming neither. Refused naming the column."""
+    table = tmp_path / "heights.csv"
+    heights_layer().drop(columns="geometry").to_csv(table, index=False)
+    footprints = tmp_path / "footprints.gpkg"
+    heights_layer()[["id", "geometry"]].assign(**{column: 0.0}).to_file(footprints)
+    out = tmp_path / "c.city.json"
+    code, _, err = run(
+        ["export", str(table), "--footprints", str(footprints), "-o", str(out)], capsys
+    )
+    assert code == 2 and f"'{column}'" in err and "both" in err and not out.exists(), err

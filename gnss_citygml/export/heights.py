@@ -54,10 +54,10 @@ def footprints_with_heights(
     written by ``gnss-citygml heights``. The table's ids are in ``id`` or in a column named
     like the footprints' id field (e.g. ``toid``, as ``estimate`` writes them; see
     :mod:`gnss_citygml.files.ids`), and the result keeps that name for the outputs. Footprints
-    without a row keep empty heights (the writers skip and list them); a ``ground`` already on
-    the footprints (from a DEM) wins over the table's. Heights of ids that are not among the
-    footprints are an error, as is a table without the columns the heights schema requires
-    (``schemas/heights.schema.json``: the id, ``height``)."""
+    without a row keep empty heights (the writers skip and list them). A column of the table
+    that the footprints have too (their own ``ground``, say, or a DEM's) is an error, as are
+    heights of ids that are not among the footprints and a table without the columns the
+    heights schema requires (``schemas/heights.schema.json``: the id, ``height``)."""
     name, columns = id_field(footprints), list(heights.columns)
     footprints, heights = id_named(footprints), id_named(heights, name, where=where)
     required = load(HEIGHTS)["required"]
@@ -73,12 +73,19 @@ def footprints_with_heights(
             where=where,
             fix="keep one row per building",
         )
-    if "ground" in footprints.columns:
-        table = table.drop(columns=["ground"], errors="ignore")
     # a table with its own geometry (estimate's GeoParquet layer): the footprints' is the one
     table = pd.DataFrame(table).drop(
         columns=["geometry", footprints.geometry.name], errors="ignore"
     )
+    both = [c for c in table.columns if c != "id" and c in footprints.columns]
+    if both:
+        raise InputError(
+            "the footprints and the heights table both have the column(s) "
+            + listing([repr(user_text(str(c))) for c in both]),
+            where=where,
+            fix="rename or drop them in the footprints (the heights stand on the table's "
+            "ground; a DEM's is for a table without one)",
+        )
     unknown = ~table["id"].isin(footprints["id"])
     if unknown.any():
         raise InputError(

@@ -54,7 +54,8 @@ def footprints_with_heights(
     written by ``gnss-citygml heights``. The table's ids are in ``id`` or in a column named
     like the footprints' id field (e.g. ``toid``, as ``estimate`` writes them; see
     :mod:`gnss_citygml.files.ids`), and the result keeps that name for the outputs. Footprints
-    without a row keep empty heights (the writers skip and list them). A column of the table
+    without a row keep empty heights (the writers skip and list them); in a table without
+    ``converged``, a row whose ``status`` is not ``ok`` is not trusted. A column of the table
     that the footprints have too (their own ``ground``, say, or a DEM's) is an error, as are
     heights of ids that are not among the footprints and a table without the columns the
     heights schema requires (``schemas/heights.schema.json``: the id, ``height``)."""
@@ -73,6 +74,10 @@ def footprints_with_heights(
             where=where,
             fix="keep one row per building",
         )
+    if "converged" not in table.columns and "status" in table.columns:
+        # the schema's status says why a building has no estimate to trust: none but ok is
+        status = table["status"]
+        table["converged"] = status.isna() | (status.astype(str) == "ok")
     # a table with its own geometry (estimate's GeoParquet layer): the footprints' is the one
     table = pd.DataFrame(table).drop(
         columns=["geometry", footprints.geometry.name], errors="ignore"

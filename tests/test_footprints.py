@@ -628,3 +628,18 @@ def test_geopackage_text_that_is_not_utf8_is_named_by_feature(tmp_path, column):
         read_footprints(path)
     with pytest.raises(InputError, match=message):
         list(footprint_batches(path, size=2))
+
+
+def test_a_geopackage_field_name_that_is_not_utf8_is_one_line(tmp_path):
+    """A field named in Latin-1 bytes (the table's SQL patched in place): one line, read whole
+    or in batches, not pyogrio's UnicodeDecodeError."""
+    from gnss_citygml.footprints import footprint_batches
+
+    path = tmp_path / "f.gpkg"
+    gpd.read_file(write_footprints(tmp_path)).assign(name="a").to_file(path, layer="buildings")
+    data = path.read_bytes()
+    assert data.count(b'"name" TEXT') == 1
+    path.write_bytes(data.replace(b'"name" TEXT', b'"nam\xe9" TEXT'))
+    for read in (read_footprints, lambda p: list(footprint_batches(p, size=2))):
+        with pytest.raises(InputError, match=r"a field's name is not UTF-8 text \(.*f.gpkg"):
+            read(path)

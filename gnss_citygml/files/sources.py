@@ -232,15 +232,7 @@ def _read_layer(path, layer: str | None, where: str, options: dict) -> gpd.GeoDa
     except _GDAL_ERRORS as exc:
         raise _unreadable(exc, where) from None
     except UnicodeDecodeError:  # (pyogrio decodes GDAL's text itself, without saying where)
-        meta, table = pyogrio.read_arrow(
-            native_name(path),
-            layer=0 if layer is None else layer,
-            read_geometry=False,
-            return_fids=True,
-            **options,
-        )
-        _check_utf8(table, table.column(meta["fid_column"]).to_numpy(), where)
-        raise _not_utf8("a field's name", where) from None
+        raise _where_not_utf8(path, layer, where, options) from None
     if not isinstance(frame, gpd.GeoDataFrame):  # a layer without geometry (a CSV table)
         frame = gpd.GeoDataFrame(frame, geometry=np.full(len(frame), None), crs=_BNG)
     return frame
@@ -270,6 +262,25 @@ def _layer_batches(path, layer, where: str, options: dict, size: int) -> Iterato
                 yield gpd.GeoDataFrame(table.set_axis(fids), geometry=geoms, crs=meta["crs"])
     except _GDAL_ERRORS as exc:
         raise _unreadable(exc, where) from None
+    except UnicodeDecodeError:  # (the values are checked above: a field's name)
+        raise _not_utf8("a field's name", where) from None
+
+
+def _where_not_utf8(path, layer: str | None, where: str, options: dict) -> InputError:
+    """The error for a source with text that is not UTF-8: the field and the first feature
+    that has it, read again as Arrow's bytes (a field's name, if even that cannot be read)."""
+    try:
+        meta, table = pyogrio.read_arrow(
+            native_name(path),
+            layer=0 if layer is None else layer,
+            read_geometry=False,
+            return_fids=True,
+            **options,
+        )
+    except UnicodeDecodeError:
+        return _not_utf8("a field's name", where)
+    _check_utf8(table, table.column(meta["fid_column"]).to_numpy(), where)
+    return _not_utf8("a text of the source", where)
 
 
 def _check_utf8(table, fids: np.ndarray, where: str) -> None:

@@ -425,6 +425,7 @@ def convert_file(
     if ``fallback_relative``), and every building says where its height came from
     (``height_source``: :func:`~gnss_citygml.export.heights.buildings_with_heights`)."""
     from .export import buildings_with_heights
+    from .terrain import building_ground
 
     if ground_field is not None and dem is not None:
         raise InputError(
@@ -434,9 +435,10 @@ def convert_file(
         )
 
     def buildings() -> gpd.GeoDataFrame:
-        frame = read_buildings(
-            source, layer=layer, id_field=id_field, dem=dem, dem_crs=dem_crs, grid_dir=grid_dir
-        )
+        frame = read_buildings(source, layer=layer, id_field=id_field, grid_dir=grid_dir)
+        _check_one_ground(frame.columns, dem, source)
+        if dem is not None:
+            frame = building_ground(frame, dem, assume_crs=dem_crs)
         return buildings_with_heights(
             frame,
             height_field,
@@ -463,6 +465,19 @@ def convert_file(
         overwrite=overwrite, strict=strict, validate=validate, schema_dir=schema_dir,
         provenance=made,
     )  # fmt: skip
+
+
+def _check_one_ground(columns: Iterable[object], dem: StrPath | None, where: StrPath) -> None:
+    """Refuse a DEM beside the heights' own ``ground`` column (estimate's, the ground of the
+    DEM they were estimated on): the DEM's would change each building's height above the
+    ground and leave ``relative_height`` saying the old one."""
+    if dem is not None and "ground" in columns:
+        raise InputError(
+            "the ground is given twice, by the column ground and by a DEM",
+            where=str(where),
+            fix="leave out --dem (the heights stand on the ground of their column), "
+            "or drop the column ground and its relative_height",
+        )
 
 
 def export_file(
@@ -496,6 +511,7 @@ def export_file(
             footprints, layer=layer, id_field=id_field, dem=dem, dem_crs=dem_crs, grid_dir=grid_dir
         )
         table = read_table(heights, text=[field_of(frame)])  # (the ids as text, by any name)
+        _check_one_ground(table.columns, dem, heights)
         return footprints_with_heights(frame, table, where=str(heights))
 
     writer = _model_writer(

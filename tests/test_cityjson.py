@@ -390,3 +390,23 @@ def test_buildings_with_heights_errors():
         buildings_with_heights(frame, "abshmax")
     with pytest.raises(InputError, match="a column 'ground' besides the ground field 'base'"):
         buildings_with_heights(frame.assign(base=1.0, relh2=5.0), "relh2", ground_field="base")
+
+
+@pytest.mark.parametrize("suffix", [".city.json", ".gml", "/tileset.json"])
+def test_an_infinite_attribute_is_named_not_dropped_silently(tmp_path, suffix):
+    """A number JSON cannot hold (inf, -inf) in a column of the input is written as no value
+    (CityJSON, CityGML's attribute left out, 3D Tiles' no data) with a warning naming the column
+    and the buildings; found at the command line: a GeoParquet column of inf, -inf went out of
+    every format without a word."""
+    from gnss_citygml.export import write_3dtiles, write_citygml
+
+    frame = heights_table().assign(area_ratio=1.5)
+    ids = frame["id"].tolist()
+    frame.loc[0, "area_ratio"], frame.loc[1, "height_upper"] = np.inf, -np.inf
+    writer = {".city.json": write_cityjson, ".gml": write_citygml, "/tileset.json": write_3dtiles}
+    with pytest.warns(UserWarning) as caught:
+        writer[suffix](frame, tmp_path / f"out{suffix}", validate=False)
+    said = {str(w.message).split()[1]: str(w.message) for w in caught}
+    assert said.keys() == {"area_ratio", "height_upper"}, said
+    assert ids[0] in said["area_ratio"] and ids[1] not in said["area_ratio"]
+    assert ids[1] in said["height_upper"] and "not finite" in said["height_upper"]

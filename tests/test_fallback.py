@@ -205,3 +205,70 @@ def test_the_command_line_says_each_fields_reference(tmp_path, capsys):
     objects = json.loads(out.read_text())["CityObjects"]
     assert objects["a"]["attributes"]["height"] == 28.39
     assert objects["b"]["attributes"]["height"] == 30.0
+
+
+def _flat_dem(path, level: float):
+    """A flat DEM at ``level`` m ODN under heights_layer's footprints."""
+    import rasterio
+    from rasterio.transform import from_origin
+
+    profile = dict(driver="GTiff", width=40, height=10, count=1, dtype="float32",
+                   crs="EPSG:27700", transform=from_origin(528950, 181030, 5, 5))  # fmt: skip
+    with rasterio.open(path, "w", **profile) as dst:
+        dst.write(np.full((1, 10, 40), level, dtype="float32"))
+    return path
+
+
+def test_a_dem_beside_the_heights_own_ground_is_refused(tmp_path, capsys):
+    """The heights stand on their ground column (estimate's DEM's): another DEM's ground
+    would change each building's height above it and leave relative_height saying the old one
+    (found at the command line: measuredHeight 3.39 beside relative_height 8.39). Convert of a
+    heights layer and export of a heights table alike refuse a DEM then, and take it without
+    the column."""
+    layer, dem = tmp_path / "heights.gpkg", _flat_dem(tmp_path / "dem.tif", 25.0)
+    heights_layer().to_file(layer, layer="heights")
+    table = tmp_path / "heights.csv"
+    heights_layer().drop(columns="geometry").to_csv(table, index=False)
+    footprints = tmp_path / "footprints.gpkg"
+    heights_layer()[["id", "geometry"]].to_file(footprints, layer="footprints")
+    out = tmp_path / "c.city.json"
+    for args in (["convert", str(layer)], ["export", str(table), "--footprints", str(footprints)]):
+        code, _, err = run([*args, "--dem", str(dem), "-o", str(out)], capsys)
+        assert code == 2 and "the ground is given twice" in err and not out.exists(), err
+    heights_layer().drop(columns=["ground", "relative_height"]).to_csv(table, index=False)
+    code, _, err = run([*args, "--dem", str(dem), "-o", str(out)], capsys)
+    assert code == 0, err
+    objects = json.loads(out.read_text())["CityObjects"]
+    assert objects["a"]["attributes"]["ground"] == 25.0
+    assert objects["a"]["attributes"]["measuredHeight"] == 7.0
+
+
+@pytest.mark.parametrize("column", ["height_source", "method"])
+def test_a_users_column_named_like_the_sources_is_not_overwritten(column):
+    """A layer with a column of its own named height_source or method (a survey's, say), given
+    a fallback: the tool's height_source and method (where each height came from) would
+    overwrite it, so it is refused naming the column (found at the command line: 'survey
+    2019' and 'lidar' became 'height' and 'attribute height')."""
+    frame = heights_layer().drop(columns=["converged", "status", "relative_height"])
+    frame[column] = "survey 2019"
+    with pytest.raises(InputError, match=f"the layer has a column '{column}'"):
+        buildings_with_heights(frame, "height", fallback_field="relh2", fallback_relative=True)
+    kept = buildings_with_heights(frame, "height")  # (no fallback: nothing to say, kept)
+    assert (kept[column] == "survey 2019").all()
+
+
+@pytest.mark.parametrize("column", ["ground", "height", "status"])
+def test_footprints_with_a_column_of_the_heights_table_are_refused(tmp_path, capsys, column):
+    """Footprints with a column of their own named like one of the heights table's: their
+    ground won silently over the table's (found at the command line: ground 0 and
+    measuredHeight 28.39 beside relative_height 8.39), their height made height_x and height_y
+    and a message naming neither. Refused naming the column."""
+    table = tmp_path / "heights.csv"
+    heights_layer().drop(columns="geometry").to_csv(table, index=False)
+    footprints = tmp_path / "footprints.gpkg"
+    heights_layer()[["id", "geometry"]].assign(**{column: 0.0}).to_file(footprints)
+    out = tmp_path / "c.city.json"
+    code, _, err = run(
+        ["export", str(table), "--footprints", str(footprints), "-o", str(out)], capsys
+    )
+    assert code == 2 and f"'{column}'" in err and "both" in err and not out.exists(), err

@@ -138,6 +138,22 @@ def test_an_output_without_its_list_of_files_is_not_replaced(tmp_path):
     assert sorted(p.name for p in out.iterdir()) == ["index", "index.html"]
 
 
+@pytest.mark.parametrize(
+    "listing", ["[" * 100_000 + "]" * 100_000, '{"written": "tiles/"}', '{"written": [[1]]}']
+)
+def test_a_damaged_list_of_files_is_one_line(tmp_path, listing):
+    """The folder's list of what its output wrote nested too deep for Python's JSON reader (an
+    internal RecursionError before), or of another shape: one line, the folder kept."""
+    out = tmp_path / "tiles"
+    with atomic_folder(out, mark="index") as work:
+        (work / "index").write_text("old")
+    (out / MANIFEST).write_text(listing)
+    with pytest.raises(InputError, match="cannot read the folder's list of the files"):
+        with atomic_folder(out, overwrite=True, mark="index") as work:
+            (work / "index").write_text("new")
+    assert (out / "index").read_text() == "old"
+
+
 def test_a_read_only_output_or_a_broken_link_is_refused(tmp_path):
     """--overwrite on a folder output made read-only (as a read-only file is refused), and a
     broken link named as the folder: one line, nothing changed (a read-only old folder could

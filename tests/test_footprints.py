@@ -606,3 +606,40 @@ def test_geoparquet_text_that_is_not_utf8_is_named_by_row(tmp_path):
         message = rf"the column '{column}' is not UTF-8 text \(.*bad.parquet, row 2\)"
         with pytest.raises(InputError, match=message):
             read_footprints(tmp_path / "bad.parquet")
+
+
+@pytest.mark.parametrize("column", ["toid", "name"])
+def test_geopackage_text_that_is_not_utf8_is_named_by_feature(tmp_path, column):
+    """A GeoPackage's text is UTF-8 by the standard, but SQLite stores any bytes: an id or an
+    attribute that is not UTF-8 is one line naming the field and the feature, read whole or in
+    batches (found at the command line: convert and partition stopped with an internal error,
+    pyogrio's UnicodeDecodeError or Arrow's "Wrapping ... failed")."""
+    import sqlite3
+
+    from gnss_citygml.footprints import footprint_batches
+
+    path = tmp_path / "f.gpkg"
+    frame = gpd.read_file(write_footprints(tmp_path)).assign(name="a building")
+    frame.to_file(path, layer="buildings", SPATIAL_INDEX="NO")  # (no R-tree triggers to run)
+    with sqlite3.connect(path) as db:  # the bytes of a Latin-1 "café"
+        db.execute(f"UPDATE buildings SET {column} = CAST(X'636166E9' AS TEXT) WHERE fid = 3")
+    message = rf"the field '{column}' is not UTF-8 text \(.*f.gpkg.*, feature 3\)"
+    with pytest.raises(InputError, match=message):
+        read_footprints(path)
+    with pytest.raises(InputError, match=message):
+        list(footprint_batches(path, size=2))
+
+
+def test_a_geopackage_field_name_that_is_not_utf8_is_one_line(tmp_path):
+    """A field named in Latin-1 bytes (the table's SQL patched in place): one line, read whole
+    or in batches, not pyogrio's UnicodeDecodeError."""
+    from gnss_citygml.footprints import footprint_batches
+
+    path = tmp_path / "f.gpkg"
+    gpd.read_file(write_footprints(tmp_path)).assign(name="a").to_file(path, layer="buildings")
+    data = path.read_bytes()
+    assert data.count(b'"name" TEXT') == 1
+    path.write_bytes(data.replace(b'"name" TEXT', b'"nam\xe9" TEXT'))
+    for read in (read_footprints, lambda p: list(footprint_batches(p, size=2))):
+        with pytest.raises(InputError, match=r"a field's name is not UTF-8 text \(.*f.gpkg"):
+            read(path)

@@ -85,6 +85,15 @@ def _tile_folder_added(folder, index):
     return "TQ000000"
 
 
+def _tile_removed_from_the_index_too(folder, index):
+    """The tile's folder and its row of the index removed (found at the command line: 16
+    buildings of 30 written, exit 0): the folder's list of what the run wrote still names it."""
+    tile = _tile_folder_removed(folder, index)
+    tiles = gpd.read_file(folder / "tiles.gpkg", layer="tiles")
+    tiles[tiles["tile"] != tile].to_file(folder / "tiles.gpkg", layer="tiles")
+    return tile
+
+
 DAMAGE = {
     "a tile folder missing": _tile_folder_removed,
     "a part file missing": _part_removed,
@@ -93,6 +102,7 @@ DAMAGE = {
     "a part file of another run": _part_of_another_run,
     "a part file added": _part_added,
     "a tile folder added": _tile_folder_added,
+    "a tile removed from the index too": _tile_removed_from_the_index_too,
 }
 
 

@@ -269,7 +269,7 @@ def test_ranges_no_building_can_have_are_not_drawn_and_said(buildings, tmp_path)
     path = tmp_path / "city" / "tileset.json"
     with pytest.warns(UserWarning, match=r"3 building\(s\)' height range not drawn") as caught:
         write_3dtiles(frame, path, ranges=True, grid_dir=BUNDLED_GRID_DIR, validate=False)
-    message = str(caught[0].message)
+    message = next(str(w.message) for w in caught if "not drawn" in str(w.message))
     assert "box (32 to 2e+07 m)" in message and "yard (39 to inf m)" in message
     assert "parts (-2000 to 29 m)" in message and "ell" not in message
     assert _table_of(path)[1] == ["ell"]

@@ -94,6 +94,21 @@ def test_values_take_the_extensions_types(tmp_path):
     assert not list(tmp_path.glob("*.part*"))
 
 
+@pytest.mark.parametrize("kind", [np.uint64, np.uint32])
+def test_an_unsigned_count_is_written_exactly(tmp_path, kind):
+    """A GeoParquet's unsigned counts (uint64 up to 2**64 - 1, beyond int64; uint32): their
+    own values, not an internal error (found at the command line: "cannot safely cast
+    non-equivalent uint64 to int64")."""
+    n = len(heights_table([NOT_CONVERGED]))
+    top = int(np.iinfo(kind).max)
+    counts = np.array([top] + [7] * (n - 1), dtype=kind)
+    _, model = typed_model(tmp_path, n_signals=counts, iterations=counts)
+    attributes = [o["attributes"] for o in model["CityObjects"].values() if "attributes" in o]
+    written = sorted({a["+n_signals"] for a in attributes if "+n_signals" in a})
+    assert top in written and 7 in written
+    assert all(isinstance(a["+iterations"], int) for a in attributes if "+iterations" in a)
+
+
 def _tampered(tmp_path, change) -> dict:
     _, model = typed_model(tmp_path)
     change(model["CityObjects"]["courtyard"]["attributes"], model)

@@ -167,3 +167,25 @@ def test_the_ground_is_that_of_the_heights_after_an_update(estimated, halves, gr
     after = table(path)
     np.testing.assert_allclose(after["ground"], before["ground"] + 1.0)
     np.testing.assert_allclose(after["relative_height"], after["height"] - after["ground"])
+
+
+@pytest.mark.parametrize("dropped", [["relative_height"], ["relative_height", "a", "b", "d"]])
+def test_estimates_layer_without_some_of_its_columns_is_updated_whole(
+    estimated, halves, grid_dir, tmp_path, dropped
+):
+    """Estimate's layer from which the user dropped relative_height (and the fit's a, b, d):
+    still estimate's (its iterations say so), so its height and status are the new fit's too,
+    never converged 0 beside status ok and the old height (found at the command line: 11 rows
+    so, which convert then wrote with their old heights)."""
+    path = tmp_path / "heights.gpkg"
+    shutil.copyfile(estimated[0], path)
+    with sqlite3.connect(path) as db:
+        for column in dropped:
+            db.execute(f"ALTER TABLE heights DROP COLUMN {column}")
+    update_map(path, [halves[1]], DEM, grid_dir=grid_dir)
+    after = table(path)
+    check_rows_agree(after, "status", [c for c in HEIGHTS if c not in dropped])
+    converged = after["converged"].astype(bool)
+    np.testing.assert_array_equal(
+        after.loc[converged, "height"], after.loc[converged, "height_gnss"]
+    )

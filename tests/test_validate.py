@@ -3,6 +3,7 @@ data), and one broken cube per rule."""
 
 import copy
 import json
+import shutil
 import time
 from pathlib import Path
 
@@ -503,3 +504,32 @@ def test_every_error_is_one_line(three, tmp_path, capsys):
     assert out.splitlines() == [lines[0], more, lines[4]]
     code, _, err = run(["validate", str(path), "--max-errors", "-1"], capsys)
     assert code == 2 and "Invalid value for '--max-errors'" in err
+
+
+@pytest.mark.parametrize("text", ["[" * 100_000 + "]" * 100_000, '{"a": ', "[1, 2]"])
+@pytest.mark.parametrize("kind", ["cityjson", "tileset"])
+def test_a_schema_folder_of_unusable_schemas_is_one_line(tmp_path, capsys, text, kind):
+    """A schema of the folder given by --schema-dir that is not JSON, nested too deep or not
+    a schema (an array) is one line naming it, not an internal error (found at the command
+    line: RecursionError, JSONDecodeError)."""
+    from test_cli import run
+    from test_outputs import heights_gpkg
+
+    from gnss_citygml.validate.schemas import tiles3d_schema_folder
+
+    folder = tmp_path / "schemas"
+    if kind == "tileset":
+        shutil.copytree(tiles3d_schema_folder(), folder / "3dtiles-1.1")
+        broken = folder / "3dtiles-1.1" / "asset.schema.json"
+        model = tmp_path / "t" / "tileset.json"
+    else:
+        broken = folder / "2.0" / "cityjson.min.schema.json"
+        broken.parent.mkdir(parents=True)
+        model = tmp_path / "c.city.json"
+    broken.write_text(text)
+    args = ["convert", str(heights_gpkg(tmp_path)), "-o", str(model), "--no-validate", "-q"]
+    code, _, err = run(args, capsys)
+    assert code == 0, err
+    code, _, err = run(["validate", str(model), "--schema-dir", str(folder)], capsys)
+    assert code == 2 and "the schema cannot be used" in err and broken.name in err, err
+    assert "internal error" not in err

@@ -324,7 +324,9 @@ def _typed_values(rows: pd.DataFrame, name: str) -> list:
         bad = np.array([isinstance(v, list) for v in values], dtype=bool)
     else:
         exact = kind == "int" and pd.api.types.is_integer_dtype(column)  # no float round trip
-        numbers = column.astype("Int64") if exact else pd.to_numeric(column, errors="coerce")
+        numbers = pd.to_numeric(column, errors="coerce")
+        if exact and not pd.api.types.is_unsigned_integer_dtype(column):  # (uint64: > int64)
+            numbers = column.astype("Int64")
         floats = numbers.astype(float).to_numpy()
         bad = (numbers.isna() & column.notna()).to_numpy()
         if kind == "int":

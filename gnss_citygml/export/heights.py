@@ -54,10 +54,11 @@ def footprints_with_heights(
     written by ``gnss-citygml heights``. The table's ids are in ``id`` or in a column named
     like the footprints' id field (e.g. ``toid``, as ``estimate`` writes them; see
     :mod:`gnss_citygml.files.ids`), and the result keeps that name for the outputs. Footprints
-    without a row keep empty heights (the writers skip and list them); a ``ground`` already on
-    the footprints (from a DEM) wins over the table's. Heights of ids that are not among the
-    footprints are an error, as is a table without the columns the heights schema requires
-    (``schemas/heights.schema.json``: the id, ``height``)."""
+    without a row keep empty heights (the writers skip and list them); in a table without
+    ``converged``, a row whose ``status`` is not ``ok`` is not trusted. A column of the table
+    that the footprints have too (their own ``ground``, say, or a DEM's) is an error, as are
+    heights of ids that are not among the footprints and a table without the columns the
+    heights schema requires (``schemas/heights.schema.json``: the id, ``height``)."""
     name, columns = id_field(footprints), list(heights.columns)
     footprints, heights = id_named(footprints), id_named(heights, name, where=where)
     required = load(HEIGHTS)["required"]
@@ -73,12 +74,23 @@ def footprints_with_heights(
             where=where,
             fix="keep one row per building",
         )
-    if "ground" in footprints.columns:
-        table = table.drop(columns=["ground"], errors="ignore")
+    if "converged" not in table.columns and "status" in table.columns:
+        # the schema's status says why a building has no estimate to trust: none but ok is
+        status = table["status"]
+        table["converged"] = status.isna() | (status.astype(str) == "ok")
     # a table with its own geometry (estimate's GeoParquet layer): the footprints' is the one
     table = pd.DataFrame(table).drop(
         columns=["geometry", footprints.geometry.name], errors="ignore"
     )
+    both = [c for c in table.columns if c != "id" and c in footprints.columns]
+    if both:
+        raise InputError(
+            "the footprints and the heights table both have the column(s) "
+            + listing([repr(user_text(str(c))) for c in both]),
+            where=where,
+            fix="rename or drop them in the footprints (the heights stand on the table's "
+            "ground; a DEM's is for a table without one)",
+        )
     unknown = ~table["id"].isin(footprints["id"])
     if unknown.any():
         raise InputError(
@@ -183,15 +195,33 @@ def buildings_with_heights(
         out["method"] = _attribute(height_field, relative)
     source = "gnss" if height_field in fits else height_field
     labels = {height_field: _attribute(height_field, relative)}
+    # the fit does not judge a field beside it, which so gets a source of its own
+    sourced = fallback_field is not None or (source != "gnss" and "converged" in columns)
+    if not sourced:
+        return out
+    _check_not_the_users(columns)
     if fallback_field is not None:
         above = _relative(fits, fallback_field, fallback_relative, "--fallback-relative")
         labels[fallback_field] = _attribute(fallback_field, above)
         out = _fallback(out, fallback_field, above, source, fallback_field in fits)
-    elif source != "gnss" and "converged" in columns:  # the fit does not judge this field
+    else:
         out["height_source"] = source
-    if "height_source" in out.columns:
-        _by_source(out, "gnss" if "height_lower" in fits else source, labels)
+    _by_source(out, "gnss" if "height_lower" in fits else source, labels)
     return out
+
+
+def _check_not_the_users(columns: list) -> None:
+    """Refuse a layer whose column ``height_source``, or ``method`` where no fit wrote it (no
+    ``converged`` beside it), is the user's own: where each height came from is written
+    there (:func:`_by_source`), over the user's values."""
+    for column in ("height_source", "method"):
+        if column in columns and (column == "height_source" or "converged" not in columns):
+            raise InputError(
+                f"the layer has a column {column!r} of its own, where the heights' "
+                "source would be written",
+                where="footprint layer",
+                fix=f"rename or drop the column {column!r}",
+            )
 
 
 def _attribute(field: str, relative: bool) -> str:

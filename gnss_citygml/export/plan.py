@@ -23,6 +23,7 @@ Rules
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Iterator, Sequence
 
 import geopandas as gpd
@@ -30,7 +31,7 @@ import numpy as np
 import pandas as pd
 import shapely
 
-from ..errors import InputError, MissingColumnError, listing
+from ..errors import InputError, MissingColumnError, listing, user_text
 from ..files.ids import id_field, id_named, missing_ids
 from ..files.paths import StrPath
 from ..geodesy import check_bng
@@ -225,7 +226,28 @@ def prepare_buildings(buildings: gpd.GeoDataFrame, *, strict: bool = False) -> P
             fix="check the height and ground columns",
         )
     bounds = np.concatenate([checks.low, checks.high])
-    return Plan(buildings, np.flatnonzero(checks.usable), skipped, strict, bounds)
+    rows = np.flatnonzero(checks.usable)
+    _warn_not_finite(buildings, rows)
+    return Plan(buildings, rows, skipped, strict, bounds)
+
+
+def _warn_not_finite(buildings: gpd.GeoDataFrame, rows: np.ndarray) -> None:
+    """Warn of each number column but the heights that is infinite for buildings to write:
+    JSON has none (CityJSON, and 3D Tiles' properties hold one no-data value), so every
+    format writes it as no value, which the warning says rather than leave it unsaid."""
+    for name in buildings.columns:
+        column = buildings[name]
+        if name in ("id", "ground", "height") or not pd.api.types.is_float_dtype(column.dtype):
+            continue
+        values = column.iloc[rows].to_numpy(dtype=float, na_value=np.nan)
+        bad = np.isinf(values)
+        if bad.any():
+            ids = buildings["id"].iloc[rows[bad]].astype(str).tolist()
+            warnings.warn(
+                f"column {user_text(str(name))} is not finite for buildings {listing(ids)}: "
+                "written as no value, in every format alike (JSON has no infinity)",
+                stacklevel=3,
+            )
 
 
 class _Checks:

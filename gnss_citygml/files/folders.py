@@ -30,8 +30,9 @@ from pathlib import Path
 
 from ..errors import InputError, user_text
 from .paths import _HOST, StrPath, _write_errors, stale_parts
+from .userjson import parse_json
 
-__all__ = ["MANIFEST", "atomic_folder", "check_new_folder", "recover"]
+__all__ = ["MANIFEST", "atomic_folder", "check_new_folder", "recover", "written_files"]
 
 #: The list of the files a folder output wrote, in the folder (hidden).
 MANIFEST = ".gnss-citygml-files.json"
@@ -160,12 +161,22 @@ def _write_manifest(work: Path, mark: str) -> None:
     (work / MANIFEST).write_text(json.dumps(record, indent=0))
 
 
+def written_files(folder: StrPath) -> set[str] | None:
+    """What the output in ``folder`` wrote, as its :data:`MANIFEST` lists it (None: the folder
+    has no such list, an older version's output)."""
+    folder = Path(folder)
+    return _written(folder) if (folder / MANIFEST).is_file() else None
+
+
 def _written(folder: Path) -> set[str]:
     """What the output in ``folder`` wrote, as its :data:`MANIFEST` lists it."""
     try:
-        record = json.loads((folder / MANIFEST).read_text(encoding="utf-8"))
-        return {str(name) for name in record["written"]}
-    except (OSError, ValueError, KeyError, TypeError) as exc:
+        record = parse_json((folder / MANIFEST).read_bytes())
+        names = record["written"] if isinstance(record, dict) else None
+        if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+            raise ValueError("not a list of names under 'written'")
+        return set(names)
+    except (OSError, ValueError, KeyError) as exc:  # (NotJSON is a ValueError)
         raise InputError(
             f"cannot read the folder's list of the files its output wrote ({exc})",
             where=str(folder / MANIFEST),

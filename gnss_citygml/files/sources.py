@@ -28,7 +28,7 @@ import pandas as pd
 import pyogrio
 import shapely
 
-from ..errors import InputError, first_line, listing
+from ..errors import InputError, first_line, listing, user_text
 from .names import native_name
 from .paths import StrPath, gunzipped, input_file
 from .tables import check_parquet_metadata, check_text
@@ -231,6 +231,8 @@ def _read_layer(path, layer: str | None, where: str, options: dict) -> gpd.GeoDa
         )
     except _GDAL_ERRORS as exc:
         raise _unreadable(exc, where) from None
+    except UnicodeDecodeError:  # (pyogrio decodes GDAL's text itself, without saying where)
+        raise _where_not_utf8(path, layer, where, options) from None
     if not isinstance(frame, gpd.GeoDataFrame):  # a layer without geometry (a CSV table)
         frame = gpd.GeoDataFrame(frame, geometry=np.full(len(frame), None), crs=_BNG)
     return frame
@@ -250,6 +252,7 @@ def _layer_batches(path, layer, where: str, options: dict, size: int) -> Iterato
         ) as (meta, reader):
             geometry = meta["geometry_name"] or "wkb_geometry"
             for batch in reader:
+                _check_utf8(batch, batch.column(meta["fid_column"]).to_numpy(), where)
                 table = batch.to_pandas(date_as_object=False)  # dates as read_dataframe's
                 fids = table.pop(meta["fid_column"]).to_numpy()
                 wkb = table.pop(geometry).to_numpy() if geometry in table else None
@@ -259,6 +262,59 @@ def _layer_batches(path, layer, where: str, options: dict, size: int) -> Iterato
                 yield gpd.GeoDataFrame(table.set_axis(fids), geometry=geoms, crs=meta["crs"])
     except _GDAL_ERRORS as exc:
         raise _unreadable(exc, where) from None
+    except UnicodeDecodeError:  # (the values are checked above: a field's name)
+        raise _not_utf8("a field's name", where) from None
+
+
+def _where_not_utf8(path, layer: str | None, where: str, options: dict) -> InputError:
+    """The error for a source with text that is not UTF-8: the field and the first feature
+    that has it, read again as Arrow's bytes (a field's name, if even that cannot be read)."""
+    try:
+        meta, table = pyogrio.read_arrow(
+            native_name(path),
+            layer=0 if layer is None else layer,
+            read_geometry=False,
+            return_fids=True,
+            **options,
+        )
+    except UnicodeDecodeError:
+        return _not_utf8("a field's name", where)
+    _check_utf8(table, table.column(meta["fid_column"]).to_numpy(), where)
+    return _not_utf8("a text of the source", where)
+
+
+def _check_utf8(table, fids: np.ndarray, where: str) -> None:
+    """Refuse a source whose text (an Arrow table or batch of its features, ``fids`` their
+    feature ids) is not all UTF-8, naming the field and the first feature that is not: SQLite
+    stores any bytes in a GeoPackage's text, which GDAL passes on unchecked."""
+    import pyarrow as pa
+
+    for name, column in zip(table.schema.names, table.columns, strict=True):
+        if not (pa.types.is_string(column.type) or pa.types.is_large_string(column.type)):
+            continue
+        try:
+            column.validate(full=True)
+        except pa.ArrowInvalid:
+            row = next((k for k in range(len(column)) if not _decodes(column[k])), 0)
+            feature = f"{where}, feature {fids[row]}"
+            raise _not_utf8(f"the field '{user_text(name)}'", feature) from None
+
+
+def _not_utf8(what: str, where: str) -> InputError:
+    return InputError(
+        f"{what} is not UTF-8 text",
+        where=where,
+        fix="save the layer's text as UTF-8 (a GeoPackage's text must be)",
+    )
+
+
+def _decodes(value) -> bool:
+    """An Arrow string ``value`` is UTF-8 text."""
+    try:
+        value.as_py()
+    except UnicodeDecodeError:
+        return False
+    return True
 
 
 def _geoparquet_batches(path: Path, size: int) -> Iterator[gpd.GeoDataFrame]:

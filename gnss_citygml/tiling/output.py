@@ -34,7 +34,7 @@ import pyarrow.parquet as pq
 import shapely
 
 from ..errors import InputError, user_text
-from ..files.folders import check_new_folder
+from ..files.folders import MANIFEST, check_new_folder, written_files
 from ..files.names import check_utf8_name
 from ..files.paths import StrPath, file_digest
 from ..files.tables import write_layer
@@ -169,6 +169,10 @@ def run_folder_heights(path: StrPath) -> Path | None:
     else:
         return None
     listed = _read_tile_index(folder)
+    for entry in sorted(_tiles_written(folder) - listed.keys()):
+        _refuse(
+            folder, entry, f"{HEIGHTS}/{entry}, which the run wrote ({MANIFEST}), is not in {INDEX}"
+        )
     found = {e for e in _names(folder / HEIGHTS) if only is None or e == only}
     for entry in sorted(found - listed.keys() | ({only} - listed.keys() if only else set())):
         _refuse(folder, entry, f"{HEIGHTS}/{user_text(entry)} is not in {INDEX}", _STRAY)
@@ -177,6 +181,16 @@ def run_folder_heights(path: StrPath) -> Path | None:
             _refuse(folder, entry, f"{HEIGHTS}/{entry} of {INDEX} is missing")
         _check_tile(folder, entry, listed[entry])
     return folder / HEIGHTS if only is None else path
+
+
+def _tiles_written(folder: Path) -> set[str]:
+    """The tile folders (``tile=NAME``) the run wrote, as the folder's list of what it wrote
+    says (none if it has no list): a tile removed from the folder and its index alike is
+    still named there."""
+    names = written_files(folder) or set()
+    prefix = f"{HEIGHTS}/"
+    folders = (n for n in names if n.startswith(prefix) and n.endswith("/"))
+    return {n[len(prefix) : -1] for n in folders if n.count("/") == 2}
 
 
 def _holds_tiles(folder: Path) -> bool:

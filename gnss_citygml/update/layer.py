@@ -64,9 +64,13 @@ ESTIMATE_COLUMNS = {
     "status": "TEXT",
 }
 
-#: The columns that together make a layer ``estimate``'s heights layer (on a map, columns of
-#: these names one by one may be the user's own, and are left alone).
-ESTIMATE_LAYER = ("converged", "height", "relative_height", "status")
+#: The columns that together make a layer ``estimate``'s heights layer, with one of
+#: :data:`ESTIMATE_OWN` (on a map, columns of these names one by one may be the user's own, and
+#: are left alone).
+ESTIMATE_LAYER = ("converged", "height", "status")
+#: Columns only ``estimate`` writes: one of them beside :data:`ESTIMATE_LAYER` is enough, so
+#: that its layer with a column dropped (relative_height, say) is still updated whole.
+ESTIMATE_OWN = ("relative_height", "iterations")
 
 _KINDS = {**COLUMNS, **ESTIMATE_COLUMNS}
 
@@ -107,9 +111,9 @@ def _column_types(db: sqlite3.Connection, layer: str) -> dict[str, str]:
 
 def _written(info: dict[str, str]) -> dict[str, str]:
     """The columns an update writes on a layer of columns ``info``: :data:`COLUMNS`, and on
-    ``estimate``'s heights layer (:data:`ESTIMATE_LAYER`) those of :data:`ESTIMATE_COLUMNS`
-    it has, so that every row agrees with itself."""
-    if not set(ESTIMATE_LAYER) <= set(info):
+    ``estimate``'s heights layer (:data:`ESTIMATE_LAYER` and one of :data:`ESTIMATE_OWN`)
+    those of :data:`ESTIMATE_COLUMNS` it has, so that every row agrees with itself."""
+    if not set(ESTIMATE_LAYER) <= set(info) or not set(ESTIMATE_OWN) & set(info):
         return dict(COLUMNS)
     return {**COLUMNS, **{c: kind for c, kind in ESTIMATE_COLUMNS.items() if c in info}}
 

@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-import json
 from collections.abc import Iterator
 from functools import lru_cache
 from pathlib import Path
 
+from ..files.userjson import parse_json
 from .report import Issue, Report
-from .schemas import SCHEMA_DIR_ENV, cityjson_schema_file
+from .schemas import SCHEMA_DIR_ENV, cityjson_schema_file, unusable_schema
 
 __all__ = ["json_schema"]
 
@@ -26,7 +26,7 @@ class _JsonSchema:
     def __init__(self, path: Path):
         import jsonschema
 
-        schema = json.loads(path.read_text(encoding="utf-8"))
+        schema = parse_json(path.read_bytes())
         self.cls = jsonschema.validators.validator_for(schema)
         any_object = schema["properties"]["CityObjects"]["additionalProperties"]
         self.any_object = self.cls(any_object)
@@ -133,4 +133,10 @@ def json_schema(
 
 @lru_cache(maxsize=8)
 def _load_schema(path: Path) -> _JsonSchema:
-    return _JsonSchema(path)
+    """The schema at ``path``; one that cannot be used (the user's folder) is an InputError."""
+    import jsonschema
+
+    try:
+        return _JsonSchema(path)
+    except (ValueError, LookupError, TypeError, AttributeError, jsonschema.SchemaError) as exc:
+        raise unusable_schema(exc, path) from None  # (NotJSON is a ValueError)

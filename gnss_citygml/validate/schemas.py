@@ -8,7 +8,7 @@ import os
 import re
 from pathlib import Path
 
-from ..errors import InputError
+from ..errors import InputError, first_line, user_text
 from ..files.paths import StrPath
 
 __all__ = [
@@ -128,3 +128,14 @@ def tiles3d_schema_source(folder: Path) -> str:
     bundled with the package."""
     bundled = folder.resolve() == BUNDLED_TILES3D_SCHEMAS.resolve()
     return f"{folder} (bundled with gnss-citygml)" if bundled else str(folder)
+
+
+def unusable_schema(exc: Exception, where: StrPath) -> InputError:
+    """One line for a schema of the folder given that cannot be used (not JSON, nested too
+    deep, not a schema): the folder is the user's, so this is a user's mistake."""
+    return InputError(
+        f"the schema cannot be used ({type(exc).__name__}: {user_text(first_line(exc))})",
+        where=str(where),
+        fix=f"give the folder of the official schemas as published (--schema-dir, "
+        f"${SCHEMA_DIR_ENV})",
+    )

@@ -436,9 +436,11 @@ def convert_file(
 
     def buildings() -> gpd.GeoDataFrame:
         frame = read_buildings(source, layer=layer, id_field=id_field, grid_dir=grid_dir)
-        _check_one_ground(frame.columns, dem, source)
         if dem is not None:
-            frame = building_ground(frame, dem, assume_crs=dem_crs)
+            grounded = building_ground(frame, dem, assume_crs=dem_crs)
+            if "ground" in frame.columns:
+                _check_one_ground(frame["ground"], grounded["ground"], source)
+            frame = grounded
         return buildings_with_heights(
             frame,
             height_field,
@@ -467,13 +469,20 @@ def convert_file(
     )  # fmt: skip
 
 
-def _check_one_ground(columns: Iterable[object], dem: StrPath | None, where: StrPath) -> None:
-    """Refuse a DEM beside the heights' own ``ground`` column (estimate's, the ground of the
-    DEM they were estimated on): the DEM's would change each building's height above the
-    ground and leave ``relative_height`` saying the old one."""
-    if dem is not None and "ground" in columns:
+def _check_one_ground(ground: pd.Series, dem_ground: pd.Series, where: StrPath) -> None:
+    """Refuse a DEM beside the heights' own ``ground`` column (estimate's: the ground of the DEM
+    they were estimated on) where the two differ by more than a millimetre, building by
+    building in the same order: the DEM's would change each building's height above the
+    ground and leave ``relative_height`` saying the old one. The same DEM given again passes."""
+    import numpy as np
+
+    column, dem = ground.to_numpy(dtype=float), dem_ground.to_numpy(dtype=float)
+    off = ~(np.abs(column - dem) <= 1e-3) & ~(np.isnan(column) & np.isnan(dem))
+    if off.any():
+        worst = np.nanmax(np.abs(column - dem)) if np.isfinite(column - dem).any() else np.nan
         raise InputError(
-            "the ground is given twice, by the column ground and by a DEM",
+            f"the ground is given twice, by the column ground and by a DEM, and they differ "
+            f"for {int(off.sum())} of {off.size} buildings (by up to {worst:.2f} m)",
             where=str(where),
             fix="leave out --dem (the heights stand on the ground of their column), "
             "or drop the column ground and its relative_height",
@@ -511,8 +520,11 @@ def export_file(
             footprints, layer=layer, id_field=id_field, dem=dem, dem_crs=dem_crs, grid_dir=grid_dir
         )
         table = read_table(heights, text=[field_of(frame)])  # (the ids as text, by any name)
-        _check_one_ground(table.columns, dem, heights)
-        return footprints_with_heights(frame, table, where=str(heights))
+        if dem is None or "ground" not in table.columns:
+            return footprints_with_heights(frame, table, where=str(heights))
+        joined = footprints_with_heights(frame.drop(columns="ground"), table, where=str(heights))
+        _check_one_ground(joined["ground"], frame["ground"], heights)  # (rows in one order)
+        return joined
 
     writer = _model_writer(
         output, overwrite=overwrite, typed_attributes=typed_attributes, ranges=ranges,

@@ -243,6 +243,23 @@ def test_a_dem_beside_the_heights_own_ground_is_refused(tmp_path, capsys):
     assert objects["a"]["attributes"]["measuredHeight"] == 7.0
 
 
+def test_the_dem_the_heights_stand_on_may_be_given_again(tmp_path, capsys):
+    """A DEM that gives every building the ground of its column (the DEM the heights were
+    estimated on) changes nothing and is taken; one building's ground off by 5 cm is refused,
+    naming how many differ."""
+    dem = _flat_dem(tmp_path / "dem.tif", 25.0)
+    layer, out = tmp_path / "heights.gpkg", tmp_path / "c.city.json"
+    same = heights_layer().assign(ground=25.0)
+    same.to_file(layer, layer="heights")
+    code, _, err = run(["convert", str(layer), "--dem", str(dem), "-o", str(out)], capsys)
+    assert code == 0, err
+    assert json.loads(out.read_text())["CityObjects"]["a"]["attributes"]["ground"] == 25.0
+    same.assign(ground=[25.0, 25.05, 25.0, 25.0]).to_file(tmp_path / "off.gpkg", layer="heights")
+    args = ["convert", str(tmp_path / "off.gpkg"), "--dem", str(dem), "-o", str(tmp_path / "d.gml")]
+    code, _, err = run(args, capsys)
+    assert code == 2 and "differ for 1 of 4 buildings (by up to 0.05 m)" in err, err
+
+
 @pytest.mark.parametrize("column", ["height_source", "method"])
 def test_a_users_column_named_like_the_sources_is_not_overwritten(column):
     """A layer with a column of its own named height_source or method (a survey's, say), given

@@ -170,20 +170,26 @@ def write_citygml(
         replaced = _write_model(tmp, plan, date, (title, provenance), progress)
         result = plan.result(path, None)  # raises if nothing was written
         result.report = validated_output(tmp, path, validate, schema_dir)
+    _warn_not_xml(title, replaced)
+    return result
+
+
+def _warn_not_xml(title: str | None, replaced: list[str]) -> None:
+    """One warning for the title and one for the buildings whose text XML cannot hold
+    (control characters), written with U+FFFD in their place."""
     if title is not None and _NOT_XML_CHAR.search(title):
         warnings.warn(
             f"the title '{user_text(title)}' has characters that XML cannot hold (control "
             "characters), written with U+FFFD in their place (CityJSON keeps them as they are)",
-            stacklevel=2,
+            stacklevel=3,
         )
     if replaced:
         warnings.warn(
             f"{len(replaced)} building(s) have text that XML cannot hold (control characters), "
             f"written with U+FFFD in its place: {listing(map(repr, replaced))}"
             " (CityJSON keeps such text as it is)",
-            stacklevel=2,
+            stacklevel=3,
         )
-    return result
 
 
 def _write_model(tmp, plan, date: str, about, progress) -> list[str]:

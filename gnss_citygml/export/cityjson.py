@@ -146,7 +146,6 @@ def write_cityjson(
     >>> model["CityObjects"]["osgb1"]["attributes"]
     {'measuredHeight': 12.5, 'creationDate': '2024-05-01', 'ground': 20.0, 'height': 32.5}
     """
-    check_title(title)
     plan = prepare_buildings(buildings, strict=strict)
     date = creation_date(date)
     header, translate = _header(plan.bounds_mm(), date, title, typed_attributes, provenance)
@@ -218,7 +217,6 @@ def write_cityjsonseq(
     >>> [line["type"] for line in lines], lines[2]["vertices"][:2]
     (['CityJSON', 'CityJSONFeature', 'CityJSONFeature'], [[20000, 0, 1000], [20000, 0, 10000]])
     """
-    check_title(title)
     plan = prepare_buildings(buildings, strict=strict)
     date = creation_date(date)
     header, translate = _header(plan.bounds_mm(), date, title, typed_attributes, provenance)
@@ -256,7 +254,9 @@ def _header(
     """The CityJSON object without CityObjects and vertices, and the translation (mm); with
     ``typed``, it declares the toolkit's Extension; the ``provenance`` record
     (:mod:`gnss_citygml.files.provenance`) goes in the metadata, where other members than the
-    six the specification names are allowed (3DBAG keeps its version there too)."""
+    six the specification names are allowed (3DBAG keeps its version there too). A title
+    UTF-8 cannot hold is refused (:func:`~.output.check_title`) before anything is written."""
+    check_title(title)
     translate = (bounds[:3] // 1000) * 1000  # whole metres below the data
     metadata = {
         "referenceSystem": CRS_URL,

@@ -184,15 +184,7 @@ def buildings_with_heights(
     _check_fields(columns, height_field, ground_field, fallback_field)
     fits = gnss_fields(columns)
     relative = _relative(fits, height_field, relative, "--relative")
-    out = frame.copy()
-    ground = numeric(out, ground_field or "ground")
-    height = numeric(out, height_field)
-    out["ground"] = ground
-    out["height"] = ground + height if relative else height
-    if ground_field not in (None, "ground"):
-        out = out.drop(columns=[ground_field])
-    if "method" not in out.columns and height_field != "height":
-        out["method"] = _attribute(height_field, relative)
+    out = _absolute(frame, height_field, relative, ground_field)
     source = "gnss" if height_field in fits else height_field
     labels = {height_field: _attribute(height_field, relative)}
     # the fit does not judge a field beside it, which so gets a source of its own
@@ -207,6 +199,22 @@ def buildings_with_heights(
     else:
         out["height_source"] = source
     _by_source(out, "gnss" if "height_lower" in fits else source, labels)
+    return out
+
+
+def _absolute(frame, height_field: str, relative: bool, ground_field: str | None):
+    """A copy of ``frame`` with ``ground`` (from ``ground_field``, which is then dropped) and
+    ``height``, the absolute roof (ground + the field if ``relative``), and ``method`` saying
+    so for a field other than ``height`` where the layer has none."""
+    out = frame.copy()
+    ground = numeric(out, ground_field or "ground")
+    height = numeric(out, height_field)
+    out["ground"] = ground
+    out["height"] = ground + height if relative else height
+    if ground_field not in (None, "ground"):
+        out = out.drop(columns=[ground_field])
+    if "method" not in out.columns and height_field != "height":
+        out["method"] = _attribute(height_field, relative)
     return out
 
 

@@ -144,17 +144,23 @@ def validate_file(
     if head.startswith(b"{") and _is_tileset(path, head):
         return validate_tileset(path, schema_dir=schema_dir)
     if head.startswith(b"{"):
-        if schema_dir is None and bundled_schemas:
-            report = validate_cityjson(path, BUNDLED_CITYJSON_SCHEMAS)
-            if "json-schema" in report.checks:
-                report.notes.append("JSON Schema: CityJSON 2.0.2's, bundled with gnss-citygml")
-            return report
-        return validate_cityjson(path, schema_dir)
+        return _cityjson(path, schema_dir, bundled_schemas)
     raise InputError(
         "not a CityGML (XML), CityJSON (JSON) or 3D Tiles (tileset.json) file",
         where=str(path),
         fix="give a .gml, .city.json, .city.jsonl or tileset.json file",
     )
+
+
+def _cityjson(path: Path, schema_dir: Path | None, bundled_schemas: bool) -> Report:
+    """A CityJSON file's report: against the schema folder's schemas, else (``bundled_schemas``)
+    the CityJSON 2.0.2 schemas bundled with the package, a note naming them."""
+    if schema_dir is not None or not bundled_schemas:
+        return validate_cityjson(path, schema_dir)
+    report = validate_cityjson(path, BUNDLED_CITYJSON_SCHEMAS)
+    if "json-schema" in report.checks:
+        report.notes.append("JSON Schema: CityJSON 2.0.2's, bundled with gnss-citygml")
+    return report
 
 
 def _is_tileset(path: Path, head: bytes) -> bool:

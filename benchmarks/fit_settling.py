@@ -69,7 +69,8 @@ from shared_data import GRIDS
 from gnss_citygml.footprints import read_footprints
 from gnss_citygml.model import classifier, parts
 from gnss_citygml.model.estimate import estimate_heights
-from gnss_citygml.model.fourpl import STOPS_WINDOW, FourPLFit
+from gnss_citygml.model.fit_stops import STOPS_WINDOW
+from gnss_citygml.model.fourpl import FourPLFit
 from gnss_citygml.observations import read_observations
 from gnss_citygml.pipeline import in_mask, intersections, open_sky, receivers
 from gnss_citygml.settings import Estimator, Rays

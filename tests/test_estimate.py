@@ -242,7 +242,8 @@ def test_position_margin_counts_each_recording_once():
     from gnss_citygml.model.fourplb import position_margin
 
     one = np.ones(1)
-    fit = FourPLFit(0.9 * one, one, 10.0 * one, 0.1 * one, one, one > 0, one, one < 0)
+    nan = np.full(1, np.nan)
+    fit = FourPLFit(0.9 * one, one, 10.0 * one, 0.1 * one, one, one > 0, one, one < 0, nan, nan)
     n = 400
     g, h, sd = np.zeros(n, dtype=np.intp), np.full(n, 10.5), np.full(n, 2.0)
     far = np.r_[h[:-10], np.full(10, 30.0)]  # rows far from the roof line do not count
@@ -283,11 +284,16 @@ def test_the_range_holds_where_the_data_leave_the_roof_line(rng):
     table = pd.DataFrame({"building": "b", "height": h, "cn0": np.where(h > 40.0, 42.0, np.nan)})
     wide = estimate_heights(table).iloc[0]
     assert not wide["converged"]
-    assert wide["status"] == "height range wider than 10 m: no rays near the roof line"
+    gap = "the roof line is anywhere in a gap between the rays"
+    assert wide["status"] == f"height range wider than 10 m: {gap}"
     lax = Estimator(acceptance=Acceptance(max_uncertainty=30.0))
     row = estimate_heights(table, lax).iloc[0]
     assert row["converged"]
-    assert row["height_lower"] <= 30.5 and row["height_upper"] >= 49.5
+    assert row["height_lower"] <= h[h < 40].max() and row["height_upper"] >= h[h > 40].min()
+    # the data fit any roof line in the gap alike: the height is its middle, whatever the caps
+    assert row["height"] == pytest.approx(0.5 * (h[h < 40].max() + h[h > 40].min()))
+    high = Estimator(acceptance=Acceptance(max_uncertainty=30.0), max_iter=100, fit_max_iter=2000)
+    assert estimate_heights(table, high).iloc[0]["height"] == row["height"]
 
 
 def test_the_datas_and_the_positions_uncertainties_add_in_quadrature():
@@ -298,13 +304,14 @@ def test_the_datas_and_the_positions_uncertainties_add_in_quadrature():
     fit = FourPLFit(
         a=0.9 * one, b=one, c=30.0 * one, d=0.05 * one, loglik=-one,
         converged=one.astype(bool), n_iter=one, separable=~one.astype(bool),
+        gap_lower=np.nan * one, gap_upper=np.nan * one,
     )  # fmt: skip
     h = np.r_[np.linspace(20.0, 29.0, 20), np.linspace(31.0, 40.0, 20)]
     labels = h > 30.0
     g = np.zeros(h.size, dtype=np.intp)
     interval = (30.0 - 3.0) * one, (30.0 + 1.0) * one  # the data's: 3 m below c, 1 m above
     judged = _judge(
-        fit, g, h, labels, np.ones(h.size, bool), 1, np.zeros(1), 3,
+        fit, g, h, labels, np.ones(h.size, bool), 1, np.zeros(1), np.ones(1, bool), 3,
         Acceptance(max_uncertainty=20.0), margin=4.0 * one, c_range=interval,
     )  # fmt: skip
     assert judged.converged[0] and judged.height[0] == 30.0

@@ -3,12 +3,12 @@ import pytest
 from conftest import draw_4pl
 
 from gnss_citygml.model.fourpl import (
-    c_interval,
     fit_4pl,
     group_range,
     log_likelihood,
     logistic4,
 )
+from gnss_citygml.model.interval import c_interval
 
 
 def test_logistic4_shape():

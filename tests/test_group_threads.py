@@ -6,7 +6,8 @@ from conftest import draw_4pl
 
 from gnss_citygml import threads
 from gnss_citygml.model import fourpl, group_threads
-from gnss_citygml.model.fourpl import c_interval, fit_4pl
+from gnss_citygml.model.fourpl import fit_4pl
+from gnss_citygml.model.interval import c_interval
 
 
 def _groups(rng, n_groups=40):

@@ -38,7 +38,7 @@ def test_the_heights_and_the_report_name_the_run_and_its_inputs(estimated):
         assert by_role["observations"]["name"] == "observations.parquet"
         assert record["settings"]["estimator"]["method"] == "4PL-B"
         caps = {k: record["settings"]["estimator"][k] for k in ("max_iter", "fit_max_iter")}
-        assert caps == {"max_iter": 10, "fit_max_iter": 200}  # the heights can be checked
+        assert caps == {"max_iter": 30, "fit_max_iter": 200}  # the heights can be checked
 
 
 def test_the_layer_description_says_it_in_one_line(estimated):

@@ -20,7 +20,7 @@ def test_defaults_are_the_papers():
     assert not Rays().earth_curvature
     assert ReceiverHeights() == ReceiverHeights(source="dem", antenna_height=1.0)
     assert Estimator() == Estimator(
-        method="4PL-B", init_threshold=30.0, weighting="none", visibility=True, max_iter=10
+        method="4PL-B", init_threshold=30.0, weighting="none", visibility=True, max_iter=30
     )
     assert Estimator().acceptance == Acceptance(0.01, 10, 0.3, 10.0)
     # position errors from the data by default; sd=0 takes positions as exact, as the paper

@@ -16,7 +16,7 @@ from typing import Any, Protocol
 from ..settings import Estimator
 from .classifier import SignalClassifier
 from .fourplb import BuildingFits, SignalModel
-from .mixture import Cn0Mixture, Cn0Moments
+from .mixture import SETTLED_DB, Cn0Mixture, Cn0Moments
 from .parts import Part, Shared, Tally
 
 __all__ = ["Engine", "InProcess", "WINDOW", "in_windows", "run_parts"]
@@ -89,12 +89,13 @@ def run_parts(
     from the parts that own them (``neighbours[i]``: the parts whose buildings part ``i``'s
     rays cross, itself included), updates its visibility model and counts its signals for the
     classifier (:meth:`Part.exchanged`); the counts are summed and refit the classifier once
-    (:class:`Tally`), and the largest change of labels decides whether to go on. ``progress``
-    is told each iteration's number as it ends. Returns what ``finish(part, iterations)``
-    gives of each part (default: its :class:`BuildingFits`, :meth:`Part.judged`), as the
-    engine's handles (the values themselves in one process; futures on a cluster, left
-    where they were made: gather them, or pass them on), and the classifier. ``names`` (one per
-    part, e.g. its tile's) name the steps for the engine. ``open_sky``: the run's signals
+    (:class:`Tally`); the loop ends once every building's roof line and the signal model
+    have settled (:mod:`.settling`). ``progress`` is told each iteration's number as it ends.
+    Returns what ``finish(part, iterations)`` gives of each part (default: its
+    :class:`BuildingFits`, :meth:`Part.judged`), as the engine's handles (the values
+    themselves in one process; futures on a cluster, left where they were made: gather them,
+    or pass them on), and the classifier. ``names`` (one per part, e.g. its tile's) name the
+    steps for the engine. ``open_sky``: the run's signals
     whose rays cross no footprint, which the mixture signal model learns open signals from.
     A part may be anything with :class:`Part`'s steps, e.g. a failed tile's stand-in
     (:class:`gnss_citygml.tiling.run.FailedTile`).
@@ -119,8 +120,7 @@ def run_parts(
         before, model = model, tally.refit(model)
         if progress is not None:
             progress(iterations)
-        settled = not isinstance(model, Cn0Mixture) or model.settled(before)
-        if iterations > 1 and tally.change < estimator.acceptance.label_tol and settled:
+        if iterations > 1 and tally.moving == 0 and _settled(model, before):
             break
     finish = finish or _judged
     done = [
@@ -159,6 +159,15 @@ def _exchange(engine, parts, neighbours, names, iterations) -> tuple[list[Any], 
             for k in range(0, len(tallies), _FAN_IN)
         ]
     return parts, engine.gather(tallies[0])
+
+
+def _settled(model: SignalModel, before: SignalModel) -> bool:
+    """Whether the signal model has settled: the mixture by its own test, the paper's
+    classifier where its threshold moved less than the mixture's :data:`~.mixture.SETTLED_DB`
+    (a tenth of a dB-Hz, what receivers report)."""
+    if isinstance(model, Cn0Mixture):
+        return model.settled(before)
+    return abs(model.threshold - before.threshold) < SETTLED_DB
 
 
 # The steps as functions of the part, for engines (a Part or a FailedTile alike).

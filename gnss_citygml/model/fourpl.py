@@ -36,14 +36,16 @@ import numpy.typing as npt
 import pandas as pd
 from scipy.special import expit
 
+from .fit_stops import FitStops, Trace
 from .group_threads import by_groups
 from .likelihood import EPS, evaluate
 
 __all__ = [
     "B_BOUNDS",
     "FitStops",
+    "GAP_AFTER",
+    "X_TOL",
     "FourPLFit",
-    "c_interval",
     "fit_4pl",
     "log_likelihood",
     "logistic4",
@@ -56,6 +58,17 @@ B_BOUNDS = (1e-3, 1e2)
 _LOGIT_BOUND = 9.0
 #: Log-likelihood drop of a 95 % likelihood-ratio interval of one parameter: chi2(1, 0.95) / 2.
 LR_DROP = 1.92
+#: A fit has converged when its last step gained at most the tolerance (relative) *and* moved
+#: ``c`` by at most this (in units of x: a millimetre of height, a thousandth of a dB-Hz): what
+#: is reported has stopped, not only the likelihood, which is nearly flat along a ``c`` that the
+#: data leave free.
+X_TOL = 1e-3
+#: Iterations after which a fit whose ``c`` lies in a gap of its samples wider than its
+#: transition (3/b) has ``c`` fixed at the gap's middle and ``b`` at its upper bound: there the
+#: likelihood depends on ``c`` only through the curve's tails, and ``c`` creeps for hundreds of
+#: iterations to wherever an iteration cap stops it (and ``b`` up, sharpening the step). A
+#: fit settles in a dozen iterations where the data pin ``c``.
+GAP_AFTER = 25
 
 
 #: A 4PL parameter: one value, or one per sample.
@@ -129,6 +142,11 @@ class FourPLFit:
     n_iter: np.ndarray
     #: True where ``b`` ended on its upper bound (the data are separable at the fitted c).
     separable: np.ndarray
+    #: The empty stretch of x (no sample) in whose middle ``c`` was fixed, the data leaving it
+    #: free there (:data:`GAP_AFTER`); NaN where ``c`` was fitted. An end beyond the samples
+    #: is infinite (``c`` is then fixed at its box's end).
+    gap_lower: np.ndarray
+    gap_upper: np.ndarray
     #: How each fit stopped (:class:`FitStops`), where :func:`fit_4pl` was asked (``stops``).
     stops: FitStops | None = None
 
@@ -136,32 +154,6 @@ class FourPLFit:
     def params(self) -> np.ndarray:
         """The parameters as an ``(n_groups, 4)`` array of ``(a, b, c, d)``."""
         return np.column_stack([self.a, self.b, self.c, self.d])
-
-
-@dataclass(frozen=True)
-class FitStops:
-    """How each group's fit of :func:`fit_4pl` stopped, to tell why a fit did not meet its
-    tolerance (arrays of length ``n_groups``; ``(n_groups, 4)`` for the parameters ``theta``:
-    the logits of ``a`` and ``d / a``, ``log b`` and ``c``)."""
-
-    #: The last step's log-likelihood gain, relative to ``1 + |loglik|`` (the tolerance's
-    #: scale), and whether it was accepted.
-    gain: np.ndarray
-    accepted: np.ndarray
-    #: Steps rejected in the last :data:`STOPS_WINDOW` iterations of the cap, and in all.
-    rejected_late: np.ndarray
-    rejected: np.ndarray
-    #: The damping at the end.
-    lam: np.ndarray
-    #: The parameters on their box's lower and upper end at the end.
-    at_lower: np.ndarray
-    at_upper: np.ndarray
-    #: How far each parameter moved over the second half of the cap's iterations.
-    drift: np.ndarray
-
-
-#: The last iterations of the cap over which :class:`FitStops` counts rejected steps.
-STOPS_WINDOW = 20
 
 
 def fit_4pl(
@@ -200,7 +192,7 @@ def fit_4pl(
     b_bounds
         Bounds of the slope ``b`` in units of 1/x (default :data:`B_BOUNDS`).
     max_iter, tol
-        Iteration cap and relative log-likelihood tolerance.
+        Iteration cap and relative log-likelihood tolerance (with :data:`X_TOL` on ``c``).
     stops
         Also record how each fit stopped (:class:`FitStops`, the result's ``stops``): the
         same fits, a little slower (a diagnostic: ``benchmarks/fit_settling.py``).
@@ -229,9 +221,9 @@ def fit_4pl(
         samples = (x[rows], y[rows], w[rows], g[rows] - own.start, v[rows])
         return _fit(*samples, n_own, start, b_bounds, max_iter, tol, stops)
 
-    a, b, c, d, ll, converged, n_iter, separable, *how = by_groups(g, n_groups, fit)
+    a, b, c, d, ll, converged, n_iter, separable, gap_lo, gap_hi, *how = by_groups(g, n_groups, fit)
     record = FitStops(*how) if stops else None
-    return FourPLFit(a, b, c, d, ll, converged, n_iter, separable, record)
+    return FourPLFit(a, b, c, d, ll, converged, n_iter, separable, gap_lo, gap_hi, record)
 
 
 def _fit(x, y, w, g, v, n_groups, init, b_bounds, max_iter, tol, stops) -> tuple[np.ndarray, ...]:
@@ -243,19 +235,69 @@ def _fit(x, y, w, g, v, n_groups, init, b_bounds, max_iter, tol, stops) -> tuple
     theta0 = _start(x, y, w, g, v, n_groups, lo, hi, init)
     box_lo, box_hi = _box(lo, hi, span, b_bounds, n_groups)
     theta = np.clip(np.nan_to_num(theta0), box_lo, box_hi)
-    active = counts > 0
-    data = _ActiveRows(x, y, w, g, v, active)
-    trace = _Trace(theta, max_iter) if stops else None
-    theta, ll, converged, n_iter = _levenberg_marquardt(
-        theta, data, active, box_lo, box_hi, n_groups, max_iter, tol, trace
-    )
+    trace = Trace(theta, max_iter) if stops else None
+    data = (x, y, w, g, v)
+    fitted = counts > 0
+    ll, converged, n_iter = np.zeros(n_groups), np.zeros(n_groups, bool), np.zeros(n_groups, int)
+    gap_lo, gap_hi = np.full(n_groups, np.nan), np.full(n_groups, np.nan)
+    active, left = fitted.copy(), max_iter
+    while active.any() and left > 0:
+        # runs of GAP_AFTER iterations, after each of which a c that lies in a wide gap is
+        # fixed at its middle: first any group's (also a converged one: a defined point of the
+        # gap, not where a step happened to stop), then the still moving ones'
+        fit = _LevenbergMarquardt(theta, _ActiveRows(*data, active), active.copy(), box_lo, box_hi)
+        fit.fixed[:, 1] = fit.fixed[:, 2] = ~np.isnan(gap_lo)
+        _, t_ll, t_converged, t_iter = fit.run(min(left, GAP_AFTER), tol, trace)
+        ll[active], converged[active] = t_ll[active], t_converged[active]
+        n_iter += t_iter
+        left -= GAP_AFTER
+        if left > 0:
+            check = fitted if left == max_iter - GAP_AFTER else active & ~converged
+            in_gap = _fit_in_gaps(theta, data, check & np.isnan(gap_lo), box_lo, box_hi)
+            gap_lo[in_gap[0]], gap_hi[in_gap[0]] = in_gap[1][in_gap[0]], in_gap[2][in_gap[0]]
+            active = fitted & (~converged | in_gap[0])
     a, b, c, d = _from_theta(theta).T
     empty = counts == 0
     for v in (a, b, c, d, ll):
         v[empty] = np.nan
     separable = ~empty & (theta[:, 1] >= box_hi[:, 1] - 1e-9)
-    fields = (a, b, c, d, ll, converged & ~empty, n_iter, separable)
+    fields = (a, b, c, d, ll, converged & ~empty, n_iter, separable, gap_lo, gap_hi)
     return fields if trace is None else fields + trace.stops(theta, box_lo, box_hi)
+
+
+def _fit_in_gaps(theta, data, groups, box_lo, box_hi):
+    """Which of ``groups`` (a mask) have their ``c`` in a gap of their samples wider than
+    their transition (3/b), and the gaps' ends; their ``c`` moved to the gap's middle (in place
+    on ``theta``; to the box's end where the gap reaches beyond the samples) and their ``b``
+    to its upper bound: the samples see a step across the gap, sharper than anything they
+    can tell (``b`` would creep up for hundreds of iterations, each making the step a little
+    sharper), and the range holds the whole gap instead."""
+    x, _, w, g, _ = data
+    gap_lo, gap_hi = gap_around(x, w, g, theta[:, 2], groups)
+    in_gap = groups & (gap_hi - gap_lo > 3.0 / np.exp(theta[:, 1]))
+    middle = np.where(np.isinf(gap_lo), box_lo[:, 2], box_hi[:, 2])
+    finite = in_gap & np.isfinite(gap_lo) & np.isfinite(gap_hi)
+    middle[finite] = 0.5 * (gap_lo[finite] + gap_hi[finite])
+    theta[in_gap, 2] = middle[in_gap]
+    theta[in_gap, 1] = box_hi[in_gap, 1]
+    return in_gap, gap_lo, gap_hi
+
+
+def gap_around(
+    x: np.ndarray, w: np.ndarray, g: np.ndarray, c: np.ndarray, groups: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The empty stretch of x around each of ``groups``' ``c`` (a mask): the largest sample at
+    or below it and the smallest above it, samples of weight 0 left out (-inf, inf where
+    there is none; NaN for the other groups)."""
+    lower = np.full(c.size, -np.inf)
+    upper = np.full(c.size, np.inf)
+    rows = (w > 0) & groups[g]
+    xr, gr = x[rows], g[rows]
+    under = xr <= c[gr]
+    np.maximum.at(lower, gr[under], xr[under])
+    np.minimum.at(upper, gr[~under], xr[~under])
+    lower[~groups] = upper[~groups] = np.nan
+    return lower, upper
 
 
 def _samples(x, y, weights, groups, n_groups, sd):
@@ -294,149 +336,61 @@ def _box(lo, hi, span, b_bounds, n_groups) -> tuple[np.ndarray, np.ndarray]:
     return box_lo, box_hi
 
 
-def _levenberg_marquardt(
-    theta,
-    data: _ActiveRows,
-    active,
-    box_lo,
-    box_hi,
-    n_groups: int,
-    max_iter: int,
-    tol: float,
-    trace: _Trace | None = None,
-):
+class _LevenbergMarquardt:
     """Damped (projected) Newton steps on the Fisher information of every active group at
-    once, until each converges or ``max_iter``: the parameters, log-likelihoods, convergence
-    flags and iteration counts (``trace``: told each iteration's steps)."""
-    ll, grad, fisher = evaluate(theta, *data.arrays, n_groups, active)
-    lam = np.full(n_groups, 1e-3)
-    converged = np.zeros(n_groups, dtype=bool)
-    n_iter = np.zeros(n_groups, dtype=int)
-    for _ in range(max_iter):
-        if not active.any():
-            break
-        idx = np.flatnonzero(active)
-        n_iter[idx] += 1
-        # Parameters on a bound whose gradient pushes outwards stay there (projected Newton).
-        frozen = ((theta[idx] <= box_lo[idx] + 1e-12) & (grad[idx] < 0)) | (
-            (theta[idx] >= box_hi[idx] - 1e-12) & (grad[idx] > 0)
+    once (in place on ``theta``), parameters marked ``fixed`` held where they are."""
+
+    def __init__(self, theta, data: _ActiveRows, active, box_lo, box_hi):
+        self.theta, self.data, self.active = theta, data, active
+        self.box_lo, self.box_hi = box_lo, box_hi
+        self.fixed = np.zeros(theta.shape, dtype=bool)
+
+    def run(self, max_iter: int, tol: float, trace: Trace | None = None):
+        """Step until each group converges (:data:`X_TOL`) or ``max_iter``: the parameters,
+        log-likelihoods, convergence flags and iteration counts (``trace``: told each
+        iteration's steps)."""
+        theta, data, active, box_lo, box_hi = (
+            self.theta,
+            self.data,
+            self.active,
+            self.box_lo,
+            self.box_hi,
         )
-        step = _damped_step(grad[idx], fisher[idx], lam[idx], frozen)
-        trial = theta.copy()
-        trial[idx] = np.clip(theta[idx] + step, box_lo[idx], box_hi[idx])
-        t_ll, t_grad, t_fisher = evaluate(trial, *data.shrink(active), n_groups, active)
-        gain = t_ll[idx] - ll[idx]
-        accept = gain >= -1e-12 * (1.0 + np.abs(ll[idx]))
-        acc = idx[accept]
-        moved = np.max(np.abs(trial[idx] - theta[idx]), axis=1)
-        theta[acc], ll[acc] = trial[acc], t_ll[acc]
-        grad[acc], fisher[acc] = t_grad[acc], t_fisher[acc]
-        lam[acc] = np.maximum(lam[acc] / 4.0, 1e-9)
-        lam[idx[~accept]] *= 8.0
-        small = np.abs(gain) <= tol * (1.0 + np.abs(ll[idx]))
-        if trace is not None:
-            trace.step(idx, gain / (1.0 + np.abs(ll[idx])), accept, lam, theta)
-        done = (accept & (small | (moved < 1e-10))) | (lam[idx] > 1e12)
-        converged[idx[done]] = True
-        active[idx[done]] = False
-    return theta, ll, converged, n_iter
-
-
-class _Trace:
-    """What :class:`FitStops` records, told each iteration's steps by
-    :func:`_levenberg_marquardt`."""
-
-    def __init__(self, theta: np.ndarray, max_iter: int):
-        n = theta.shape[0]
-        self.max_iter, self.k = max_iter, 0
-        self.gain, self.accepted = np.zeros(n), np.ones(n, dtype=bool)
-        self.rejected_late, self.rejected = np.zeros(n, dtype=int), np.zeros(n, dtype=int)
-        self.lam, self.half = np.zeros(n), theta.copy()
-
-    def step(self, idx, gain, accept, lam, theta) -> None:
-        """Iteration ``k``'s steps of the groups ``idx`` (their relative gains, whether
-        accepted), the damping after it and the parameters."""
-        self.k += 1
-        self.gain[idx], self.accepted[idx] = gain, accept
-        self.rejected[idx[~accept]] += 1
-        if self.k > self.max_iter - STOPS_WINDOW:
-            self.rejected_late[idx[~accept]] += 1
-        self.lam[idx] = lam[idx]
-        if self.k == self.max_iter // 2:
-            self.half = theta.copy()
-
-    def stops(self, theta, box_lo, box_hi) -> tuple[np.ndarray, ...]:
-        """:class:`FitStops`' fields at the end, given the final parameters and the box."""
-        at_lower, at_upper = theta <= box_lo + 1e-9, theta >= box_hi - 1e-9
-        own = (self.gain, self.accepted, self.rejected_late, self.rejected, self.lam)
-        return (*own, at_lower, at_upper, theta - self.half)
-
-
-def c_interval(
-    fit: FourPLFit,
-    x: npt.ArrayLike,
-    y: npt.ArrayLike,
-    groups: npt.ArrayLike,
-    *,
-    weights: npt.ArrayLike | None = None,
-    sd: npt.ArrayLike | None = None,
-    reach: float = 12.0,
-    drop: float = LR_DROP,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Likelihood-ratio interval of each group's inflection point ``c``, the other parameters
-    held at their fit: the ``c`` whose log-likelihood is within ``drop`` of the fit's.
-
-    A fit says where its data put the transition only as far as the data reach: samples on
-    one side of a gap in ``x`` (a building seen at a few heights by a few satellites) are fitted
-    as well by any ``c`` in the gap, and a separable fit (``b`` on its bound) chooses one at
-    random. The interval spans that gap. ``c`` is tried on a grid of offsets out to ``reach``
-    (finer near the fit); an end that is still within ``drop`` at ``reach`` is returned there,
-    so an interval as wide as the grid means "at least that wide". ``weights`` say how much
-    each sample counts as evidence (4PL-B counts each look once: samples that repeat one
-    another are not independent, and counted one by one they make the interval too narrow).
-
-    Returns
-    -------
-    (numpy.ndarray, numpy.ndarray)
-        Lower and upper ends per group (NaN for a group without a fit).
-    """
-    x, y, w, g, v, n_groups = _samples(x, y, weights, groups, fit.c.size, sd)
-    theta = np.nan_to_num(_to_theta(fit.params))
-    steps = _offsets(reach)
-
-    def interval(rows: slice, own: slice) -> tuple[np.ndarray, ...]:
-        samples = (x[rows], y[rows], w[rows], g[rows] - own.start, v[rows])
-        return _c_ends(theta[own], fit.c[own], samples, steps, drop)
-
-    lower, upper = by_groups(g, n_groups, interval)
-    return lower, upper
-
-
-def _c_ends(theta, c, samples: _Samples, steps, drop) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`c_interval`'s ends of the groups of sorted ``samples`` (x, y, w, g, v), their
-    parameters ``theta`` and inflection points ``c``, trying the offsets ``steps``."""
-    n_groups = c.size
-    everyone = np.ones(n_groups, dtype=bool)
-    best = evaluate(theta, *samples, n_groups, everyone, ll_only=True)[0]
-    lower, upper = c.copy(), c.copy()
-    for sign, end in ((-1.0, lower), (1.0, upper)):
-        for step in steps:
-            shifted = theta.copy()
-            shifted[:, 2] += sign * step
-            ll = evaluate(shifted, *samples, n_groups, everyone, ll_only=True)[0]
-            inside = ll >= best - drop
-            end[inside] = c[inside] + sign * step
-    return lower, upper
-
-
-def _offsets(reach: float) -> np.ndarray:
-    """The offsets of ``c`` that :func:`c_interval` tries, out to ``reach``: 0.1 m steps to
-    1 m, 0.25 m to 3 m, 0.5 m to 12 m (beyond a converged range's 10 m), then 5 % longer each,
-    so that a long reach costs a few dozen passes over the data, not thousands."""
-    fine = np.r_[np.arange(0.1, 1.0, 0.1), np.arange(1.0, 3.0, 0.25), np.arange(3.0, 12.01, 0.5)]
-    n_far = int(np.ceil(np.log(max(reach, 12.0) / 12.0) / np.log(1.05)))
-    steps = np.r_[fine, 12.0 * 1.05 ** np.arange(1, n_far + 1)]
-    return np.r_[steps[steps < reach], reach]
+        n_groups = theta.shape[0]
+        ll, grad, fisher = evaluate(theta, *data.arrays, n_groups, active)
+        lam = np.full(n_groups, 1e-3)
+        converged = np.zeros(n_groups, dtype=bool)
+        n_iter = np.zeros(n_groups, dtype=int)
+        for _ in range(max_iter):
+            if not active.any():
+                break
+            idx = np.flatnonzero(active)
+            n_iter[idx] += 1
+            # Parameters on a bound whose gradient pushes outwards stay there (projected Newton).
+            frozen = (
+                self.fixed[idx]
+                | ((theta[idx] <= box_lo[idx] + 1e-12) & (grad[idx] < 0))
+                | ((theta[idx] >= box_hi[idx] - 1e-12) & (grad[idx] > 0))
+            )
+            step = _damped_step(grad[idx], fisher[idx], lam[idx], frozen)
+            trial = theta.copy()
+            trial[idx] = np.clip(theta[idx] + step, box_lo[idx], box_hi[idx])
+            t_ll, t_grad, t_fisher = evaluate(trial, *data.shrink(active), n_groups, active)
+            gain = t_ll[idx] - ll[idx]
+            accept = gain >= -1e-12 * (1.0 + np.abs(ll[idx]))
+            acc = idx[accept]
+            moved = np.abs(trial[idx] - theta[idx])
+            theta[acc], ll[acc] = trial[acc], t_ll[acc]
+            grad[acc], fisher[acc] = t_grad[acc], t_fisher[acc]
+            lam[acc] = np.maximum(lam[acc] / 4.0, 1e-9)
+            lam[idx[~accept]] *= 8.0
+            small = (np.abs(gain) <= tol * (1.0 + np.abs(ll[idx]))) & (moved[:, 2] <= X_TOL)
+            if trace is not None:
+                trace.step(idx, gain / (1.0 + np.abs(ll[idx])), accept, lam, theta)
+            done = (accept & (small | (moved.max(axis=1) < 1e-10))) | (lam[idx] > 1e12)
+            converged[idx[done]] = True
+            active[idx[done]] = False
+        return theta, ll, converged, n_iter
 
 
 #: The samples' x, y, w, g and v of :func:`~.likelihood.evaluate`.

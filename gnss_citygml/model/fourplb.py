@@ -4,10 +4,12 @@ For every building, a 4PL in intersection height (the *map classifier*) is fitte
 labelled by a C/N0 *signal classifier*; the signals are then relabelled by the map (open where
 the intersection height is above the fitted inflection point ``c``), the signal classifier is
 refitted to those labels, and the loop repeats until fewer than 1 % of the map labels change or
-10 iterations have run. The paper's height estimate is ``c + 1.5/b`` with range
-``(c, c + 3/b)``; by default the height is ``c`` itself (``Estimator.height_rule``), with the
-transition's range ``(c - 1.5/b, c + 1.5/b)`` around it: where a roof edge is blurred alike
-above and below (by position errors, by diffraction), ``c`` is on it.
+10 iterations have run (the paper's rule; beyond it, the loop runs until every building's roof
+line has settled, :mod:`.settling`, up to 30 iterations by default). The paper's height
+estimate is ``c + 1.5/b`` with range ``(c, c + 3/b)``; by default the height is ``c`` itself
+(``Estimator.height_rule``), with the transition's range ``(c - 1.5/b, c + 1.5/b)`` around it:
+where a roof edge is blurred alike above and below (by position errors, by diffraction), ``c``
+is on it.
 
 Beyond the paper, the range is stretched over every roof line the data fit about as well as
 ``c`` (:func:`~.fourpl.c_interval`, a 95 % likelihood-ratio interval): a building seen only
@@ -266,6 +268,9 @@ POSITIONS_UNCERTAIN = "the receivers' positions are too uncertain"
 #: or fewer than ``min_signals`` rays cross the building within a quarter of the widest range
 #: of the roof line (a static phone sees a building at a few heights only).
 NO_RAYS = "no rays near the roof line"
+#: or the roof line lies in a gap of the rays' heights wider than its transition, anywhere in
+#: which the data fit it alike (:data:`~.fourpl.GAP_AFTER`).
+IN_GAP = "the roof line is anywhere in a gap between the rays"
 
 
 def _far_from(h, g, c, reach, n_groups, min_signals):
@@ -299,6 +304,7 @@ def _judge(
     seen,
     n_groups,
     change,
+    settled,
     iterations,
     accept,
     *,
@@ -308,7 +314,8 @@ def _judge(
     paper_rule=False,
 ):
     """Turn a fit on the ``seen`` rows into heights, with an explicit reason wherever it is
-    not to be trusted (``strict``: also where 4PL-B's loop or the fit itself is implausible).
+    not to be trusted (``strict``: also where 4PL-B's loop or the fit itself is implausible:
+    labels that changed by ``change`` of them, a roof line that has not ``settled``).
     The height is ``c`` (``c + 1.5/b`` by the ``paper_rule``), its range the 3/b-wide
     transition centred on it, widened at each end by that side of the interval of ``c`` and
     the ``margin`` in quadrature."""
@@ -328,6 +335,7 @@ def _judge(
     status = np.full(n_groups, "ok", dtype=object)
     wide_text = f"height range wider than {max_uncertainty:g} m"
     plausibility = [
+        (~settled, f"roof line still moving after {iterations} iterations"),
         (change >= accept.label_tol, f"labels still changing after {iterations} iterations"),
         (b <= B_BOUNDS[0] * 1.0001, "no slope: the height does not change the open probability"),
         ((c < lo) | (c > hi), "inflection point outside the observed intersection heights"),
@@ -340,6 +348,7 @@ def _judge(
             wide & _far_from(h, g, c, max_uncertainty / 4, n_groups, min_signals),
             f"{wide_text}: {NO_RAYS}",
         ),
+        (wide & ~np.isnan(fit.gap_lower), f"{wide_text}: {IN_GAP}"),
         (hidden, "roof line hidden: most signals below it are blocked by other buildings"),
         (
             np.minimum(n_below, n_rows - n_below) < min_signals,

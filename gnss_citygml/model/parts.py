@@ -21,7 +21,7 @@ import pandas as pd
 from ..errors import ModelError
 from ..settings import Estimator
 from .classifier import Cn0Counts, SignalClassifier
-from .fourpl import FourPLFit, c_interval, fit_4pl, group_range
+from .fourpl import FourPLFit, fit_4pl, group_range
 from .fourplb import (
     BuildingFits,
     SignalModel,
@@ -32,8 +32,10 @@ from .fourplb import (
     look_ids,
     position_margin,
 )
+from .interval import c_interval
 from .mixture import Cn0Mixture, Cn0Moments, clear_chance, clears_all, elevation_units
 from .offsets import SkyCounts
+from .settling import Settling
 
 __all__ = ["LastFit", "Part", "Shared", "Tally"]
 
@@ -61,22 +63,25 @@ class Tally:
     (``evidence``: those that plausible fits used, or, where the part has no plausible fit, the
     ``fallback``'s; counted by C/N0 and map label for the paper's classifier, summed by class
     for the mixture; None: nothing, e.g. a failed tile's), whether it has a plausible fit, and
-    its buildings' largest share of changed labels. Parts add up, exactly."""
+    its buildings' largest share of changed labels and how many of its buildings' roof lines
+    have not settled (:class:`~.settling.Settling`). Parts add up, exactly."""
 
     evidence: Cn0Counts | Cn0Moments | None
     plausible: bool
     change: float
+    moving: int = 0
 
     def __add__(self, other: Tally) -> Tally:
         """Both parts' tallies: where any building is plausible only plausible fits teach (the
         others' counts are their fallbacks'), else every fallback does."""
         change = max(self.change, other.change)
+        moving = self.moving + other.moving
         if self.plausible != other.plausible:
-            return replace(self if self.plausible else other, change=change)
+            return replace(self if self.plausible else other, change=change, moving=moving)
         if self.evidence is None or other.evidence is None:
-            return replace(other if self.evidence is None else self, change=change)
+            return replace(other if self.evidence is None else self, change=change, moving=moving)
         evidence = self.evidence + other.evidence  # type: ignore[operator]
-        return Tally(evidence, self.plausible, change)
+        return Tally(evidence, self.plausible, change, moving)
 
     def refit(self, model: SignalModel) -> SignalModel:
         """The signal model refitted to the run's evidence."""
@@ -227,6 +232,8 @@ class Part:
                 h, g, n_own, self.estimator.weighting, c=c_now, mask=seen, looks=looks
             )
             use = weights > 0  # rows left out weigh nothing: do not carry them through the fit
+        settling = Settling.start(n_own) if last is None else last.settling
+        use = use & ~settling.held[g]  # a held building keeps its fit
         fit = fit_4pl(
             h[use],
             labels[own][use],
@@ -237,13 +244,16 @@ class Part:
             sd=None if self.sd is None else self.sd[own][use],
             max_iter=self.estimator.fit_max_iter,
         )
+        if last is not None:
+            fit = settling.keep_held(last.fit, fit)
+        settling = settling.after(fit.c)
         change = np.ones(n_own)
         if last is not None:  # the seen rows' map labels (above c) by this fit and the last
             h_seen, g_seen = h[seen], g[seen]
             flips = (h_seen > fit.c[g_seen]) != (h_seen > last.fit.c[g_seen])
             n_flips = np.bincount(g_seen[flips], minlength=n_own)
             change = n_flips / np.maximum(np.bincount(g_seen, minlength=n_own), 1)
-        return replace(self, last=LastFit(fit, self.seen, labels, change, model))
+        return replace(self, last=LastFit(fit, self.seen, labels, change, model, settling))
 
     def shared(self) -> Shared:
         """What the other parts need of the own buildings' fits (after :meth:`fitted`)."""
@@ -302,8 +312,9 @@ class Part:
         if self.occlusion:
             seen = _unoccluded(self.h, self.g, self.sig, c, b, plausible, self.order)
         change = float(np.max(last.change, initial=0.0))
+        moving = last.settling.moving(np.isfinite(last.fit.c))
         part = replace(self, seen=seen, prior=prior)
-        return part, Tally(evidence, own_plausible, change)
+        return part, Tally(evidence, own_plausible, change, moving)
 
     def crossing(self) -> Cn0Moments:
         """The signals the part counts (those whose first building along the ray is one of
@@ -348,7 +359,7 @@ class Part:
             evidence = fit_seen.astype(float)
             if looks is not None:
                 evidence = height_weights(h, g, n_own, "looks", mask=fit_seen, looks=looks)
-            c_range = c_interval(
+            c_lo, c_hi = c_interval(
                 fit,
                 h[fit_seen],
                 labels[fit_seen],
@@ -356,6 +367,12 @@ class Part:
                 weights=evidence[fit_seen],
                 sd=None if sd is None else sd[fit_seen],
                 reach=accept.max_uncertainty,
+            )
+            # the range also holds the gap a c was fixed in, and a held building's cycle
+            held = last.settling
+            c_range = (
+                np.fmin(c_lo, np.fmin(fit.gap_lower, held.span_lower)),
+                np.fmax(c_hi, np.fmax(fit.gap_upper, held.span_upper)),
             )
         margin = np.zeros(n_own)
         if sd is not None:
@@ -369,6 +386,7 @@ class Part:
             fit_seen,
             n_own,
             last.change,
+            last.settling.settled,
             iterations,
             accept,
             strict=bootstrap,
@@ -390,7 +408,8 @@ class LastFit:
     used (``seen``, all the part's rows) and the labels of the rows they used then (by the
     paper's classifier, closed elsewhere), the share of each own building's map labels (above
     ``c``) that changed from the fit before on the rows it used (``change``; 1 at the first),
-    and the signal ``model`` that labelled them."""
+    the signal ``model`` that labelled them, and where each building's roof line stands
+    (``settling``)."""
 
     fit: FourPLFit
     seen: np.ndarray
@@ -398,6 +417,8 @@ class LastFit:
     change: np.ndarray
     #: The signal model that labelled the rows.
     model: SignalModel
+    #: Which buildings' roof lines have settled, and those held in a cycle.
+    settling: Settling
 
 
 def _ranks(values: np.ndarray) -> np.ndarray:

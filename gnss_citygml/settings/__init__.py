@@ -279,7 +279,7 @@ class Estimator:
     init_threshold: float = 30.0
     weighting: str = "none"
     visibility: bool = True
-    max_iter: int = 10
+    max_iter: int = 30
     fit_max_iter: int = 200
     height_rule: str = "inflection"
     signal_model: str = "paper"
@@ -317,7 +317,7 @@ class Estimator:
                 fix="give --init-threshold in dB-Hz, e.g. 30",
             )
         for name, bounds, example in (
-            ("max_iter", ITERATIONS, 10),
+            ("max_iter", ITERATIONS, 30),
             ("fit_max_iter", FIT_ITERATIONS, 200),
         ):
             if not count_within(getattr(self, name), bounds):

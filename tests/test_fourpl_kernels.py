@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from conftest import draw_4pl
 
-from gnss_citygml.model import fourpl, fourpl_kernels, likelihood
+from gnss_citygml.model import fourpl, fourpl_kernels, interval, likelihood
 
 
 @pytest.fixture
@@ -85,7 +85,7 @@ def test_a_fit_and_its_interval_do_not_depend_on_numba(rng, monkeypatch):
 
     def fit():
         result = fourpl.fit_4pl(x, y, groups=g, sd=sd)
-        return result, fourpl.c_interval(result, x, y, g, sd=sd)
+        return result, interval.c_interval(result, x, y, g, sd=sd)
 
     compiled, c_range = fit()
     monkeypatch.setattr(fourpl_kernels, "COMPILED", False)

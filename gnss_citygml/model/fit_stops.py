@@ -49,7 +49,14 @@ class Trace:
         self.rejected_late, self.rejected = np.zeros(n, dtype=int), np.zeros(n, dtype=int)
         self.lam, self.half = np.zeros(n), theta.copy()
 
-    def step(self, idx, gain, accept, lam, theta) -> None:
+    def step(
+        self,
+        idx: np.ndarray,
+        gain: np.ndarray,
+        accept: np.ndarray,
+        lam: np.ndarray,
+        theta: np.ndarray,
+    ) -> None:
         """Iteration ``k``'s steps of the groups ``idx`` (their relative gains, whether
         accepted), the damping after it and the parameters."""
         self.k += 1
@@ -61,7 +68,9 @@ class Trace:
         if self.k == self.max_iter // 2:
             self.half = theta.copy()
 
-    def stops(self, theta, box_lo, box_hi) -> tuple[np.ndarray, ...]:
+    def stops(
+        self, theta: np.ndarray, box_lo: np.ndarray, box_hi: np.ndarray
+    ) -> tuple[np.ndarray, ...]:
         """:class:`FitStops`' fields at the end, given the final parameters and the box."""
         at_lower, at_upper = theta <= box_lo + 1e-9, theta >= box_hi - 1e-9
         own = (self.gain, self.accepted, self.rejected_late, self.rejected, self.lam)

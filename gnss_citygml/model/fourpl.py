@@ -28,7 +28,7 @@ transition itself and the samples with precise ``x`` pin ``c`` and ``b`` more th
 from __future__ import annotations
 
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, fields, replace
 from typing import cast
 
 import numpy as np
@@ -154,6 +154,16 @@ class FourPLFit:
     def params(self) -> np.ndarray:
         """The parameters as an ``(n_groups, 4)`` array of ``(a, b, c, d)``."""
         return np.column_stack([self.a, self.b, self.c, self.d])
+
+    def where(self, mask: np.ndarray, other: FourPLFit) -> FourPLFit:
+        """This fit with the groups of ``mask`` taken from ``other`` (how they stopped
+        left as this fit's)."""
+        kept = {
+            f.name: np.where(mask, getattr(other, f.name), getattr(self, f.name))
+            for f in fields(self)
+            if f.name != "stops"
+        }
+        return replace(self, **kept)
 
 
 def fit_4pl(

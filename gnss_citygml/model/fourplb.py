@@ -296,6 +296,21 @@ def _height_range(b, c, offset, c_lo, c_hi, margin) -> tuple[np.ndarray, np.ndar
     return lower, upper
 
 
+def _why_wide(wide, fit, h, g, c_range, margin, accept) -> list[tuple[np.ndarray, str]]:
+    """The checks of a range wider than ``accept.max_uncertainty``, the more telling reason
+    last: the receivers' positions, no rays near the roof line, a roof line in a gap."""
+    c, (c_lo, c_hi) = fit.c, c_range
+    max_uncertainty, n_groups = accept.max_uncertainty, c.size
+    text = f"height range wider than {max_uncertainty:g} m"
+    far = _far_from(h, g, c, max_uncertainty / 4, n_groups, accept.min_signals)
+    return [
+        (wide, text),
+        (wide & (margin > np.maximum(c - c_lo, c_hi - c)), f"{text}: {POSITIONS_UNCERTAIN}"),
+        (wide & far, f"{text}: {NO_RAYS}"),
+        (wide & ~np.isnan(fit.gap_lower), f"{text}: {IN_GAP}"),
+    ]
+
+
 def _judge(
     fit,
     g,
@@ -333,7 +348,6 @@ def _judge(
     lower, upper = _height_range(b, c, offset, c_lo, c_hi, margin)
     wide = upper - lower > max_uncertainty
     status = np.full(n_groups, "ok", dtype=object)
-    wide_text = f"height range wider than {max_uncertainty:g} m"
     plausibility = [
         (~settled, f"roof line still moving after {iterations} iterations"),
         (change >= accept.label_tol, f"labels still changing after {iterations} iterations"),
@@ -342,13 +356,7 @@ def _judge(
         (a - d < accept.min_separation, f"asymptotes closer than {accept.min_separation} (a - d)"),
         # Relabelling by h > c presumes the map classifies below c as closed and above as open.
         ((d >= 0.5) | (a <= 0.5), "the roof line does not separate open from closed signals"),
-        (wide, wide_text),
-        (wide & (margin > np.maximum(c - c_lo, c_hi - c)), f"{wide_text}: {POSITIONS_UNCERTAIN}"),
-        (
-            wide & _far_from(h, g, c, max_uncertainty / 4, n_groups, min_signals),
-            f"{wide_text}: {NO_RAYS}",
-        ),
-        (wide & ~np.isnan(fit.gap_lower), f"{wide_text}: {IN_GAP}"),
+        *_why_wide(wide, fit, h, g, (c_lo, c_hi), margin, accept),
         (hidden, "roof line hidden: most signals below it are blocked by other buildings"),
         (
             np.minimum(n_below, n_rows - n_below) < min_signals,

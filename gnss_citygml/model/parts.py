@@ -233,7 +233,10 @@ class Part:
             )
             use = weights > 0  # rows left out weigh nothing: do not carry them through the fit
         settling = Settling.start(n_own) if last is None else last.settling
-        use = use & ~settling.held[g]  # a held building keeps its fit
+        refit = ~settling.held  # a held building keeps its fit
+        if last is not None and self.estimator.weighting in _FIXED_WEIGHTS:
+            refit &= _changed(g, n_own, labels[own], last.labels[own], seen, last.seen[own])
+        use = use & refit[g]
         fit = fit_4pl(
             h[use],
             labels[own][use],
@@ -245,7 +248,7 @@ class Part:
             max_iter=self.estimator.fit_max_iter,
         )
         if last is not None:
-            fit = settling.keep_held(last.fit, fit)
+            fit = fit.where(~refit, last.fit)
         settling = settling.after(fit.c)
         change = np.ones(n_own)
         if last is not None:  # the seen rows' map labels (above c) by this fit and the last
@@ -419,6 +422,20 @@ class LastFit:
     model: SignalModel
     #: Which buildings' roof lines have settled, and those held in a cycle.
     settling: Settling
+
+
+#: Weightings whose weights do not change with the fits: a building whose rows and labels are
+#: those of its last fit has that fit again.
+_FIXED_WEIGHTS = ("none", "looks")
+
+
+def _changed(g, n_own, labels, last_labels, seen, last_seen) -> np.ndarray:
+    """The own buildings (``g``: each own row's) with a row whose label or whose use by the
+    fit (``seen``) changed since the last fit: the others' fits would be their last ones, to
+    the bit where the data pin them, and are not done again (the paper's labels settle
+    building by building, and most of a late iteration's fits would repeat)."""
+    differ = (labels != last_labels) | (seen != last_seen)
+    return np.bincount(g[differ], minlength=n_own) > 0
 
 
 def _ranks(values: np.ndarray) -> np.ndarray:

@@ -14,18 +14,17 @@ iteration before, and 4PL-B's loop ends when every building has settled. A build
 iterations before, having moved since, is in a cycle; one whose ``c`` turned back
 :data:`REVERSALS` times in the last :data:`MAX_PERIOD` moves is swinging. Either is *held* at
 its current fit from then on (no longer refitted, so it stops moving the signal model and the
-buildings behind it), and the roof lines of its cycle or its swing
-(:attr:`Settling.span_lower`, :attr:`Settling.span_upper`) stay in its range: the data say
-no more of it than that.
+buildings behind it), and the roof lines of its cycle, or of its swing's last turn (not the
+whole window's: one early excursion, before the loop found its feet, is not where the roof
+line swings now), stay in its range (:attr:`Settling.span_lower`,
+:attr:`Settling.span_upper`): the data say no more of it than that.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
-
-from .fourpl import FourPLFit
 
 __all__ = ["MAX_PERIOD", "REVERSALS", "SETTLE_TOL", "Settling"]
 
@@ -41,12 +40,6 @@ MAX_PERIOD = 6
 #: that swap between roof lines without repeating exactly (a sparse building's, or one its
 #: neighbours keep relabelling), and more iterations only draw more of the same swing.
 REVERSALS = 3
-#: The largest ratio of successive moves :meth:`Settling.extrapolated` leaps with: at most
-#: nine times the last move.
-MAX_RATIO = 0.9
-#: How alike the ratios of successive moves must be for :meth:`Settling.extrapolated` to take
-#: the moves as geometric.
-RATIO_AGREE = 0.1
 
 
 @dataclass(frozen=True)
@@ -59,33 +52,18 @@ class Settling:
     #: Whether the last fit's ``c`` is within :data:`SETTLE_TOL` of the one before (held
     #: buildings have settled).
     settled: np.ndarray
-    #: Buildings held at their fit since their roof line came back to an earlier one.
+    #: Buildings held at their fit since their roof line came back to an earlier one or swung.
     held: np.ndarray
-    #: The lowest and highest roof line of a held building's cycle (NaN for the others).
+    #: The lowest and highest roof line of a held building's cycle or swing (NaN for others).
     span_lower: np.ndarray
     span_upper: np.ndarray
-    #: Buildings whose last ``c`` was extrapolated (:meth:`extrapolated`).
-    leapt: np.ndarray
 
     @classmethod
     def start(cls, n_own: int) -> Settling:
         """Before the first fit: nothing has settled."""
         nan = np.full(n_own, np.nan)
         no = np.zeros(n_own, dtype=bool)
-        return cls(np.full((n_own, MAX_PERIOD), np.nan), no, no, nan, nan.copy(), no)
-
-    def keep_held(self, last: FourPLFit, fit: FourPLFit) -> FourPLFit:
-        """``fit`` with the held buildings' parameters those of their ``last`` fit."""
-        if not self.held.any():
-            return fit
-        held = self.held
-        kept = {
-            k: np.where(held, getattr(last, k), getattr(fit, k))
-            for k in ("a", "b", "c", "d", "loglik", "converged", "n_iter", "separable")
-        }
-        kept["gap_lower"] = np.where(held, last.gap_lower, fit.gap_lower)
-        kept["gap_upper"] = np.where(held, last.gap_upper, fit.gap_upper)
-        return replace(fit, **kept)
+        return cls(np.full((n_own, MAX_PERIOD), np.nan), no, no, nan, nan.copy())
 
     def after(self, c: np.ndarray) -> Settling:
         """The buildings' state after a fit whose roof lines are ``c``."""
@@ -104,37 +82,11 @@ class Settling:
         way = np.where(np.abs(step) > SETTLE_TOL, np.sign(step), 0.0)
         turns = np.count_nonzero(way[:, 1:] * way[:, :-1] < 0, axis=1)
         swings = ~held & ~still & (turns >= REVERSALS)
-        span_lower[swings] = np.nanmin(window[swings], axis=1)
-        span_upper[swings] = np.nanmax(window[swings], axis=1)
+        last_turn = window[swings, -3:]  # the swing's roof lines now: its last turn's
+        span_lower[swings], span_upper[swings] = last_turn.min(axis=1), last_turn.max(axis=1)
         held |= swings
         recent = np.column_stack([recent[:, 1:], c])
-        return Settling(recent, still | held, held, span_lower, span_upper, self.leapt)
-
-    def extrapolated(self, c: np.ndarray) -> tuple[np.ndarray, Settling]:
-        """Roof lines ``c`` that approach their limit geometrically moved to it (Aitken's
-        delta-squared), and the state that remembers which were (they are not extrapolated
-        again at the next step, which checks where the leap landed).
-
-        The mixture's expectation-maximisation moves a roof line by a constant fraction ``r``
-        of its last move, iteration after iteration (``r`` about 0.75 where the classes'
-        C/N0 overlap: the missing information), so it takes dozens of iterations to settle to
-        a millimetre. Where the last three moves went the same way, each shrinking by about the
-        same ratio (within :data:`RATIO_AGREE`), ``r`` is the last ratio and the limit is
-        ``r / (1 - r)`` of the last move further (``r`` taken at most :data:`MAX_RATIO`)."""
-        window = np.column_stack([self.recent[:, -3:], c])
-        moves = np.diff(window, axis=1)  # the last three moves, the newest last
-        with np.errstate(divide="ignore", invalid="ignore"):
-            ratios = moves[:, 1:] / moves[:, :-1]
-        ratio = ratios[:, -1]
-        move = moves[:, -1]
-        geometric = np.all((ratios > 0.0) & (ratios < 1.0), axis=1) & (
-            np.abs(ratios[:, 1] - ratios[:, 0]) <= RATIO_AGREE
-        )
-        leap = ~self.held & ~self.leapt & (np.abs(move) > SETTLE_TOL) & geometric
-        r = np.minimum(ratio[leap], MAX_RATIO)
-        out = c.copy()
-        out[leap] = c[leap] + move[leap] * r / (1.0 - r)
-        return out, replace(self, leapt=leap)
+        return Settling(recent, still | held, held, span_lower, span_upper)
 
     def moving(self, fitted: np.ndarray) -> int:
         """How many of the ``fitted`` buildings (those with a fit) have not settled."""

@@ -63,12 +63,12 @@ LR_DROP = 1.92
 #: is reported has stopped, not only the likelihood, which is nearly flat along a ``c`` that the
 #: data leave free.
 X_TOL = 1e-3
-#: Iterations after which a fit whose ``c`` lies in a gap of its samples wider than its
-#: transition (3/b) has ``c`` fixed at the gap's middle and ``b`` at its upper bound: there the
+#: Iterations between the checks of whether a fit's ``c`` lies in a gap of its samples wider
+#: than its transition (3/b): one that has converged there, or that is still there at the next
+#: check, has ``c`` fixed at the gap's middle and ``b`` at its upper bound. There the
 #: likelihood depends on ``c`` only through the curve's tails, and ``c`` creeps for hundreds of
-#: iterations to wherever an iteration cap stops it (and ``b`` up, sharpening the step). A
-#: fit settles in a dozen iterations where the data pin ``c``.
-GAP_AFTER = 25
+#: iterations to wherever an iteration cap stops it (and ``b`` up, sharpening the step).
+GAP_AFTER = 5
 
 
 #: A 4PL parameter: one value, or one per sample.
@@ -242,7 +242,7 @@ def _fit(x, y, w, g, v, n_groups, init, b_bounds, max_iter, tol, stops) -> tuple
     counts = np.bincount(g, weights=(w > 0).astype(float), minlength=n_groups)
     lo, hi = group_range(x, g, n_groups)
     span = np.maximum(hi - lo, 1e-6)
-    theta0 = _start(x, y, w, g, v, n_groups, lo, hi, init)
+    theta0 = _start(x, y, w, g, v, n_groups, lo, hi, init, b_bounds[1])
     box_lo, box_hi = _box(lo, hi, span, b_bounds, n_groups)
     theta = np.clip(np.nan_to_num(theta0), box_lo, box_hi)
     trace = Trace(theta, max_iter) if stops else None
@@ -250,22 +250,24 @@ def _fit(x, y, w, g, v, n_groups, init, b_bounds, max_iter, tol, stops) -> tuple
     fitted = counts > 0
     ll, converged, n_iter = np.zeros(n_groups), np.zeros(n_groups, bool), np.zeros(n_groups, int)
     gap_lo, gap_hi = np.full(n_groups, np.nan), np.full(n_groups, np.nan)
+    last_gap = (gap_lo.copy(), gap_hi.copy())
     active, left = fitted.copy(), max_iter
+    fit = _LevenbergMarquardt(theta, _ActiveRows(*data, active), active.copy(), box_lo, box_hi)
     while active.any() and left > 0:
         # runs of GAP_AFTER iterations, after each of which a c that lies in a wide gap is
-        # fixed at its middle: first any group's (also a converged one: a defined point of the
-        # gap, not where a step happened to stop), then the still moving ones'
-        fit = _LevenbergMarquardt(theta, _ActiveRows(*data, active), active.copy(), box_lo, box_hi)
+        # fixed at its middle: a converged one's (a defined point of the gap, not where a step
+        # happened to stop), and a moving one's that was in the same gap the run before
+        fit.data, fit.active = _ActiveRows(*data, active), active.copy()
         fit.fixed[:, 1] = fit.fixed[:, 2] = ~np.isnan(gap_lo)
         _, t_ll, t_converged, t_iter = fit.run(min(left, GAP_AFTER), tol, trace)
         ll[active], converged[active] = t_ll[active], t_converged[active]
         n_iter += t_iter
         left -= GAP_AFTER
         if left > 0:
-            check = fitted if left == max_iter - GAP_AFTER else active & ~converged
-            in_gap = _fit_in_gaps(theta, data, check & np.isnan(gap_lo), box_lo, box_hi)
-            gap_lo[in_gap[0]], gap_hi[in_gap[0]] = in_gap[1][in_gap[0]], in_gap[2][in_gap[0]]
-            active = fitted & (~converged | in_gap[0])
+            free = fitted & np.isnan(gap_lo)
+            fixed, last_gap = _fit_in_gaps(theta, data, free, converged, last_gap, box_lo, box_hi)
+            gap_lo[fixed], gap_hi[fixed] = last_gap[0][fixed], last_gap[1][fixed]
+            active = fitted & (~converged | fixed)
     a, b, c, d = _from_theta(theta).T
     empty = counts == 0
     for v in (a, b, c, d, ll):
@@ -275,22 +277,39 @@ def _fit(x, y, w, g, v, n_groups, init, b_bounds, max_iter, tol, stops) -> tuple
     return fields if trace is None else fields + trace.stops(theta, box_lo, box_hi)
 
 
-def _fit_in_gaps(theta, data, groups, box_lo, box_hi):
+def _fit_in_gaps(theta, data, groups, converged, last_gap, box_lo, box_hi):
     """Which of ``groups`` (a mask) have their ``c`` in a gap of their samples wider than
-    their transition (3/b), and the gaps' ends; their ``c`` moved to the gap's middle (in place
-    on ``theta``; to the box's end where the gap reaches beyond the samples) and their ``b``
-    to its upper bound: the samples see a step across the gap, sharper than anything they
-    can tell (``b`` would creep up for hundreds of iterations, each making the step a little
-    sharper), and the range holds the whole gap instead."""
-    x, _, w, g, _ = data
-    gap_lo, gap_hi = gap_around(x, w, g, theta[:, 2], groups)
-    in_gap = groups & (gap_hi - gap_lo > 3.0 / np.exp(theta[:, 1]))
+    their transition (3/b), ``converged`` there or in the same gap as ``last_gap`` (the gaps'
+    ends the check before): those have their ``c`` moved to the gap's middle (in place on
+    ``theta``; to the box's end where the gap reaches beyond the samples) and their ``b`` to
+    its upper bound: the samples see a step across the gap, sharper than anything they can
+    tell (``b`` would creep up for hundreds of iterations, each making the step a little
+    sharper), and the range holds the whole gap instead. Also returns each group's gap now."""
+    gap_lo, gap_hi = gap_around(data[0], data[2], data[3], theta[:, 2], groups)
+    wide = groups & (gap_hi - gap_lo > 3.0 / np.exp(theta[:, 1]))
+    stays = (gap_lo == last_gap[0]) & (gap_hi == last_gap[1])
+    in_gap = wide & (converged | stays)
     middle = np.where(np.isinf(gap_lo), box_lo[:, 2], box_hi[:, 2])
     finite = in_gap & np.isfinite(gap_lo) & np.isfinite(gap_hi)
     middle[finite] = 0.5 * (gap_lo[finite] + gap_hi[finite])
     theta[in_gap, 2] = middle[in_gap]
     theta[in_gap, 1] = box_hi[in_gap, 1]
-    return in_gap, gap_lo, gap_hi
+    # a step across the gap: the open fractions above and below it are a and d (exact for
+    # samples without errors in x; the fit goes on from there)
+    x, y, w, g, _ = data
+    rows = in_gap[g]
+    xr, yr, wr, gr = x[rows], y[rows], w[rows], g[rows]
+    above = xr >= gap_hi[gr]
+    n = theta.shape[0]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        a, d = (
+            np.bincount(gr[side], wr[side] * yr[side], n) / np.bincount(gr[side], wr[side], n)
+            for side in (above, ~above)
+        )
+    step = _to_theta(np.nan_to_num(np.column_stack([a, np.ones(n), middle, d]), nan=0.5))
+    for k in (0, 3):
+        theta[in_gap, k] = np.clip(step[in_gap, k], box_lo[in_gap, k], box_hi[in_gap, k])
+    return in_gap, (gap_lo, gap_hi)
 
 
 def gap_around(
@@ -326,12 +345,15 @@ def _samples(x, y, weights, groups, n_groups, sd):
     return x, y, w, g, v, n_groups
 
 
-def _start(x, y, w, g, v, n_groups, lo, hi, init) -> np.ndarray:
+def _start(x, y, w, g, v, n_groups, lo, hi, init, b_max) -> np.ndarray:
     """Each group's starting parameters: the likeliest of the best increasing step at three
-    slopes (b, 4b, b/4) and ``init``."""
+    slopes (b, 4b, b/4) and as a step (``b_max``: separated data start where they end), and
+    ``init``."""
     step = _initial_theta(x, y, w, g, n_groups, lo, hi)
     slope = np.array([0.0, 1.0, 0.0, 0.0])
-    starts = [step, step + np.log(4.0) * slope, step - np.log(4.0) * slope]  # b, 4b, b/4
+    sharp = step.copy()
+    sharp[:, 1] = np.log(b_max)
+    starts = [step, step + np.log(4.0) * slope, step - np.log(4.0) * slope, sharp]
     if init is not None:
         starts.append(np.nan_to_num(_to_theta(init)))
     return _likeliest(starts, x, y, w, g, v, n_groups)
@@ -348,12 +370,14 @@ def _box(lo, hi, span, b_bounds, n_groups) -> tuple[np.ndarray, np.ndarray]:
 
 class _LevenbergMarquardt:
     """Damped (projected) Newton steps on the Fisher information of every active group at
-    once (in place on ``theta``), parameters marked ``fixed`` held where they are."""
+    once (in place on ``theta``), parameters marked ``fixed`` held where they are; each
+    :meth:`run` goes on with the damping where the last left it."""
 
     def __init__(self, theta, data: _ActiveRows, active, box_lo, box_hi):
         self.theta, self.data, self.active = theta, data, active
         self.box_lo, self.box_hi = box_lo, box_hi
         self.fixed = np.zeros(theta.shape, dtype=bool)
+        self.lam = np.full(theta.shape[0], 1e-3)
 
     def run(self, max_iter: int, tol: float, trace: Trace | None = None):
         """Step until each group converges (:data:`X_TOL`) or ``max_iter``: the parameters,
@@ -368,7 +392,7 @@ class _LevenbergMarquardt:
         )
         n_groups = theta.shape[0]
         ll, grad, fisher = evaluate(theta, *data.arrays, n_groups, active)
-        lam = np.full(n_groups, 1e-3)
+        lam = self.lam
         converged = np.zeros(n_groups, dtype=bool)
         n_iter = np.zeros(n_groups, dtype=int)
         for _ in range(max_iter):

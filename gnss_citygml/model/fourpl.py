@@ -279,14 +279,16 @@ def _fit(x, y, w, g, v, n_groups, init, b_bounds, max_iter, tol, stops) -> tuple
 
 def _fit_in_gaps(theta, data, groups, converged, last_gap, box_lo, box_hi):
     """Which of ``groups`` (a mask) have their ``c`` in a gap of their samples wider than
-    their transition (3/b), ``converged`` there or in the same gap as ``last_gap`` (the gaps'
-    ends the check before): those have their ``c`` moved to the gap's middle (in place on
-    ``theta``; to the box's end where the gap reaches beyond the samples) and their ``b`` to
-    its upper bound: the samples see a step across the gap, sharper than anything they can
-    tell (``b`` would creep up for hundreds of iterations, each making the step a little
-    sharper), and the range holds the whole gap instead. Also returns each group's gap now."""
-    gap_lo, gap_hi = gap_around(data[0], data[2], data[3], theta[:, 2], groups)
-    wide = groups & (gap_hi - gap_lo > 3.0 / np.exp(theta[:, 1]))
+    their transition (3/b, blurred by the samples' errors in x), ``converged`` there or in the
+    same gap as ``last_gap`` (the gaps' ends the check before). Those have their ``c`` moved to
+    the gap's middle (in place on ``theta``; to the box's end where the gap reaches beyond the
+    samples) and their ``b`` to its upper bound: the samples see a step across the gap, sharper
+    than anything they can tell (``b`` would creep up for hundreds of iterations, each making
+    the step a little sharper), and the range holds the whole gap instead. Also returns each
+    group's gap now."""
+    x, y, w, g, v = data
+    gap_lo, gap_hi = gap_around(x, w, g, theta[:, 2], groups)
+    wide = groups & (gap_hi - gap_lo > 3.0 / _blurred_slope(theta[:, 1], w, g, v))
     stays = (gap_lo == last_gap[0]) & (gap_hi == last_gap[1])
     in_gap = wide & (converged | stays)
     middle = np.where(np.isinf(gap_lo), box_lo[:, 2], box_hi[:, 2])
@@ -296,7 +298,6 @@ def _fit_in_gaps(theta, data, groups, converged, last_gap, box_lo, box_hi):
     theta[in_gap, 1] = box_hi[in_gap, 1]
     # a step across the gap: the open fractions above and below it are a and d (exact for
     # samples without errors in x; the fit goes on from there)
-    x, y, w, g, _ = data
     rows = in_gap[g]
     xr, yr, wr, gr = x[rows], y[rows], w[rows], g[rows]
     above = xr >= gap_hi[gr]
@@ -310,6 +311,17 @@ def _fit_in_gaps(theta, data, groups, converged, last_gap, box_lo, box_hi):
     for k in (0, 3):
         theta[in_gap, k] = np.clip(step[in_gap, k], box_lo[in_gap, k], box_hi[in_gap, k])
     return in_gap, (gap_lo, gap_hi)
+
+
+def _blurred_slope(log_b, w, g, v) -> np.ndarray:
+    """Each group's slope as its samples see it, blurred by their errors in x (their mean
+    variance ``v``; the probit approximation of the module's docstring): a gap is flat for
+    ``c`` only where it is wider than this transition, not only than the curve's own."""
+    n = log_b.size
+    with np.errstate(invalid="ignore", divide="ignore"):
+        var = np.nan_to_num(np.bincount(g, w * v, n) / np.bincount(g, w, n))
+    b = np.exp(log_b)
+    return b / np.sqrt(1.0 + np.pi * b * b * var / 8.0)
 
 
 def gap_around(

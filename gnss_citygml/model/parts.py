@@ -389,7 +389,8 @@ class Part:
             fit_seen,
             n_own,
             last.change,
-            last.settling.settled,
+            # the mixture's roof lines creep to the end (its loop ends on its labels)
+            last.settling.settled | isinstance(last.model, Cn0Mixture),
             iterations,
             accept,
             strict=bootstrap,

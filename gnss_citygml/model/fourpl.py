@@ -37,6 +37,7 @@ import pandas as pd
 from scipy.special import expit
 
 from .fit_stops import FitStops, Trace
+from .gaps import blurred_slope, gap_around
 from .group_threads import by_groups
 from .likelihood import EPS, evaluate
 
@@ -299,7 +300,7 @@ def _fit_in_gaps(theta, data, groups, converged, last_gap, box_lo, box_hi):
     group's gap now."""
     x, y, w, g, v = data
     gap_lo, gap_hi = gap_around(x, w, g, theta[:, 2], groups)
-    wide = groups & (gap_hi - gap_lo > 3.0 / _blurred_slope(theta[:, 1], w, g, v))
+    wide = groups & (gap_hi - gap_lo > 3.0 / blurred_slope(theta[:, 1], w, g, v))
     stays = (gap_lo == last_gap[0]) & (gap_hi == last_gap[1])
     in_gap = wide & (converged | stays)
     middle = np.where(np.isinf(gap_lo), box_lo[:, 2], box_hi[:, 2])
@@ -322,34 +323,6 @@ def _fit_in_gaps(theta, data, groups, converged, last_gap, box_lo, box_hi):
     for k in (0, 3):
         theta[in_gap, k] = np.clip(step[in_gap, k], box_lo[in_gap, k], box_hi[in_gap, k])
     return in_gap, (gap_lo, gap_hi)
-
-
-def _blurred_slope(log_b, w, g, v) -> np.ndarray:
-    """Each group's slope as its samples see it, blurred by their errors in x (their mean
-    variance ``v``; the probit approximation of the module's docstring): a gap is flat for
-    ``c`` only where it is wider than this transition, not only than the curve's own."""
-    n = log_b.size
-    with np.errstate(invalid="ignore", divide="ignore"):
-        var = np.nan_to_num(np.bincount(g, w * v, n) / np.bincount(g, w, n))
-    b = np.exp(log_b)
-    return b / np.sqrt(1.0 + np.pi * b * b * var / 8.0)
-
-
-def gap_around(
-    x: np.ndarray, w: np.ndarray, g: np.ndarray, c: np.ndarray, groups: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """The empty stretch of x around each of ``groups``' ``c`` (a mask): the largest sample at
-    or below it and the smallest above it, samples of weight 0 left out (-inf, inf where
-    there is none; NaN for the other groups)."""
-    lower = np.full(c.size, -np.inf)
-    upper = np.full(c.size, np.inf)
-    rows = (w > 0) & groups[g]
-    xr, gr = x[rows], g[rows]
-    under = xr <= c[gr]
-    np.maximum.at(lower, gr[under], xr[under])
-    np.minimum.at(upper, gr[~under], xr[~under])
-    lower[~groups] = upper[~groups] = np.nan
-    return lower, upper
 
 
 def _samples(x, y, weights, groups, n_groups, sd):

@@ -25,7 +25,7 @@ from gnss_citygml.geodesy.grids import (
 )
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
-import pack_ostn15  # noqa: E402
+import pack_grids  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -35,20 +35,28 @@ def grid_dir():
 
 
 def test_the_bundled_grids_are_the_reference_files(shared_data):
-    """PROJ-data's files: the size and checksum their README gives; the geoid byte for byte the
-    reference data's, the OSTN15 shifts exactly tools/pack_ostn15.py's steps of the reference
-    (same extent, CRS, bands, units), each within half a step; with Ordnance Survey's notice."""
+    """PROJ-data's files re-encoded by tools/pack_grids.py: the size and checksum their README
+    gives; the geoid's values bit for bit the reference data's, the OSTN15 shifts exactly the
+    tool's steps of the reference, each within half a step; the same extent, CRS, bands, units
+    and grid type; with Ordnance Survey's notice."""
     readme = (BUNDLED_GRID_DIR / "README.md").read_text()
     for name in GRIDS:
         data = (BUNDLED_GRID_DIR / name).read_bytes()
         assert f"`{name}` | {len(data)} | `{hashlib.sha256(data).hexdigest()}`" in readme
         assert len(data) < 2_000_000
-    geoid = "uk_os_OSGM15_GB.tif"
-    assert (BUNDLED_GRID_DIR / geoid).read_bytes() == (shared_data / "geodesy" / geoid).read_bytes()
-    reference = shared_data / "geodesy" / pack_ostn15.NAME
-    steps, scales = pack_ostn15.quantised(reference)
     with (
-        rasterio.open(BUNDLED_GRID_DIR / pack_ostn15.NAME) as ours,
+        rasterio.open(BUNDLED_GRID_DIR / pack_grids.GEOID) as ours,
+        rasterio.open(shared_data / "geodesy" / pack_grids.GEOID) as ref,
+    ):
+        assert np.array_equal(ours.read().view(np.uint32), ref.read().view(np.uint32))
+        assert (ours.crs, ours.transform, ours.nodata) == (ref.crs, ref.transform, ref.nodata)
+        assert (ours.descriptions, ours.units) == (ref.descriptions, ref.units)
+        kept = {k: v for k, v in ref.tags().items() if k != "TIFFTAG_IMAGEDESCRIPTION"}
+        assert kept.items() <= ours.tags().items() and kept["TYPE"].startswith("VERTICAL_OFFSET")
+    reference = shared_data / "geodesy" / pack_grids.NAME
+    steps, scales = pack_grids.quantised(reference)
+    with (
+        rasterio.open(BUNDLED_GRID_DIR / pack_grids.NAME) as ours,
         rasterio.open(reference) as ref,
     ):
         assert np.array_equal(ours.read(), steps) and list(ours.scales) == scales

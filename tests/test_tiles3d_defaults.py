@@ -25,11 +25,15 @@ from gnss_citygml.validate import (
 )
 from gnss_citygml.validate.schemas import (
     BUNDLED_TILES3D_SCHEMAS,
+    PACKED_SCHEMAS,
     SCHEMA_DIR_ENV,
+    packed_schemas,
     tiles3d_schema_folder,
 )
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tools"))
+import pack_schemas  # noqa: E402
 
 
 @pytest.fixture
@@ -65,12 +69,20 @@ def test_the_bundled_schemas_are_the_default(tmp_path, no_schema_variables, no_n
 
 
 def test_the_bundled_schemas_are_the_official_ones(tiles3d_schema_dir):
-    """Every file shipped is the official file, byte for byte (the shared data holds them)."""
-    shipped = sorted(BUNDLED_TILES3D_SCHEMAS.rglob("*.schema.json"))
+    """The pack holds the official files byte for byte, and exactly those the tileset's,
+    metadata schema's and property table's references reach (the shared data holds them)."""
+    shipped = packed_schemas(BUNDLED_TILES3D_SCHEMAS)
+    roots = ["tileset.schema.json", "Schema/schema.schema.json"]
+    roots.append("PropertyTable/propertyTable.schema.json")
+    assert sorted(shipped) == pack_schemas.referred(tiles3d_schema_dir, roots)
     assert len(shipped) == 25
-    for path in shipped:
-        relative = path.relative_to(BUNDLED_TILES3D_SCHEMAS)
-        assert path.read_bytes() == (tiles3d_schema_dir / relative).read_bytes(), relative
+    for relative, text in shipped.items():
+        assert text == (tiles3d_schema_dir / relative).read_bytes(), relative
+    assert sorted(p.name for p in BUNDLED_TILES3D_SCHEMAS.iterdir()) == [
+        "LICENSE",
+        "README.md",
+        PACKED_SCHEMAS,
+    ]
 
 
 def test_a_schema_folder_without_3d_tiles_falls_back_to_the_bundled_copy(

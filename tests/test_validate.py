@@ -16,6 +16,11 @@ from gnss_citygml.cli import main
 from gnss_citygml.errors import InputError
 from gnss_citygml.export import write_citygml, write_cityjson, write_cityjsonseq
 from gnss_citygml.validate import SCHEMA_DIR_ENV, validate_file
+from gnss_citygml.validate.schemas import (
+    BUNDLED_CITYJSON_SCHEMAS,
+    cityjson_schema_file,
+    packed_schemas,
+)
 
 #: (sample, the rules of its errors): an empty set is a valid sample.
 SAMPLES = [
@@ -114,6 +119,17 @@ def test_cannot_validate(tmp_path, shared_data):
             shared_data / "citymodels/citygml2/val3dity_csol1_valid.gml",
             schema_dir=tmp_path / "broken",
         )
+
+
+def test_the_bundled_cityjson_schemas_are_the_official_ones(shared_data):
+    """The pack holds CityJSON 2.0.2's two inlined schemas, byte for byte, and nothing else."""
+    official = shared_data / "schemas" / "cityjson" / "2.0.2"
+    shipped = packed_schemas(BUNDLED_CITYJSON_SCHEMAS)
+    assert sorted(shipped) == ["cityjson.min.schema.json", "cityjsonfeature.min.schema.json"]
+    for name, text in shipped.items():
+        assert text == (official / name).read_bytes(), name
+    assert cityjson_schema_file(BUNDLED_CITYJSON_SCHEMAS, "2.0", "cityjson") is not None
+    assert cityjson_schema_file(BUNDLED_CITYJSON_SCHEMAS, "1.1", "cityjson") is None
 
 
 def test_schema_folder_from_the_environment(monkeypatch, repo_data):

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from ..files.userjson import parse_json
 from .report import Issue, Report
-from .schemas import SCHEMA_DIR_ENV, cityjson_schema_file, unusable_schema
+from .schemas import SCHEMA_DIR_ENV, cityjson_schema_file, schema_bytes, unusable_schema
 
 __all__ = ["json_schema"]
 
@@ -26,7 +26,7 @@ class _JsonSchema:
     def __init__(self, path: Path):
         import jsonschema
 
-        schema = parse_json(path.read_bytes())
+        schema = parse_json(schema_bytes(path))
         self.cls = jsonschema.validators.validator_for(schema)
         any_object = schema["properties"]["CityObjects"]["additionalProperties"]
         self.any_object = self.cls(any_object)

@@ -44,7 +44,12 @@ from .gltf_metadata import MetadataRules, read_gltf
 from .gltf_structure import structure_issues
 from .json_schema import _schema_message
 from .report import Issue, Report
-from .schemas import tiles3d_schema_folder, tiles3d_schema_source, unusable_schema
+from .schemas import (
+    packed_schemas,
+    tiles3d_schema_folder,
+    tiles3d_schema_source,
+    unusable_schema,
+)
 
 __all__ = ["validate_tileset"]
 
@@ -130,23 +135,27 @@ def validate_tileset(
 @lru_cache(maxsize=4)
 def _schemas(folder: Path) -> dict[str, Any]:
     """Validators of a tileset, a metadata schema and a property table, their ``$ref``
-    resolved in a registry of every ``*.schema.json`` under ``folder``, each under its
-    ``$id`` and its path relative to ``folder``; a schema that is not a JSON object is an
-    InputError naming it (the folder may be the user's, --schema-dir)."""
+    resolved in a registry of every ``*.schema.json`` under ``folder`` (where there is none,
+    those packed there, :data:`~.schemas.PACKED_SCHEMAS`), each under its ``$id`` and its
+    path relative to ``folder``; a schema that is not a JSON object is an InputError naming
+    it (the folder may be the user's, --schema-dir)."""
     import jsonschema
     from referencing import Registry, Resource
     from referencing.jsonschema import DRAFT202012
 
+    texts = {
+        file.relative_to(folder).as_posix(): file.read_bytes()
+        for file in sorted(folder.rglob("*.schema.json"))
+    } or packed_schemas(folder)
     resources = []
-    for file in sorted(folder.rglob("*.schema.json")):
+    for relative, text in texts.items():
         try:
-            contents = parse_json(file.read_bytes())
+            contents = parse_json(text)
             if not isinstance(contents, dict):
                 raise TypeError(f"a JSON {type(contents).__name__}, not an object")
         except (ValueError, TypeError) as exc:  # (NotJSON is a ValueError)
-            raise unusable_schema(exc, file) from None
+            raise unusable_schema(exc, folder / relative) from None
         resource = Resource.from_contents(contents, default_specification=DRAFT202012)
-        relative = file.relative_to(folder).as_posix()
         resources.append((relative, resource))
         if isinstance(contents.get("$id"), str) and contents["$id"] != relative:
             resources.append((contents["$id"], resource))

@@ -259,6 +259,7 @@ def _fit(x, y, w, g, v, n_groups, init, b_bounds, max_iter, tol, stops) -> tuple
         # fixed at its middle: a converged one's (a defined point of the gap, not where a step
         # happened to stop), and a moving one's that was in the same gap the run before
         fit.data, fit.active = _ActiveRows(*data, active), active.copy()
+        ran, ran_rows = active.copy(), fit.data.arrays  # (rows of at least the run's groups)
         fit.fixed[:, 1] = fit.fixed[:, 2] = ~np.isnan(gap_lo)
         before = (theta[:, 2].copy(), ll.copy(), left < max_iter)
         _, t_ll, t_converged, t_iter = fit.run(min(left, GAP_AFTER), tol, trace)
@@ -266,9 +267,9 @@ def _fit(x, y, w, g, v, n_groups, init, b_bounds, max_iter, tol, stops) -> tuple
         converged |= active & before[2] & _still(theta[:, 2], ll, *before[:2], GAP_AFTER * tol)
         n_iter += t_iter
         left -= GAP_AFTER
-        if left > 0:
-            free = fitted & np.isnan(gap_lo)
-            fixed, last_gap = _fit_in_gaps(theta, data, free, converged, last_gap, box_lo, box_hi)
+        if left > 0:  # (a group that did not run was checked with the parameters it has)
+            free = ran & np.isnan(gap_lo)
+            fixed, last_gap = _fit_in_gaps(theta, ran_rows, free, converged, last_gap, box_lo, box_hi)
             gap_lo[fixed], gap_hi[fixed] = last_gap[0][fixed], last_gap[1][fixed]
             active = fitted & (~converged | fixed)
     a, b, c, d = _from_theta(theta).T

@@ -27,7 +27,10 @@ point] (0 inside) and its range by whether it meets the span (issue 27, decision
 error to the true height (the span's middle) beside them. With ``--reference los`` each scene
 is estimated a second time with the signals labelled by the line of sight, from the same
 (recorded) positions: the converged count of that perfect classifier, and the share of it
-the labels of ``--labels`` reach (issue 27, decision 2: at least 80 %).
+the labels of ``--labels`` reach (issue 27, decision 2: at least 80 %), and its right answers.
+Beside the RMSE every line counts the right answers (converged, within :data:`RIGHT_WITHIN` of
+the span: 1 m with hand-placed points, 2 m with phone fixes) and the wrong ones (converged, the
+range missing the span), with their share of the answers (issue 47, decision 3).
 
 With ``--phones each`` every session of a scene is recorded by its own phone: its own C/N0
 offset, tracking threshold and body loss (issue 27, decision 3).
@@ -95,6 +98,10 @@ from gnss_citygml.simulate.scenes import city_scene, street_scene
 from gnss_citygml.simulate.signals import SignalModel
 
 THRESHOLDS = (20.0, 30.0, 40.0)
+
+#: A right answer: converged and at most this far (m) from the roof span, by locations; a
+#: wrong answer: converged and its range misses the span (issue 47, decision 3).
+RIGHT_WITHIN = {"manual": 1.0, "gnss": 2.0}
 
 #: Street width and receivers' distance from the nearest wall (m, uniform) of each regime.
 REGIMES = {
@@ -331,10 +338,12 @@ def main():
     runs, totals, reached = [], {}, {}
     header = (
         "converged | RMSE to span | RMSE to middle | median abs. error to middle | worst to span | "
-        "RMSE of c + 1.5/b | range covers middle | range meets span |"
+        "RMSE of c + 1.5/b | range covers middle | range meets span | right | wrong |"
     )
     if args.reference:
-        header += f" converged, {args.reference} labels | share of it | its RMSE to span |"
+        header += (
+            f" converged, {args.reference} labels | share of it | its RMSE to span | its right |"
+        )
     print(f"| scene | layout | locations | {header}")
     print("|---" * (3 + header.count("|")) + "|")
     if args.regimes:
@@ -386,12 +395,13 @@ def main():
             err = _judged(sim, cast, args.labels, estimator, sky, recast)
             n_runs = len(sim.truth) * len(THRESHOLDS)
             group = locations if regime is None else f"{regime}, {locations}"
-            runs.append(err.assign(group=group, scene=k))
+            err = err.assign(group=group, scene=k, locations=locations)
+            runs.append(err)
             totals[group] = totals.get(group, 0) + n_runs
             cells = _cells(err, n_runs)
             if args.reference:
                 perfect = Estimator(weighting=args.weighting, level_phones=False)
-                ref = _judged(sim, cast, args.reference, perfect, sky)
+                ref = _judged(sim, cast, args.reference, perfect, sky).assign(locations=locations)
                 reached.setdefault(group, []).append(ref)
                 cells += f" | {_reference_cells(err, ref, n_runs)}"
             print(f"| {k} | {layout} | {locations} | {cells} |", flush=True)
@@ -487,7 +497,7 @@ def _with_priors(sim, sd: float, k: int):
 
 def _cells(err: pd.DataFrame, n_runs: int) -> str:
     if err.empty:
-        return f"0/{n_runs} | - | - | - | - | - | - | -"
+        return f"0/{n_runs} | - | - | - | - | - | - | - | 0 | 0"
     rmse = np.sqrt(np.mean(err["span_error"] ** 2))
     middle_rmse = np.sqrt(np.mean(err["error"] ** 2))
     paper_rmse = np.sqrt(np.mean(err["paper_error"] ** 2))
@@ -495,15 +505,23 @@ def _cells(err: pd.DataFrame, n_runs: int) -> str:
     figures = (rmse, middle_rmse, a.median(), err["span_error"].max(), paper_rmse)
     cells = [f"{len(err)}/{n_runs}", *(f"{v:.2f} m" for v in figures)]
     cells += [f"{err['covered'].mean():.0%}", f"{err['meets'].mean():.0%}"]
+    wrong = int((~err["meets"].astype(bool)).sum())
+    cells += [str(_right(err)), f"{wrong} ({wrong / len(err):.0%})"]
     return " | ".join(cells)
+
+
+def _right(err: pd.DataFrame) -> int:
+    """The right answers among converged runs: within :data:`RIGHT_WITHIN` of the span."""
+    near = err["locations"].map(RIGHT_WITHIN)
+    return int((err["span_error"] <= near).sum())
 
 
 def _reference_cells(err: pd.DataFrame, ref: pd.DataFrame, n_runs: int) -> str:
     """The reference's converged count, the share of it that the converged runs ``err``
-    reach, and the reference's RMSE to the span."""
+    reach, the reference's RMSE to the span and its right answers."""
     share = f"{len(err) / len(ref):.0%}" if len(ref) else "-"
     rmse = f"{np.sqrt(np.mean(ref['span_error'] ** 2)):.2f} m" if len(ref) else "-"
-    return f"{len(ref)}/{n_runs} | {share} | {rmse}"
+    return f"{len(ref)}/{n_runs} | {share} | {rmse} | {_right(ref) if len(ref) else 0}"
 
 
 if __name__ == "__main__":

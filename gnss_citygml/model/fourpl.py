@@ -269,7 +269,9 @@ def _fit(x, y, w, g, v, n_groups, init, b_bounds, max_iter, tol, stops) -> tuple
         left -= GAP_AFTER
         if left > 0:  # (a group that did not run was checked with the parameters it has)
             free = ran & np.isnan(gap_lo)
-            fixed, last_gap = _fit_in_gaps(theta, ran_rows, free, converged, last_gap, box_lo, box_hi)
+            fixed, last_gap = _fit_in_gaps(
+                theta, ran_rows, free, converged, last_gap, box_lo, box_hi
+            )
             gap_lo[fixed], gap_hi[fixed] = last_gap[0][fixed], last_gap[1][fixed]
             active = fitted & (~converged | fixed)
     a, b, c, d = _from_theta(theta).T

@@ -115,6 +115,18 @@ class Cn0Counts:
             np.concatenate([self.k, other.k]),
         )
 
+    def plus(self, added: Cn0Counts, removed: Cn0Counts) -> Cn0Counts:
+        """These counts with ``added``'s signals in and ``removed``'s (counted here) out:
+        exact, as the counts are whole numbers; a C/N0 left without a signal is dropped, as
+        :meth:`of` would have it."""
+        both = Cn0Counts._pooled(
+            np.concatenate([self.key, added.key, removed.key]),
+            np.concatenate([self.n, added.n, -removed.n]),
+            np.concatenate([self.k, added.k, -removed.k]),
+        )
+        keep = both.n != 0
+        return Cn0Counts(both.key[keep], both.n[keep], both.k[keep])
+
     @classmethod
     def _pooled(cls, key: np.ndarray, n: npt.ArrayLike, k: npt.ArrayLike) -> Cn0Counts:
         uniq, inverse = np.unique(key, return_inverse=True)

@@ -21,6 +21,7 @@ import pandas as pd
 from ..errors import ModelError
 from ..settings import Estimator
 from .classifier import Cn0Counts, SignalClassifier
+from .exchange import Exchange, counted, differs, exchanged, group_rows
 from .fourpl import FourPLFit, fit_4pl, group_range
 from .fourplb import (
     BuildingFits,
@@ -129,6 +130,8 @@ class Part:
     #: Each row's phone, coded into ``phones`` (:meth:`levelled`; None: not known).
     phone: np.ndarray | None = None
     phones: np.ndarray | None = None
+    #: What the last exchange found (the paper's signal model), for the next (:mod:`.exchange`).
+    exchange: Exchange | None = None
 
     @classmethod
     def of(
@@ -236,15 +239,16 @@ class Part:
         refit = ~settling.held  # a held building keeps its fit
         if last is not None and self.estimator.weighting in _FIXED_WEIGHTS:
             refit &= _changed(g, n_own, labels[own], last.labels[own], seen, last.seen[own])
-        use = use & refit[g]
+        rows = group_rows(g, np.flatnonzero(refit))  # (late on, a few buildings' rows)
+        use = rows[use[rows]]
         fit = fit_4pl(
             h[use],
-            labels[own][use],
+            labels[use],
             None if weights is None else weights[use],
             g[use],
             n_own,
             init=None if last is None else last.fit.params,
-            sd=None if self.sd is None else self.sd[own][use],
+            sd=None if self.sd is None else self.sd[use],
             max_iter=self.estimator.fit_max_iter,
         )
         if last is not None:
@@ -252,10 +256,16 @@ class Part:
         settling = settling.after(fit.c)
         change = np.ones(n_own)
         if last is not None:  # the seen rows' map labels (above c) by this fit and the last
-            h_seen, g_seen = h[seen], g[seen]
+            moved = np.flatnonzero(differs(fit.c, last.fit.c))  # (the others' labels stay)
+            rows = group_rows(g, moved)
+            rows = rows[seen[rows]]
+            h_seen, g_seen = h[rows], g[rows]
             flips = (h_seen > fit.c[g_seen]) != (h_seen > last.fit.c[g_seen])
             n_flips = np.bincount(g_seen[flips], minlength=n_own)
-            change = n_flips / np.maximum(np.bincount(g_seen, minlength=n_own), 1)
+            change = np.zeros(n_own)
+            change[moved] = (
+                n_flips[moved] / np.maximum(np.bincount(g_seen, minlength=n_own), 1)[moved]
+            )
         return replace(self, last=LastFit(fit, self.seen, labels, change, model, settling))
 
     def shared(self) -> Shared:
@@ -297,25 +307,23 @@ class Part:
         own_plausible = bool(plausible[: self.n_own].any())
         teach = plausible if own_plausible else fallback
         last = self._last
-        open_map = self.h > c[self.g]
+        change = float(np.max(last.change, initial=0.0))
+        moving = last.settling.moving(np.isfinite(last.fit.c))
+        if self.estimator.signal_model != "mixture":
+            seen, counts, state = exchanged(self, c, b, plausible, teach)
+            part = replace(self, seen=seen, exchange=state)
+            return part, Tally(counts, own_plausible, change, moving)
         used = last.seen & teach[self.g]
-        lead, clear = _classifier_data(self, open_map, used)
-        prior = self.prior
-        evidence: Cn0Counts | Cn0Moments
-        if self.estimator.signal_model == "mixture":
-            prior = clear_chance(self.h, self.g, self.sd, a, b, c, d)
-            chance = clear.astype(float)
-            if isinstance(last.model, Cn0Mixture):
-                every = clears_all(prior, self.sig)[lead]
-                chance = last.model.posterior(self.s[lead], self.e[lead], every)
-            evidence = Cn0Moments.of(self.s[lead], self.e[lead], chance)
-        else:
-            evidence = Cn0Counts.of(self.s[lead], clear)
+        lead, clear = _classifier_data(self, self.h > c[self.g], used)
+        prior = clear_chance(self.h, self.g, self.sd, a, b, c, d)
+        chance = clear.astype(float)
+        if isinstance(last.model, Cn0Mixture):
+            every = clears_all(prior, self.sig)[lead]
+            chance = last.model.posterior(self.s[lead], self.e[lead], every)
+        evidence = Cn0Moments.of(self.s[lead], self.e[lead], chance)
         seen = self.seen
         if self.occlusion:
             seen = _unoccluded(self.h, self.g, self.sig, c, b, plausible, self.order)
-        change = float(np.max(last.change, initial=0.0))
-        moving = last.settling.moving(np.isfinite(last.fit.c))
         part = replace(self, seen=seen, prior=prior)
         return part, Tally(evidence, own_plausible, change, moving)
 
@@ -520,22 +528,7 @@ _SHARED = ("a", "b", "c", "d", "plausible", "fallback")
 
 
 def _classifier_data(part: Part, open_map: np.ndarray, used: np.ndarray):
-    """The rows of the signals the part counts (one each: the first row along the ray, by
-    ``order``, of those the fits ``used``; without ``order``, the first row), those of own
-    buildings, and each signal's map label: open only if it clears every building it was
-    used for."""
+    """The rows of the signals the part counts, of the rows the fits ``used``, and each
+    signal's map label (:func:`~.exchange.counted`)."""
     rows = np.flatnonzero(used)
-    sig = part.sig[rows]
-    n_sig = int(sig.max(initial=-1)) + 1
-    closed = np.bincount(sig[~open_map[rows]], minlength=n_sig)
-    if part.order is not None:  # each signal's rows of its lowest order
-        order = part.order[rows]
-        lowest = np.full(n_sig, np.iinfo(order.dtype).max, dtype=order.dtype)
-        np.minimum.at(lowest, sig, order)  # fast where both are of one dtype
-        keep = order == lowest[sig]
-        rows, sig = rows[keep], sig[keep]
-    lead = np.full(n_sig, np.iinfo(rows.dtype).max)
-    np.minimum.at(lead, sig, rows)  # each signal's first row of those
-    lead = lead[lead < np.iinfo(rows.dtype).max]
-    mine = part.g[lead] < part.n_own
-    return lead[mine], closed[part.sig[lead[mine]]] == 0
+    return counted(part.sig, part.order, part.g, part.n_own, rows, open_map[rows])

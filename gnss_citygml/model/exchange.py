@@ -14,13 +14,14 @@ yet).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
 from .classifier import Cn0Counts
 from .fourplb import _unoccluded
 
-__all__ = ["Exchange", "counted", "differs", "exchanged", "group_rows"]
+__all__ = ["Exchange", "Rows", "counted", "differs", "exchanged", "group_rows"]
 
 #: Above this share of the rows touched, an exchange goes over every row (as fast, simpler).
 FULL_SHARE = 0.25
@@ -89,7 +90,40 @@ class Exchange:
     by_signal: _SignalRows | None = None
 
 
-def counted(sig, order, g, n_own, rows, open_rows) -> tuple[np.ndarray, np.ndarray]:
+class Rows(Protocol):
+    """What an exchange reads of a part (:class:`~.parts.Part`): its rows' building ``g``,
+    height ``h``, C/N0 ``s``, signal ``sig`` and order along the ray, its own buildings'
+    number, the rows the fits may use (``seen``), whether the visibility model is on, and
+    its last :class:`Exchange`."""
+
+    @property
+    def g(self) -> np.ndarray: ...
+    @property
+    def h(self) -> np.ndarray: ...
+    @property
+    def s(self) -> np.ndarray: ...
+    @property
+    def sig(self) -> np.ndarray: ...
+    @property
+    def order(self) -> np.ndarray | None: ...
+    @property
+    def n_own(self) -> int: ...
+    @property
+    def seen(self) -> np.ndarray: ...
+    @property
+    def occlusion(self) -> bool: ...
+    @property
+    def exchange(self) -> Exchange | None: ...
+
+
+def counted(
+    sig: np.ndarray,
+    order: np.ndarray | None,
+    g: np.ndarray,
+    n_own: int,
+    rows: np.ndarray,
+    open_rows: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
     """The rows of the signals a part counts among ``rows`` (row numbers, those the fits used)
     and each one's map label. A signal is counted by its first row along the ray (by
     ``order``; without it, its first row), where that row is of an own building (code below
@@ -110,7 +144,13 @@ def counted(sig, order, g, n_own, rows, open_rows) -> tuple[np.ndarray, np.ndarr
     return lead[mine], closed[sig[lead[mine]]] == 0
 
 
-def exchanged(part, c, b, plausible, teach):
+def exchanged(
+    part: Rows,
+    c: np.ndarray,
+    b: np.ndarray,
+    plausible: np.ndarray,
+    teach: np.ndarray,
+) -> tuple[np.ndarray, Cn0Counts, Exchange]:
     """The paper's exchange of ``part`` (a :class:`~.parts.Part` whose fits are done) given
     every building's fit: the rows its next fits may use (``seen``), its classifier evidence
     and the :class:`Exchange` for the next, by an update of the part's last one where few

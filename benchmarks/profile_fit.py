@@ -3,12 +3,15 @@ cProfile's top entries.
 
 Reads the city that ``benchmarks/raycast.py`` cached in benchmarks/out/ (run that first with the
 same ``--signals`` and ``--blocks``), runs the stages before the fit as it does (untimed), then
-runs the fit (``estimate_heights``) twice on the same intersections:
+runs the fit (``estimate_heights``, with the open sky as raycast.py gives it: the phones
+levelled) twice on the same intersections:
 
 1. with wall-clock timers around 4PL-B's steps (nothing else changed) and prints, per 4PL-B
    iteration, the seconds of ``Part.fitted`` (of which ``fit_4pl``: its Levenberg-Marquardt
    iterations and likelihood evaluations), ``Part.shared``, ``Part.exchanged`` (of which the
-   visibility model ``_unoccluded`` and the classifier's data) and the classifier's refit;
+   visibility model ``_unoccluded`` and the signals counted, over every row or, with the
+   paper's classifier late in the loop, updated: :mod:`gnss_citygml.model.exchange`) and the
+   classifier's refit;
    then the final ``Part.judged`` (the likelihood interval ``c_interval``, the position-error
    margin ``position_margin``) and the table's setup (``intersections_part``);
 2. under cProfile, and prints the top ``--top`` entries by cumulative and by own time, and
@@ -35,11 +38,11 @@ from raycast import OUT
 from shared_data import GRIDS
 
 from gnss_citygml.footprints import read_footprints
-from gnss_citygml.model import estimate, likelihood, parts
+from gnss_citygml.model import estimate, exchange, fourpl, parts
 from gnss_citygml.model.classifier import SignalClassifier
 from gnss_citygml.model.estimate import estimate_heights
 from gnss_citygml.observations import read_observations
-from gnss_citygml.pipeline import intersections, receivers
+from gnss_citygml.pipeline import intersections, open_sky, receivers
 from gnss_citygml.terrain import building_ground
 
 #: (owner, attribute) of the timed functions: the owners' names are what the fit calls.
@@ -47,11 +50,12 @@ TIMED = [
     (estimate, "intersections_part"),
     (parts.Part, "fitted"),
     (parts, "fit_4pl"),
-    (likelihood, "evaluate"),
+    (fourpl, "evaluate"),
     (parts.Part, "shared"),
     (parts.Part, "exchanged"),
-    (parts, "_unoccluded"),
-    (parts, "_classifier_data"),
+    (exchange, "_everything"),
+    (exchange, "_update"),
+    (exchange, "_unoccluded"),
     (SignalClassifier, "refit_counts"),
     (parts.Part, "judged"),
     (parts, "c_interval"),
@@ -59,15 +63,18 @@ TIMED = [
 ]
 
 
-def load(folder: Path, grid_dir) -> pd.DataFrame:
-    """The intersections table of raycast.py's run (the stages before the fit)."""
+def load(folder: Path, grid_dir):
+    """The intersections table of raycast.py's run (the stages before the fit) and its open
+    sky."""
     obs = read_observations(folder / "observations.parquet")
     dem = str(folder / "dem.tif")
     fp = building_ground(read_footprints(folder / "footprints.gpkg"), dem)
-    return intersections(receivers(obs, dem, grid_dir=grid_dir), fp)
+    rx = receivers(obs, dem, grid_dir=grid_dir)
+    inter = intersections(rx, fp)
+    return inter, open_sky(rx, inter)
 
 
-def timed_fit(inter: pd.DataFrame) -> pd.DataFrame:
+def timed_fit(inter: pd.DataFrame, sky) -> pd.DataFrame:
     """The fit with a timer around each of :data:`TIMED`; prints the steps per iteration."""
     # per iteration (a Part.fitted call starts one; 0 = before the first): name -> [s, calls]
     steps: dict[int, dict[str, list[float]]] = defaultdict(lambda: defaultdict(lambda: [0.0, 0]))
@@ -107,7 +114,7 @@ def timed_fit(inter: pd.DataFrame) -> pd.DataFrame:
         setattr(owner, name, wrap(name, func))
     try:
         start = time.perf_counter()
-        heights = estimate_heights(inter)
+        heights = estimate_heights(inter, open_sky=sky)
         total = time.perf_counter() - start
     finally:
         for owner, name, func in originals:
@@ -144,12 +151,12 @@ def main():
     folder = OUT / f"city_{args.blocks}x{args.blocks}_{args.signals}"
     if not (folder / "dem.tif").exists():
         parser.error(f"no cached city in {folder}: run benchmarks/raycast.py with these sizes")
-    inter = load(folder, args.grid_dir)
+    inter, sky = load(folder, args.grid_dir)
     print(f"{len(inter):,} intersections of {inter['building'].nunique():,} buildings")
-    heights = timed_fit(inter)
+    heights = timed_fit(inter, sky)
     profiler = cProfile.Profile()
     start = time.perf_counter()
-    profiled = profiler.runcall(estimate_heights, inter)
+    profiled = profiler.runcall(estimate_heights, inter, open_sky=sky)
     print(f"\nfit under cProfile {time.perf_counter() - start:.2f} s")
     same = heights.equals(profiled)  # NaN where NaN counts as equal
     print(f"{int(heights['converged'].sum()):,} heights; both runs the same: {same}")

@@ -2,6 +2,7 @@
 data), and one broken cube per rule."""
 
 import copy
+import gzip
 import json
 import shutil
 import time
@@ -520,6 +521,37 @@ def test_every_error_is_one_line(three, tmp_path, capsys):
     assert out.splitlines() == [lines[0], more, lines[4]]
     code, _, err = run(["validate", str(path), "--max-errors", "-1"], capsys)
     assert code == 2 and "Invalid value for '--max-errors'" in err
+
+
+@pytest.mark.parametrize(
+    "pack",
+    [
+        b"not gzip",
+        gzip.compress(b'{"tileset.schema.json": '),  # not JSON
+        gzip.compress(b'["tileset.schema.json"]'),  # not an object of texts
+        gzip.compress(b'{"cityjson.min.schema.json": {"type": "object"}}'),  # not texts
+        gzip.compress(b'{"tileset.schema.json": "{}"}')[:-9],  # cut short
+    ],
+)
+@pytest.mark.parametrize("kind", ["cityjson", "tileset"])
+def test_a_schema_folder_with_an_unusable_pack_is_one_line(tmp_path, capsys, pack, kind):
+    """A schemas.json.gz (the form the package ships its schemas in) in the folder given by
+    --schema-dir that is not a gzip of schema texts is one line naming it, not an internal
+    error (found at the command line: BadGzipFile)."""
+    from test_cli import run
+    from test_outputs import heights_gpkg
+
+    folder = tmp_path / "schemas"
+    packed = folder / ("3dtiles-1.1" if kind == "tileset" else "") / "schemas.json.gz"
+    packed.parent.mkdir(parents=True)
+    packed.write_bytes(pack)
+    model = tmp_path / ("t/tileset.json" if kind == "tileset" else "c.city.json")
+    args = ["convert", str(heights_gpkg(tmp_path)), "-o", str(model), "--no-validate", "-q"]
+    code, _, err = run(args, capsys)
+    assert code == 0, err
+    code, _, err = run(["validate", str(model), "--schema-dir", str(folder)], capsys)
+    assert code == 2 and "the schema cannot be used" in err and "schemas.json.gz" in err, err
+    assert "internal error" not in err
 
 
 @pytest.mark.parametrize("text", ["[" * 100_000 + "]" * 100_000, '{"a": ', "[1, 2]"])

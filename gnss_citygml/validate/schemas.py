@@ -52,11 +52,18 @@ BUNDLED_CITYJSON_SCHEMAS = Path(__file__).resolve().parents[1] / "data" / "cityj
 
 @lru_cache(maxsize=8)
 def packed_schemas(folder: Path) -> dict[str, bytes]:
-    """The schemas packed in ``folder`` (:data:`PACKED_SCHEMAS`) by relative path, {} if none."""
+    """The schemas packed in ``folder`` (:data:`PACKED_SCHEMAS`) by relative path, {} if none;
+    a pack that cannot be read (a user's folder may hold any file of that name) is an
+    InputError naming it."""
     pack = folder / PACKED_SCHEMAS
     if not pack.is_file():
         return {}
-    texts = json.loads(gzip.decompress(pack.read_bytes()))
+    try:
+        texts = json.loads(gzip.decompress(pack.read_bytes()))
+        if not isinstance(texts, dict) or not all(isinstance(t, str) for t in texts.values()):
+            raise TypeError("not a JSON object of schema texts")
+    except (OSError, EOFError, ValueError, TypeError) as exc:  # (BadGzipFile: an OSError)
+        raise unusable_schema(exc, pack) from None
     return {relative: text.encode("utf-8") for relative, text in texts.items()}
 
 

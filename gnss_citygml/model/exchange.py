@@ -39,7 +39,7 @@ class _SignalRows:
         rows = np.argsort(sig, kind="stable")
         n_sig = int(sig.max(initial=-1)) + 1
         start = np.searchsorted(sig[rows], np.arange(n_sig + 1))
-        return cls(_compact(rows), _compact(start))
+        return cls(rows.astype(_row_type(sig.size)), start.astype(_row_type(sig.size)))
 
     def of_signals(self, signals: np.ndarray) -> np.ndarray:
         """The rows of ``signals`` (distinct), sorted."""
@@ -47,10 +47,10 @@ class _SignalRows:
         return np.sort(self.rows[_ranges(first, self.start[signals + 1] - first)])
 
 
-def _compact(rows: np.ndarray) -> np.ndarray:
-    """Row numbers as int32 where they fit: a run in tiles keeps every part's (4 bytes a row
-    less, as :func:`~.parts._compact`)."""
-    return rows.astype(np.int32) if rows.size and rows.max() < 2**31 else rows
+def _row_type(n_rows: int) -> type[np.signedinteger]:
+    """The type of row numbers of ``n_rows`` rows: int32 where they fit (a run in tiles keeps
+    every part's state, 4 bytes a row less), else the platform's."""
+    return np.int32 if n_rows < 2**31 else np.intp
 
 
 def group_rows(g: np.ndarray, groups: np.ndarray) -> np.ndarray:
@@ -193,7 +193,7 @@ def _everything(part, c, b, plausible, teach, by_signal):
         part.sig, part.order, part.g, part.n_own, rows, part.h[rows] > c[part.g[rows]]
     )
     n_sig = int(part.sig.max(initial=-1)) + 1
-    lead_of = np.full(n_sig, -1, dtype=np.int32 if part.h.size < 2**31 else np.intp)
+    lead_of = np.full(n_sig, -1, dtype=_row_type(part.h.size))
     clear_of = np.zeros(n_sig, dtype=bool)
     lead_of[part.sig[lead]], clear_of[part.sig[lead]] = lead, clear
     evidence = Cn0Counts.of(part.s[lead], clear)

@@ -62,7 +62,7 @@ def prepare(folder: Path, signals: int, blocks: int, grid_dir, locations: str) -
     )
 
 
-def run(folder: Path, grid_dir, signal_model: str, level_phones: bool, calibrate, save) -> None:
+def run(folder: Path, grid_dir, estimator_options: dict, calibrate, save) -> None:
     import pandas as pd
 
     from gnss_citygml.calibrate import calibrate_receivers
@@ -86,7 +86,7 @@ def run(folder: Path, grid_dir, signal_model: str, level_phones: bool, calibrate
     dem = str(folder / "dem.tif")
     rx = timed("receivers (geodesy + DEM)", receivers, obs, dem, grid_dir=grid_dir)
     fp = timed("ground under buildings", building_ground, fp, dem)
-    estimator = Estimator(signal_model=signal_model, level_phones=level_phones)
+    estimator = Estimator(**estimator_options)
     if calibrate is not None:
         calibration = Calibration(prior_sd=5.0, window=10.0, rounds=1, matching=calibrate)
         rx = timed(
@@ -129,6 +129,9 @@ def main():
     parser.add_argument(
         "--no-level-phones", action="store_true", help="the C/N0 as recorded (before issue 28)"
     )
+    parser.add_argument(
+        "--blame", choices=("ray", "drop"), help="Estimator.blame (default: the estimator's)"
+    )
     parser.add_argument("--locations", choices=("manual", "gnss"), default="manual")
     parser.add_argument("--calibrate", choices=("shadows", "roof lines"))
     parser.add_argument("--against", metavar="REV", help="side by side with git revision REV")
@@ -137,8 +140,9 @@ def main():
     parser.add_argument("--save", type=Path, help=argparse.SUPPRESS)  # its results, for --against
     args = parser.parse_args()
     if args.run:
-        level = not args.no_level_phones
-        run(args.run, args.grid_dir, args.signal_model, level, args.calibrate, args.save)
+        options = {"signal_model": args.signal_model, "level_phones": not args.no_level_phones}
+        options |= {} if args.blame is None else {"blame": args.blame}
+        run(args.run, args.grid_dir, options, args.calibrate, args.save)
         return
     folder = OUT / f"city_{args.blocks}x{args.blocks}_{args.signals}"
     if args.locations != "manual":
@@ -149,6 +153,7 @@ def main():
     command += ["--signal-model", args.signal_model]
     command += ["--calibrate", args.calibrate] if args.calibrate else []
     command += ["--no-level-phones"] if args.no_level_phones else []
+    command += ["--blame", args.blame] if args.blame else []
     if args.against:
         side_by_side(command, args.against, args.repeat)
     else:

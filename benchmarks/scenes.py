@@ -92,7 +92,7 @@ from shadow_matching import shadow_matched
 from gnss_citygml import Estimator, estimate_heights
 from gnss_citygml.calibrate import calibrate_receivers
 from gnss_citygml.pipeline import intersections, open_sky
-from gnss_citygml.settings import MATCHINGS, SIGNAL_MODELS, WEIGHTINGS, Calibration
+from gnss_citygml.settings import BLAMES, MATCHINGS, SIGNAL_MODELS, WEIGHTINGS, Calibration
 from gnss_citygml.simulate import EPOCH, LOCATIONS, simulate
 from gnss_citygml.simulate.scenes import city_scene, street_scene
 from gnss_citygml.simulate.signals import SignalModel
@@ -231,6 +231,12 @@ def _parser() -> argparse.ArgumentParser:
         choices=SIGNAL_MODELS,
         default="paper",
         help="how 4PL-B labels the signals (the reference's perfect labels are always hard)",
+    )
+    parser.add_argument(
+        "--blame",
+        choices=BLAMES,
+        default=Estimator.blame,
+        help="what a closed ray crossing several buildings tells each (the reference's too)",
     )
     parser.add_argument("--save", help="write every converged run to this CSV")
     parser.add_argument(
@@ -371,6 +377,7 @@ def main():
             )
             estimator = Estimator(
                 weighting=args.weighting,
+                blame=args.blame,
                 signal_model=args.signal_model,
                 level_phones=not args.no_level_phones and args.labels == "cn0",
             )
@@ -400,7 +407,7 @@ def main():
             totals[group] = totals.get(group, 0) + n_runs
             cells = _cells(err, n_runs)
             if args.reference:
-                perfect = Estimator(weighting=args.weighting, level_phones=False)
+                perfect = Estimator(weighting=args.weighting, blame=args.blame, level_phones=False)
                 ref = _judged(sim, cast, args.reference, perfect, sky).assign(locations=locations)
                 reached.setdefault(group, []).append(ref)
                 cells += f" | {_reference_cells(err, ref, n_runs)}"

@@ -111,8 +111,9 @@ def signal_states(run: Run) -> pd.DataFrame:
 
 def blocked_by_others(intersections: pd.DataFrame, roofs: pd.Series) -> np.ndarray:
     """For each intersection, whether its ray passes below the fitted roof line (``roofs``:
-    ``c`` by building id) of another building it crosses: such a signal says nothing about
-    this building, and the fits' visibility model leaves it out, so the fit plots do too."""
+    ``c`` by building id) of another building it crosses: such a signal says little about
+    this building (its fit weighs a closed one by the chance that this building alone blocked
+    it, :mod:`.model.blame`), so the fit plots leave it out."""
     below = _below_roofs(intersections, roofs)
     signal = intersections["signal"].to_numpy()
     n_below = np.bincount(signal, weights=below.astype(float), minlength=signal.max(initial=-1) + 1)

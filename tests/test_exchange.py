@@ -11,7 +11,7 @@ from gnss_citygml.model.classifier import Cn0Counts, SignalClassifier
 from gnss_citygml.model.estimate import intersections_part
 from gnss_citygml.observations import read_observations
 from gnss_citygml.pipeline import run
-from gnss_citygml.settings import Estimator
+from gnss_citygml.settings import BLAMES, Estimator
 
 
 def test_group_rows_are_the_rows_of_the_groups(rng):
@@ -37,10 +37,9 @@ def test_counts_in_and_out_are_the_counts_of_the_signals_left(rng):
 
 
 @pytest.fixture(scope="module")
-def city_part():
+def city_cast():
     obs = read_observations(CITY / "observations.parquet")
-    cast = run(obs, read_footprints(CITY / "footprints.gpkg"), str(CITY / "dem.tif"))
-    return intersections_part(cast.intersections, Estimator())[1]
+    return run(obs, read_footprints(CITY / "footprints.gpkg"), str(CITY / "dem.tif"))
 
 
 def _state(part, tally):
@@ -57,9 +56,11 @@ def _state(part, tally):
     )
 
 
-def test_an_update_is_the_exchange_over_every_row(city_part, monkeypatch):
+@pytest.mark.parametrize("blame", BLAMES)
+def test_an_update_is_the_exchange_over_every_row(city_cast, blame, monkeypatch):
     """4PL-B's loop on the sample city, each exchange done both ways from the same part."""
-    part, model, updates = city_part, SignalClassifier.initial(30.0), 0
+    part = intersections_part(city_cast.intersections, Estimator(blame=blame))[1]
+    model, updates = SignalClassifier.initial(30.0), 0
     redone = []  # the rows of each update that found signals again
     update = exchange._update
     monkeypatch.setattr(
@@ -77,7 +78,11 @@ def test_an_update_is_the_exchange_over_every_row(city_part, monkeypatch):
         updates += part.exchange is not None
         part, model = updated, tally.refit(model)
     assert updates == 11  # all but the first were updates
-    assert len(redone) >= 5 and 0 < min(redone) < part.h.size / 4  # late on, a few signals
+    assert len(redone) >= 5 and 0 < min(redone)
+    # late on, a few signals; with whole-ray blame the loop (run on past the 9th iteration,
+    # where the sample city's ends) still refits 5 of its 30 buildings by micrometres
+    if blame == "drop":
+        assert min(redone) < part.h.size / 4
 
 
 def test_the_citys_heights_are_the_same_whichever_way(monkeypatch):

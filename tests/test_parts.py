@@ -5,7 +5,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from gnss_citygml.model.parts import _by_group, _factorized, _ranks
+from gnss_citygml.model.row_codes import building_order as _by_group
+from gnss_citygml.model.row_codes import factorized as _factorized
+from gnss_citygml.model.row_codes import ranks as _ranks
 
 
 @pytest.mark.parametrize(

@@ -11,7 +11,7 @@ from gnss_citygml.model.fourpl import X_TOL, fit_4pl, logistic4
 from gnss_citygml.model.settling import MAX_PERIOD, SETTLE_TOL, Settling
 from gnss_citygml.observations import read_observations
 from gnss_citygml.pipeline import run
-from gnss_citygml.settings import Estimator
+from gnss_citygml.settings import BLAMES, Estimator
 
 HIGH_CAPS = {"max_iter": 100, "fit_max_iter": 2000}
 
@@ -106,9 +106,10 @@ def _city_run(**caps):
     return run(obs, read_footprints(CITY / "footprints.gpkg"), str(CITY / "dem.tif"), **caps)
 
 
-def test_the_sample_citys_heights_do_not_depend_on_the_caps():
-    default = _city_run()
-    high = _city_run(estimator=Estimator(**HIGH_CAPS))
+@pytest.mark.parametrize("blame", BLAMES)
+def test_the_sample_citys_heights_do_not_depend_on_the_caps(blame):
+    default = _city_run(estimator=Estimator(blame=blame))
+    high = _city_run(estimator=Estimator(blame=blame, **HIGH_CAPS))
     columns = ["id", "status", "height", "height_lower", "height_upper"]
     a, b = default.heights[columns], high.heights[columns]
     pd.testing.assert_series_equal(a["status"], b["status"])

@@ -112,8 +112,13 @@ def test_tiles_in_one_process_give_the_single_runs_heights(scene, single, size):
 
 @pytest.mark.parametrize(
     "estimator",
-    [Estimator(weighting="balanced"), Estimator(method="4PL"), Estimator(fit_max_iter=3)],
-    ids=["balanced weights", "4PL", "height fits cut at 3 iterations"],
+    [
+        Estimator(weighting="balanced"),
+        Estimator(method="4PL"),
+        Estimator(fit_max_iter=3),
+        Estimator(blame="ray"),
+    ],
+    ids=["balanced weights", "4PL", "height fits cut at 3 iterations", "whole-ray blame"],
 )
 def test_tiles_hold_for_other_settings(scene, estimator):
     rx, buildings = scene

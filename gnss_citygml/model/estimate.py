@@ -19,7 +19,8 @@ from .engine import run_parts
 from .fourplb import BuildingFits, SignalModel
 from .mixture import Cn0Moments, elevation_units
 from .offsets import levelled, sky_counts
-from .parts import Part, _compact
+from .parts import Part
+from .row_codes import compact
 
 __all__ = [
     "HEIGHTS_COLUMNS",
@@ -358,13 +359,13 @@ def _columns(table: pd.DataFrame):
             fix="drop those rows or recompute their ray intersections",
         )
     cn0 = _cn0(table, "intersections")
-    signal = _compact(pd.factorize(table["signal"])[0]) if "signal" in table.columns else None
+    signal = compact(pd.factorize(table["signal"])[0]) if "signal" in table.columns else None
     order = None
     if "order" in table.columns:  # numpy's whole numbers as they are: a float copy is memory
         dtype = table["order"].dtype  # (pandas' nullable ones may hold a missing value: floats)
         whole = isinstance(dtype, np.dtype) and dtype.kind in "iu"
         order = table["order"].to_numpy() if whole else _numeric(table, "order")
-    return np.asarray(ids, dtype=object), _compact(codes), height, cn0, signal, order
+    return np.asarray(ids, dtype=object), compact(codes), height, cn0, signal, order
 
 
 def _cn0(table: pd.DataFrame, what: str) -> np.ndarray:
@@ -403,7 +404,7 @@ def _tracks(table) -> np.ndarray | None:
         return satellite
     # one int64 per (recording, satellite) pair: both codes are below the number of rows
     pair = (pd.factorize(table[recording])[0] + 1) * (int(satellite.max(initial=0)) + 1)
-    return _compact(pair + satellite)
+    return compact(pair + satellite)
 
 
 def _height_sd(table) -> np.ndarray | None:

@@ -342,7 +342,7 @@ class FailedTile:
         """The buildings, with no fit."""
         nan = np.full(self.building.size, np.nan)
         no = np.zeros(self.building.size, dtype=bool)
-        return Shared(self.building, nan, nan, nan, nan, no, no)
+        return Shared(self.building, nan, nan, nan, nan, no, no, nan)
 
     def exchanged(self, *shared: Shared) -> tuple[FailedTile, Tally]:
         """No signal to count, no label to change."""

@@ -6,7 +6,6 @@ import pytest
 from conftest import occluded_pair
 
 from gnss_citygml import Estimator, estimate_heights
-from gnss_citygml.errors import ModelError
 from gnss_citygml.model.blame import blamed, others_clear, sole_blocker
 
 
@@ -62,10 +61,3 @@ def test_open_rays_behind_a_taller_building_count_for_the_one_behind(rng):
     # the drop leaves out every ray A may block, open or not; blame keeps the open ones
     assert ray.loc["B", "n_signals"] > drop.loc["B", "n_signals"]
     assert ray.loc["B", "height_lower"] <= 20.0 <= ray.loc["B", "height_upper"]
-
-
-def test_an_unknown_blame_is_refused_and_the_baselines_do_not_take_one():
-    with pytest.raises(ModelError, match="unknown blame 'front'.*ray, drop"):
-        Estimator(blame="front")
-    with pytest.raises(ModelError, match="blame not used by method hinge"):
-        Estimator(method="hinge", blame="ray")

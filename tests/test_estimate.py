@@ -138,6 +138,13 @@ def test_unknown_method_and_option():
         Estimator(method="bayes", acceptance=Acceptance(max_uncertainty=5.0))
     with pytest.raises(ModelError, match="unknown weighting"):
         Estimator(weighting="magic")
+    with pytest.raises(ModelError, match="unknown blame 'front'.*ray, drop"):
+        Estimator(blame="front")
+    with pytest.raises(ModelError, match="blame not used by method hinge"):
+        Estimator(method="hinge", blame="ray")
+    # without the visibility model there is nothing to share a ray among: refused, not ignored
+    with pytest.raises(ModelError, match="visibility model, which is off.*keep visibility on"):
+        Estimator(visibility=False, blame="ray")
     # a baseline's own settings are its initial threshold and min_signals
     table = pd.DataFrame({"building": ["a"] * 3, "height": [1.0, 2.0, 3.0], "cn0": [30.0] * 3})
     few = Estimator(method="hinge", acceptance=Acceptance(min_signals=3))

@@ -241,7 +241,12 @@ class Part:
         building alone blocks it, :mod:`.blame`), and how many of their map labels changed."""
         own, n_own, last = self._own, self.n_own, self.last
         g, h = self.g[own], self.h[own]
-        labels, blame = self._labels(model, own=None if last is None else self._mine(last.fit))
+        rest = None  # with whole-ray blame: each own row's chance of clearing the others
+        if self._blames and self.prior is not None and last is not None:
+            rest = others_clear(self.prior, self.sig, self.along)[own]
+            labels, blame = self._blame(model, rest, last.fit)
+        else:
+            labels, blame = self._labels(model), None
         seen = self.seen[own] if blame is None else blame[own] >= MIN_WEIGHT
         weights = None if blame is None else blame[own]  # the paper's MLE: each row once
         reweighted = None
@@ -264,8 +269,8 @@ class Part:
         fit = self._fit(h, labels, weights, g, use, None if last is None else last.fit.params)
         if last is not None:
             fit = fit.where(~refit, last.fit)
-        if blame is not None:
-            fit, labels, blame = self._self_consistent(model, fit, refit, reweighted, labels, blame)
+        if rest is not None:
+            fit, labels, blame = self._self_consistent(model, fit, refit, reweighted, rest)
             seen = blame[own] >= MIN_WEIGHT
         settling = settling.after(fit.c)
         change = np.ones(n_own)
@@ -312,14 +317,14 @@ class Part:
         fit: FourPLFit,
         refit: np.ndarray,
         reweighted: np.ndarray | None,
-        labels: np.ndarray,
-        blame: np.ndarray,
+        rest: np.ndarray,
     ) -> tuple[FourPLFit, np.ndarray, np.ndarray]:
         """With whole-ray blame, the ``refit`` buildings' fits again until each one's roof
         line moves by at most :data:`~.fourpl.X_TOL` (at most :data:`SELF_ROUNDS` times),
-        each row's blame reweighed by its own building's fit just made (the other buildings
-        along its ray as last exchanged, so that which buildings a part holds changes
-        nothing), and the labels and blame weights they end with.
+        each own row's blame (:meth:`_blame`, ``rest``) reweighed by its own building's fit
+        just made (the other buildings along its ray as last exchanged, so that which
+        buildings a part holds changes nothing), and the labels and blame weights they end
+        with.
 
         A closed ray's weight for a building depends on the building's own fit: fitted against
         its last fit's weights, a roof line crept a few per cent of the way to agreeing each
@@ -327,16 +332,9 @@ class Part:
         the 30th); agreeing within each fit, it settles at 10."""
         own = self._own
         g, h = self.g[own], self.h[own]
-        sd = None if self.sd is None else self.sd[own]
-        rest = others_clear(np.asarray(self.prior), self.sig, self.along)[own]
-        rho = model.label(self.s[own]).astype(float)  # the paper's: fixed; the mixture's: below
-        labels, blame = labels.copy(), blame.copy()
         moved = refit
-        for _ in range(SELF_ROUNDS):  # only the own rows, and of those only p, change
-            p = clear_chance(h, g, sd, fit.a, fit.b, fit.c, fit.d)
-            if isinstance(model, Cn0Mixture):
-                rho = model.posterior(self.s[own], self.e[own], p * rest)
-            labels[own], blame[own] = blamed(rho, p, rest)
+        for _ in range(SELF_ROUNDS):
+            labels, blame = self._blame(model, rest, fit)
             if not moved.any():
                 break
             weights = blame[own] if reweighted is None else reweighted * blame[own]
@@ -347,43 +345,40 @@ class Part:
             fit = again
         return fit, labels, blame
 
-    def _mine(self, fit: FourPLFit) -> np.ndarray | None:
-        """With whole-ray blame, each row's chance of clearing its building, the own
-        buildings' by their ``fit`` (the others' as exchanged); None before an exchange."""
-        if self.prior is None or not self._blames:
-            return None
+    def _blame(
+        self, model: SignalModel, rest: np.ndarray, fit: FourPLFit | None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Whole-ray blame's labels and weights (:func:`.blame.blamed`; rows of the part,
+        filled for the own ones): each own row clears its building with the chance its
+        ``fit`` gives (None: as last exchanged) and the other buildings along its ray with
+        the chance ``rest``; it is open by the signal ``model`` (the paper's classifier's
+        label, the mixture's posterior of clearing them all)."""
         own = self._own
-        mine = self.prior.copy()
-        sd = None if self.sd is None else self.sd[own]
-        mine[own] = clear_chance(self.h[own], self.g[own], sd, fit.a, fit.b, fit.c, fit.d)
-        return mine
-
-    def _labels(
-        self,
-        model: SignalModel,
-        own: np.ndarray | None = None,
-        others: np.ndarray | None = None,
-    ) -> tuple[np.ndarray, np.ndarray | None]:
-        """Every row's label by the signal ``model`` (the paper's classifier: open or not; the
-        mixture: the chance that the row's ray clears its building, given the fits last
-        exchanged), and with whole-ray blame each row's weight (:mod:`.blame`: the row clears
-        its own building with the chance ``own``, the other buildings along its ray clear it
-        with the chances ``others`` of their rows, both by default as last exchanged; None:
-        the visibility model's ``seen`` rows count, the others not)."""
-        prior = self.prior
-        if prior is None or not self._blames:
-            if isinstance(model, Cn0Mixture):
-                prior = np.full(self.h.size, 0.5) if prior is None else prior
-                return model.row_labels(self.s, self.e, prior, self.sig), None
-            labels = np.zeros(self.h.size, dtype=bool)  # the own seen rows: others stay closed
-            rows = np.flatnonzero(self.seen[self._own])
-            labels[rows] = model.label(self.s[rows])
-            return labels, None
-        p = prior if own is None else own
-        rest = others_clear(prior if others is None else others, self.sig, self.along)
+        if fit is None:
+            p = np.asarray(self.prior)[own]
+        else:
+            sd = None if self.sd is None else self.sd[own]
+            p = clear_chance(self.h[own], self.g[own], sd, fit.a, fit.b, fit.c, fit.d)
         if isinstance(model, Cn0Mixture):
-            return blamed(model.posterior(self.s, self.e, p * rest), p, rest)
-        return blamed(model.label(self.s).astype(float), p, rest)
+            rho = model.posterior(self.s[own], self.e[own], p * rest)
+        else:
+            rho = model.label(self.s[own]).astype(float)
+        labels, blame = np.zeros(self.h.size), np.zeros(self.h.size)
+        labels[own], blame[own] = blamed(rho, p, rest)
+        return labels, blame
+
+    def _labels(self, model: SignalModel) -> np.ndarray:
+        """Every row's label by the signal ``model`` without whole-ray blame: the paper's
+        classifier's on the own rows the visibility model keeps (the others closed, unused);
+        the mixture's chance that the row's ray clears its building, given the fits last
+        exchanged."""
+        if isinstance(model, Cn0Mixture):
+            prior = np.full(self.h.size, 0.5) if self.prior is None else self.prior
+            return model.row_labels(self.s, self.e, prior, self.sig)
+        labels = np.zeros(self.h.size, dtype=bool)
+        rows = np.flatnonzero(self.seen[self._own])
+        labels[rows] = model.label(self.s[rows])
+        return labels
 
     def shared(self) -> Shared:
         """What the other parts need of the own buildings' fits (after :meth:`fitted`)."""
@@ -495,10 +490,10 @@ class Part:
             # known: the evidence counted as independent
             used, evidence, told = fit_seen, fit_seen.astype(float), labels
             if last.weight is not None:  # closed rays as far as no other building may block
-                robust, weight = self._labels(last.model, others=self.tall)
-                if weight is not None:
-                    told, evidence = robust[own], weight[own]
-                    used = evidence >= MIN_WEIGHT
+                tall = others_clear(np.asarray(self.tall), self.sig, self.along)[own]
+                robust, weight = self._blame(last.model, tall, None)
+                told, evidence = robust[own], weight[own]
+                used = evidence >= MIN_WEIGHT
             if looks is not None:
                 evidence = evidence * height_weights(h, g, n_own, "looks", mask=used, looks=looks)
             c_lo, c_hi = c_interval(

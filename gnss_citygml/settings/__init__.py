@@ -318,6 +318,11 @@ class Estimator:
             )
         if self.blame not in BLAMES:
             raise ModelError(f"unknown blame {self.blame!r}", fix="use one of " + ", ".join(BLAMES))
+        if self.blame != "drop" and not self.visibility:
+            raise ModelError(
+                f"blame {self.blame} shares closed rays in the visibility model, which is off",
+                fix="leave blame out, or keep visibility on",
+            )
         if self.signal_model not in SIGNAL_MODELS:
             raise ModelError(
                 f"unknown signal model {self.signal_model!r}",

@@ -62,7 +62,7 @@ def prepare(folder: Path, signals: int, blocks: int, grid_dir, locations: str) -
     )
 
 
-def run(folder: Path, grid_dir, estimator_options: dict, calibrate, save) -> None:
+def run(folder: Path, grid_dir, estimator_options: dict, calibrate, save, crossing) -> None:
     import pandas as pd
 
     from gnss_citygml.calibrate import calibrate_receivers
@@ -70,7 +70,7 @@ def run(folder: Path, grid_dir, estimator_options: dict, calibrate, save) -> Non
     from gnss_citygml.model.estimate import estimate_heights
     from gnss_citygml.observations import read_observations
     from gnss_citygml.pipeline import intersections, open_sky, receivers
-    from gnss_citygml.settings import Calibration, Estimator
+    from gnss_citygml.settings import Calibration, Estimator, PositionError
     from gnss_citygml.terrain import building_ground
 
     times = {}
@@ -97,7 +97,7 @@ def run(folder: Path, grid_dir, estimator_options: dict, calibrate, save) -> Non
             calibration,
             estimator=estimator,
         )
-    inter = timed("cast", intersections, rx, fp)
+    inter = timed("cast", intersections, rx, fp, position_error=PositionError(crossing=crossing))
     heights = timed(
         "fit (4PL-B)",
         lambda: estimate_heights(inter, estimator, open_sky=open_sky(rx, inter)),
@@ -132,6 +132,11 @@ def main():
     parser.add_argument(
         "--blame", choices=("ray", "drop"), help="Estimator.blame (default: the estimator's)"
     )
+    parser.add_argument(
+        "--crossing",
+        action="store_true",
+        help="PositionError(crossing=True): each row's chance of crossing, near misses cast",
+    )
     parser.add_argument("--locations", choices=("manual", "gnss"), default="manual")
     parser.add_argument("--calibrate", choices=("shadows", "roof lines"))
     parser.add_argument("--against", metavar="REV", help="side by side with git revision REV")
@@ -142,7 +147,7 @@ def main():
     if args.run:
         options = {"signal_model": args.signal_model, "level_phones": not args.no_level_phones}
         options |= {} if args.blame is None else {"blame": args.blame}
-        run(args.run, args.grid_dir, options, args.calibrate, args.save)
+        run(args.run, args.grid_dir, options, args.calibrate, args.save, args.crossing)
         return
     folder = OUT / f"city_{args.blocks}x{args.blocks}_{args.signals}"
     if args.locations != "manual":
@@ -154,6 +159,7 @@ def main():
     command += ["--calibrate", args.calibrate] if args.calibrate else []
     command += ["--no-level-phones"] if args.no_level_phones else []
     command += ["--blame", args.blame] if args.blame else []
+    command += ["--crossing"] if args.crossing else []
     if args.against:
         side_by_side(command, args.against, args.repeat)
     else:

@@ -238,6 +238,12 @@ def _parser() -> argparse.ArgumentParser:
         default=Estimator.blame,
         help="what a closed ray crossing several buildings tells each (the reference's too)",
     )
+    parser.add_argument(
+        "--crossing",
+        action="store_true",
+        help="each row weighs by its chance of crossing its building, near misses give rows "
+        "(PositionError(crossing=True))",
+    )
     parser.add_argument("--save", help="write every converged run to this CSV")
     parser.add_argument(
         "--no-open-sky",
@@ -375,6 +381,7 @@ def main():
             error = position_error(
                 args.position_errors, locations, args.position_window, args.position_distance
             )
+            error = replace(error, crossing=args.crossing)
             estimator = Estimator(
                 weighting=args.weighting,
                 blame=args.blame,

@@ -551,11 +551,13 @@ _STYLE = (
 
 
 def _intersections(run: Run) -> pd.DataFrame:
-    """The run's intersections, which a run in tiles never gathers."""
+    """The run's intersections, which a run in tiles never gathers: those where a ray enters
+    a footprint (not a footprint it passes near, ``order`` -1)."""
     if run.intersections is None:
         raise InputError(
             "the report needs every intersection of the run on one machine, and a run on a "
             "Dask scheduler does not gather them",
             fix="run without --scheduler for the report",
         )
-    return run.intersections
+    inter = run.intersections
+    return inter[inter["order"] >= 0] if "crossing" in inter.columns else inter

@@ -14,6 +14,7 @@ import geopandas as gpd
 import numpy as np
 import pandas as pd
 import shapely
+from scipy.special import ndtr
 
 from .errors import InputError
 from .files.ids import source_named, with_id_field
@@ -23,13 +24,22 @@ from .model.estimate import HEIGHTS_COLUMNS
 from .observations import check_observations, satellites
 from .raycast import footprint_entries
 from .recordings import position_groups
-from .settings import DEFAULT_POSITION_SD, PositionError, Rays, ReceiverHeights, RunSettings
+from .settings import (
+    DEFAULT_POSITION_SD,
+    NEAR_SDS,
+    PositionError,
+    Rays,
+    ReceiverHeights,
+    RunSettings,
+)
 from .terrain import Dem, sample_ground
 
 __all__ = [
     "EARTH_RADIUS",
     "MIN_INCIDENCE",
     "REFRACTION",
+    "crossing_chance",
+    "distance_sd",
     "in_mask",
     "intersections",
     "join_heights",
@@ -49,6 +59,10 @@ REFRACTION = 0.13
 #: grazing (beyond 84 deg) a metre of position moves the entry onto the neighbouring wall
 #: rather than 10 m along this one.
 MIN_INCIDENCE = 0.1
+#: How far (in position sds) the rays are moved to each side to find how far a position error
+#: moves each entry (:func:`distance_sd`, with ``PositionError.crossing``): two, a likely
+#: error that finds a corner the ray passes.
+SIDESTEP_SDS = 2.0
 
 
 def in_mask(observations: pd.DataFrame, rays: Rays = Rays()) -> pd.DataFrame:
@@ -145,37 +159,46 @@ def intersections(
     by default each row's ``position_sd``, m per axis, and
     :data:`~gnss_citygml.settings.DEFAULT_POSITION_SD` where it is empty or missing):
     ``height_sd``, the standard deviation of each height that follows, ``sd * tan(elevation) /
-    cos(incidence)`` (a position error across the entry wall lengthens or shortens the ray's
-    way to it by itself over the cosine of the angle of incidence; along the wall it changes
-    nothing), with the cosine floored at :data:`MIN_INCIDENCE`; and ``recording``, which rows
+    cos(incidence)`` (a position error across the entry wall moves the ray's way to it by
+    itself over the cosine of incidence; along the wall nothing), with the cosine floored at
+    :data:`MIN_INCIDENCE`; and ``recording``, which rows
     share one position error (:func:`~gnss_citygml.recordings.position_groups`: a receiver
     standing still shares one over its stay, a moving one over its recording, or over windows
     of ``position_error.window`` seconds; needs ``time_utc``): :func:`recordings`, unless
     given (``recording``, one per receiver row: a tile's rows, named over the whole run).
+    With ``position_error.crossing``: ``crossing`` (:func:`crossing_chance`), rows of footprints
+    passed within :data:`~gnss_citygml.settings.NEAR_SDS` sds (``order`` -1, where the moved
+    ray touches them), ``height_sd`` from rays moved sideways (:func:`distance_sd`).
     """
-    ray, fp, dist, incidence = footprint_entries(
+    sd = None if position_error.exact else position_sds(receivers, position_error)
+    reach = NEAR_SDS * sd if sd is not None and position_error.crossing else None
+    ray, fp, dist, incidence, *across = footprint_entries(
         receivers["e"].to_numpy(),
         receivers["n"].to_numpy(),
         receivers["bearing"].to_numpy(),
         buildings.geometry.to_numpy(),
         rays.max_range,
+        reach=reach,
+        sidestep=None if reach is None else reach * (SIDESTEP_SDS / NEAR_SDS),
     )
     elevation = receivers["elevation"].to_numpy()[ray]
     slope = np.tan(np.radians(elevation))
     height = receivers["z"].to_numpy()[ray] + dist * slope
     if rays.earth_curvature:
         height += dist**2 * (1.0 - REFRACTION) / (2.0 * EARTH_RADIUS)
-    first = np.r_[True, ray[1:] != ray[:-1]]
-    start = np.maximum.accumulate(np.where(first, np.arange(ray.size), 0))
-    extra = {}
-    if not position_error.exact:
-        spread = slope / np.maximum(incidence, MIN_INCIDENCE)
-        extra["height_sd"] = position_sds(receivers, position_error)[ray] * spread
-        if recording is None:
-            recording = recordings(receivers, position_error)
-        extra["recording"] = recording[ray]
+    extra = {}  # the position error's columns
+    if sd is not None:
+        extra["height_sd"] = sd[ray] * (slope / np.maximum(incidence, MIN_INCIDENCE))
+        if across:  # the entry's distance as the rays moved sideways found it
+            fallback = extra["height_sd"] / slope
+            extra["height_sd"] = slope * distance_sd(across[0], dist, sd[ray], fallback)
+        named = recordings(receivers, position_error) if recording is None else recording
+        extra["recording"] = named[ray]
     if {"constellation", "svid"} <= set(receivers.columns):
         extra["satellite"] = satellites(receivers)[ray]
+    entered = np.ones(ray.size, dtype=bool)
+    if across and sd is not None:
+        extra["crossing"], entered = crossing_chance(across[0], sd[ray])
     # the columns are this function's own arrays: the table takes them as they are (no copy)
     return pd.DataFrame(
         {
@@ -188,7 +211,7 @@ def intersections(
             ),
             "height": height,
             "distance": dist,
-            "order": np.arange(ray.size) - start,
+            "order": _order(ray, entered),
             "cn0": receivers["cn0"].to_numpy()[ray],
             "elevation": elevation,
             "receiver": receivers["receiver"].array.take(ray),  # its dtype, no Python strings
@@ -198,11 +221,54 @@ def intersections(
     )
 
 
+def distance_sd(
+    across: np.ndarray, distance: np.ndarray, sd: np.ndarray, fallback: np.ndarray
+) -> np.ndarray:
+    """How far (m, one sd) each entry's distance along its ray may be off, its receiver off by
+    ``sd`` (m per axis): ``sd`` along the ray, and across it what the rays moved
+    :data:`SIDESTEP_SDS` sds to each side found (``across[:, 2:]``, the distances where the
+    moved rays first cross the footprint): for a straight wall at incidence ``i`` each moves
+    the entry by ``sd tan(i)`` a sd, so this is ``sd / cos(i)``; at a corner, where a ray
+    moved a metre enters through another wall tens of metres on, it is that far. Where
+    neither moved ray crosses, ``fallback``."""
+    moved = (across[:, 2:] - distance[:, None]) / SIDESTEP_SDS
+    sides = np.isfinite(moved)
+    with np.errstate(invalid="ignore"):
+        var = np.where(sides, moved, 0.0) ** 2
+        across_var = var.sum(axis=1) / sides.sum(axis=1)
+    return np.where(sides.any(axis=1), np.sqrt(sd**2 + across_var), fallback)
+
+
+def crossing_chance(across: np.ndarray, sd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each row's chance that its ray crosses the footprint, the footprint reaching
+    ``across[:, 0]`` (m, to the right: negative) to ``across[:, 1]`` (to the left) of it and the
+    receiver's position off by ``sd`` (m) across the ray; and whether the ray as cast enters
+    it. A ray through a footprint's middle crosses it almost surely, one through its corner
+    half the time or less."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        chance = ndtr(across[:, 1] / sd) - ndtr(across[:, 0] / sd)
+    entered = (across[:, 0] <= 0) & (across[:, 1] >= 0)
+    return np.where(sd > 0, chance, entered.astype(float)), entered
+
+
+def _order(ray: np.ndarray, entered: np.ndarray) -> np.ndarray:
+    """Each row's place along its ray (rows sorted by ray and distance) among the footprints
+    the ray ``entered`` (0 = the first); -1 for a footprint it passes near."""
+    first = np.r_[True, ray[1:] != ray[:-1]]
+    count = np.cumsum(entered)
+    before = (count - entered)[np.maximum.accumulate(np.where(first, np.arange(ray.size), 0))]
+    return np.where(entered, count - 1 - before, -1)
+
+
 def open_sky(receivers: pd.DataFrame, intersections: pd.DataFrame) -> pd.DataFrame:
     """The receivers' rows (signals) whose rays enter no footprint within reach: open as far
     as the map knows, what the mixture signal model learns open signals from
-    (:func:`~gnss_citygml.model.estimate.estimate_heights`)."""
-    return receivers[~receivers.index.isin(intersections["signal"].to_numpy())]
+    (:func:`~gnss_citygml.model.estimate.estimate_heights`). A ray that only passes near a
+    footprint (``order`` -1) enters none."""
+    entered = intersections["signal"]
+    if "order" in intersections.columns:
+        entered = entered[intersections["order"].to_numpy() >= 0]
+    return receivers[~receivers.index.isin(entered.to_numpy())]
 
 
 def recordings(

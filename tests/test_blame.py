@@ -6,7 +6,9 @@ import pytest
 from conftest import occluded_pair
 
 from gnss_citygml import Estimator, estimate_heights
-from gnss_citygml.model.blame import blamed, others_clear, sole_blocker
+from gnss_citygml.model.blame import blamed, cleared, others_clear, sole_blocker
+from gnss_citygml.model.classifier import SignalClassifier
+from gnss_citygml.model.parts import Part
 
 
 def test_a_ray_that_crosses_one_building_is_all_its_own():
@@ -51,6 +53,28 @@ def test_the_weighted_label_has_the_gradient_of_the_rays_own_likelihood(prior):
     np.testing.assert_allclose(weight * (1 - label), (1 - rho) * w)
 
 
+@pytest.mark.parametrize("crossing", [(1.0, 0.3), (0.02, 0.9, 0.5), (0.7, 0.7, 1.0, 0.1)])
+def test_with_each_rays_chance_of_crossing_the_labels_have_the_rays_gradient(crossing):
+    """A ray crosses building k with chance q_k: it clears it with 1 - q_k (1 - p_k). The
+    weighted labels' log-likelihood has the gradient in each p_k of the ray's own, closed
+    (1 - prod) and open (prod): a row that may well miss its building says little of it."""
+    q = np.array(crossing)
+    p = np.linspace(0.2, 0.9, q.size)
+    clear = cleared(p, q)
+    rest = others_clear(clear, np.zeros(q.size, dtype=int))
+    closed = -q * rest / (1.0 - np.prod(clear))  # d/dp_k log(1 - prod(clear))
+    opened = q / clear  # d/dp_k log(prod(clear))
+    _, w = blamed(np.zeros(q.size), p, rest, q)
+    np.testing.assert_allclose(-w / (1.0 - p), closed, rtol=1e-9)
+    label, v = blamed(np.ones(q.size), p, rest, q)
+    np.testing.assert_allclose(label, 1.0)
+    np.testing.assert_allclose(v / p, opened, rtol=1e-9)
+    # a ray sure to cross: the weights without the chance
+    sure = blamed(np.full(2, 0.4), p[:2], rest[:2], np.ones(2))
+    for one, other in zip(sure, blamed(np.full(2, 0.4), p[:2], rest[:2]), strict=True):
+        np.testing.assert_allclose(one, other, rtol=1e-14)
+
+
 def test_open_rays_behind_a_taller_building_count_for_the_one_behind(rng):
     table = occluded_pair(rng)
     ray = estimate_heights(table, Estimator(blame="ray")).set_index("id")
@@ -61,3 +85,19 @@ def test_open_rays_behind_a_taller_building_count_for_the_one_behind(rng):
     # the drop leaves out every ray A may block, open or not; blame keeps the open ones
     assert ray.loc["B", "n_signals"] > drop.loc["B", "n_signals"]
     assert ray.loc["B", "height_lower"] <= 20.0 <= ray.loc["B", "height_upper"]
+
+
+def test_a_neighbour_is_taken_as_tall_as_its_lowest_open_rays(rng):
+    """What a building's range takes a neighbour for (``Shared.top``): its roof line, or, where
+    that lies below them, the lowest of its open rays (5 %): whole-ray blame may have given
+    all of a building's closed rays to a neighbour and left it a roof line far below its data,
+    but the roof may stand up to where its rays are open."""
+    h = np.concatenate([rng.uniform(10, 50, 400), rng.uniform(40, 90, 400)])
+    cn0 = np.concatenate([np.where(h[:400] > 30, 45.0, 20.0), np.full(400, 45.0)])
+    g = np.repeat([0, 1], 400)  # 0: closed below 30 m; 1: every ray open
+    part = Part.of(g, h, cn0, 2, Estimator(blame="ray")).fitted(SignalClassifier(c=35.0))
+    top, fit = part.shared().top, part.last.fit if part.last else None
+    assert fit is not None and fit.c[0] == pytest.approx(30.0, abs=0.5)
+    floors = [np.quantile(h[:400][h[:400] > 30], 0.05), np.quantile(h[400:], 0.05)]
+    assert fit.c[1] < floors[1]  # a roof line below every ray of building 1
+    np.testing.assert_allclose(top, np.fmax(fit.c, floors), atol=0.5)

@@ -7,6 +7,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import shapely
+from scipy.stats import norm
 
 from gnss_citygml.errors import InputError
 from gnss_citygml.footprints import read_footprints
@@ -191,21 +192,26 @@ def test_calibration_with_another_method_is_refused_before_any_work():
         )
 
 
-def test_height_errors_of_position_errors():
-    # A wall 10 m east of the receiver: head-on, at 60 deg from its normal, and grazing.
-    wall = gpd.GeoDataFrame({"id": ["w"]}, geometry=[shapely.box(10, -500, 20, 500)])
-    rx = pd.DataFrame(
+def rays_from(bearing, n=0.0, z=1.0):
+    """One receiver's rays at 45 deg elevation on ``bearing`` (from (0, ``n``))."""
+    return pd.DataFrame(
         {
             "e": 0.0,
-            "n": 0.0,
-            "z": 1.0,
-            "bearing": [90.0, 30.0, 3.0],
+            "n": n,
+            "z": z,
+            "bearing": bearing,
             "elevation": 45.0,
             "cn0": 40.0,
             "receiver": "r",
             "time_utc": pd.Timestamp("2020-02-11T10:00:00Z"),
         }
     )
+
+
+def test_height_errors_of_position_errors():
+    # A wall 10 m east of the receiver: head-on, at 60 deg from its normal, and grazing.
+    wall = gpd.GeoDataFrame({"id": ["w"]}, geometry=[shapely.box(10, -500, 20, 500)])
+    rx = rays_from([90.0, 30.0, 3.0])
     exact = intersections(rx, wall, position_error=PositionError(sd=0.0))
     assert "height_sd" not in exact and "recording" not in exact
     out = intersections(rx, wall, position_error=PositionError(sd=2.0))
@@ -218,6 +224,51 @@ def test_height_errors_of_position_errors():
     np.testing.assert_allclose(intersections(given, wall)["height_sd"], [0.5, 2.0, 30.0])
     overridden = intersections(given, wall, position_error=PositionError(sd=2.0))
     np.testing.assert_allclose(overridden["height_sd"], [2.0, 4.0, 20.0])
+
+
+def test_each_rows_chance_of_crossing_and_the_near_misses():
+    """``PositionError(crossing=True)``: each row's chance that its ray crosses the footprint
+    given the position error across it, and rows for footprints passed within three sds."""
+    blocks = gpd.GeoDataFrame(
+        {"id": ["mid", "corner", "near", "far"]},
+        geometry=[
+            shapely.box(10, -20, 20, 20),  # the ray through its middle: crosses surely
+            shapely.box(30, -10, 40, 0.5),  # 0.5 m from its corner: crosses 69 % of the time
+            shapely.box(50, 2, 60, 10),  # missed by 2 m: 2.3 % (2 sds)
+            shapely.box(70, 4, 80, 10),  # missed by 4 m: beyond three sds
+        ],
+    )
+    rx = rays_from([90.0])
+    plain = intersections(rx, blocks, position_error=PositionError(sd=1.0))
+    out = intersections(rx, blocks, position_error=PositionError(sd=1.0, crossing=True))
+    assert out["building"].tolist() == ["mid", "corner", "near"]
+    assert plain["building"].tolist() == ["mid", "corner"]
+    np.testing.assert_allclose(
+        out["crossing"], [1.0, norm.cdf(0.5) - norm.cdf(-10.5), norm.cdf(-2.0)], rtol=1e-12
+    )
+    assert out["order"].tolist() == [0, 1, -1]
+    pd.testing.assert_frame_equal(out.iloc[:2].drop(columns="crossing"), plain)
+    assert out["height"].iloc[2] == pytest.approx(1.0 + 50.0)  # where the moved ray meets it
+    # exact positions: every ray crosses what it enters, and nothing else
+    exact = PositionError(sd=0.0, crossing=True)
+    assert "crossing" not in intersections(rx, blocks, position_error=exact)
+
+
+def test_a_position_error_at_a_corner_moves_the_entry_far():
+    """A ray that enters a long building's end wall just past its corner: 2 m to the side and
+    it runs along the side wall and enters it 50 m on. With the crossing chance the height's
+    error is what the rays moved sideways find (``distance_sd``), not the end wall's head-on
+    ``sd``; a wall the moved rays enter alike keeps ``sd / cos(incidence)``."""
+    long_block = gpd.GeoDataFrame({"id": ["b"]}, geometry=[shapely.box(10, 0.3, 200, 20)])
+    # just past the corner at (10, 0.3); the end wall's middle
+    rx = rays_from([88.0, 60.0], n=[0.2, 5.0], z=0.0)
+    plain = intersections(rx, long_block, position_error=PositionError(sd=1.0))
+    moved = intersections(rx, long_block, position_error=PositionError(sd=1.0, crossing=True))
+    assert plain["distance"].tolist() == moved["distance"].tolist()
+    assert plain["height_sd"].iloc[0] == pytest.approx(1.0, abs=0.01)  # head-on
+    corner, wall = moved["height_sd"].to_numpy()
+    assert corner > 15.0  # one side's ray enters 50 m on: (50 / 2) / sqrt(2) a sd
+    assert wall == pytest.approx(plain["height_sd"].iloc[1], rel=1e-9)
 
 
 def test_position_errors_shared_per_window():

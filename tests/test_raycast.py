@@ -9,6 +9,7 @@ SQUARE = shapely.box(10, -5, 20, 5)
 HOLED = shapely.Polygon(
     [(10, -10), (30, -10), (30, 10), (10, 10)], [[(15, -5), (25, -5), (25, 5), (15, 5)]]
 )
+STRIP = ((0, -500), (0, 500), (100, 500), (100, -500))
 TWO_PARTS = shapely.MultiPolygon([shapely.box(10, -1, 11, 1), shapely.box(20, -1, 21, 1)])
 
 
@@ -135,3 +136,52 @@ def test_batches_chunks_and_threads_give_one_pass_bits(rng, monkeypatch, gradien
     assert ray.size > n // 2 and np.any((np.diff(ray) == 0) & (np.diff(distance) == 0))  # ties
     for a, b in zip(one, many, strict=True):
         assert np.array_equal(a, b)
+
+
+def test_reach_gives_each_footprints_extent_across_the_ray_and_its_near_misses():
+    """``reach``: how far the footprint lies to each side of the ray (right negative), and a row
+    for a footprint passed within the reach, at its point nearest the ray's line."""
+    ray, fp, dist, cos, across = footprint_entries(
+        [0.0, 0.0, 0.0, 0.0], [0.0, 7.0, -8.0, 9.0], [90.0] * 4, [SQUARE], reach=3.5
+    )
+    assert ray.tolist() == [0, 1, 2]  # the ray 4 m beside the square is beyond reach
+    np.testing.assert_allclose(across, [[-5, 5], [-12, -2], [3, 13]])
+    np.testing.assert_allclose(dist, 10.0)  # near misses: at the corner nearest the line
+    assert np.all((cos >= 0) & (cos <= 1))
+
+
+def test_reach_counts_only_the_footprint_within_the_rays_length():
+    """A footprint behind the receiver or beyond the ray's length gives no row, however near
+    its line; one the ray enters spans across it only as far as its part within that length."""
+    ray, *_ = footprint_entries([0.0, 0.0], [0.0, 0.0], [270.0, 90.0], [SQUARE], 5.0, reach=9.0)
+    assert ray.size == 0
+    wedge = shapely.Polygon([(10, -1), (40, -30), (40, 30)])  # widens along the ray
+    *_, across = footprint_entries([0.0], [0.0], [90.0], [wedge], 20.0, reach=1.0)
+    np.testing.assert_allclose(across, [[-1 - 29 / 3, -1 + 31 / 3]])  # its width at 20 m
+
+
+def test_reach_matches_shapely_on_random_rays(rng):
+    """Every pair the plain cast finds is found with ``reach``, with the same distance and
+    incidence; a near miss is a pair whose ray's line passes the footprint within the reach,
+    its extent across the ray that of the footprint's boundary within the ray's length."""
+    corners = rng.uniform(-80, 80, (30, 2))
+    footprints = shapely.box(*corners.T, *(corners + rng.uniform(4, 20, (30, 2))).T)
+    footprints = shapely.affinity.rotate(footprints[0], 20), *footprints[1:]
+    x, y, bearing = rng.uniform(-60, 60, 300), rng.uniform(-60, 60, 300), rng.uniform(0, 360, 300)
+    plain = footprint_entries(x, y, bearing, footprints, 100.0)
+    ray, fp, dist, cos, across = footprint_entries(x, y, bearing, footprints, 100.0, reach=5.0)
+    entered = (across[:, 0] <= 0) & (across[:, 1] >= 0)
+    for one, other in zip(plain, (ray, fp, dist, cos), strict=True):
+        np.testing.assert_array_equal(one, other[entered])
+    assert (~entered).sum() > 50
+    for r, f, lo, hi in zip(ray, fp, across[:, 0], across[:, 1], strict=True):
+        dx, dy = np.sin(np.radians(bearing[r])), np.cos(np.radians(bearing[r]))
+        strip = shapely.Polygon(  # 0-100 m along the ray, any distance across it
+            [(x[r] + t * dx - s * dy, y[r] + t * dy + s * dx) for t, s in STRIP]
+        )
+        inside = shapely.intersection(shapely.boundary(footprints[f]), strip)
+        pts = shapely.get_coordinates(inside)
+        side = dx * (pts[:, 1] - y[r]) - dy * (pts[:, 0] - x[r])
+        np.testing.assert_allclose([lo, hi], [side.min(), side.max()], atol=1e-6)
+        gap = min(abs(lo), abs(hi)) if lo * hi > 0 else 0.0
+        assert gap <= 5.0 + 1e-9

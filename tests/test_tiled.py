@@ -21,7 +21,7 @@ from gnss_citygml.errors import InputError
 from gnss_citygml.model.engine import InProcess, in_windows
 from gnss_citygml.model.estimate import heights_and_signal_model
 from gnss_citygml.pipeline import intersections, open_sky, write_tiles
-from gnss_citygml.settings import Estimator, Tiling
+from gnss_citygml.settings import Estimator, PositionError, Tiling
 from gnss_citygml.simulate import simulate
 from gnss_citygml.simulate.scenes import city_scene
 from gnss_citygml.tiling.grid import building_tiles
@@ -124,6 +124,20 @@ def test_tiles_hold_for_other_settings(scene, estimator):
     rx, buildings = scene
     tiled = tiled_heights(rx, buildings, estimator=estimator, tile_size=100.0)
     assert_same_heights(tiled, one_run(rx, buildings, estimator))
+
+
+@pytest.mark.parametrize("blame", ["drop", "ray"])
+def test_tiles_hold_with_each_rows_chance_of_crossing(scene, blame):
+    """``PositionError(crossing=True)``: rays give rows for the footprints they pass near, so a
+    tile takes the rays that pass near its buildings, and its halo the buildings near them."""
+    rx, buildings = scene
+    estimator, error = Estimator(blame=blame), PositionError(crossing=True)
+    inter = intersections(rx, buildings, position_error=error)
+    assert (inter["order"] < 0).sum() > 1000 and inter["crossing"].between(0, 1).all()
+    single = heights_and_signal_model(inter, estimator, open_sky=open_sky(rx, inter))
+    assert single[0]["converged"].sum() >= 5
+    tiled = tiled_heights(rx, buildings, estimator=estimator, position_error=error, tile_size=100)
+    assert_same_heights(tiled, single)
 
 
 @pytest.mark.parametrize("size", [60.0, 250.0])

@@ -21,6 +21,14 @@ A ray's chance of being open ``rho`` (the paper's classifier: 1 or 0; the mixtur
 posterior of clearing every building) makes each row one weighted soft label: the open part
 weighs ``rho`` with label 1, the closed part ``(1 - rho) w_k`` with label 0, together weight
 ``W = rho + (1 - rho) w_k`` and label ``rho / W``, the same log-likelihood.
+
+A ray may not cross a building at all: its receiver's position error may move it past the
+footprint's corner (issue 47). With ``q_k`` its chance of crossing (the intersections'
+``crossing``), the ray clears building ``k`` with chance ``1 - q_k (1 - p_k)`` (:func:`cleared`),
+which takes ``p_k``'s place above; the ray's likelihood's gradient in ``p_k`` is then the
+weighted Bernoulli's with the closed part weighing ``w_k`` of those chances and the open part
+``q_k p_k / (1 - q_k (1 - p_k))``: an open ray below the roof line that may well miss the
+building says little of it, nor does a closed one.
 """
 
 from __future__ import annotations
@@ -29,11 +37,17 @@ import numpy as np
 
 from .mixture import PRIOR_EPS
 
-__all__ = ["blamed", "others_clear", "sole_blocker"]
+__all__ = ["blamed", "cleared", "others_clear", "sole_blocker"]
 
 #: A row weighs at least this for its building's fit to carry it: below, another building
 #: explains its ray (a thousandth of a row's evidence), and the fits are faster without it.
 MIN_WEIGHT = 1e-3
+
+
+def cleared(chance: np.ndarray, crossing: np.ndarray | None) -> np.ndarray:
+    """Each row's chance that its ray clears its building, crossing it (its 4PL's ``chance``)
+    or not (``crossing``: its chance of crossing it; None: it does)."""
+    return chance if crossing is None else 1.0 - crossing * (1.0 - chance)
 
 
 def others_clear(
@@ -63,10 +77,14 @@ def sole_blocker(prior: np.ndarray, rest: np.ndarray) -> np.ndarray:
 
 
 def blamed(
-    open_chance: np.ndarray, prior: np.ndarray, rest: np.ndarray
+    open_chance: np.ndarray,
+    prior: np.ndarray,
+    rest: np.ndarray,
+    crossing: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Each row's soft label and weight for its building's 4PL: ``open_chance`` is each row's
-    chance that its whole ray is open, ``prior`` and ``rest`` as in :func:`sole_blocker`.
+    chance that its whole ray is open, ``prior`` and ``rest`` as in :func:`sole_blocker`, and
+    ``crossing`` each row's chance that its ray crosses its building (None: it does).
 
     A fit takes the other buildings at their fits as last exchanged and its own at its own fit
     (:meth:`~.parts.Part.fitted` refits until they agree: a building's blame does not depend
@@ -77,6 +95,12 @@ def blamed(
     other building may have blocked it, so that a neighbour's guess cannot make the range
     narrow."""
     rho = np.clip(np.asarray(open_chance, dtype=float), 0.0, 1.0)
-    weight = rho + (1.0 - rho) * sole_blocker(prior, rest)
-    label = np.divide(rho, weight, out=np.zeros_like(weight), where=weight > 0)
+    if crossing is None:
+        weight = rho + (1.0 - rho) * sole_blocker(prior, rest)
+        label = np.divide(rho, weight, out=np.zeros_like(weight), where=weight > 0)
+        return label, weight
+    clear = np.clip(cleared(prior, crossing), PRIOR_EPS, 1 - PRIOR_EPS)
+    opened = rho * crossing * np.clip(prior, PRIOR_EPS, 1 - PRIOR_EPS) / clear
+    weight = opened + (1.0 - rho) * sole_blocker(clear, rest)
+    label = np.divide(opened, weight, out=np.zeros_like(weight), where=weight > 0)
     return label, weight

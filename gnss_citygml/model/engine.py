@@ -17,7 +17,8 @@ from ..settings import Estimator
 from .classifier import SignalClassifier
 from .fourplb import BuildingFits, SignalModel
 from .mixture import SETTLED_DB, Cn0Mixture, Cn0Moments
-from .parts import Part, Shared, Tally
+from .parts import Part
+from .shares import Shared, Tally
 
 __all__ = ["Engine", "InProcess", "WINDOW", "in_windows", "run_parts"]
 

@@ -77,8 +77,11 @@ def estimate_heights(
         :class:`~gnss_citygml.settings.PositionError`). With ``height_sd``, 4PL-B and 4PL model
         that error (the slope ``b`` is then the roof line's own) and widen the range by the
         roof line's position uncertainty, each ``recording`` (default: each ``receiver``)
-        counting as one shared error. With ``elevation`` (deg), the mixture signal model
-        learns how C/N0 changes with it.
+        counting as one shared error. With ``crossing`` (each row's chance that its ray crosses
+        the building, given the position error; ``PositionError(crossing=True)``), each row
+        weighs by it, and with whole-ray blame (``Estimator(blame="ray")``) a ray's chance of
+        being blocked by each building it crosses or passes near (``order`` below 0) does. With
+        ``elevation`` (deg), the mixture signal model learns how C/N0 changes with it.
     estimator
         The method and its settings (:class:`~gnss_citygml.settings.Estimator`; default: 4PL-B
         with the paper's settings), e.g. ``Estimator(method="hinge")`` or
@@ -154,7 +157,7 @@ def _fourpl_columns(intersections, estimator: Estimator, open_sky):
 def _baseline_columns(intersections, estimator: Estimator):
     """The hinge or Bayes baseline: the buildings' ids and the heights table's columns (no
     range, no 4PL parameters)."""
-    table = _as_table(intersections)
+    table = _near_misses(_as_table(intersections), estimator)
     ids, codes, height, cn0, _, _ = _columns(table)
     n = len(ids)
     func = hinge_heights if estimator.method == "hinge" else bayes_heights
@@ -198,7 +201,7 @@ def intersections_part(
     (``Part.building``), so that parts of a run can exchange their fits by id. With ``phones``
     (and ``receiver`` and ``elevation`` columns), the part knows each row's phone, to be
     levelled (:meth:`~.parts.Part.levelled`) once the run's open sky is known."""
-    table = _as_table(intersections)
+    table = _near_misses(_as_table(intersections), estimator)
     ids, codes, height, cn0, signal, order = _columns(table)
     n_own = len(ids)
     if own is not None:  # the own buildings first
@@ -221,6 +224,7 @@ def intersections_part(
         track=_tracks(table),
         elevation=_numeric(table, "elevation") if "elevation" in table.columns else None,
         phone=table["receiver"] if phones and "receiver" in table.columns else None,
+        crossing=_crossing(table),
     )
     return ids, part
 
@@ -405,6 +409,33 @@ def _tracks(table) -> np.ndarray | None:
     # one int64 per (recording, satellite) pair: both codes are below the number of rows
     pair = (pd.factorize(table[recording])[0] + 1) * (int(satellite.max(initial=0)) + 1)
     return compact(pair + satellite)
+
+
+def _near_misses(table: pd.DataFrame, estimator: Estimator) -> pd.DataFrame:
+    """The rows of ``table`` the height model reads: those of footprints a ray passes near
+    without entering (``order`` below 0) only with whole-ray blame, which weighs each by its
+    chance of crossing; without it (the visibility model takes the first building along a ray
+    for the one that may block it) they are left out."""
+    if "order" not in table.columns or estimator.blame == "ray":
+        return table
+    near = _numeric(table, "order") < 0
+    return table[~near] if near.any() else table
+
+
+def _crossing(table) -> np.ndarray | None:
+    """The ``crossing`` column (each row's chance that its ray crosses its building), if any:
+    numbers from 0 to 1."""
+    if "crossing" not in table.columns:
+        return None
+    crossing = _numeric(table, "crossing")
+    bad = ~((crossing >= 0) & (crossing <= 1))
+    if bad.any():
+        raise InputError(
+            "crossing must be a chance, 0 to 1",
+            where=f"column 'crossing', rows {_rows(bad)}",
+            fix="recompute the ray intersections (gnss_citygml.intersections)",
+        )
+    return crossing
 
 
 def _height_sd(table) -> np.ndarray | None:

@@ -94,7 +94,8 @@ class Rows(Protocol):
     """What an exchange reads of a part (:class:`~.parts.Part`): its rows' building ``g``,
     height ``h``, C/N0 ``s``, signal ``sig`` and order along the ray, its own buildings'
     number, the rows the fits may use (``seen``), whether the visibility model is on, and
-    its last :class:`Exchange`."""
+    its last :class:`Exchange`, and which rows' rays enter their building (``entered``; None:
+    all)."""
 
     @property
     def g(self) -> np.ndarray: ...
@@ -114,6 +115,8 @@ class Rows(Protocol):
     def occlusion(self) -> bool: ...
     @property
     def exchange(self) -> Exchange | None: ...
+    @property
+    def entered(self) -> np.ndarray | None: ...
 
 
 def counted(
@@ -199,7 +202,7 @@ def _everything(part, c, b, plausible, teach, by_signal):
     evidence = Cn0Counts.of(part.s[lead], clear)
     seen = part.seen
     if part.occlusion:
-        seen = _unoccluded(part.h, part.g, part.sig, c, b, plausible, part.order)
+        seen = _unoccluded(part.h, part.g, part.sig, c, b, plausible, part.order, part.entered)
     moved = _signals(part.sig[seen != part.seen], n_sig)
     state = Exchange(c, b, plausible, teach, used, lead_of, clear_of, evidence, moved, by_signal)
     return seen, evidence, state
@@ -224,7 +227,8 @@ def _update(part, c, b, plausible, teach, last, by_signal, signals, rows):
     seen, moved = part.seen, np.empty(0, dtype=np.intp)
     if part.occlusion:
         order = None if part.order is None else part.order[rows]
-        kept = _unoccluded(part.h[rows], g, sig, c, b, plausible, order)
+        entered = None if part.entered is None else part.entered[rows]
+        kept = _unoccluded(part.h[rows], g, sig, c, b, plausible, order, entered)
         moved = _signals(sig[kept != part.seen[rows]], last.lead.size)
         seen = part.seen.copy()
         seen[rows] = kept

@@ -211,12 +211,14 @@ def _plausible(fit, lo, hi, min_separation):
     return (fit.a - fit.d >= min_separation) & (fit.c >= lo) & (fit.c <= hi)
 
 
-def _unoccluded(h, g, sig, c, b, plausible, order=None):
+def _unoccluded(h, g, sig, c, b, plausible, order=None, entered=None):
     """Rows whose ray surely clears every *other* building at the current estimates (``c``,
     ``b`` per building): it passes above the top of each one's height range, c + 3/b. A
     signal that may have been blocked by another building tells nothing about this one,
     whatever its C/N0. A building without a plausible estimate may stand at any height: with
-    ``order`` (whole numbers), the rows behind it along the ray are left out too."""
+    ``order`` (whole numbers), the rows behind it along the ray are left out too. Rows of
+    footprints the ray only passes near (not ``entered``) are never kept: where the ray may
+    not cross the building, its C/N0 says little of it."""
     known = plausible[g]
     blocks = known & (h < (c + 3.0 / b)[g])
     n_sig = int(sig.max(initial=-1)) + 1
@@ -226,7 +228,7 @@ def _unoccluded(h, g, sig, c, b, plausible, order=None):
         first_unknown = np.full(n_sig, np.iinfo(order.dtype).max, dtype=order.dtype)
         np.minimum.at(first_unknown, sig[~known], order[~known])  # fast: of one dtype
         clear &= order <= first_unknown[sig]
-    return clear
+    return clear if entered is None else clear & entered
 
 
 def position_margin(

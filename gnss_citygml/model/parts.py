@@ -11,7 +11,6 @@ through the iterations, in one process or as Dask tasks. The per-building maths 
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -20,8 +19,7 @@ import pandas as pd
 
 from ..errors import ModelError
 from ..settings import Estimator
-from .blame import MIN_WEIGHT, blamed, others_clear
-from .classifier import Cn0Counts, SignalClassifier
+from .blame import MIN_WEIGHT, blamed, cleared, others_clear
 from .exchange import Exchange, counted, differs, exchanged, group_rows
 from .fourpl import X_TOL, FourPLFit, fit_4pl, group_range
 from .fourplb import (
@@ -38,72 +36,19 @@ from .interval import c_interval
 from .mixture import Cn0Mixture, Cn0Moments, clear_chance, clears_all, elevation_units
 from .offsets import SkyCounts
 from .refits import FIXED_WEIGHTS, changed, shown_fits
-from .row_codes import building_order, compact, factorized, phone_codes, ranks
+from .row_codes import building_order, compact, factorized, phone_codes, ranks, ray_order
 from .settling import Settling
+from .shares import Shared, Tally, lookup
 
-__all__ = ["LastFit", "Part", "Shared", "Tally"]
+__all__ = ["LastFit", "Part"]
 
 #: Most refits of a building in one iteration of 4PL-B for its roof line to agree with the
 #: blame its own fit gives its rows (:meth:`Part._self_consistent`); one that has not agreed
 #: by then goes on from there in the next iteration.
 SELF_ROUNDS = 10
-
-
-@dataclass(frozen=True)
-class Shared:
-    """A part's buildings' current fits, as the other parts' rays need them (the visibility
-    model, which signals are open): each building's code in the whole run (``building``),
-    its 4PL ``a``, ``b``, ``c``, ``d``, and whether the fit is plausible enough to stand in
-    front of others and teach the classifier (``plausible``; ``fallback``: with no separation
-    asked for, for an iteration where no building in the run is plausible), and the highest
-    roof line its data leave possible (``top``: ``c``, or the top of the gap between its rays
-    that ``c`` was fixed in, or of the cycle it is held in; inf: above every ray)."""
-
-    building: np.ndarray
-    a: np.ndarray
-    b: np.ndarray
-    c: np.ndarray
-    d: np.ndarray
-    plausible: np.ndarray
-    fallback: np.ndarray
-    top: np.ndarray
-
-
-@dataclass(frozen=True)
-class Tally:
-    """A part's share of an iteration's reduce: what its signals teach the signal model
-    (``evidence``: those that plausible fits used, or, where the part has no plausible fit, the
-    ``fallback``'s; counted by C/N0 and map label for the paper's classifier, summed by class
-    for the mixture; None: nothing, e.g. a failed tile's), whether it has a plausible fit, and
-    its buildings' largest share of changed labels and how many of its buildings' roof lines
-    have not settled (:class:`~.settling.Settling`). Parts add up, exactly."""
-
-    evidence: Cn0Counts | Cn0Moments | None
-    plausible: bool
-    change: float
-    moving: int = 0
-
-    def __add__(self, other: Tally) -> Tally:
-        """Both parts' tallies: where any building is plausible only plausible fits teach (the
-        others' counts are their fallbacks'), else every fallback does."""
-        change = max(self.change, other.change)
-        moving = self.moving + other.moving
-        if self.plausible != other.plausible:
-            return replace(self if self.plausible else other, change=change, moving=moving)
-        if self.evidence is None or other.evidence is None:
-            return replace(other if self.evidence is None else self, change=change, moving=moving)
-        evidence = self.evidence + other.evidence  # type: ignore[operator]
-        return Tally(evidence, self.plausible, change, moving)
-
-    def refit(self, model: SignalModel) -> SignalModel:
-        """The signal model refitted to the run's evidence."""
-        if self.evidence is None:
-            return model
-        if isinstance(self.evidence, Cn0Moments):
-            return Cn0Mixture.fitted(self.evidence)
-        if not isinstance(model, SignalClassifier):
-            raise ModelError("the paper's counts refit the paper's classifier only")
-        return model.refit_counts(self.evidence)
+#: The share of a building's open rays that may pass below its roof (reflections the signal
+#: model takes for open): its lowest open rays bound how tall it may be (:meth:`Part.shared`).
+OPEN_FLOOR = 0.05
 
 
 @dataclass(frozen=True)
@@ -144,11 +89,17 @@ class Part:
     #: What the last exchange found (the paper's signal model), for the next (:mod:`.exchange`).
     exchange: Exchange | None = None
     #: With whole-ray blame, each row's chance of clearing its building were that building as
-    #: tall as its data leave possible (:func:`.blame.blamed`; None before the first exchange).
+    #: tall as its data leave possible and opaque below (:meth:`_tall`; None before the first
+    #: exchange).
     tall: np.ndarray | None = None
     #: With whole-ray blame, the rows by signal and order along the ray
     #: (:func:`.blame.others_clear`; None: without an order, in the rows' order).
     along: np.ndarray | None = None
+    #: Each row's chance that its ray crosses its building, given its receiver's position
+    #: error (the intersections' ``crossing``; None: every ray crosses its buildings).
+    crosses: np.ndarray | None = None
+    #: Which rows' rays enter their building (None: all); the others pass near it.
+    entered: np.ndarray | None = None
 
     @classmethod
     def of(
@@ -168,12 +119,16 @@ class Part:
         track: npt.ArrayLike | None = None,
         elevation: npt.ArrayLike | None = None,
         phone: npt.ArrayLike | None = None,
+        crossing: npt.ArrayLike | None = None,
     ) -> Part:
         """A part from coded rows (see :func:`fourplb`): it owns the buildings coded below
         ``n_own`` (default: all ``n_groups``), whose codes in the whole run are ``building``
         (default: their own). A part that does not own every building needs ``signal`` and
         ``order``, so that each signal is counted by one part. ``phone`` names each row's
-        phone, for :meth:`levelled` (with ``elevation``)."""
+        phone, for :meth:`levelled` (with ``elevation``). ``crossing`` is each row's chance
+        that its ray crosses its building; a row of a footprint the ray passes near without
+        entering it (its ``order`` below 0, only with whole-ray blame) comes after every
+        building the ray enters."""
         if not estimator.fourpl:
             raise ModelError(f"fourplb runs 4PL-B or 4PL, not {estimator.method}")
         n_own = n_groups if n_own is None else int(n_own)
@@ -195,10 +150,7 @@ class Part:
             sig = compact(ranks(np.asarray(signal)[by_group]))
         else:
             sig = compact(np.arange(g.size))  # each row is a signal of its own
-        if order is not None:  # only how a ray's rows compare: ranks where not whole (NaN last)
-            order = compact(np.asarray(order)[by_group])
-            if order.dtype.kind == "f":
-                order = compact(np.unique(order, return_inverse=True)[1])
+        order, entered = ray_order(order, by_group, sig, h)
         sd = None if height_sd is None else np.asarray(height_sd, dtype=float)[by_group]
         e = np.zeros(h.size) if elevation is None else elevation_units(elevation)[by_group]
         occlusion = estimator.visibility and signal is not None
@@ -226,6 +178,8 @@ class Part:
             phone=phone_code,
             phones=phones,
             along=along,
+            crosses=None if crossing is None else np.asarray(crossing, dtype=float)[by_group],
+            entered=entered,
         )
 
     @property
@@ -237,18 +191,21 @@ class Part:
         """Step 1 (map): every row labelled by the signal ``model`` (the paper's classifier:
         open or not; the mixture: the chance that the row's ray clears its building, given
         the fits last exchanged), the own buildings' height 4PLs fitted to the rows the
-        visibility model keeps (with whole-ray blame, every row weighted by the chance that its
-        building alone blocks it, :mod:`.blame`), and how many of their map labels changed."""
+        visibility model keeps, each by its chance of crossing its building where that is known
+        (with whole-ray blame, every row weighted by the chance that its building alone blocks
+        it, :mod:`.blame`), and how many of their map labels changed."""
         own, n_own, last = self._own, self.n_own, self.last
         g, h = self.g[own], self.h[own]
         rest = None  # with whole-ray blame: each own row's chance of clearing the others
         if self._blames and self.prior is not None and last is not None:
-            rest = others_clear(self.prior, self.sig, self.along)[own]
+            rest = others_clear(cleared(self.prior, self.crosses), self.sig, self.along)[own]
             labels, blame = self._blame(model, rest, last.fit)
         else:
             labels, blame = self._labels(model), None
         seen = self.seen[own] if blame is None else blame[own] >= MIN_WEIGHT
         weights = None if blame is None else blame[own]  # the paper's MLE: each row once
+        if blame is None and self.crosses is not None:  # each row by its chance of crossing
+            weights = np.where(seen, self.crosses[own], 0.0)
         reweighted = None
         if self.estimator.weighting != "none":
             c_now = None if last is None else last.fit.c
@@ -351,20 +308,22 @@ class Part:
         """Whole-ray blame's labels and weights (:func:`.blame.blamed`; rows of the part,
         filled for the own ones): each own row clears its building with the chance its
         ``fit`` gives (None: as last exchanged) and the other buildings along its ray with
-        the chance ``rest``; it is open by the signal ``model`` (the paper's classifier's
-        label, the mixture's posterior of clearing them all)."""
+        the chance ``rest`` (each crossing its own with its chance of crossing); it is open
+        by the signal ``model`` (the paper's classifier's label, the mixture's posterior of
+        clearing them all)."""
         own = self._own
         if fit is None:
             p = np.asarray(self.prior)[own]
         else:
             sd = None if self.sd is None else self.sd[own]
             p = clear_chance(self.h[own], self.g[own], sd, fit.a, fit.b, fit.c, fit.d)
+        crossing = None if self.crosses is None else self.crosses[own]
         if isinstance(model, Cn0Mixture):
-            rho = model.posterior(self.s[own], self.e[own], p * rest)
+            rho = model.posterior(self.s[own], self.e[own], cleared(p, crossing) * rest)
         else:
             rho = model.label(self.s[own]).astype(float)
         labels, blame = np.zeros(self.h.size), np.zeros(self.h.size)
-        labels[own], blame[own] = blamed(rho, p, rest)
+        labels[own], blame[own] = blamed(rho, p, rest, crossing)
         return labels, blame
 
     def _labels(self, model: SignalModel) -> np.ndarray:
@@ -396,8 +355,26 @@ class Part:
             d=d,
             plausible=_plausible(fit, lo, hi, min_separation),
             fallback=_plausible(fit, lo, hi, 0.0),
-            top=np.fmax(c, np.fmax(fit.gap_upper, last.settling.span_upper)),
+            top=np.fmax(
+                np.fmax(c, self._open_floor()), np.fmax(fit.gap_upper, last.settling.span_upper)
+            ),
         )
+
+    def _open_floor(self) -> np.ndarray:
+        """Each own building's lowest open rays (the :data:`OPEN_FLOOR` quantile of the heights
+        of the rows its last fit counted as clearing it; NaN: none): a roof may stand up to
+        there whatever its fit says (one whose closed rays whole-ray blame gave a neighbour
+        has them all open, and a roof line far below them)."""
+        last, own = self._last, self._own
+        rows = np.flatnonzero(last.counted[own] & (last.labels[own] >= 0.5))
+        g = self.g[own][rows]  # sorted by building, then height
+        n_open = np.bincount(g, minlength=self.n_own)
+        start = np.searchsorted(g, np.arange(self.n_own))
+        k = start + np.maximum(np.ceil(OPEN_FLOOR * n_open).astype(np.intp), 1) - 1
+        floor = np.full(self.n_own, np.nan)
+        some = n_open > 0
+        floor[some] = self.h[own][rows[k[some]]]
+        return floor
 
     def exchanged(self, *shared: Shared) -> tuple[Part, Tally]:
         """Steps 2-3 (exchange, map): given the current fits of every building the part's rows
@@ -417,7 +394,7 @@ class Part:
         signals teach the model each with its chance of being open: from the map's labels
         after the first fit, from the mixture's posterior after that.
         """
-        a, b, c, d, plausible, fallback, top = _lookup(self.building, shared)
+        a, b, c, d, plausible, fallback, top = lookup(self.building, shared)
         own_plausible = bool(plausible[: self.n_own].any())
         teach = plausible if own_plausible else fallback
         last = self._last
@@ -428,7 +405,7 @@ class Part:
             prior = tall = None
             if self._blames:
                 prior = clear_chance(self.h, self.g, self.sd, a, b, c, d)
-                tall = clear_chance(self.h, self.g, self.sd, a, b, top, d)
+                tall = self._tall(a, b, top)
             part = replace(self, seen=seen, exchange=state, prior=prior, tall=tall)
             return part, Tally(counts, own_plausible, change, moving)
         used = last.seen & teach[self.g]
@@ -436,22 +413,28 @@ class Part:
         prior = clear_chance(self.h, self.g, self.sd, a, b, c, d)
         chance = clear.astype(float)
         if isinstance(last.model, Cn0Mixture):
-            every = clears_all(prior, self.sig)[lead]
+            ray_prior = cleared(prior, self.crosses) if self._blames else prior
+            every = clears_all(ray_prior, self.sig)[lead]
             chance = last.model.posterior(self.s[lead], self.e[lead], every)
         evidence = Cn0Moments.of(self.s[lead], self.e[lead], chance)
         seen = self.seen
         if self.occlusion:
-            seen = _unoccluded(self.h, self.g, self.sig, c, b, plausible, self.order)
-        tall = clear_chance(self.h, self.g, self.sd, a, b, top, d) if self._blames else None
+            seen = _unoccluded(self.h, self.g, self.sig, c, b, plausible, self.order, self.entered)
+        tall = self._tall(a, b, top) if self._blames else None
         part = replace(self, seen=seen, prior=prior, tall=tall)
         return part, Tally(evidence, own_plausible, change, moving)
+
+    def _tall(self, a: np.ndarray, b: np.ndarray, top: np.ndarray) -> np.ndarray:
+        """Each row's chance of clearing its building were that building as tall as its data
+        leave possible (``top``) and opaque below its roof line (``d`` 0): what a neighbour's
+        range takes it for (:meth:`judged`)."""
+        return clear_chance(self.h, self.g, self.sd, a, b, top, np.zeros_like(top))
 
     def crossing(self) -> Cn0Moments:
         """The signals the part counts (those whose first building along the ray is one of
         its own), once each, as open: a run of parts takes them from all its signals to leave
-        those that cross no footprint (:func:`run_parts`' ``open_sky``)."""
-        every = np.ones(self.h.size, dtype=bool)
-        lead, _ = _classifier_data(self, every, every)
+        those that enter no footprint (:func:`run_parts`' ``open_sky``)."""
+        lead = self._leads()
         return Cn0Moments.of(self.s[lead], self.e[lead], 1.0)
 
     def sky_crossing(self) -> SkyCounts:
@@ -460,10 +443,16 @@ class Part:
         phones (:meth:`levelled`)."""
         if self.phone is None or self.phones is None:
             return SkyCounts.empty()
-        every = np.ones(self.h.size, dtype=bool)
-        lead, _ = _classifier_data(self, every, every)
+        lead = self._leads()
         lead = lead[self.phone[lead] >= 0]
         return SkyCounts.of(self.phones[self.phone[lead]], self.s[lead], self.e[lead])
+
+    def _leads(self) -> np.ndarray:
+        """The first row of each signal the part counts, of the rows whose rays enter their
+        building (a ray that only passes near one is in the open sky as far as the map
+        knows)."""
+        every = np.ones(self.h.size, dtype=bool) if self.entered is None else self.entered
+        return _classifier_data(self, every, every)[0]
 
     def levelled(self, offsets: pd.Series) -> Part:
         """The part with each row's C/N0 less its phone's offset (``offsets``, by phone name:
@@ -489,8 +478,11 @@ class Part:
             # tall as their data leave possible), each look counted once where the looks are
             # known: the evidence counted as independent
             used, evidence, told = fit_seen, fit_seen.astype(float), labels
+            if self.crosses is not None:
+                evidence = evidence * self.crosses[own]
             if last.weight is not None:  # closed rays as far as no other building may block
-                tall = others_clear(np.asarray(self.tall), self.sig, self.along)[own]
+                tall = cleared(np.asarray(self.tall), self.crosses)
+                tall = others_clear(tall, self.sig, self.along)[own]
                 robust, weight = self._blame(last.model, tall, None)
                 told, evidence = robust[own], weight[own]
                 used = evidence >= MIN_WEIGHT
@@ -570,22 +562,6 @@ class LastFit:
         heights, how many below the roof line are seen): those it used, or with whole-ray
         blame those it weighed at least half."""
         return self.seen if self.weight is None else self.weight >= 0.5
-
-
-def _lookup(building: np.ndarray, shared: Sequence[Shared]):
-    """``a``, ``b``, ``c``, ``d``, ``plausible`` and ``fallback`` of each of ``building``
-    (codes in the whole run) from the parts' :class:`Shared` fits."""
-    if len(shared) == 1 and np.array_equal(shared[0].building, building):
-        return tuple(getattr(shared[0], k) for k in _SHARED)
-    known = np.concatenate([s.building for s in shared])
-    at = pd.Index(known).get_indexer(building)
-    if (at < 0).any():
-        missing = building[at < 0][:5].tolist()
-        raise ModelError(f"no part shared the fits of buildings {missing}")
-    return tuple(np.concatenate([getattr(s, k) for s in shared])[at] for k in _SHARED)
-
-
-_SHARED = ("a", "b", "c", "d", "plausible", "fallback", "top")
 
 
 def _classifier_data(part: Part, open_map: np.ndarray, used: np.ndarray):

@@ -1,6 +1,6 @@
 """How a part codes and sorts its rows (:class:`~.parts.Part`): whole-number codes in the
 fewest bytes, ranks and factorizations that avoid hashing where a table does, the rows by
-building then height."""
+building then height, and each row's order along its ray."""
 
 from __future__ import annotations
 
@@ -8,7 +8,15 @@ import numpy as np
 import numpy.typing as npt
 import pandas as pd
 
-__all__ = ["building_order", "compact", "factorized", "phone_codes", "ranks"]
+__all__ = [
+    "building_order",
+    "compact",
+    "factorized",
+    "near_behind",
+    "phone_codes",
+    "ranks",
+    "ray_order",
+]
 
 
 def ranks(values: np.ndarray) -> np.ndarray:
@@ -77,3 +85,37 @@ def factorized(
         rank[first] = np.arange(first.size)
     names = names[np.argsort(rank)]
     return np.append(rank, -1)[code[by]], names  # the last entry keeps a missing one's -1
+
+
+def ray_order(
+    order: npt.ArrayLike | None, by_group: np.ndarray, sig: np.ndarray, h: np.ndarray
+) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """Each row's ``order`` along its ray as a part keeps it (the rows sorted ``by_group``, of
+    signals ``sig`` and heights ``h``): only how a ray's rows compare, so ranks where the
+    orders are not whole numbers (NaN last); and which rows' rays enter their footprint (None:
+    all), the footprints a ray passes near (order below 0) after those it enters
+    (:func:`near_behind`)."""
+    if order is None:
+        return None, None
+    order = compact(np.asarray(order)[by_group])
+    if order.dtype.kind == "f":
+        return compact(np.unique(order, return_inverse=True)[1]), None
+    if order.size == 0 or order.min() >= 0:
+        return order, None
+    entered = order >= 0
+    return near_behind(order, entered, sig, h), entered
+
+
+def near_behind(
+    order: np.ndarray, entered: np.ndarray, sig: np.ndarray, h: np.ndarray
+) -> np.ndarray:
+    """``order`` along each ray with the rows of footprints the ray passes near (not
+    ``entered``) after every footprint it enters, in order of height (of distance: a ray
+    rises), so that every part of a run that holds a ray orders its rows alike."""
+    near = np.flatnonzero(~entered)
+    near = near[np.lexsort((h[near], sig[near]))]
+    first = np.r_[True, sig[near][1:] != sig[near][:-1]]
+    rank = np.arange(near.size) - np.maximum.accumulate(np.where(first, np.arange(near.size), 0))
+    out = order.astype(np.int64)
+    out[near] = int(order.max()) + 1 + rank
+    return compact(out)

@@ -45,7 +45,7 @@ from .checks import (
     positive,
     within,
 )
-from .positions import DEFAULT_POSITION_DISTANCE, DEFAULT_POSITION_SD, PositionError
+from .positions import DEFAULT_POSITION_DISTANCE, DEFAULT_POSITION_SD, NEAR_SDS, PositionError
 from .tiling import (
     DEFAULT_TILE_SIZE,
     SCHEDULER_PORT,
@@ -62,6 +62,7 @@ __all__ = [
     "DEFAULT_TILE_SIZE",
     "BLAMES",
     "HEIGHT_RULES",
+    "NEAR_SDS",
     "MATCHINGS",
     "SIGNAL_MODELS",
     "RECEIVER_HEIGHTS",

@@ -17,6 +17,10 @@ DEFAULT_POSITION_SD = 1.0
 #: stays in one stretch of street and change when it reaches the next (a London block is
 #: 50-100 m long; measured in docs/issue-28-positions.md).
 DEFAULT_POSITION_DISTANCE = 50.0
+#: How far across a ray (in its position's standard deviations per axis) a footprint the ray
+#: passes without entering still gives an intersection row (``PositionError.crossing``): three,
+#: beyond which the chance that the error moved the ray across it is below 0.14 %.
+NEAR_SDS = 3.0
 
 
 @dataclass(frozen=True)
@@ -44,11 +48,18 @@ class PositionError:
         Instead of ``distance``: how long (s) one error of a moving receiver lasts, its rows
         sharing an error within windows of this length (windows of each recording from its own
         first epoch).
+    crossing
+        Give each intersection its chance that the ray crosses the footprint at all, given the
+        position error across the ray (column ``crossing``), and a row for each footprint a ray
+        passes within :data:`NEAR_SDS` standard deviations of without entering it (``order``
+        -1): a position error may move a ray past a footprint's corner, into a building it
+        missed or out of one that blocked it (issue 47). The height fits weigh each row by it.
     """
 
     sd: float | None = None
     window: float | None = None
     distance: float | None = DEFAULT_POSITION_DISTANCE
+    crossing: bool = False
 
     def __post_init__(self):
         if self.sd is not None and not within(self.sd, POSITION_SDS):

@@ -22,6 +22,7 @@ import numpy as np
 import pandas as pd
 import shapely
 
+from ..errors import InputError
 from ..files.paths import StrPath
 from ..model.engine import Engine, InProcess, in_windows
 from ..model.mixture import Cn0Moments
@@ -82,7 +83,15 @@ def partitioned_heights(
 
     ``buildings`` (with their ``ground``) come from the caller, or, when None, from the
     partition (written with its footprints): each tile's worker then reads its own buildings
-    and those of the tiles within reach, and the client holds only the plan."""
+    and those of the tiles within reach, and the client holds only the plan. Each row's chance
+    of crossing (``position_error.crossing``) is refused: a partition's tiles hold the rays that
+    may enter their buildings, not those that pass near them."""
+    if position_error.crossing:
+        raise InputError(
+            "a run from a partition cannot weigh rows by their chance of crossing "
+            "(PositionError(crossing=True)): its tiles hold only the rays that enter them",
+            fix="run from the observations (gnss_citygml.pipeline.run, tiled_heights) instead",
+        )
     say = progress or (lambda text: None)
     index = read_index(folder)
     check_partition(index, rays, position_error)

@@ -98,11 +98,14 @@ def receiver_tiles(
     max_range: float,
     size: float = DEFAULT_TILE_SIZE,
     bearing: npt.ArrayLike | None = None,
+    widen: float = 0.0,
 ) -> pd.DataFrame:
     """Which tiles each receiver position serves: every tile whose buildings lie, at least in
     part, within ``max_range`` (m, the rays' horizontal reach) of it. With ``bearing`` (deg,
     one per row: each row is then a ray), only the tiles whose buildings' bounding box the
     ray's ``max_range`` long segment enters: a ray pointing away from a tile is not its work.
+    ``widen`` (m) grows each tile's box first: a ray that passes that near a building gives it
+    a row too (:class:`~gnss_citygml.settings.PositionError`'s ``crossing``).
 
     A tile's reach is the bounding box of its own buildings' footprints (which may cross the
     tile's edges) grown by ``max_range``: a receiver outside it has no ray that can enter any
@@ -125,7 +128,8 @@ def receiver_tiles(
     )
     box = bounds.groupby([bx, by]).agg({"x0": "min", "y0": "min", "x1": "max", "y1": "max"})
     tx, ty = (box.index.get_level_values(i).to_numpy(dtype=np.int64) for i in (0, 1))
-    reach = box.to_numpy() + np.array([-max_range, -max_range, max_range, max_range])
+    grown = box.to_numpy() + np.array([-widen, -widen, widen, widen])
+    reach = grown + np.array([-max_range, -max_range, max_range, max_range])
     # how far beyond its own square a tile reaches: the candidates around each receiver
     beyond = np.max(
         [
@@ -154,7 +158,7 @@ def receiver_tiles(
         if bearing is not None:
             way = np.radians(np.repeat(np.asarray(bearing, dtype=float)[part], dx.size))
             ends = (max_range * np.sin(way), max_range * np.cos(way))
-            hit &= _segment_enters(px, py, *ends, box.to_numpy()[at])
+            hit &= _segment_enters(px, py, *ends, grown[at])
         rows.append(start + np.flatnonzero(hit) // dx.size)
         tiles.append(at[hit])
     names = tile_names(tx, ty, size)  # once per tile, not per pair
@@ -181,14 +185,16 @@ def plan_tiles(
     max_range: float,
     size: float = DEFAULT_TILE_SIZE,
     bearing: npt.ArrayLike | None = None,
+    widen: float = 0.0,
 ) -> list[Tile]:
     """The tiles of a run, in name order: each tile's buildings (:func:`building_tiles`), the
-    receivers (or, with ``bearing``, the rays) that serve it (:func:`receiver_tiles`) and its
-    halo, the other buildings within ``max_range`` of the bounding box of those receivers. A
-    tile that no receiver serves is still listed (its buildings have no signal)."""
+    receivers (or, with ``bearing``, the rays) that serve it (:func:`receiver_tiles`, its
+    ``widen``) and its halo, the other buildings within ``max_range`` (plus ``widen``) of the
+    bounding box of those receivers. A tile that no receiver serves is still listed (its
+    buildings have no signal)."""
     e, n = np.asarray(e, dtype=float), np.asarray(n, dtype=float)
     names = building_tiles(buildings, size)
-    pairs = receiver_tiles(e, n, buildings, max_range, size, bearing)
+    pairs = receiver_tiles(e, n, buildings, max_range, size, bearing, widen)
     served = {str(k): v.to_numpy() for k, v in pairs.groupby("tile")["row"]}
     tree = shapely.STRtree(buildings.geometry.to_numpy())
     tiles = []
@@ -197,11 +203,9 @@ def plan_tiles(
         rows = served.get(name, np.empty(0, dtype=np.int64))
         halo = np.empty(0, dtype=np.int64)
         if rows.size:
+            far = max_range + widen
             reach = shapely.box(
-                e[rows].min() - max_range,
-                n[rows].min() - max_range,
-                e[rows].max() + max_range,
-                n[rows].max() + max_range,
+                e[rows].min() - far, n[rows].min() - far, e[rows].max() + far, n[rows].max() + far
             )
             near = np.sort(tree.query(reach))
             halo = near[names[near] != name]

@@ -283,9 +283,9 @@ def _across(x, y, dx, dy, fp_idx, shapes, max_range, step=None):
         if step is not None:
             for column, moved in ((2, -step[rep]), (3, step[rep])):
                 with np.errstate(divide="ignore", invalid="ignore"):
-                    u = (moved - s1) / ds  # where the moved ray's line crosses the edge
-                    t = t1 + u * dt
-                hit = (u >= 0) & (u <= 1) & (t >= 0) & (t <= max_range)
+                    at_edge = (moved - s1) / ds  # where the moved ray's line crosses the edge
+                    t = t1 + at_edge * dt
+                hit = (at_edge >= 0) & (at_edge <= 1) & (t >= 0) & (t <= max_range)
                 side[lo:hi, column] = np.minimum.reduceat(np.where(hit, t, np.inf), starts)
     return side, along, cos_inc
 

@@ -38,6 +38,7 @@ from .files.paths import StrPath, atomic_path, check_output_folder, make_folder
 from .files.provenance import summary
 from .model.fourpl import logistic4
 from .model.mixture import Cn0Mixture, elevation_units
+from .stages import entered
 
 if TYPE_CHECKING:
     from .pipeline import Run
@@ -559,5 +560,4 @@ def _intersections(run: Run) -> pd.DataFrame:
             "Dask scheduler does not gather them",
             fix="run without --scheduler for the report",
         )
-    inter = run.intersections
-    return inter[inter["order"] >= 0] if "crossing" in inter.columns else inter
+    return entered(run.intersections)

@@ -40,9 +40,11 @@ __all__ = [
     "REFRACTION",
     "crossing_chance",
     "distance_sd",
+    "entered",
     "in_mask",
     "intersections",
     "join_heights",
+    "near_reach",
     "open_sky",
     "position_sds",
     "receivers",
@@ -171,7 +173,7 @@ def intersections(
     ray touches them), ``height_sd`` from rays moved sideways (:func:`distance_sd`).
     """
     sd = None if position_error.exact else position_sds(receivers, position_error)
-    reach = NEAR_SDS * sd if sd is not None and position_error.crossing else None
+    reach = near_reach(receivers, position_error)
     ray, fp, dist, incidence, *across = footprint_entries(
         receivers["e"].to_numpy(),
         receivers["n"].to_numpy(),
@@ -190,8 +192,8 @@ def intersections(
     if sd is not None:
         extra["height_sd"] = sd[ray] * (slope / np.maximum(incidence, MIN_INCIDENCE))
         if across:  # the entry's distance as the rays moved sideways found it
-            fallback = extra["height_sd"] / slope
-            extra["height_sd"] = slope * distance_sd(across[0], dist, sd[ray], fallback)
+            linear = sd[ray] / np.maximum(incidence, MIN_INCIDENCE)
+            extra["height_sd"] = slope * distance_sd(across[0], dist, sd[ray], linear)
         named = recordings(receivers, position_error) if recording is None else recording
         extra["recording"] = named[ray]
     if {"constellation", "svid"} <= set(receivers.columns):
@@ -219,6 +221,24 @@ def intersections(
         },
         copy=False,
     )
+
+
+def near_reach(receivers: pd.DataFrame, position_error: PositionError) -> np.ndarray | None:
+    """How far (m) across each receiver row's rays a footprint they pass gives a row
+    (``position_error.crossing``: :data:`~gnss_citygml.settings.NEAR_SDS` of the row's position
+    error); None without the crossing chance or with exact positions."""
+    if not position_error.crossing or position_error.exact:
+        return None
+    return NEAR_SDS * position_sds(receivers, position_error)
+
+
+def entered(intersections: pd.DataFrame) -> pd.DataFrame:
+    """The intersections where a ray enters its footprint, without the footprints it only
+    passes near (``order`` -1, :class:`~gnss_citygml.settings.PositionError`'s ``crossing``)."""
+    if "order" not in intersections.columns:
+        return intersections
+    near = intersections["order"].to_numpy() < 0
+    return intersections[~near] if near.any() else intersections
 
 
 def distance_sd(
@@ -265,10 +285,7 @@ def open_sky(receivers: pd.DataFrame, intersections: pd.DataFrame) -> pd.DataFra
     as the map knows, what the mixture signal model learns open signals from
     (:func:`~gnss_citygml.model.estimate.estimate_heights`). A ray that only passes near a
     footprint (``order`` -1) enters none."""
-    entered = intersections["signal"]
-    if "order" in intersections.columns:
-        entered = entered[intersections["order"].to_numpy() >= 0]
-    return receivers[~receivers.index.isin(entered.to_numpy())]
+    return receivers[~receivers.index.isin(entered(intersections)["signal"].to_numpy())]
 
 
 def recordings(

@@ -76,3 +76,14 @@ def test_a_crossing_chance_that_is_not_one_is_refused(rng, bad):
 def test_a_run_from_a_partition_refuses_the_crossing_chance(tmp_path):
     with pytest.raises(InputError, match="chance of crossing"):
         partitioned_heights(tmp_path, position_error=PositionError(crossing=True))
+
+
+def test_an_order_below_zero_without_a_crossing_chance_is_refused(rng):
+    """A near miss (order -1) only means something with its chance of crossing: a table that
+    numbers a ray's footprints from -1 is an error that names the rows, not rows left out."""
+    table = occluded_pair(rng)
+    table.loc[[3, 5], "order"] = -1
+    for estimator in (Estimator(), Estimator(blame="ray")):
+        with pytest.raises(InputError, match="order below 0") as err:
+            estimate_heights(table, estimator)
+        assert "rows 3, 5" in str(err.value.where)

@@ -416,10 +416,17 @@ def _near_misses(table: pd.DataFrame, estimator: Estimator) -> pd.DataFrame:
     without entering (``order`` below 0) only with whole-ray blame, which weighs each by its
     chance of crossing; without it (the visibility model takes the first building along a ray
     for the one that may block it) they are left out."""
-    if "order" not in table.columns or estimator.blame == "ray":
+    if "order" not in table.columns:
         return table
     near = _numeric(table, "order") < 0
-    return table[~near] if near.any() else table
+    if near.any() and "crossing" not in table.columns:
+        raise InputError(
+            "an order below 0 marks a footprint the ray passes near, which needs its chance of "
+            "crossing, and the table has no column 'crossing'",
+            where=f"column 'order', rows {_rows(near)}",
+            fix="number each ray's footprints from 0, or cast with PositionError(crossing=True)",
+        )
+    return table if estimator.blame == "ray" or not near.any() else table[~near]
 
 
 def _crossing(table) -> np.ndarray | None:
@@ -433,7 +440,7 @@ def _crossing(table) -> np.ndarray | None:
         raise InputError(
             "crossing must be a chance, 0 to 1",
             where=f"column 'crossing', rows {_rows(bad)}",
-            fix="recompute the ray intersections (gnss_citygml.intersections)",
+            fix="recompute the ray intersections (gnss_citygml.pipeline.intersections)",
         )
     return crossing
 

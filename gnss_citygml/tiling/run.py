@@ -32,8 +32,8 @@ from ..model.mixture import Cn0Moments, elevation_units
 from ..model.offsets import SkyCounts, levelled, sky_counts
 from ..model.parts import Part
 from ..model.shares import Shared, Tally
-from ..settings import DEFAULT_TILE_SIZE, NEAR_SDS, Estimator, PositionError, Rays
-from ..stages import intersections, position_sds, recordings
+from ..settings import DEFAULT_TILE_SIZE, Estimator, PositionError, Rays
+from ..stages import intersections, near_reach, recordings
 from .grid import Tile, building_tiles, check_reach, plan_tiles
 from .output import TileFolder, tile_index_frame
 
@@ -81,9 +81,8 @@ def tiled_heights(
     if not position_error.exact:  # one position error may span tiles: name it over the run
         rx["recording"] = recordings(rx, position_error)
     e, n, bearing = (rx[c].to_numpy(dtype=float) for c in ("e", "n", "bearing"))
-    widen = 0.0  # how far beside a ray a footprint gives it a row
-    if position_error.crossing and not position_error.exact:
-        widen = NEAR_SDS * float(position_sds(rx, position_error).max(initial=0.0))
+    reach = near_reach(rx, position_error)  # how far beside a ray a footprint gives it a row
+    widen = 0.0 if reach is None else float(reach.max(initial=0.0))
     tiles = plan_tiles(e, n, buildings, rays.max_range, tile_size, bearing, widen)
     say(f"tile plan: {len(tiles)} tiles of {tile_size:g} m")
     casts = [

@@ -35,6 +35,11 @@ range missing the span), with their share of the answers (issue 47, decision 3).
 With ``--phones each`` every session of a scene is recorded by its own phone: its own C/N0
 offset, tracking threshold and body loss (issue 27, decision 3).
 
+With ``--harsh`` the phones' fixes are as bad as in real dense streets (issue 48,
+:data:`HARSH`: reflections' extra paths of tens of metres that hold while a walker passes a
+facade, fixes the phone smooths, claimed errors 1.3-2x too small), and with ``--days N`` the
+walked district is walked on N days, each by other people under another sky.
+
 With ``--outside M`` every phone fix inside a footprint is moved out across the nearest wall,
 M metres beyond it, and with ``--outside mean`` to where its reported error puts the true
 position on average, given that a pedestrian is not inside a building (the mean of its
@@ -94,7 +99,7 @@ from gnss_citygml.calibrate import calibrate_receivers
 from gnss_citygml.pipeline import intersections, open_sky
 from gnss_citygml.settings import BLAMES, MATCHINGS, SIGNAL_MODELS, WEIGHTINGS, Calibration
 from gnss_citygml.simulate import EPOCH, LOCATIONS, simulate
-from gnss_citygml.simulate.scenes import city_scene, street_scene
+from gnss_citygml.simulate.scenes import city_scene, city_walks, street_scene
 from gnss_citygml.simulate.signals import SignalModel
 
 THRESHOLDS = (20.0, 30.0, 40.0)
@@ -132,6 +137,20 @@ def random_scene(k: int):
     return scene, start, f"{columns}x{rows} blocks, {walkers} walkers x {seconds:.0f} s"
 
 
+#: The ranges (uniform) of the phones' fixes in streets as harsh as real ones (issue 48,
+#: ``--harsh``): a reflected-only signal's extra path on a scale of 50-100 m (a reflection off
+#: a facade across or beyond a 15-40 m street travels one to three widths farther), reflections
+#: that hold for 10-30 s (a walker passing a 10-25 m facade), fixes the phone's filter smooths
+#: over 5-15 s (which averages their errors but not the error the phone claims), and claimed
+#: errors 1.3-2x smaller than the fix's own estimate (phones understate theirs 1.3-2x in dense
+#: streets).
+HARSH = {
+    "nlos_delay": (50.0, 100.0),
+    "understatement": (1.3, 2.0),
+    "reflection_seconds": (10.0, 30.0),
+    "fix_seconds": (5.0, 15.0),
+}
+
 #: The walked district (issue 28): a grid of blocks (:func:`city_scene`) of this many columns
 #: and rows, walked by a number of people drawn from ``WALKERS`` (uniform).
 DISTRICT = (6, 6)
@@ -148,10 +167,27 @@ def district_scene(k: int):
     return scene, start, f"district: {walkers} people walking {seconds:.0f} s each"
 
 
-def regime_scene(k: int, regime: str):
-    """Street scene ``k`` of ``regime``, its start time and a description."""
+def district_days(k: int, days: int):
+    """District scene ``k`` walked on ``days`` days: the first day's walks
+    (:func:`district_scene`), then each other day 20-40 other people at another time of day
+    (a day's satellites are another day's four minutes earlier, Galileo's repeat ten days),
+    with the first day's start and a description. Days past the first start 1-7 days apart."""
+    scene, start, text = district_scene(k)
+    sessions, offset = list(scene.sessions), 0.0
+    for day in range(2, days + 1):
+        rng = np.random.default_rng(9000 + 1000 * day + k)
+        offset += 86400.0 * int(rng.integers(1, 8)) + float(rng.uniform(-6, 6)) * 3600.0
+        walkers, seconds = int(rng.integers(WALKERS[0], WALKERS[1] + 1)), rng.uniform(200, 600)
+        walks = city_walks(rng, *DISTRICT, walkers, float(seconds), name=f"day{day}_walker")
+        sessions += [replace(w, start=w.start + offset) for w in walks]
+    return replace(scene, sessions=tuple(sessions)), start, f"{text}; {days} days"
+
+
+def regime_scene(k: int, regime: str, days: int = 1):
+    """Street scene ``k`` of ``regime`` (the district walked on ``days`` days), its start time
+    and a description."""
     if regime == "district":
-        return district_scene(k)
+        return district_days(k, days) if days > 1 else district_scene(k)
     rng = np.random.default_rng(5000 + 97 * k + sorted(REGIMES).index(regime))
     (w0, w1), (o0, o1) = REGIMES[regime]
     width = float(rng.uniform(w0, w1))
@@ -178,6 +214,12 @@ def random_physics(k: int) -> SignalModel:
 PHONE = ("tracking_threshold", "body_loss")
 
 
+def harsh(k: int, physics: SignalModel) -> SignalModel:
+    """Scene ``k``'s ``physics`` with the phones' fixes of :data:`HARSH` streets."""
+    rng = np.random.default_rng(4000 + k)
+    return replace(physics, **{name: float(rng.uniform(*HARSH[name])) for name in HARSH})
+
+
 def phones(k: int, physics: SignalModel, sessions: int) -> list[SignalModel]:
     """Scene ``k``'s ``physics`` for each of its ``sessions``, each recorded by its own phone
     (issue 27, decision 3)."""
@@ -193,7 +235,20 @@ def _physics_text(physics: SignalModel) -> str:
         f"reflection -{physics.reflection_loss:.0f} dB, "
         f"{physics.reflected_facade:.0%}/{physics.reflected_open:.0%} reflected, "
         f"tracking {physics.tracking_threshold:.0f} dB-Hz, body -{physics.body_loss:.0f} dB, "
-        f"manual {physics.manual_sd:.1f} m"
+        f"manual {physics.manual_sd:.1f} m{_fixes_text(physics)}"
+    )
+
+
+def _fixes_text(physics: SignalModel) -> str:
+    """The phones' fixes' physics where it is not the simulator's default (``--harsh``)."""
+    today = SignalModel()
+    fixes = ("nlos_delay", "understatement", "reflection_seconds", "fix_seconds")
+    if all(getattr(physics, name) == getattr(today, name) for name in fixes):
+        return ""
+    return (
+        f", reflections' extra path {physics.nlos_delay:.0f} m, "
+        f"lasting {physics.reflection_seconds:.0f} s, smoothed {physics.fix_seconds:.0f} s, "
+        f"claimed errors {physics.understatement:.2f}x small"
     )
 
 
@@ -245,6 +300,23 @@ def _parser() -> argparse.ArgumentParser:
         "(PositionError(crossing=True))",
     )
     parser.add_argument("--save", help="write every converged run to this CSV")
+    parser.add_argument(
+        "--days",
+        type=int,
+        default=1,
+        help="the walked district on this many days, each with other people, phones and sky "
+        "(district_days)",
+    )
+    parser.add_argument(
+        "--interval", type=float, default=1.0, help="seconds between epochs (default 1)"
+    )
+    parser.add_argument(
+        "--harsh",
+        action="store_true",
+        help="the phones' fixes of streets as harsh as real ones (HARSH: reflections' extra "
+        "path 50-100 m, lasting 10-30 s, fixes smoothed over 5-15 s, claimed errors 1.3-2x "
+        "smaller)",
+    )
     parser.add_argument(
         "--no-open-sky",
         action="store_true",
@@ -360,18 +432,29 @@ def main():
     print("|---" * (3 + header.count("|")) + "|")
     if args.regimes:
         regimes = args.regime or list(REGIMES)
-        drawn = [(k, r, *regime_scene(k, r)) for k in range(args.scenes) for r in regimes]
+        drawn = [
+            (k, r, *regime_scene(k, r, args.days)) for k in range(args.scenes) for r in regimes
+        ]
     else:
         drawn = [(k, None, *random_scene(k)) for k in range(args.scenes)]
     for k, regime, scene, start, layout in drawn:
         physics = random_physics(k) if args.physics or args.regimes else SignalModel()
+        if args.harsh:
+            physics = harsh(k, physics)
         if args.physics or args.regimes:
             layout = f"{layout}; {_physics_text(physics)}"
         if args.phones == "each":
             physics = phones(k, physics, len(scene.sessions))
             layout += "; each session its own phone"
         for locations in LOCATIONS:
-            sim = simulate(scene, locations=locations, seed=k, start=start, physics=physics)
+            sim = simulate(
+                scene,
+                locations=locations,
+                seed=k,
+                start=start,
+                physics=physics,
+                interval=args.interval,
+            )
             if args.outside is not None and locations == "gnss":
                 moved = outside_buildings(sim.observations, sim.buildings, args.outside)
                 sim = replace(sim, observations=moved)

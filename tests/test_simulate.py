@@ -145,7 +145,16 @@ def test_numeric_arguments_are_checked_before_any_work(arguments, message):
 
 
 @pytest.mark.parametrize(
-    "bad", [{"fading_sd": -1.0}, {"zenith_cn0": float("nan")}, {"reflected_open": 2.0}]
+    "bad",
+    [
+        {"fading_sd": -1.0},
+        {"zenith_cn0": float("nan")},
+        {"reflected_open": 2.0},
+        {"nlos_delay": -5.0},
+        {"understatement": 0.0},
+        {"reflection_seconds": -1.0},
+        {"fix_seconds": float("inf")},
+    ],
 )
 def test_a_signal_model_that_is_no_physics_is_refused(bad):
     with pytest.raises(InputError, match=f"signal model {next(iter(bad))}"):
@@ -195,6 +204,71 @@ def test_the_physics_can_be_changed_and_does_what_it_says():
     assert run(body_loss=6.0)["cn0"].median() < base["cn0"].median() - 4.0
     off = run(manual_sd=0.0)
     assert np.allclose(off["e"], off["e_true"]) and not np.allclose(base["e"], base["e_true"])
+
+
+def test_the_phones_fixes_can_be_made_as_harsh_as_real_streets():
+    """Issue 48: the fixes' physics does what it says. Longer reflected paths put the fixes
+    further off; a phone that understates claims exactly that many times less; reflections that
+    last and a phone that smooths its fixes hold an error for longer. The defaults keep the
+    simulator's fixes bit for bit."""
+    from gnss_citygml.simulate.scenes import street_scene
+
+    scene = street_scene(np.random.default_rng(8), 12.0, 4.0, walkers=2, walk_seconds=400.0)
+
+    def fixes(**physics):
+        sim = simulate(scene, locations="gnss", seed=4, physics=SignalModel(**physics))
+        obs = sim.observations.drop_duplicates(["receiver", "time_utc"])
+        return obs, (obs["e"] - obs["e_true"]).to_numpy(), (obs["n"] - obs["n_true"]).to_numpy()
+
+    def rms(de, dn):
+        return np.sqrt(np.mean(de**2 + dn**2))
+
+    def steps(obs, de):  # the mean change of the east error from one epoch to the next
+        receivers = obs.groupby("receiver").indices.values()
+        return np.mean([np.abs(np.diff(de[rows])).mean() for rows in receivers])
+
+    def flips(obs):  # how often a blocked signal's reception changes from one epoch to the next
+        blocked = obs[~obs["los"]].sort_values("time_utc")
+        received = blocked["cn0"].notna().astype(int)
+        keys = [blocked[k] for k in ("receiver", "constellation", "svid")]
+        return received.groupby(keys).diff().abs().mean()
+
+    base, de, dn = fixes()
+    same, _, _ = fixes(nlos_delay=15.0, understatement=1.0)
+    pd.testing.assert_frame_equal(base, same)
+    far, fe, fn = fixes(nlos_delay=60.0)
+    assert rms(fe, fn) > 1.5 * rms(de, dn)
+    claimed, ce, cn = fixes(understatement=2.0)
+    np.testing.assert_allclose(claimed["position_sd"], base["position_sd"] / 2.0)
+    np.testing.assert_array_equal(ce, de)
+    smooth, se, _ = fixes(fix_seconds=10.0)
+    assert steps(smooth, se) < steps(base, de) / 3.0
+    # without fading, whether a blocked signal is received is whether it arrives reflected
+    steady = {
+        "fading_sd": 0.0,
+        "reflection_sd": 0.0,
+        "reflected_facade": 0.5,
+        "reflected_open": 0.5,
+    }
+    anew = simulate(scene, seed=4, physics=SignalModel(**steady)).observations
+    lasting = SignalModel(**steady, reflection_seconds=30.0)
+    assert flips(simulate(scene, seed=4, physics=lasting).observations) < flips(anew) / 3.0
+
+
+def test_another_day_walks_the_same_district_with_other_people():
+    """Issue 48: walks on other days are another draw of walkers over the same grid, named as
+    their own receivers; the district's own walks are city_scene's."""
+    from gnss_citygml.simulate.scenes import city_scene, city_walks
+
+    scene = city_scene(np.random.default_rng(2), 4, 3, walkers=5)
+    again = np.random.default_rng(2)
+    city_scene(again, 4, 3, walkers=0)  # the same buildings: the same draws before the walks
+    assert city_walks(again, 4, 3, 5) == scene.sessions
+    day2 = city_walks(np.random.default_rng(7), 4, 3, 6, name="day2_walker")
+    assert [s.receiver for s in day2] == [f"day2_walker_{k}" for k in range(6)]
+    assert {s.path for s in day2} != {s.path for s in scene.sessions}
+    streets = {51.0 + 60.0 * k for k in range(4)}
+    assert all(s.path[0][0] in streets or s.path[0][1] in streets for s in day2)
 
 
 def test_each_session_may_have_its_own_phone():

@@ -28,6 +28,7 @@ import numpy as np
 import numpy.typing as npt
 import pandas as pd
 from pyproj import Transformer
+from scipy.special import ndtr
 
 from ..errors import InputError
 from ..observations import satellites
@@ -308,6 +309,9 @@ def _position_errors(
         nl,
         c,
         dt=interval,
+        nlos_delay=m.nlos_delay,
+        understatement=m.understatement,
+        fix_seconds=m.fix_seconds,
     )
     return np.column_stack([de, dn]), reported_sd
 
@@ -343,7 +347,7 @@ def _session(rng, site: _Site, k: int, session: Session, locations, interval):
     facade = np.zeros(ep.size, dtype=bool)
     facade[behind] = True
     share = np.where(facade, m.reflected_facade, m.reflected_open)
-    reflects = blocked & (rng.random(ep.size) < share)
+    reflects = blocked & (_reflection_draws(rng, m, (ep, sat), az.shape[0], interval) < share)
     reflected = np.where(
         reflects, base - rng.normal(m.reflection_loss, m.reflection_sd, ep.size), -np.inf
     )
@@ -379,6 +383,18 @@ def _session(rng, site: _Site, k: int, session: Session, locations, interval):
             "los": ~blocked,
         }
     )
+
+
+def _reflection_draws(rng, m: SignalModel, signals, n_epochs: int, interval: float) -> np.ndarray:
+    """Uniform draws per signal (``signals``: epoch and satellite indices) below which a
+    blocked signal arrives reflected: anew each epoch, or, with ``m.reflection_seconds``, from
+    a Gauss-Markov process per satellite lasting that long, so that a reflection holds while
+    its facade does."""
+    ep, sat = signals
+    if m.reflection_seconds <= 0:
+        return rng.random(ep.size)
+    n_sat = int(sat.max()) + 1 if sat.size else 0
+    return ndtr(ar1(rng, n_epochs, interval, m.reflection_seconds, 1.0, (n_sat,)))[ep, sat]
 
 
 def local_to_wgs84(

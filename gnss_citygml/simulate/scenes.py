@@ -24,7 +24,16 @@ import shapely
 from shapely.geometry import Polygon, box
 from shapely.geometry.base import BaseGeometry
 
-__all__ = ["PRESETS", "Building", "Scene", "Session", "city_scene", "make_scene", "street_scene"]
+__all__ = [
+    "PRESETS",
+    "Building",
+    "Scene",
+    "Session",
+    "city_scene",
+    "city_walks",
+    "make_scene",
+    "street_scene",
+]
 
 
 @dataclass(frozen=True)
@@ -205,6 +214,10 @@ def _hermitage(rng):
     )
 
 
+#: Spacing (m) of :func:`city_scene`'s blocks: its streets are this less a block's size wide.
+BLOCK_PITCH = 60.0
+
+
 def city_scene(
     rng: np.random.Generator,
     columns: int = 6,
@@ -218,7 +231,7 @@ def city_scene(
     the whole street, or a stretch of ``walk_length`` metres of it."""
     g = 20.0
     buildings = []
-    pitch = 60.0  # block spacing; streets are 60 - block size wide
+    pitch = BLOCK_PITCH
     for i in range(columns):
         for j in range(rows):
             x0, y0 = i * pitch, j * pitch
@@ -247,6 +260,25 @@ def city_scene(
                         g,
                     )
                 )
+    sessions = city_walks(rng, columns, rows, walkers, walk_seconds, walk_length)
+    return Scene("city", 51.5200, -0.1000, g, tuple(buildings), sessions, 10.0, 85.0, ())
+
+
+def city_walks(
+    rng: np.random.Generator,
+    columns: int,
+    rows: int,
+    walkers: int,
+    walk_seconds: float = 300.0,
+    walk_length: float | None = None,
+    name: str = "walker",
+) -> tuple[Session, ...]:
+    """``walkers`` people walking ``walk_seconds`` each, one after another (25 min apart),
+    along the streets of :func:`city_scene`'s grid of ``columns`` x ``rows`` blocks: the whole
+    street, or a stretch of ``walk_length`` metres of it. Another day's walks of the same
+    district are another draw with another ``name`` (``day2_walker``), so that each day's
+    receivers are its own."""
+    pitch = BLOCK_PITCH
     sessions = []
     for k in range(walkers):
         if k % 2 == 0:  # walk west-east along a street between block rows
@@ -257,8 +289,8 @@ def city_scene(
             x = int(rng.integers(0, columns)) * pitch + 51.0
             ends = (-10.0, rows * pitch - 20.0)
             path = [(x, y) for y in _stretch(rng, ends, walk_length)]
-        sessions.append(Session(f"walker_{k}", 1500.0 * k, walk_seconds, tuple(path), True))
-    return Scene("city", 51.5200, -0.1000, g, tuple(buildings), tuple(sessions), 10.0, 85.0, ())
+        sessions.append(Session(f"{name}_{k}", 1500.0 * k, walk_seconds, tuple(path), True))
+    return tuple(sessions)
 
 
 def street_scene(

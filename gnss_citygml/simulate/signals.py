@@ -57,6 +57,20 @@ class SignalModel:
     reflected_open: float = 0.25
     tracking_threshold: float = 12.0  # below this nothing is tracked
     manual_sd: float = 1.0  # error of a position placed by hand (m per axis, per session)
+    #: Scale (m) of the extra path of a signal that arrives reflected only (NLOS) in the
+    #: phone's fix: tens of metres in dense streets, where most of the fix is NLOS.
+    nlos_delay: float = 15.0
+    #: How many times smaller than its solution's own error estimate a phone claims its fix's
+    #: error to be (its AccuracyMeters): 1 as the solution says, more where a chipset's noise
+    #: model does not see its reflections (real phones understate 1.3-2x in dense streets).
+    understatement: float = 1.0
+    #: Seconds a reflected path lasts (0: each epoch draws anew whether a blocked signal
+    #: arrives reflected). A walker passes a 10-25 m facade in 7-18 s; its reflections, and
+    #: the fix's lean away from the taller side, last that long.
+    reflection_seconds: float = 0.0
+    #: Seconds over which the phone's own filter smooths its fixes (0: each epoch's solution
+    #: as it is); phones' fused locations hold an error for that long.
+    fix_seconds: float = 0.0
 
     def __post_init__(self):
         """Refuse physics that is no physics: every value finite, spreads not negative,
@@ -69,12 +83,15 @@ class SignalModel:
             or (name.endswith("_sd") and float(value) < 0)
             or (name.startswith("reflected_") and not 0 <= float(value) <= 1)
             or (name in ("zenith_cn0", "tracking_threshold") and not 0 <= float(value) <= 100)
+            or (name in ("nlos_delay", "reflection_seconds", "fix_seconds") and float(value) < 0)
+            or (name == "understatement" and float(value) <= 0)
         ]
         if bad:
             raise InputError(
                 f"signal model {bad[0]} = {values[bad[0]]!r} is not physical",
-                fix="give finite numbers: spreads (_sd) 0 or more, shares (reflected_) from 0 "
-                "to 1, C/N0s from 0 to 100 dB-Hz",
+                fix="give finite numbers: spreads (_sd), nlos_delay and the _seconds 0 or more, "
+                " shares (reflected_) from 0 to 1, C/N0s from 0 to 100 dB-Hz, "
+                "understatement above 0",
             )
 
 
@@ -120,6 +137,9 @@ def gnss_fix_errors(
     nlos: np.ndarray,
     cn0: np.ndarray,
     dt: float = 1.0,
+    nlos_delay: float = 15.0,
+    understatement: float = 1.0,
+    fix_seconds: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """East, north errors (m) of the phone's own position fix, epoch by epoch, and the error
     the phone reports with it (m per axis, as its accuracy over 1.51).
@@ -127,7 +147,9 @@ def gnss_fix_errors(
     The fix is a weighted least-squares solution of pseudorange errors (noise, and the extra
     path of reflections). Its reported error is what a chipset can know: the solution's
     covariance under its own noise model, scaled by the residuals' variance factor (not below
-    1), so a fix spoilt by reflections says it is worse, though not always by as much as it is.
+    1), so a fix spoilt by reflections says it is worse, though not always by as much as it is;
+    a chipset whose noise model does not see its reflections claims ``understatement`` times
+    less.
 
     Parameters
     ----------
@@ -137,11 +159,17 @@ def gnss_fix_errors(
         ``(n_epochs, n_sat)`` masks: signal received; received by reflection only.
     cn0
         ``(n_epochs, n_sat)`` C/N0 of the received signals.
+    nlos_delay
+        Scale (m) of a reflected-only signal's extra path (:class:`SignalModel`).
+    understatement
+        How many times smaller the claimed error is than the solution's own estimate.
+    fix_seconds
+        Time constant (s) of the phone's first-order smoothing of its solutions (0: none).
     """
     n_ep, n_sat = az.shape
     # code noise, multipath and atmosphere residuals of a phone's linearly polarised antenna
     noise = ar1(rng, n_ep, dt, 30.0, 5.0, (n_sat,))
-    extra = np.abs(ar1(rng, n_ep, dt, 60.0, 15.0, (n_sat,)))  # extra path of reflections
+    extra = np.abs(ar1(rng, n_ep, dt, 60.0, nlos_delay, (n_sat,)))  # extra path of reflections
     err = noise + np.where(nlos, extra, 0.0)
     a, e = np.radians(np.nan_to_num(az)), np.radians(np.nan_to_num(el))
     h = np.stack([-np.cos(e) * np.sin(a), -np.cos(e) * np.cos(a), -np.sin(e), np.ones_like(e)], -1)
@@ -156,7 +184,11 @@ def gnss_fix_errors(
     residual = err - np.einsum("esi,ei->es", h, sol)
     factor = np.einsum("es,es->e", w, residual**2) / np.maximum(n_used - 4, 1)
     cov = np.linalg.inv(normal[ok]) * np.maximum(factor[ok], 1.0)[:, None, None]
-    sd[ok] = np.sqrt((cov[:, 0, 0] + cov[:, 1, 1]) / 2.0)
+    sd[ok] = np.sqrt((cov[:, 0, 0] + cov[:, 1, 1]) / 2.0) / understatement
     last_fix = np.maximum.accumulate(np.where(ok, np.arange(n_ep), 0))  # hold through outages
     sol, sd = sol[last_fix], sd[last_fix]
+    if fix_seconds > 0:
+        keep = np.exp(-dt / fix_seconds)
+        start = sol[:1] * keep  # the filter starts at the first solution
+        sol = lfilter([1.0 - keep], [1.0, -keep], sol, axis=0, zi=start)[0]
     return sol[:, 0], sol[:, 1], sd

@@ -21,7 +21,7 @@ import argparse
 
 import numpy as np
 import pandas as pd
-from accuracy import labelled, position_error, roof_span, site_tables
+from accuracy import judge, labelled, position_error, site_tables
 from scenes import REGIMES, RIGHT_WITHIN, random_physics, regime_scene
 
 from gnss_citygml import Estimator, estimate_heights
@@ -37,22 +37,18 @@ def roof_recordings(sim, locations: str, labels: str) -> pd.DataFrame:
     _, _, cast = site_tables(sim, position_error=position_error("data", locations, None, None))
     estimator = Estimator(init_threshold=30.0, level_phones=False)
     heights = estimate_heights(labelled(sim, cast, labels), estimator)
-    heights = heights[heights["converged"].astype(bool)].set_index("id")
-    low, high = roof_span(sim.truth.set_index("id").reindex(heights.index))
-    fit = heights.reindex(cast["building"].astype(str).to_numpy())
+    judged = judge(heights, sim.truth)  # the converged ones, by id
+    fit = heights.set_index("id").reindex(cast["building"].astype(str).to_numpy())
     near = np.abs(cast["height"].to_numpy() - fit["c"].to_numpy()) <= (
         1.5 / fit["b"].to_numpy() + cast["height_sd"].to_numpy()
     )
     rows = cast.loc[near, ["building", "recording"]].astype(str)
     counts = rows.drop_duplicates().groupby("building").size()
-    height = heights["height"].to_numpy()
-    lower, upper = heights["height_lower"].to_numpy(), heights["height_upper"].to_numpy()
-    distance = np.maximum(low - height, np.maximum(height - high, 0.0))
     return pd.DataFrame(
         {
-            "recordings": counts.reindex(heights.index, fill_value=0).to_numpy(),
-            "right": distance <= RIGHT_WITHIN[locations],
-            "wrong": (upper < low) | (lower > high),
+            "recordings": counts.reindex(judged.index, fill_value=0).to_numpy(),
+            "right": (judged["span_error"] <= RIGHT_WITHIN[locations]).to_numpy(),
+            "wrong": ~judged["meets"].astype(bool).to_numpy(),
         }
     )
 

@@ -190,10 +190,11 @@ def intersections(
         height += dist**2 * (1.0 - REFRACTION) / (2.0 * EARTH_RADIUS)
     extra = {}  # the position error's columns
     if sd is not None:
-        extra["height_sd"] = sd[ray] * (slope / np.maximum(incidence, MIN_INCIDENCE))
         if across:  # the entry's distance as the rays moved sideways found it
             linear = sd[ray] / np.maximum(incidence, MIN_INCIDENCE)
             extra["height_sd"] = slope * distance_sd(across[0], dist, sd[ray], linear)
+        else:
+            extra["height_sd"] = sd[ray] * (slope / np.maximum(incidence, MIN_INCIDENCE))
         named = recordings(receivers, position_error) if recording is None else recording
         extra["recording"] = named[ray]
     if {"constellation", "svid"} <= set(receivers.columns):

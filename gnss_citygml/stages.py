@@ -188,13 +188,9 @@ def intersections(
     height = receivers["z"].to_numpy()[ray] + dist * slope
     if rays.earth_curvature:
         height += dist**2 * (1.0 - REFRACTION) / (2.0 * EARTH_RADIUS)
-    extra = {}  # the position error's columns
+    extra: dict[str, object] = {}  # the position error's columns
     if sd is not None:
-        if across:  # the entry's distance as the rays moved sideways found it
-            linear = sd[ray] / np.maximum(incidence, MIN_INCIDENCE)
-            extra["height_sd"] = slope * distance_sd(across[0], dist, sd[ray], linear)
-        else:
-            extra["height_sd"] = sd[ray] * (slope / np.maximum(incidence, MIN_INCIDENCE))
+        extra["height_sd"] = _height_sd(sd[ray], slope, incidence, dist, across)
         named = recordings(receivers, position_error) if recording is None else recording
         extra["recording"] = named[ray]
     if {"constellation", "svid"} <= set(receivers.columns):
@@ -222,6 +218,17 @@ def intersections(
         },
         copy=False,
     )
+
+
+def _height_sd(sd, slope, incidence, dist, across) -> np.ndarray:
+    """Each row's height error, its receiver off by ``sd`` (m per axis): ``sd`` over the cosine
+    of incidence (floored at :data:`MIN_INCIDENCE`) along the ray's ``slope``, or, with the
+    moved rays' ``across`` (the crossing chance), the entry's distance error they found
+    (:func:`distance_sd`)."""
+    if not across:
+        return sd * (slope / np.maximum(incidence, MIN_INCIDENCE))
+    linear = sd / np.maximum(incidence, MIN_INCIDENCE)
+    return slope * distance_sd(across[0], dist, sd, linear)
 
 
 def near_reach(receivers: pd.DataFrame, position_error: PositionError) -> np.ndarray | None:

@@ -8,11 +8,11 @@ second and the peak memory (RSS) of that process.
 
     python benchmarks/raycast.py [--signals 1000000] [--blocks 100] [--grid-dir DIR]
                                  [--signal-model paper|mixture] [--no-level-phones]
-                                 [--locations gnss [--calibrate shadows]]
+                                 [--locations gnss [--calibrate shadows [--rounds 3]]]
 
 With ``--locations gnss`` the walkers' positions are their phones' fixes; ``--calibrate
-shadows`` self-calibrates them first by shadow matching (10 s windows, one round, each
-window's prior its fixes' own error) and times it.
+shadows`` self-calibrates them first by shadow matching (10 s windows, ``--rounds`` rounds
+with the heights, default one, each window's prior its fixes' own error) and times it.
 
 ``--against REV`` measures side by side: the same process with the package of git revision
 REV (``git archive``, in a temporary folder) and with this tree's, alternately ``--repeat``
@@ -62,7 +62,7 @@ def prepare(folder: Path, signals: int, blocks: int, grid_dir, locations: str) -
     )
 
 
-def run(folder: Path, grid_dir, estimator_options: dict, calibrate, save, crossing) -> None:
+def run(folder: Path, grid_dir, estimator_options: dict, calibrate, save, crossing, rounds=1):
     import pandas as pd
 
     from gnss_citygml.calibrate import calibrate_receivers
@@ -88,7 +88,7 @@ def run(folder: Path, grid_dir, estimator_options: dict, calibrate, save, crossi
     fp = timed("ground under buildings", building_ground, fp, dem)
     estimator = Estimator(**estimator_options)
     if calibrate is not None:
-        calibration = Calibration(prior_sd=5.0, window=10.0, rounds=1, matching=calibrate)
+        calibration = Calibration(prior_sd=5.0, window=10.0, rounds=rounds, matching=calibrate)
         rx = timed(
             f"calibrate ({calibrate})",
             calibrate_receivers,
@@ -139,6 +139,7 @@ def main():
     )
     parser.add_argument("--locations", choices=("manual", "gnss"), default="manual")
     parser.add_argument("--calibrate", choices=("shadows", "roof lines"))
+    parser.add_argument("--rounds", type=int, default=1, help="with --calibrate: its rounds")
     parser.add_argument("--against", metavar="REV", help="side by side with git revision REV")
     parser.add_argument("--repeat", type=int, default=1, help="runs of each with --against")
     parser.add_argument("--run", type=Path, help=argparse.SUPPRESS)  # the measured process
@@ -147,7 +148,7 @@ def main():
     if args.run:
         options = {"signal_model": args.signal_model, "level_phones": not args.no_level_phones}
         options |= {} if args.blame is None else {"blame": args.blame}
-        run(args.run, args.grid_dir, options, args.calibrate, args.save, args.crossing)
+        run(args.run, args.grid_dir, options, args.calibrate, args.save, args.crossing, args.rounds)
         return
     folder = OUT / f"city_{args.blocks}x{args.blocks}_{args.signals}"
     if args.locations != "manual":
@@ -156,7 +157,9 @@ def main():
         prepare(folder, args.signals, args.blocks, args.grid_dir, args.locations)
     command = [sys.executable, __file__, "--run", str(folder), "--grid-dir", str(args.grid_dir)]
     command += ["--signal-model", args.signal_model]
-    command += ["--calibrate", args.calibrate] if args.calibrate else []
+    command += (
+        ["--calibrate", args.calibrate, "--rounds", str(args.rounds)] if args.calibrate else []
+    )
     command += ["--no-level-phones"] if args.no_level_phones else []
     command += ["--blame", args.blame] if args.blame else []
     command += ["--crossing"] if args.crossing else []

@@ -108,3 +108,75 @@ def test_chances_of_nothing_either_way_are_refused():
     rays, seen = _rays(-3.0, 1.0)
     with pytest.raises(InputError, match="above 0"):
         _offsets(rays, seen, ROOFS, (1.0, 0.0))
+
+
+#: The street's rows as 60 m buildings (six each side), with the same roofs as :data:`ROOFS`.
+BLOCKS = np.array(
+    [
+        shapely.box(x, y0, x + 60.0, y1)
+        for y0, y1 in ((8, 30), (-30, -8))
+        for x in range(-180, 180, 60)
+    ]
+)
+BLOCK_ROOFS = np.repeat(ROOFS, 6)
+
+
+def test_the_casts_weighed_again_are_the_casts_made_again():
+    """:class:`~gnss_citygml.calibrate.shadows.Candidates` casts once; weighed against other
+    roofs it gives what casting anew against them gives."""
+    rays, seen = _rays(-3.0, 1.0, speed=1.4)
+    unit, sd = np.zeros(seen.size, dtype=np.intp), np.array([SD])
+    chances = label_chances(seen, (0.85, 0.3))
+    candidates = shadows.Candidates(rays, unit, sd, ROWS, 300.0)
+    for roofs in (ROOFS, ROOFS + 3.0, np.array([np.nan, 16.0])):
+        again = shadow_offsets(rays, chances, unit, sd, ROWS, roofs, 300.0)
+        np.testing.assert_array_equal(candidates.offsets(chances, roofs), again)
+
+
+def test_roofs_not_known_yet_are_taken_as_tall_as_the_known_ones(monkeypatch):
+    """The blocks beside one walker have no height yet; the street's others, which two other
+    walkers see, do. The walker's fix pushed 4 m across the street comes back on the shadows
+    of the blocks beside it, taken to be as tall as the street's others; with too few known
+    roofs those say only that they reach 3 m."""
+    walkers = [_rays(-3.0, -3.0) for _ in range(3)]
+    rays = {name: np.concatenate([w[0][name] for w in walkers]) for name in walkers[0][0]}
+    unit = np.repeat(np.arange(3), walkers[0][1].size)
+    rays["e"] = rays["e"] + np.array([0.0, -150.0, 150.0])[unit]
+    ray, part, dist, _ = footprint_entries(rays["e"], rays["n"], rays["bearing"], BLOCKS, 300.0)
+    rise = 1.0 + dist * rays["tan_el"][ray]
+    seen = np.bincount(ray, BLOCK_ROOFS[part] > rise, minlength=unit.size) == 0
+    rays["n"] = np.where(unit == 0, 1.0, rays["n"])
+    sd = np.full(3, SD)
+    chances = label_chances(seen, (0.95, 0.05))
+    roofs = BLOCK_ROOFS.copy()
+    roofs[[2, 3, 8, 9]] = np.nan  # the blocks at x = -60 .. 60
+    candidates = shadows.Candidates(rays, unit, sd, BLOCKS, 300.0)
+    north = candidates.offsets(chances, roofs)[0, 1]
+    assert abs(1.0 + north + 3.0) < 1.6
+    monkeypatch.setattr(shadows, "MIN_KNOWN", 100)  # too few known: they reach 3 m, no more
+    assert abs(1.0 + candidates.offsets(chances, roofs)[0, 1] + 3.0) > 2.0
+    monkeypatch.undo()
+    few = np.full(BLOCK_ROOFS.size, np.nan)
+    few[[0, 6]] = BLOCK_ROOFS[[0, 6]]
+    assert candidates._survival(few) is None
+    heights, share = candidates._survival(roofs)
+    assert np.all(np.diff(heights) >= 0.0) and np.all(np.diff(share) <= 0.0)
+    assert share[0] == pytest.approx(1.0 - 0.5 / 8) and share[-1] == pytest.approx(0.5 / 8)
+
+
+def test_casts_beyond_what_is_kept_are_cast_again_alike(monkeypatch):
+    """Casts kept from the first round, and those cast again where the memory kept is full,
+    weigh alike."""
+    rays, seen = _rays(-3.0, 1.0, speed=1.4)
+    unit, sd = np.arange(seen.size) // 168, np.full(10, SD)  # one window an epoch
+    chances = label_chances(seen, (0.85, 0.3))
+    monkeypatch.setattr(shadows, "CHUNK", 121 * 200)  # chunks of 200 rows
+    kept = shadows.Candidates(rays, unit, sd, ROWS, 300.0)
+    first = kept.offsets(chances, ROOFS)
+    assert len(kept.kept) > 1 and kept.kept_bytes > 0
+    monkeypatch.setattr(shadows, "KEPT_BYTES", kept.kept_bytes // 2)
+    some = shadows.Candidates(rays, unit, sd, ROWS, 300.0)
+    np.testing.assert_array_equal(some.offsets(chances, ROOFS), first)
+    assert 0 < len(some.kept) < len(kept.kept)
+    for roofs in (ROOFS + 2.0, ROOFS):
+        np.testing.assert_array_equal(some.offsets(chances, roofs), kept.offsets(chances, roofs))

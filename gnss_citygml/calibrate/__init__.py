@@ -27,7 +27,10 @@ recording the same way can be absorbed by the heights, so only the prior pins it
 (:mod:`.shadows`): the rays cast exactly from a grid of candidates against the converged roofs,
 the rays that cross no footprint included, which a shared offset does not escape. The labels
 are the current signal model's, their error rates counted on the current cast (open sky,
-and rays surely below a converged roof); each window's prior is its fixes' own ``position_sd``.
+and rays surely below a converged roof); each window's prior is its fixes' own ``position_sd``,
+and with a window each window's shift is carried along its walk (:mod:`.walks`: the prior's
+scale, for phones that understate their errors, and the errors' memory told by the shadows).
+The candidates are cast once; every round weighs them against the roofs it has reached.
 Roofs fitted from fixes that all share a shift explain the shadows from there as the true ones
 do from the truth (the shift scales every ray's way to a wall), so with
 ``Calibration(heights=FIELD)`` the map's own roof heights, with their uncertainty, are matched
@@ -49,7 +52,7 @@ from ..model.mixture import Cn0Moments, elevation_units
 from ..raycast import footprint_entries
 from ..recordings import recording_windows
 from ..settings import Calibration, Estimator, Rays
-from .shadows import SEARCH_SDS, label_chances, shadow_offsets
+from .shadows import SEARCH_SDS, Candidates, label_chances
 
 __all__ = ["calibrate_receivers", "check_map_heights"]
 
@@ -127,7 +130,7 @@ def calibrate_receivers(
     n_units = int(unit.max(initial=-1)) + 1
     temper = min(1.0, _interval(receivers) / CORRELATION_TIME)
     origins = _Rays(receivers, buildings, rays.max_range)
-    shadows = _shadow_priors(receivers, buildings, calibration, unit, n_units)
+    shadows = _shadow_matching(receivers, buildings, calibration, unit, origins)
     offsets = np.zeros((n_units, 2))
     best = None
     for _ in range(calibration.rounds):
@@ -179,8 +182,8 @@ def _offset_step(origins, cast, fits, classifier, unit, n_units, offsets, sd, te
     )
 
 
-def _shadow_step(origins, cast, fits, classifier, unit, offsets, satellite, sds, prior):
-    """Each window's step of offset by shadow matching (:func:`.shadows.shadow_offsets`)
+def _shadow_step(origins, cast, fits, classifier, unit, offsets, candidates, walks, prior):
+    """Each window's step of offset by shadow matching (:meth:`.shadows.Candidates.offsets`)
     against the roofs given with the map (``prior``: heights and their standard deviations,
     NaN where none) and, for the others, the buildings that converged, labelled by the current
     classifier; none where the labels' error rates cannot be told (:func:`_label_rates`)."""
@@ -191,16 +194,7 @@ def _shadow_step(origins, cast, fits, classifier, unit, offsets, satellite, sds,
     rates = _label_rates(cast, fits, labels, np.where(given, prior[0] - 2.0 * prior[1], -np.inf))
     if rates is None:
         return np.zeros_like(offsets)
-    found = shadow_offsets(
-        origins.shadow_rays(satellite),
-        label_chances(labels, rates),
-        unit,
-        sds,
-        origins.footprints,
-        heights,
-        origins.max_range,
-        height_sd,
-    )
+    found = candidates.offsets(label_chances(labels, rates), heights, height_sd, walks)
     return found - offsets
 
 
@@ -229,20 +223,38 @@ def _label_rates(cast, fits, labels, below) -> tuple[float, float] | None:
     return (p_open, p_blocked) if p_open - p_blocked >= 0.1 else None
 
 
-def _shadow_priors(receivers, buildings, calibration, unit, n_units):
-    """For shadow matching (None for the roof lines): each row's satellite (one vote a window
-    each), each window's prior standard deviation (m), the median of its rows' own
-    ``position_sd`` (a phone fix's accuracy) where they have a positive one, else the
-    calibration's prior, and the roofs given with the map (:func:`_given_roofs`)."""
+def _shadow_matching(receivers, buildings, calibration, unit, origins):
+    """For shadow matching (None for the roof lines): the windows' candidates cast once
+    (:class:`.shadows.Candidates`: each row's satellite, one vote a window; each window's
+    prior standard deviation (m), the median of its rows' own ``position_sd`` (a phone fix's
+    accuracy) where they have a positive one, else the calibration's prior), with a window the
+    walks that carry each window's shift (:func:`_walks`), and the roofs given with the map
+    (:func:`_given_roofs`)."""
     if calibration.matching != "shadows":
         return None
+    n_units = int(unit.max(initial=-1)) + 1
     satellite = receivers.groupby(["constellation", "svid"], sort=False).ngroup().to_numpy()
     sds = np.full(n_units, float(calibration.prior_sd))
     if "position_sd" in receivers.columns:
         own = pd.to_numeric(receivers["position_sd"], errors="coerce")
         own = own.where(own > 0).groupby(unit).median().reindex(range(n_units))
         sds = own.fillna(calibration.prior_sd).to_numpy(float)
-    return satellite, sds, _given_roofs(buildings, calibration)
+    candidates = Candidates(
+        origins.shadow_rays(satellite), unit, sds, origins.footprints, origins.max_range
+    )
+    walks = None if calibration.window is None else _walks(receivers, unit, n_units)
+    return candidates, walks, _given_roofs(buildings, calibration)
+
+
+def _walks(receivers, unit, n_units) -> tuple[np.ndarray, np.ndarray]:
+    """Per window of :func:`~gnss_citygml.recordings.recording_windows`: its recording (a
+    number) and its rows' mean time (s from the first row's), for :func:`.walks.walk_offsets`."""
+    when = pd.to_datetime(receivers["time_utc"])
+    seconds = (when - when.min()).dt.total_seconds().to_numpy()
+    rows = np.maximum(np.bincount(unit, minlength=n_units), 1)
+    recording = np.zeros(n_units, dtype=np.intp)
+    recording[unit] = pd.factorize(receivers["receiver"])[0]
+    return recording, np.bincount(unit, seconds, minlength=n_units) / rows
 
 
 def check_map_heights(footprints: pd.DataFrame, calibration: Calibration) -> None:

@@ -403,7 +403,8 @@ class Calibration:
     matching
         How each offset is found (:data:`MATCHINGS`): ``roof lines`` (default), or ``shadows``,
         where each window's prior is its fixes' own ``position_sd`` where the data have one
-        (about 10 s windows for phone fixes).
+        (about 10 s windows for phone fixes) and, with a window, each window's shift is carried
+        along its walk (:mod:`gnss_citygml.calibrate.walks`).
     heights
         With shadow matching: the footprints' field of roof heights above the ground given
         with the map (e.g. OS's ``relh2``, or a previous run's ``relative_height``), matched

@@ -8,6 +8,8 @@ recording its own phone (``scenes.phones``), in streets as harsh as real ones
 is what ``update`` gives a map updated day by day (its heights are the full run's:
 docs/update.md). One initial threshold (30 dB-Hz). Epochs are thinned where many days would
 pass the simulator's limit (at most 150,000 epochs a run: 2 s apart for 20 days, 5 s for 50).
+With ``--match`` the fixes are placed by shadow matching first (:data:`MATCHING`; issue 48,
+item 2: docs/issue-48-shadows.md).
 
     python data_needs.py [--scenes 5] [--days 1 5 20 50] [--signal-model mixture] [--today]
                               [--match]

@@ -174,8 +174,7 @@ def test_casts_beyond_what_is_kept_are_cast_again_alike(monkeypatch):
     kept = shadows.Candidates(rays, unit, sd, ROWS, 300.0)
     first = kept.offsets(chances, ROOFS)
     assert len(kept.kept) > 1 and kept.kept_bytes > 0
-    monkeypatch.setattr(shadows, "KEPT_BYTES", kept.kept_bytes // 2)
-    some = shadows.Candidates(rays, unit, sd, ROWS, 300.0)
+    some = shadows.Candidates(rays, unit, sd, ROWS, 300.0, keep=kept.kept_bytes // 2)
     np.testing.assert_array_equal(some.offsets(chances, ROOFS), first)
     assert 0 < len(some.kept) < len(kept.kept)
     for roofs in (ROOFS + 2.0, ROOFS):

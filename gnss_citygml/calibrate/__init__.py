@@ -52,7 +52,7 @@ from ..model.mixture import Cn0Moments, elevation_units
 from ..raycast import footprint_entries
 from ..recordings import recording_windows
 from ..settings import Calibration, Estimator, Rays
-from .shadows import SEARCH_SDS, Candidates, label_chances
+from .shadows import KEPT_BYTES, SEARCH_SDS, Candidates, label_chances
 
 __all__ = ["calibrate_receivers", "check_map_heights"]
 
@@ -240,7 +240,12 @@ def _shadow_matching(receivers, buildings, calibration, unit, origins):
         own = own.where(own > 0).groupby(unit).median().reindex(range(n_units))
         sds = own.fillna(calibration.prior_sd).to_numpy(float)
     candidates = Candidates(
-        origins.shadow_rays(satellite), unit, sds, origins.footprints, origins.max_range
+        origins.shadow_rays(satellite),
+        unit,
+        sds,
+        origins.footprints,
+        origins.max_range,
+        keep=KEPT_BYTES if calibration.rounds > 1 else 0,  # one round weighs them once
     )
     walks = None if calibration.window is None else _walks(receivers, unit, n_units)
     return candidates, walks, _given_roofs(buildings, calibration)

@@ -107,7 +107,7 @@ def shadow_offsets(
         Per window: its recording and its time (s), to carry each window's shift along its walk
         (:func:`.walks.walk_offsets`); None: each window alone, with its own prior.
     """
-    candidates = Candidates(rays, unit, sd, footprints, max_range)
+    candidates = Candidates(rays, unit, sd, footprints, max_range, keep=0)  # weighed once
     return candidates.offsets(chances, heights, height_sd, walks)
 
 
@@ -116,9 +116,10 @@ class Candidates:
     vote: :data:`EPOCHS`), cast from every candidate shift of the window's grid against the
     footprints. What is cast does not depend on the roofs, so the rounds of a calibration weigh
     the same casts against the heights they have reached (:meth:`offsets`): the casts of the
-    first round are kept for the next ones up to :data:`KEPT_BYTES`, the others cast again."""
+    first round are kept for the next ones up to ``keep`` bytes (:data:`KEPT_BYTES`; 0 for one
+    round), the others cast again."""
 
-    def __init__(self, rays, unit, sd, footprints, max_range):
+    def __init__(self, rays, unit, sd, footprints, max_range, keep=KEPT_BYTES):
         vote = np.unique(  # one satellite in one window
             rays["satellite"] * (int(unit.max(initial=0)) + 1) + unit, return_inverse=True
         )[1]
@@ -132,7 +133,7 @@ class Candidates:
         self.antenna = _antennas(rays, footprints, max_range)
         self.inside = _inside(rays, unit, self.half, footprints)
         self.kept: dict[int, tuple[np.ndarray, ...]] = {}
-        self.kept_bytes = 0
+        self.kept_bytes, self.keep = 0, keep
 
     def offsets(self, chances, heights, height_sd=None, walks=None) -> np.ndarray:
         """Each window's offset (east, north; m) given the rows' ``chances`` and the roofs
@@ -166,7 +167,7 @@ class Candidates:
         """Per chunk of rows: its first row and, per entry, its cell within the chunk (row x
         candidate, ``row * candidates + candidate``), the footprint entered and the ray's height
         above the antenna at the wall (m, to the millimetre in single precision), in order of
-        cell; kept while they fit in :data:`KEPT_BYTES`, else cast again each round."""
+        cell; kept while they fit in ``keep`` bytes, else cast again each round."""
         n_cand = _SX.size
         for first in range(0, self.rows.size, self.per_chunk):
             if first in self.kept:
@@ -187,7 +188,7 @@ class Candidates:
                 (dist * self.rays["tan_el"][rows][cell // n_cand]).astype(np.float32),
             )
             size = sum(a.nbytes for a in entries)
-            if self.kept_bytes + size <= KEPT_BYTES:
+            if self.kept_bytes + size <= self.keep:
                 self.kept[first] = entries
                 self.kept_bytes += size
             yield first, *entries

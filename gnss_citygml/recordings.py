@@ -21,7 +21,7 @@ import pandas as pd
 
 from .errors import InputError
 
-__all__ = ["STILL", "position_groups", "recording_windows"]
+__all__ = ["STILL", "position_groups", "recording_windows", "window_walks"]
 
 #: Seconds a receiver's reported position must stay exactly the same for it to be standing at
 #: one point (placed by hand, surveyed): a phone's own fixes move a little every epoch.
@@ -67,6 +67,19 @@ def recording_windows(rows: pd.DataFrame, window: float | None = None) -> np.nda
     slot = (ns - start[receiver]) // max(round(window * 1e9), 1)
     # one int64 key per (receiver, slot): both codes are below the number of rows
     return pd.factorize(receiver * (int(slot.max(initial=0)) + 1) + slot)[0].astype(np.intp)
+
+
+def window_walks(rows: pd.DataFrame, unit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per window of :func:`recording_windows` (``unit``, one code a row): its recording (a
+    number) and its rows' mean time (s from the first row's, whatever their time zone), the
+    walks along which :func:`~gnss_citygml.calibrate.walks.walk_offsets` carries shifts."""
+    n_units = int(unit.max(initial=-1)) + 1
+    ns = _nanoseconds(rows).to_numpy()
+    seconds = (ns - (ns.min() if ns.size else 0)) / 1e9
+    recording = np.zeros(n_units, dtype=np.intp)
+    recording[unit] = pd.factorize(rows["receiver"])[0]
+    count = np.maximum(np.bincount(unit, minlength=n_units), 1)
+    return recording, np.bincount(unit, seconds, minlength=n_units) / count
 
 
 def position_groups(

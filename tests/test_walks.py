@@ -3,10 +3,12 @@ scale and correlation time come from the shadows themselves, and a window that c
 it was takes its neighbours' shift."""
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from gnss_citygml.calibrate import walks
 from gnss_citygml.calibrate.walks import walk_offsets
+from gnss_citygml.recordings import recording_windows, window_walks
 
 AXIS = np.linspace(-1.0, 1.0, 11)
 EAST, NORTH = (a.ravel() for a in np.meshgrid(AXIS, AXIS))  # north-major, as the shadows'
@@ -98,3 +100,13 @@ def test_windows_given_in_any_order_are_walked_in_time():
     found = walk_offsets(score, AXIS, half, sd, walk, time)[0]
     shuffled = walk_offsets(score[order], AXIS, half[order], sd[order], walk[order], time[order])
     np.testing.assert_allclose(shuffled[0], found[order], atol=1e-12)
+
+
+def test_each_window_is_placed_on_its_walk_in_time_whatever_the_time_zone():
+    times = ["2020-06-01T10:00:00Z", "2020-06-01T10:00:04Z", "2020-06-01T10:00:12Z"]
+    rows = pd.DataFrame({"receiver": ["a", "a", "a", "b"], "time_utc": times + [times[0]]})
+    unit = recording_windows(rows, 10.0)
+    walk, time = window_walks(rows, unit)
+    assert walk.tolist() == [0, 0, 1] and time.tolist() == [2.0, 12.0, 0.0]
+    local = rows.assign(time_utc=pd.to_datetime(rows["time_utc"]).dt.tz_convert("Europe/London"))
+    np.testing.assert_array_equal(window_walks(local, unit)[1], time)

@@ -50,7 +50,7 @@ from ..model.estimate import fourplb
 from ..model.fourpl import logistic4
 from ..model.mixture import Cn0Moments, elevation_units
 from ..raycast import footprint_entries
-from ..recordings import recording_windows
+from ..recordings import recording_windows, window_walks
 from ..settings import Calibration, Estimator, Rays
 from .shadows import KEPT_BYTES, SEARCH_SDS, Candidates, label_chances
 
@@ -228,8 +228,8 @@ def _shadow_matching(receivers, buildings, calibration, unit, origins):
     (:class:`.shadows.Candidates`: each row's satellite, one vote a window; each window's
     prior standard deviation (m), the median of its rows' own ``position_sd`` (a phone fix's
     accuracy) where they have a positive one, else the calibration's prior), with a window the
-    walks that carry each window's shift (:func:`_walks`), and the roofs given with the map
-    (:func:`_given_roofs`)."""
+    walks that carry each window's shift (:func:`~gnss_citygml.recordings.window_walks`), and
+    the roofs given with the map (:func:`_given_roofs`)."""
     if calibration.matching != "shadows":
         return None
     n_units = int(unit.max(initial=-1)) + 1
@@ -247,19 +247,8 @@ def _shadow_matching(receivers, buildings, calibration, unit, origins):
         origins.max_range,
         keep=KEPT_BYTES if calibration.rounds > 1 else 0,  # one round weighs them once
     )
-    walks = None if calibration.window is None else _walks(receivers, unit, n_units)
+    walks = None if calibration.window is None else window_walks(receivers, unit)
     return candidates, walks, _given_roofs(buildings, calibration)
-
-
-def _walks(receivers, unit, n_units) -> tuple[np.ndarray, np.ndarray]:
-    """Per window of :func:`~gnss_citygml.recordings.recording_windows`: its recording (a
-    number) and its rows' mean time (s from the first row's), for :func:`.walks.walk_offsets`."""
-    when = pd.to_datetime(receivers["time_utc"])
-    seconds = (when - when.min()).dt.total_seconds().to_numpy()
-    rows = np.maximum(np.bincount(unit, minlength=n_units), 1)
-    recording = np.zeros(n_units, dtype=np.intp)
-    recording[unit] = pd.factorize(receivers["receiver"])[0]
-    return recording, np.bincount(unit, seconds, minlength=n_units) / rows
 
 
 def check_map_heights(footprints: pd.DataFrame, calibration: Calibration) -> None:

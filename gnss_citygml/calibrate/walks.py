@@ -69,12 +69,12 @@ def walk_offsets(
     best = None
     for scale in SCALES:
         for tau in TAUS:
-            evidence = chain.forward(scale * sd, tau)[1]
+            alpha, evidence = chain.forward(scale * sd, tau)
             if best is None or evidence > best[0] + 1e-9:
-                best = (evidence, scale, tau)
+                best = (evidence, scale, tau, alpha)
     assert best is not None
-    evidence, scale, tau = best
-    post = chain.posterior(scale * sd, tau)
+    evidence, scale, tau, alpha = best
+    post = chain.posterior(alpha, scale * sd, tau)
     g = axis.size
     grid = post.reshape(-1, g, g)
     east = half * np.einsum("wne,e->w", grid, axis)
@@ -97,7 +97,6 @@ class _Chain:
         lik = np.exp(score - np.where(np.isfinite(peak), peak, 0.0))
         lik[~np.isfinite(peak[:, 0])] = 1.0  # every candidate ruled out: no evidence
         self.lik = lik[self.order].reshape(-1, axis.size, axis.size)
-        self.peak = np.where(np.isfinite(peak[:, 0]), peak[:, 0], 0.0)
 
     def _prior(self, sd):
         """Each window's stationary prior on its grid, per axis ``(windows, g)``."""
@@ -138,9 +137,10 @@ class _Chain:
             evidence += float(np.sum(np.log(np.maximum(total, 1e-300))))
         return alpha, evidence
 
-    def posterior(self, sd, tau):
-        """Each window's posterior chances ``(windows, g * g)``, in the windows' own order."""
-        alpha = self.forward(sd, tau)[0]
+    def posterior(self, alpha, sd, tau):
+        """Each window's posterior chances ``(windows, g * g)``, in the windows' own order,
+        from the filtered chances ``alpha`` of :meth:`forward` with the same ``sd`` and
+        ``tau``."""
         beta = np.ones_like(alpha)
         last = int(self.step.max(initial=-1))
         for k in range(last, 0, -1):
